@@ -1,0 +1,340 @@
+"""Rig configuration: YAML in, typed and validated dataclasses out.
+
+A rig description names the stage, the camera, the optics, the acquisition plan and the
+calibration/reconstruction settings. It is loaded with :func:`yaml.safe_load` and checked
+field by field; every mistake becomes a :class:`~vastcal.errors.ConfigError` whose one-line
+message names the file, the key path and what was expected, e.g.::
+
+    config/vast-rig.yaml: camera.exposure_us: expected a number > 0, got -5
+
+Units are in the key names (``_us`` microseconds, ``_um`` micrometres, ``_deg`` degrees,
+``_s`` seconds, ``_px`` pixels, ``_db`` decibel) so that a YAML file reads unambiguously.
+
+The embedded default is ``config/simulated.yaml`` (no hardware). :func:`load_config` with
+``None`` loads it; :func:`dump_config` gives the resolved YAML that a session stores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from vastcal.errors import ConfigError
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+"""Folder of the shipped rig descriptions (``config/`` at the project root)."""
+
+DEFAULT_CONFIG = CONFIG_DIR / "simulated.yaml"
+"""The embedded default rig: fully simulated, no hardware."""
+
+
+def _range(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> dict[str, Any]:
+    """Field metadata giving an allowed numeric range (inclusive unless ``lo_open``)."""
+    return {"lo": lo, "hi": hi, "lo_open": lo_open}
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    """Rotation stage on a serial line (Zaber ASCII protocol).
+
+    ``url`` is any pyserial URL: ``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://…``, or
+    ``sim://zaber`` for the in-process simulator.
+    """
+
+    protocol: Literal["zaber-ascii"] = "zaber-ascii"
+    url: str = "sim://zaber"
+    baudrate: int = field(default=115200, metadata=_range(300, 4_000_000))
+    device: int = field(default=1, metadata=_range(1, 99))
+    axis: int = field(default=1, metadata=_range(1, 9))
+    checksums: bool = True
+    reply_timeout_s: float = field(default=0.5, metadata=_range(0.0, 60.0, lo_open=True))
+    home_on_start: bool = True
+    home_timeout_s: float = field(default=60.0, metadata=_range(0.0, 3600.0, lo_open=True))
+    settle_s: float = field(default=0.02, metadata=_range(0.0, 10.0))
+    position_tolerance_usteps: int = field(default=0, metadata=_range(0, 1_000_000))
+    maxspeed: int | None = field(default=None, metadata=_range(1, None))
+    """Optional speed to set on open, in device units (read back and recorded either way)."""
+
+
+@dataclass(frozen=True)
+class RoiConfig:
+    """Camera region of interest in full-sensor pixels (0-based offsets)."""
+
+    x: int = field(default=0, metadata=_range(0, 100_000))
+    y: int = field(default=0, metadata=_range(0, 100_000))
+    width: int = field(default=1024, metadata=_range(1, 100_000))
+    height: int = field(default=1024, metadata=_range(1, 100_000))
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """GenICam GenTL camera through harvesters, or the numpy simulator."""
+
+    driver: Literal["genicam", "simulated"] = "simulated"
+    cti: str | None = None
+    """Path of the GenTL producer (``.cti``); ``None`` uses the ``GENICAM_GENTL64_PATH`` search."""
+    serial_number: str | None = None
+    """Device to open; ``None`` opens the first device the producer lists."""
+    pixel_format: Literal["Mono8", "Mono12", "Mono12Packed", "Mono12p", "Mono16", "RGB8", "BayerRG8", "BayerGR8", "BayerBG8", "BayerGB8", "RGBa8"] = "Mono12"
+    exposure_us: float = field(default=5000.0, metadata=_range(0.0, 60_000_000.0, lo_open=True))
+    gain_db: float = field(default=0.0, metadata=_range(0.0, 48.0))
+    fetch_timeout_s: float = field(default=2.0, metadata=_range(0.0, 600.0, lo_open=True))
+    packet_size: int | None = field(default=None, metadata=_range(576, 16000))
+    """GigE packet size in bytes; must not exceed the network path's MTU (default: leave as is)."""
+    roi: RoiConfig = field(default_factory=RoiConfig)
+
+
+@dataclass(frozen=True)
+class OpticsConfig:
+    """Imaging geometry that fixes the intrinsic matrix K.
+
+    The focal length in pixels is ``working_distance_um * magnification / pixel_size_um``
+    (a telecentric-like microscope imaged as a pinhole at the working distance), unless
+    ``focal_length_px`` is given. The principal point is in full-sensor pixels (0-based);
+    ``None`` means the sensor centre.
+    """
+
+    pixel_size_um: float = field(default=5.5, metadata=_range(0.0, 1000.0, lo_open=True))
+    magnification: float = field(default=1.0, metadata=_range(0.0, 1000.0, lo_open=True))
+    working_distance_um: float = field(default=65000.0, metadata=_range(0.0, 1e7, lo_open=True))
+    focal_length_px: float | None = field(default=None, metadata=_range(0.0, None, lo_open=True))
+    sensor_width_px: int = field(default=1024, metadata=_range(1, 100_000))
+    sensor_height_px: int = field(default=1024, metadata=_range(1, 100_000))
+    principal_point_px: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class AcquisitionConfig:
+    """The revolution to acquire: ``views`` frames at absolute targets round(k·cycle/views)."""
+
+    views: int = field(default=21, metadata=_range(3, 100_000))
+    flat_frames: int = field(default=0, metadata=_range(0, 1000))
+    dark_frames: int = field(default=0, metadata=_range(0, 1000))
+
+
+@dataclass(frozen=True)
+class CalibrationBounds:
+    """Half-widths of the search box around θ0, in degrees (γ: axis placement angle)."""
+
+    yaw_deg: float = field(default=3.0, metadata=_range(0.0, 45.0))
+    pitch_deg: float = field(default=3.0, metadata=_range(0.0, 45.0))
+    gamma_deg: float = field(default=1.0, metadata=_range(0.0, 45.0))
+    roll_deg: float = field(default=5.0, metadata=_range(0.0, 90.0))
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    """Settings of ``vastcal calibrate`` (command-line flags override them)."""
+
+    method: Literal["pi", "vr"] = "pi"
+    free: tuple[str, ...] = ("yaw", "pitch", "gamma", "rolls")
+    seed: int = field(default=0, metadata=_range(0, 2**31 - 1))
+    bounds: CalibrationBounds = field(default_factory=CalibrationBounds)
+
+
+@dataclass(frozen=True)
+class ReconstructionConfig:
+    """Settings of the visual hull; ``voxel_size_um`` ``None`` picks it from the specimen extent."""
+
+    voxel_size_um: float | None = field(default=None, metadata=_range(0.0, None, lo_open=True))
+    target_voxels: int = field(default=5_000_000, metadata=_range(1000, 500_000_000))
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """How the simulated rig draws its hidden truth (never read by calibration).
+
+    Truth values are drawn uniformly within ± these limits from ``seed``.
+    """
+
+    seed: int = field(default=1, metadata=_range(0, 2**31 - 1))
+    max_drift_deg: float = field(default=2.0, metadata=_range(0.0, 30.0))
+    max_tilt_deg: float = field(default=1.0, metadata=_range(0.0, 10.0))
+    max_axis_offset_um: float = field(default=60.0, metadata=_range(0.0, 10_000.0))
+    usteps_per_revolution: int = field(default=1_152_000, metadata=_range(360, 100_000_000))
+    backlash_usteps: int = field(default=0, metadata=_range(0, 100_000))
+    noise: float = field(default=1.0, metadata=_range(0.0, 100.0))
+    """Shot-noise scale (1 = physical Poisson noise at the configured full well)."""
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """A whole rig description; see ``config/vast-rig.yaml`` for a commented example."""
+
+    name: str = "simulated"
+    stage: StageConfig = field(default_factory=StageConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    optics: OpticsConfig = field(default_factory=OpticsConfig)
+    acquisition: AcquisitionConfig = field(default_factory=AcquisitionConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    simulation: SimulationConfig | None = None
+    source: str = field(default="<defaults>", compare=False, repr=False)
+    """Where this configuration was read from (not a YAML key)."""
+
+
+_NOT_KEYS = {"source"}
+
+
+def _describe(tp: Any) -> str:
+    """A human name for an annotation, for error messages."""
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return " or ".join(_describe(a) for a in args) + (" or null" if type(None) in typing.get_args(tp) else "")
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"a list of {_describe(args[0])}"
+        return f"a list of {len(args)} values"
+    if dataclasses.is_dataclass(tp):
+        return "a mapping"
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(tp, str(tp))
+
+
+def _convert(value: Any, tp: Any, where: str, fail: typing.Callable[[str, str], ConfigError], meta: dict[str, Any]) -> Any:
+    """Check ``value`` against annotation ``tp`` and return it converted; raise via ``fail``."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _convert(value, inner[0], where, fail, meta)
+    if origin is Literal:
+        if value not in typing.get_args(tp):
+            raise fail(where, f"expected {_describe(tp)}, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise fail(where, f"expected {_describe(tp)}, got {value!r}")
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], f"{where}[{i}]", fail, {}) for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise fail(where, f"expected {_describe(tp)}, got {len(value)}")
+        return tuple(_convert(v, a, f"{where}[{i}]", fail, {}) for i, (v, a) in enumerate(zip(value, args)))
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, where, fail)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise fail(where, f"expected true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise fail(where, f"expected an integer, got {value!r}")
+    elif tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise fail(where, f"expected a number, got {value!r}")
+        value = float(value)
+    elif tp is str:
+        if not isinstance(value, str):
+            raise fail(where, f"expected a string, got {value!r}")
+        return value
+    lo, hi, lo_open = meta.get("lo"), meta.get("hi"), meta.get("lo_open", False)
+    if lo is not None and (value < lo or (lo_open and value == lo)):
+        bound = f"> {lo}" if lo_open else f">= {lo}"
+        raise fail(where, f"expected {_describe(tp)} {bound}" + (f" and <= {hi}" if hi is not None else "") + f", got {value!r}")
+    if hi is not None and value > hi:
+        raise fail(where, f"expected {_describe(tp)} <= {hi}, got {value!r}")
+    return value
+
+
+def _build(cls: Any, data: Any, where: str, fail: typing.Callable[[str, str], ConfigError]) -> Any:
+    """Build dataclass ``cls`` from mapping ``data`` found at key path ``where``."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise fail(where or "<top level>", f"expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name not in _NOT_KEYS}
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        path = f"{where}.{key}" if where else str(key)
+        if key not in fields:
+            close = difflib.get_close_matches(str(key), list(fields), n=1)
+            hint = f"; did you mean '{close[0]}'?" if close else f"; known keys: {', '.join(fields)}"
+            raise fail(path, f"unknown key{hint}")
+        f = fields[key]
+        tp = hints[key]
+        if typing.get_origin(tp) in (typing.Union, types.UnionType) and value is not None:
+            inner = [a for a in typing.get_args(tp) if a is not type(None)]
+            if dataclasses.is_dataclass(inner[0]):
+                tp = inner[0]
+        kwargs[key] = _convert(value, tp, path, fail, dict(f.metadata))
+    for name, f in fields.items():
+        if name not in kwargs and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise fail(f"{where}.{name}" if where else name, "missing required field")
+    return cls(**kwargs)
+
+
+def parse_config(data: Any, source: str = "<string>") -> RigConfig:
+    """Validate a mapping (as from ``yaml.safe_load``) into a :class:`RigConfig`.
+
+    Raises:
+        ConfigError: on any unknown key, wrong type, missing field or out-of-range value.
+    """
+
+    def fail(path: str, what: str) -> ConfigError:
+        return ConfigError(f"{source}: {path}: {what}")
+
+    cfg = _build(RigConfig, data, "", fail)
+    if cfg.camera.driver == "simulated" and cfg.simulation is None:
+        cfg = dataclasses.replace(cfg, simulation=SimulationConfig())
+    roi, optics = cfg.camera.roi, cfg.optics
+    if roi.x + roi.width > optics.sensor_width_px or roi.y + roi.height > optics.sensor_height_px:
+        raise fail("camera.roi", f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, got x={roi.x} width={roi.width} y={roi.y} height={roi.height}")
+    for name in cfg.calibration.free:
+        if name not in ("yaw", "pitch", "gamma", "rolls", "all", "none"):
+            raise fail("calibration.free", f"expected names from yaw, pitch, gamma, rolls, all, none; got {name!r}")
+    return dataclasses.replace(cfg, source=source)
+
+
+def load_config(path: str | Path | None = None) -> RigConfig:
+    """Read and validate a rig YAML file; ``None`` loads the embedded simulated rig.
+
+    Raises:
+        ConfigError: unreadable file, YAML syntax error, or invalid content (one-line message).
+    """
+    p = Path(path) if path is not None else DEFAULT_CONFIG
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: cannot read the rig configuration: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read the rig configuration: {exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{p}: YAML syntax error at {where}{problem}") from None
+    return parse_config(data, source=str(p))
+
+
+def config_to_dict(cfg: RigConfig) -> dict[str, Any]:
+    """The configuration as plain YAML-able data (tuples become lists), without ``source``."""
+
+    def plain(v: Any) -> Any:
+        if dataclasses.is_dataclass(v):
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v) if f.name not in _NOT_KEYS}
+        if isinstance(v, (tuple, list)):
+            return [plain(x) for x in v]
+        return v
+
+    return plain(cfg)
+
+
+def dump_config(cfg: RigConfig) -> str:
+    """The resolved configuration as YAML text (what a session stores as its rig snapshot)."""
+    return yaml.safe_dump(config_to_dict(cfg), sort_keys=False)

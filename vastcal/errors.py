@@ -1,0 +1,145 @@
+"""The one exception tree of vastcal, its drivers and its simulators.
+
+Every error that vastcal raises on purpose derives from :class:`VastcalError` *and*
+from the builtin that best describes it, so callers may catch either
+(``except TimeoutError`` works for a stage that stopped answering).
+
+The command line turns any :class:`VastcalError` into one line on stderr and the
+exit code given by :attr:`VastcalError.exit_code`; a traceback is shown only for
+bugs (anything else).
+
+Tree::
+
+    VastcalError
+    ├── UserInputError                 bad input from a user: exit code 2
+    │   ├── ConfigError(ValueError)    rig YAML unreadable, unknown key, wrong type, out of range
+    │   ├── ImportDataError(ValueError)image folder / camera file that cannot be imported
+    │   └── OutputExistsError(FileExistsError) refusing to overwrite without --force
+    ├── SessionError                   a session file that is not ours or is damaged
+    │   ├── NotASessionError(ValueError)   not HDF5, truncated, or written by another program
+    │   └── SessionIncompleteError         frames missing / acquisition did not finish
+    ├── DeviceError                    hardware (or simulated hardware) misbehaved
+    │   ├── DeviceTimeoutError(TimeoutError)  no (complete) answer within the finite wait
+    │   ├── ProtocolError(IOError)     garbage, wrong checksum, reply that does not parse
+    │   ├── CommandRejectedError       the device answered RJ <reason>
+    │   ├── StageFaultError            a fault flag (F…) after a move, e.g. FS stall
+    │   ├── PositionMismatchError      the read-back position differs from the target
+    │   ├── NotHomedError              WR/WH: home the stage first
+    │   ├── DeviceDisconnectedError(ConnectionError) the port went away
+    │   └── CameraError                the camera refused a setting or delivered nothing
+    ├── AcquisitionAborted             the operator pressed Ctrl-C (exit status "abort")
+    └── AnalysisError(ValueError)      calibration / reconstruction cannot proceed on this data
+        ├── ColourModelError           foreground and background cannot be separated
+        ├── EmptyHullError             every voxel was carved away
+        └── MissingStageError          a later stage needs an earlier one ("run vastcal calibrate")
+"""
+
+from __future__ import annotations
+
+
+class VastcalError(Exception):
+    """Base of every error vastcal raises on purpose.
+
+    ``exit_code`` is what the command line exits with when this error ends a command.
+    """
+
+    exit_code: int = 1
+
+
+class UserInputError(VastcalError):
+    """The user gave input that cannot be used (raised before anything is written)."""
+
+    exit_code = 2
+
+
+class ConfigError(UserInputError, ValueError):
+    """The rig configuration is unreadable or invalid.
+
+    The message names the file, the key path (``camera.exposure_us``) and what was expected.
+    """
+
+
+class ImportDataError(UserInputError, ValueError):
+    """An image folder, mask folder, angle file or camera file cannot be imported."""
+
+
+class OutputExistsError(UserInputError, FileExistsError):
+    """The output file exists and ``--force`` was not given; nothing was written."""
+
+
+class SessionError(VastcalError):
+    """A session file cannot be used."""
+
+
+class NotASessionError(SessionError, ValueError):
+    """The file is not HDF5, is truncated, or is an HDF5 file that vastcal did not write."""
+
+
+class SessionIncompleteError(SessionError):
+    """The session lacks frames or metadata a stage needs (e.g. acquisition was interrupted)."""
+
+
+class DeviceError(VastcalError):
+    """A device (real or simulated) misbehaved."""
+
+
+class DeviceTimeoutError(DeviceError, TimeoutError):
+    """No complete reply or frame arrived within the finite timeout."""
+
+
+class ProtocolError(DeviceError, IOError):
+    """The device answered bytes that do not parse as the expected protocol."""
+
+
+class CommandRejectedError(DeviceError):
+    """The device rejected a command; :attr:`reason` holds its word verbatim (e.g. ``BADDATA``)."""
+
+    def __init__(self, message: str, reason: str = "") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class StageFaultError(DeviceError):
+    """The stage reports a fault flag (``F…``) after a move; :attr:`flag` holds it (e.g. ``FS``)."""
+
+    def __init__(self, message: str, flag: str = "") -> None:
+        super().__init__(message)
+        self.flag = flag
+
+
+class PositionMismatchError(DeviceError):
+    """After a move the read-back position differs from the target by more than the tolerance."""
+
+
+class NotHomedError(DeviceError):
+    """The stage has no reference position (``WR``/``WH``): home it before absolute moves."""
+
+
+class DeviceDisconnectedError(DeviceError, ConnectionError):
+    """The port or camera went away."""
+
+
+class CameraError(DeviceError):
+    """The camera refused a setting, or delivered an unusable frame."""
+
+
+class AcquisitionAborted(VastcalError):
+    """The operator cancelled the acquisition (Ctrl-C); the session is closed with status abort."""
+
+    exit_code = 130
+
+
+class AnalysisError(VastcalError, ValueError):
+    """Calibration, reconstruction or measurement cannot proceed on this data."""
+
+
+class ColourModelError(AnalysisError):
+    """The foreground and background colour models cannot be learned or do not separate."""
+
+
+class EmptyHullError(AnalysisError):
+    """The visual hull is empty: the cameras or the silhouettes are inconsistent."""
+
+
+class MissingStageError(AnalysisError):
+    """A stage needs the result of an earlier one; the message says which command to run."""

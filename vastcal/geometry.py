@@ -1,0 +1,289 @@
+"""Camera geometry of a specimen rotating about one axis in front of a fixed camera.
+
+Frames and units
+----------------
+* **World** = specimen frame, in micrometres (µm). The rotation axis is world **x** (the larva's
+  long axis, the image horizontal); the axis passes through the world origin.
+* **Camera** frame: x right, y down, z along the optical axis (OpenCV convention), µm.
+* **Pixels**: 0-based coordinates of the *stored* frame, i.e. the centre of the top-left pixel
+  is (0, 0). A camera ROI shifts the principal point by the ROI offset; a 1-based convention
+  (MATLAB, the zebrafish authors' files) differs by one pixel in x and y.
+
+The model (``../shared/DESIGN.md``)::
+
+    P_i = K · [R_axis | t_axis] · [Rx(ω_i) | 0]
+    R_axis = Rz(pitch) · Ry(yaw)         tilt of the rotation axis
+    t_axis = d · [0, sin γ, cos γ]       axis at distance d, γ moves it off-centre (vertically)
+
+θ = [yaw, pitch, γ, ω_0 … ω_{N−1}] in degrees. ω_0 is normally held at the commanded angle of
+view 0 (0°): it only fixes the specimen's orientation about the axis.
+
+Imported turntable cameras with arbitrary world frames are brought into this model by
+:func:`decompose_circular`, which finds the axis from the cameras' relative rotations, the
+circle of camera centres, and the similarity transform from the data's world frame to ours.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vastcal.config import OpticsConfig, RoiConfig
+from vastcal.errors import AnalysisError
+
+log = logging.getLogger(__name__)
+
+
+def rot_x(angle_rad: np.ndarray | float) -> np.ndarray:
+    """Rotation matrices about x for angles in radians; shape (..., 3, 3)."""
+    a = np.asarray(angle_rad, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+
+
+def rot_y(angle_rad: np.ndarray | float) -> np.ndarray:
+    """Rotation matrices about y for angles in radians; shape (..., 3, 3)."""
+    a = np.asarray(angle_rad, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+def rot_z(angle_rad: np.ndarray | float) -> np.ndarray:
+    """Rotation matrices about z for angles in radians; shape (..., 3, 3)."""
+    a = np.asarray(angle_rad, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def intrinsics_from_optics(optics: OpticsConfig, roi: RoiConfig | None = None, binning: int = 1) -> np.ndarray:
+    """Intrinsic matrix K (pixels, 0-based, of the stored ROI frame) from the rig's optics.
+
+    Focal length in pixels ``f = working_distance_um · magnification / pixel_size_um`` unless
+    ``focal_length_px`` is set; principal point defaults to the sensor centre
+    ``((W − 1)/2, (H − 1)/2)`` and is shifted by the ROI offset.
+    """
+    f = optics.focal_length_px or optics.working_distance_um * optics.magnification / optics.pixel_size_um
+    if optics.principal_point_px is not None:
+        cx, cy = optics.principal_point_px
+    else:
+        cx, cy = (optics.sensor_width_px - 1) / 2.0, (optics.sensor_height_px - 1) / 2.0
+    if roi is not None:
+        cx, cy = cx - roi.x, cy - roi.y
+    K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    if binning != 1:
+        K[:2] /= binning
+    return K
+
+
+def shift_pixels(P_or_K: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """Re-express a camera (K or P, any leading shape) in pixels moved by (−dx, −dy).
+
+    ``shift_pixels(P, 1, 1)`` converts a 1-based camera to 0-based; ``shift_pixels(P, x0, y0)``
+    converts a full-sensor camera to the frame of an ROI starting at (x0, y0).
+    """
+    T = np.array([[1.0, 0.0, -dx], [0.0, 1.0, -dy], [0.0, 0.0, 1.0]])
+    return np.einsum("ij,...jk->...ik", T, P_or_K)
+
+
+@dataclass(frozen=True)
+class CircularMotion:
+    """Cameras of one revolution: shared K, axis tilt and placement, one roll angle per view.
+
+    Attributes:
+        K: 3×3 intrinsics in pixels of the stored frames (0-based). May be a full matrix, skew too.
+        distance: distance d from the camera centre to the rotation axis, in world units (µm).
+        yaw_deg, pitch_deg: axis tilt, degrees (R_axis = Rz(pitch)·Ry(yaw)).
+        gamma_deg: axis placement angle γ, degrees (t_axis = d·[0, sin γ, cos γ]).
+        rolls_deg: ω_i for every view, degrees, shape (N,).
+    """
+
+    K: np.ndarray
+    distance: float
+    yaw_deg: float
+    pitch_deg: float
+    gamma_deg: float
+    rolls_deg: np.ndarray = field(repr=False)
+
+    @property
+    def n_views(self) -> int:
+        """Number of views N."""
+        return int(np.asarray(self.rolls_deg).shape[0])
+
+    def theta(self) -> np.ndarray:
+        """θ = [yaw, pitch, γ, ω_0 … ω_{N−1}] in degrees."""
+        return np.concatenate([[self.yaw_deg, self.pitch_deg, self.gamma_deg], np.asarray(self.rolls_deg, float)])
+
+    def with_theta(self, theta_deg: np.ndarray) -> "CircularMotion":
+        """A copy with θ replaced (same K and distance)."""
+        th = np.asarray(theta_deg, float)
+        return CircularMotion(self.K, self.distance, float(th[0]), float(th[1]), float(th[2]), th[3:].copy())
+
+    def projection_matrices(self) -> np.ndarray:
+        """P_i for every view, shape (N, 3, 4), world µm → 0-based pixels of the stored frames."""
+        return projection_matrices(self.K, self.distance, self.theta()[None, :])[0]
+
+
+def projection_matrices(K: np.ndarray, distance: float, theta_deg: np.ndarray) -> np.ndarray:
+    """Batched P for a population of θ vectors.
+
+    Args:
+        K: 3×3 intrinsics (pixels).
+        distance: axis distance d (world units, µm).
+        theta_deg: (B, 3 + N) array [yaw, pitch, γ, ω_0..ω_{N−1}] in degrees.
+
+    Returns:
+        (B, N, 3, 4) projection matrices.
+    """
+    th = np.radians(np.atleast_2d(np.asarray(theta_deg, float)))
+    yaw, pitch, gamma, rolls = th[:, 0], th[:, 1], th[:, 2], th[:, 3:]
+    R_axis = rot_z(pitch) @ rot_y(yaw)  # (B,3,3)
+    R = R_axis[:, None] @ rot_x(rolls)  # (B,N,3,3)
+    t = distance * np.stack([np.zeros_like(gamma), np.sin(gamma), np.cos(gamma)], -1)  # (B,3)
+    Rt = np.concatenate([R, np.broadcast_to(t[:, None, :, None], R.shape[:-1] + (1,))], -1)
+    return np.einsum("ij,bnjk->bnik", np.asarray(K, float), Rt)
+
+
+def project(P: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (…, M, 2) of world points (M, 3) through cameras P (…, 3, 4)."""
+    X = np.concatenate([points, np.ones((points.shape[0], 1))], 1)
+    x = np.einsum("...ij,mj->...mi", P, X)
+    return x[..., :2] / x[..., 2:3]
+
+
+def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split P = λ·K·[R | t] into K (K[2,2] = 1, positive diagonal), rotation R, translation t."""
+    P = np.asarray(P, float)
+    M = P[:, :3]
+    # RQ decomposition through QR of the flipped, transposed matrix.
+    flip = np.eye(3)[::-1]
+    q, r = np.linalg.qr((flip @ M).T)
+    K = flip @ r.T @ flip
+    R = flip @ q.T
+    S = np.diag(np.sign(np.diag(K)))
+    K, R = K @ S, S @ R
+    scale = K[2, 2]
+    K = K / scale
+    t = np.linalg.solve(K, P[:, 3] / scale)
+    if np.linalg.det(R) < 0:  # P was given with the opposite overall sign
+        R, t = -R, -t
+    return K, R, t
+
+
+def _rotation_axis_angle(R: np.ndarray) -> tuple[np.ndarray, float]:
+    """Unit axis and angle (radians, in [0, π]) of a rotation matrix."""
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = np.linalg.norm(w) / 2.0
+    c = (np.trace(R) - 1.0) / 2.0
+    angle = float(np.arctan2(s, c))
+    if s < 1e-12:
+        return np.array([1.0, 0.0, 0.0]), angle
+    return w / (2.0 * s), angle
+
+
+@dataclass(frozen=True)
+class CircularFit:
+    """Result of :func:`decompose_circular`.
+
+    ``world_from_data`` (4×4) maps homogeneous points of the data's world frame into the
+    vastcal world frame (axis = x, origin on the axis); ``P_data ≈ P_model · world_from_data``.
+    ``rms_px`` is the RMS reprojection difference between given and model cameras over a
+    cloud of points around the axis, in pixels.
+    """
+
+    motion: CircularMotion
+    world_from_data: np.ndarray
+    rms_px: float
+
+
+def decompose_circular(P: np.ndarray, check_points: np.ndarray | None = None) -> CircularFit:
+    """Fit the circular-motion model to known cameras P (N, 3, 4), 0-based pixels.
+
+    The axis direction is the mean axis of the relative rotations R_0ᵀR_i; its sign makes the
+    roll angles increase with the view index. The origin is placed on the axis where
+    t_axis has no x component, and view 0 gets roll 0°.
+
+    Raises:
+        AnalysisError: fewer than 3 views, or views that do not rotate about a common axis.
+    """
+    P = np.asarray(P, float)
+    n = P.shape[0]
+    if n < 3:
+        raise AnalysisError(f"need at least 3 cameras to fit circular motion, got {n}")
+    Ks, Rs, ts = zip(*(decompose_projection(p) for p in P))
+    K = np.mean(Ks, axis=0)
+    Rs = np.array(Rs)
+    ts = np.array(ts)
+    centres = -np.einsum("nji,nj->ni", Rs, ts)
+
+    axes = []
+    for i in range(1, n):
+        a, ang = _rotation_axis_angle(Rs[0].T @ Rs[i])
+        if ang > np.radians(1.0):
+            axes.append(a * np.sign(a @ axes[0]) if axes else a)
+    if not axes:
+        raise AnalysisError("the cameras do not rotate: no relative rotation above 1°")
+    a = np.mean(axes, axis=0)
+    a /= np.linalg.norm(a)
+    # Orientation: successive views turn positively about the axis.
+    a_rel, ang = _rotation_axis_angle(Rs[0].T @ Rs[1])
+    if a_rel @ a < 0 and ang < np.pi - 1e-6:
+        a = -a
+
+    # Circle centre: least squares in the plane ⟂ a (|C − c|² = r² algebraically).
+    u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(a, u)
+    pu, pv = centres @ u, centres @ v
+    A = np.stack([2 * pu, 2 * pv, np.ones(n)], 1)
+    sol, *_ = np.linalg.lstsq(A, pu**2 + pv**2, rcond=None)
+    c = sol[0] * u + sol[1] * v + np.mean(centres @ a) * a
+
+    # Rotation Q' sending a to e_x, then remove the roll of view 0.
+    Qp = np.stack([a, u, v])  # rows: new x, y, z
+    M = Rs[0] @ Qp.T
+    yaw0, pitch0, roll0 = _zyx_angles(M)
+    Q = rot_x(roll0) @ Qp
+    R_axis = rot_z(pitch0) @ rot_y(yaw0)
+    tp = np.einsum("nij,j->ni", Rs, c) + ts
+    ex_cam = R_axis[:, 0]
+    delta = -np.mean(tp[:, 0]) / ex_cam[0] if abs(ex_cam[0]) > 1e-9 else 0.0
+    c = c + delta * a
+    tp = np.einsum("nij,j->ni", Rs, c) + ts
+    t_mean = tp.mean(axis=0)
+    d = float(np.linalg.norm(t_mean))
+    gamma = float(np.degrees(np.arctan2(t_mean[1], t_mean[2])))
+    rolls = []
+    for R in Rs:
+        Rx_i = R_axis.T @ R @ Q.T
+        rolls.append(np.degrees(np.arctan2(Rx_i[2, 1], Rx_i[1, 1])))
+    rolls = np.unwrap(np.radians(rolls))
+    rolls = np.degrees(rolls - rolls[0])
+    if rolls[-1] < 0:
+        rolls = np.where(rolls < 0, rolls + 360.0, rolls)
+    motion = CircularMotion(K, d, float(np.degrees(yaw0)), float(np.degrees(pitch0)), gamma, rolls)
+
+    world_from_data = np.eye(4)
+    world_from_data[:3, :3] = Q
+    world_from_data[:3, 3] = -Q @ c
+    if check_points is None:
+        rng = np.random.default_rng(0)
+        check_points = rng.normal(scale=0.05 * d, size=(200, 3))
+    data_pts = (np.linalg.inv(world_from_data) @ np.c_[check_points, np.ones(len(check_points))].T).T[:, :3]
+    given = project(P, data_pts)
+    model = project(motion.projection_matrices(), check_points)
+    rms = float(np.sqrt(np.mean(np.sum((given - model) ** 2, -1))))
+    log.info("circular fit: d=%.4g yaw=%.4f° pitch=%.4f° γ=%.4f° rms=%.3g px", d, motion.yaw_deg, motion.pitch_deg, gamma, rms)
+    return CircularFit(motion, world_from_data, rms)
+
+
+def _zyx_angles(M: np.ndarray) -> tuple[float, float, float]:
+    """Angles (radians) with M = Rz(pitch)·Ry(yaw)·Rx(roll): returns (yaw, pitch, roll)."""
+    yaw = float(np.arcsin(np.clip(-M[2, 0], -1.0, 1.0)))
+    pitch = float(np.arctan2(M[1, 0], M[0, 0]))
+    roll = float(np.arctan2(M[2, 1], M[2, 2]))
+    return yaw, pitch, roll
