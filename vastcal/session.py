@@ -314,10 +314,15 @@ class SessionWriter:
         self._h5[VASTCAL].create_dataset("masks", data=m, chunks=(1,) + m.shape[1:], compression="gzip", compression_opts=1)
         self._h5.flush()
 
-    def write_cameras(self, P: np.ndarray, source: str, attrs: dict[str, Any] | None = None) -> None:
-        """Store known cameras P (N, 3, 4) in 0-based pixels of the stored frames."""
+    def write_cameras(self, P: np.ndarray, source: str, attrs: dict[str, Any] | None = None, P_given: np.ndarray | None = None) -> None:
+        """Store known cameras P (N, 3, 4) in 0-based pixels of the stored frames.
+
+        ``P_given`` keeps the matrices exactly as the source gave them (its own pixel convention).
+        """
         g = self._h5[VASTCAL].create_group("cameras")
         g.create_dataset("P", data=np.asarray(P, float))
+        if P_given is not None:
+            g.create_dataset("P_given", data=np.asarray(P_given, float))
         g["P"].attrs["convention"] = "world (specimen units) -> 0-based pixels of the stored frames"
         _set_attrs(g, {"source": source, **(attrs or {})})
         self._h5.flush()

@@ -1,0 +1,223 @@
+"""Make a session from a folder of images recorded elsewhere (``vastcal import``).
+
+Inputs, all but the images optional:
+
+* images — ``.tif/.tiff/.png/.ppm/.pgm/.jpg/.jpeg/.bmp`` in *natural* sort order
+  (``img2.png`` before ``img10.png``); all the same size and type; colour images are stored RGB.
+* masks — a folder with one silhouette per image (same order and size), nonzero = specimen.
+* angles — a text file with one commanded angle (degrees) per view, or ``name angle`` lines;
+  default: uniform over 360° starting at 0°.
+* cameras — known projection matrices, either one text file with ``name p11 … p34`` per line
+  (12 numbers, row-major 3 × 4; the zebrafish authors' format) or a folder of ``*.pa`` files
+  with one 3 × 4 matrix each (ETH's format). ``pixel_origin`` says whether they are 0- or
+  1-based; ``roi_offset`` (x, y) says where the stored frames sit on the sensor the cameras
+  were given for. The matrices are stored exactly as given (``cameras/P_given``) and converted
+  to 0-based pixels of the stored frames (``cameras/P``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import re
+from pathlib import Path
+from typing import Callable, Sequence
+
+import cv2
+import numpy as np
+
+from vastcal.config import CameraConfig, RigConfig, RoiConfig, dump_config
+from vastcal.errors import ImportDataError
+from vastcal.geometry import shift_pixels
+from vastcal.session import SessionWriter, check_writable_output
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bmp")
+
+
+def natural_key(name: str) -> list[object]:
+    """Sort key that orders embedded numbers numerically (``a2`` < ``a10``)."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def list_images(folder: Path) -> list[Path]:
+    """Image files of ``folder`` in natural order.
+
+    Raises:
+        ImportDataError: the folder does not exist or holds no image.
+    """
+    if not folder.is_dir():
+        raise ImportDataError(f"{folder}: not a folder of images")
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()), key=lambda p: natural_key(p.name))
+    if not files:
+        raise ImportDataError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
+    return files
+
+
+def read_image(path: Path) -> np.ndarray:
+    """One image as stored (uint8/uint16; colour as RGB H×W×3, alpha dropped).
+
+    Raises:
+        ImportDataError: unreadable or empty file.
+    """
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise ImportDataError(f"{path}: cannot read this image (corrupt or unsupported format)")
+    if img.dtype not in (np.uint8, np.uint16):
+        raise ImportDataError(f"{path}: pixel type {img.dtype} not supported (expected 8- or 16-bit)")
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = img[:, :, :3]
+        if img.shape[2] == 1:
+            img = img[:, :, 0]
+        else:
+            img = np.ascontiguousarray(img[:, :, ::-1])
+    return img
+
+
+def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
+    """Commanded angles (degrees) from a text file: one number per line, or ``name angle``.
+
+    Raises:
+        ImportDataError: unreadable, not numbers, or a count different from ``n``.
+    """
+    try:
+        rows = [ln.split() for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+        values = [float(r[-1]) for r in rows]
+    except (OSError, ValueError) as exc:
+        raise ImportDataError(f"{path}: expected one angle in degrees per line ({exc})") from None
+    if len(values) != n:
+        raise ImportDataError(f"{path}: {len(values)} angles for {n} images")
+    return np.asarray(values, float)
+
+
+def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
+    """Known cameras as given: (N, 3, 4) from a ``name + 12 numbers`` file or a folder of ``.pa``.
+
+    Raises:
+        ImportDataError: wrong format or a count different from ``n``.
+    """
+    mats: list[np.ndarray] = []
+    names: list[str] = []
+    if path.is_dir():
+        files = sorted(path.glob("*.pa"), key=lambda p: natural_key(p.name))
+        for f in files:
+            try:
+                m = np.loadtxt(f, dtype=float)
+            except ValueError as exc:
+                raise ImportDataError(f"{f}: expected a 3 x 4 matrix of numbers ({exc})") from None
+            if m.shape != (3, 4):
+                raise ImportDataError(f"{f}: expected a 3 x 4 matrix, got shape {m.shape}")
+            mats.append(m)
+            names.append(f.stem)
+    elif path.is_file():
+        for lineno, ln in enumerate(path.read_text().splitlines(), 1):
+            tok = ln.split()
+            if not tok or tok[0].startswith("#"):
+                continue
+            try:
+                nums = [float(t) for t in tok[1:]]
+            except ValueError:
+                nums = []
+            if len(nums) != 12:
+                raise ImportDataError(f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P)")
+            mats.append(np.asarray(nums).reshape(3, 4))
+            names.append(tok[0])
+    else:
+        raise ImportDataError(f"{path}: no such camera file or folder")
+    if len(mats) != n:
+        raise ImportDataError(f"{path}: {len(mats)} cameras for {n} images")
+    return np.asarray(mats), names
+
+
+def import_folder(
+    folder: str | Path,
+    output: str | Path,
+    *,
+    masks: str | Path | None = None,
+    angles: str | Path | None = None,
+    cameras: str | Path | None = None,
+    pixel_origin: int = 0,
+    roi_offset: tuple[int, int] | None = None,
+    config: RigConfig | None = None,
+    force: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Import a folder of images (and optional masks, angles, cameras) into a new session.
+
+    Args:
+        folder: folder of images, one per view, in natural sort order.
+        output: the session file to create.
+        masks: folder of silhouettes matching the images one to one.
+        angles: text file of commanded angles (degrees); default uniform over 360°.
+        cameras: ``name + 12 numbers`` file or folder of ``.pa`` files.
+        pixel_origin: 0 or 1, the pixel convention of ``cameras``.
+        roi_offset: (x, y) of the stored frames on the sensor (px, 0-based); default from
+            ``config.camera.roi`` or (0, 0).
+        config: rig description for the optics (pixel size, K); default: an "imported" rig.
+        force: overwrite ``output`` if it exists.
+        progress: called with (views done, views total).
+
+    Raises:
+        ImportDataError: any input that cannot be imported (nothing is written).
+        OutputExistsError: ``output`` exists and ``force`` is false.
+    """
+    folder, out = Path(folder), Path(output)
+    check_writable_output(out, force)
+    if pixel_origin not in (0, 1):
+        raise ImportDataError(f"pixel origin must be 0 or 1, got {pixel_origin}")
+    files = list_images(folder)
+    first = read_image(files[0])
+    n = len(files)
+    # Check every image before writing anything.
+    for f in files:
+        img = first if f == files[0] else read_image(f)
+        if img.shape != first.shape or img.dtype != first.dtype:
+            raise ImportDataError(f"{folder}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, {f.name} is {img.shape} {img.dtype}")
+    mask_stack = _read_masks(Path(masks), n, first.shape[:2]) if masks is not None else None
+    angle_values = read_angles(Path(angles), n, [f.stem for f in files]) if angles is not None else np.arange(n) * 360.0 / n
+    cfg = config or RigConfig(name=f"imported from {folder.name}", camera=CameraConfig(driver="genicam"))
+    h, w = first.shape[:2]
+    if roi_offset is None:
+        roi_offset = (cfg.camera.roi.x, cfg.camera.roi.y) if config is not None else (0, 0)
+    optics = dataclasses.replace(cfg.optics, sensor_width_px=max(cfg.optics.sensor_width_px, roi_offset[0] + w),
+                                 sensor_height_px=max(cfg.optics.sensor_height_px, roi_offset[1] + h))
+    cfg = dataclasses.replace(cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h)))
+    P_given = names = None
+    if cameras is not None:
+        P_given, names = read_cameras(Path(cameras), n)
+    pixel_um = cfg.optics.pixel_size_um / cfg.optics.magnification
+    plan = {"views": n, "source": "import", "folder": str(folder.resolve())}
+    with SessionWriter.create(out, frame_shape=first.shape, dtype=first.dtype, rig_yaml=dump_config(cfg), plan=plan,
+                              pixel_size_um=(pixel_um, pixel_um), roi_offset_px=roi_offset, title=f"import of {folder.name}",
+                              start_info={"source": "import", "files": [f.name for f in files]}, force=force) as writer:
+        for i, f in enumerate(files):
+            img = first if i == 0 else read_image(f)
+            writer.append_view(img, float(angle_values[i]))
+            if progress:
+                progress(i + 1, n)
+        if mask_stack is not None:
+            writer.write_masks(mask_stack)
+        if P_given is not None:
+            P = shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])
+            writer.write_cameras(P, source=str(Path(cameras).resolve()), P_given=P_given,
+                                 attrs={"pixel_origin": pixel_origin, "roi_offset": list(roi_offset), "names": names})
+        writer.finish("success", views_planned=n)
+    log.info("imported %d views %s %s into %s", n, first.shape, first.dtype, out)
+    return out
+
+
+def _read_masks(folder: Path, n: int, shape: tuple[int, int]) -> np.ndarray:
+    files = list_images(folder)
+    if len(files) != n:
+        raise ImportDataError(f"{folder}: {len(files)} masks for {n} images")
+    out = np.zeros((n,) + shape, np.uint8)
+    for i, f in enumerate(files):
+        m = read_image(f)
+        if m.ndim == 3:
+            m = m.max(axis=2)
+        if m.shape != shape:
+            raise ImportDataError(f"{f}: mask is {m.shape[1]} x {m.shape[0]} px, the images are {shape[1]} x {shape[0]} px")
+        out[i] = np.where(m > 0, 255, 0)
+    return out
