@@ -241,11 +241,11 @@ def _convert(value: Any, tp: Any, where: str, fail: typing.Callable[[str, str], 
             raise fail(where, f"expected a string, got {value!r}")
         return value
     lo, hi, lo_open = meta.get("lo"), meta.get("hi"), meta.get("lo_open", False)
-    if lo is not None and (value < lo or (lo_open and value == lo)):
-        bound = f"> {lo}" if lo_open else f">= {lo}"
-        raise fail(where, f"expected {_describe(tp)} {bound}" + (f" and <= {hi}" if hi is not None else "") + f", got {value!r}")
-    if hi is not None and value > hi:
-        raise fail(where, f"expected {_describe(tp)} <= {hi}, got {value!r}")
+    too_low = lo is not None and (value < lo or (lo_open and value == lo))
+    too_high = hi is not None and value > hi
+    if too_low or too_high:
+        parts = ([f"> {lo}" if lo_open else f">= {lo}"] if lo is not None else []) + ([f"<= {hi}"] if hi is not None else [])
+        raise fail(where, f"expected {_describe(tp)} {' and '.join(parts)}, got {value!r}")
     return value
 
 

@@ -195,7 +195,7 @@ class SessionWriter:
         entry = h5.create_group(ENTRY)
         entry.attrs["NX_class"] = "NXentry"
         entry.attrs["default"] = "data"
-        entry.attrs["version"] = "1.3"
+        entry.attrs["version"] = 1.3  # NXtomo paths version, as the nxtomo package reads it (a float)
         entry["definition"] = "NXtomo"
         entry["title"] = title or "vastcal session"
         entry["start_time"] = _now()

@@ -1,0 +1,241 @@
+"""Acquisition of one revolution: move, settle, snap, append — view after view.
+
+The runner is an explicit state machine (``preparing → acquiring → finishing → done``) with a
+finish reason. It talks to a :class:`~vastcal.devices.RotationStage` and a
+:class:`~vastcal.devices.Camera` and never learns whether they are real or simulated.
+
+Plan: N views over 360°, view k at the **absolute** target ``round(k · cycle / N)`` µsteps, so
+rounding never accumulates (``cycle`` = µsteps per revolution read from the stage).
+
+Per view: absolute move (the stage waits for idle with a finite, distance-derived timeout and
+verifies the read-back position), settle, snap (software trigger; the camera re-triggers once
+on a timeout), append the frame and its record, flush. A view is either complete in the file
+or absent — never shifted.
+
+Endings:
+* ``success`` — every planned view is in the file;
+* ``abort``   — the operator cancelled (Ctrl-C sets ``cancel``); the motor is stopped;
+* ``fail``    — a device error that is not safe to retry; the reason is one line.
+Teardown and the stop record happen in ``finally``: every completed view stays in the file.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from vastcal.config import RigConfig, dump_config
+from vastcal.devices import Camera, CameraSettings, RotationStage
+from vastcal.errors import AcquisitionAborted, DeviceError, SessionIncompleteError, UserInputError, VastcalError
+from vastcal.session import Session, SessionWriter, check_writable_output
+
+log = logging.getLogger(__name__)
+
+ProgressFn = Callable[[int, int, float], None]
+"""progress(views done, views planned, elapsed seconds)."""
+
+
+class RunState(enum.Enum):
+    """States of the acquisition runner."""
+
+    PREPARING = "preparing"
+    ACQUIRING = "acquiring"
+    FINISHING = "finishing"
+    DONE = "done"
+
+
+@dataclass(frozen=True)
+class RevolutionPlan:
+    """Where each view is taken.
+
+    Attributes:
+        views: number of views N in one revolution.
+        usteps_per_revolution: stage µsteps in 360°, as read from the device.
+        targets_usteps: absolute target of view k, ``round(k · cycle / N)`` µsteps.
+    """
+
+    views: int
+    usteps_per_revolution: int
+    targets_usteps: tuple[int, ...]
+
+    @classmethod
+    def uniform(cls, views: int, usteps_per_revolution: int) -> "RevolutionPlan":
+        """N views evenly over one revolution, absolute targets rounded once each."""
+        if views < 1:
+            raise UserInputError(f"number of views must be >= 1, got {views}")
+        targets = tuple(int(round(k * usteps_per_revolution / views)) for k in range(views))
+        return cls(views, usteps_per_revolution, targets)
+
+    def angle_deg(self, k: int) -> float:
+        """Commanded angle of view k, degrees (exactly the rounded target's angle)."""
+        return self.targets_usteps[k] * 360.0 / self.usteps_per_revolution
+
+    def as_attrs(self) -> dict[str, Any]:
+        """Plan attributes for the session."""
+        return {"views": self.views, "usteps_per_revolution": self.usteps_per_revolution,
+                "targets_usteps": list(self.targets_usteps), "angles_deg": [self.angle_deg(k) for k in range(self.views)],
+                "rule": "target_k = round(k * usteps_per_revolution / views), absolute"}
+
+
+@dataclass
+class AcquisitionResult:
+    """What a run did.
+
+    Attributes:
+        path: the session file.
+        exit_status: ``success``, ``abort`` or ``fail``.
+        reason: one line, empty on success.
+        views_written: projections in the file at the end (including resumed ones).
+        overhead_s: per view acquired in this run, wall time beyond the move and the exposure, s.
+    """
+
+    path: Path
+    exit_status: str
+    reason: str
+    views_written: int
+    overhead_s: list[float] = field(default_factory=list)
+    state: RunState = RunState.DONE
+
+
+def camera_settings(cfg: RigConfig) -> CameraSettings:
+    """Camera settings asked for by the rig configuration."""
+    c = cfg.camera
+    return CameraSettings(pixel_format=c.pixel_format, exposure_us=c.exposure_us, gain_db=c.gain_db,
+                          roi=(c.roi.x, c.roi.y, c.roi.width, c.roi.height), packet_size=c.packet_size)
+
+
+def _sleep(seconds: float, cancel: threading.Event) -> None:
+    if seconds > 0 and cancel.wait(seconds):
+        raise AcquisitionAborted("cancelled while settling")
+
+
+def acquire(
+    stage: RotationStage,
+    camera: Camera,
+    cfg: RigConfig,
+    output: str | Path,
+    *,
+    views: int | None = None,
+    resume: bool = False,
+    force: bool = False,
+    cancel: threading.Event | None = None,
+    progress: ProgressFn | None = None,
+    start_info: dict[str, Any] | None = None,
+    on_view: Callable[[int], None] | None = None,
+) -> AcquisitionResult:
+    """Acquire one revolution into ``output`` (or continue it with ``resume=True``).
+
+    The devices must be open. Device errors end the run with status ``fail`` (the reason is
+    returned, not raised); the file always ends with a stop record.
+
+    Args:
+        views: number of views (default ``cfg.acquisition.views``; on resume, the stored plan).
+        resume: append to an incomplete session at ``output`` instead of creating one.
+        force: overwrite an existing ``output`` (not with ``resume``).
+        cancel: set it (e.g. from a SIGINT handler) to stop the motor and end with ``abort``.
+        progress: called after each view with (done, planned, elapsed s).
+        start_info: extra attributes for the start record.
+        on_view: called with the view index after it is written (used by simulators' truth).
+
+    Raises:
+        OutputExistsError: ``output`` exists, without ``force`` or ``resume``.
+        NotASessionError / SessionIncompleteError: ``resume`` of something that cannot be resumed.
+    """
+    cancel = cancel or threading.Event()
+    out = Path(output)
+    state = RunState.PREPARING
+    cycle = stage.usteps_per_revolution
+    if resume:
+        with Session.open(out) as s:
+            plan_attrs = s.plan
+        if int(plan_attrs.get("usteps_per_revolution", -1)) != cycle:
+            raise SessionIncompleteError(f"{out}: cannot resume: the session was planned for {plan_attrs.get('usteps_per_revolution')} "
+                                         f"µsteps per revolution, the stage reports {cycle}")
+        plan = RevolutionPlan(int(plan_attrs["views"]), cycle, tuple(int(t) for t in plan_attrs["targets_usteps"]))
+        writer = SessionWriter.resume(out)
+    else:
+        check_writable_output(out, force)
+        plan = RevolutionPlan.uniform(views or cfg.acquisition.views, cycle)
+        read_back = camera.configure(camera_settings(cfg))
+        info = {"stage": stage.describe(), "camera": camera.describe(), "camera_settings": read_back, **(start_info or {})}
+        writer = None  # created after the first frame tells us the shape and type
+    first_index = writer.n_views if writer is not None else 0
+    if resume:
+        camera.configure(camera_settings(cfg))
+    result = AcquisitionResult(out, "fail", "", first_index)
+    t0 = time.monotonic()
+    try:
+        if cfg.stage.home_on_start or "WR" in stage.warnings() or "WH" in stage.warnings():
+            log.info("homing the stage")
+            stage.home(cancel)
+        camera.start()
+        state = RunState.ACQUIRING
+        for k in range(first_index, plan.views):
+            if cancel.is_set():
+                raise AcquisitionAborted("cancelled by the operator")
+            t_view = time.monotonic()
+            move = stage.move_absolute(plan.targets_usteps[k], cancel)
+            _sleep(cfg.stage.settle_s, cancel)
+            frame = camera.snap(cfg.camera.fetch_timeout_s + cfg.camera.exposure_us * 1e-6, cancel)
+            if frame.pixels.size == 0:
+                raise DeviceError(f"view {k}: the camera delivered an empty frame")
+            if writer is None:
+                writer = SessionWriter.create(out, frame_shape=frame.pixels.shape, dtype=frame.pixels.dtype, rig_yaml=dump_config(cfg),
+                                              plan=plan.as_attrs(), pixel_size_um=_pixel_um(cfg), roi_offset_px=(cfg.camera.roi.x, cfg.camera.roi.y),
+                                              title=f"{cfg.name} revolution", start_info=info, force=force)
+            writer.append_view(frame.pixels, plan.angle_deg(k), commanded_usteps=plan.targets_usteps[k], readback_usteps=move.readback_usteps,
+                               host_time_s=frame.host_time_s, device_time_s=np.nan if frame.device_time_s is None else frame.device_time_s,
+                               frame_id=frame.frame_id, exposure_us=frame.exposure_us, gain_db=frame.gain_db, move_s=move.duration_s,
+                               stage_warnings=" ".join(move.warnings))
+            if on_view:
+                on_view(k)
+            elapsed_view = time.monotonic() - t_view
+            exposure = frame.exposure_us * 1e-6 if np.isfinite(frame.exposure_us) else 0.0
+            result.overhead_s.append(elapsed_view - move.duration_s - exposure - cfg.stage.settle_s)
+            if progress:
+                progress(k + 1, plan.views, time.monotonic() - t0)
+        result.exit_status, result.reason = "success", ""
+    except (AcquisitionAborted, KeyboardInterrupt) as exc:
+        result.exit_status = "abort"
+        result.reason = str(exc) or "interrupted by the operator"
+        _safe(stage.stop, "stopping the stage")
+    except DeviceError as exc:
+        result.exit_status, result.reason = "fail", f"{type(exc).__name__}: {exc}"
+        _safe(stage.stop, "stopping the stage")
+    finally:
+        state = RunState.FINISHING
+        _safe(camera.stop_stream, "stopping the camera stream")
+        if writer is not None:
+            result.views_written = writer.n_views
+            if result.exit_status == "success" and writer.n_views < plan.views:
+                result.exit_status, result.reason = "fail", f"only {writer.n_views} of {plan.views} views"
+            try:
+                writer.finish(result.exit_status, result.reason, views_planned=plan.views, elapsed_s=time.monotonic() - t0)
+            finally:
+                writer.close()
+        elif result.exit_status != "success":
+            log.warning("no view was acquired; no session file written (%s)", result.reason)
+        result.state = RunState.DONE
+    log.info("acquisition %s: %d of %d views in %s%s", result.exit_status, result.views_written, plan.views, out,
+             f" ({result.reason})" if result.reason else "")
+    return result
+
+
+def _pixel_um(cfg: RigConfig) -> tuple[float, float]:
+    p = cfg.optics.pixel_size_um / cfg.optics.magnification
+    return p, p
+
+
+def _safe(fn: Callable[[], Any], what: str) -> None:
+    """Run a teardown step; log (never raise) its failure so the stop record is written."""
+    try:
+        fn()
+    except (VastcalError, OSError) as exc:
+        log.warning("%s failed: %s", what, exc)

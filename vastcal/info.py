@@ -1,0 +1,79 @@
+"""A human summary of a session: what ``vastcal info S.h5`` prints."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vastcal.session import Session, read_attrs
+
+
+def session_summary(path: str | Path) -> dict[str, Any]:
+    """Facts about a session as plain data (views, frames, angles, stages, status).
+
+    Raises:
+        NotASessionError: the file is not a readable vastcal session.
+    """
+    with Session.open(path) as s:
+        angles = s.angles_deg
+        table = s.view_table()
+        summary: dict[str, Any] = {
+            "file": str(Path(path)),
+            "uid": s.start_record.get("uid"),
+            "views": int(len(s.projection_indices)),
+            "frames": s.n_views,
+            "views_planned": s.plan.get("views"),
+            "frame_shape": list(s.frame_shape),
+            "dtype": str(s.dtype),
+            "pixel_size_um": list(s.pixel_size_um),
+            "roi_offset_px": list(s.roi_offset_px),
+            "angles_deg": [round(float(a), 4) for a in angles],
+            "exit_status": s.exit_status,
+            "reason": (s.stop_record or {}).get("reason", ""),
+            "masks": s.masks is not None,
+            "known_cameras": s.known_cameras is not None,
+            "stages": {},
+        }
+        rb = table.get("readback_usteps")
+        if rb is not None and len(rb) and (rb >= 0).any():
+            cycle = s.plan.get("usteps_per_revolution")
+            diff = (rb - table["commanded_usteps"])[rb >= 0]
+            summary["readback_max_error_usteps"] = int(np.max(np.abs(diff))) if len(diff) else 0
+            summary["usteps_per_revolution"] = cycle
+        for stage, runs in s.stages_run().items():
+            entries = []
+            for name in runs:
+                a = read_attrs(s.h5[f"/entry/vastcal/{stage}/{name}"])
+                keep = {k: a[k] for k in ("time", "method", "seed", "wall_time_s", "volume_mm3", "surface_area_mm2", "n_evaluations") if k in a}
+                entries.append({"run": name, **keep})
+            summary["stages"][stage] = entries
+    return summary
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """The summary as the lines ``vastcal info`` prints."""
+    a = summary["angles_deg"]
+    shape = " x ".join(str(v) for v in summary["frame_shape"])
+    status = summary["exit_status"] + (f" ({summary['reason']})" if summary.get("reason") else "")
+    planned = summary.get("views_planned")
+    lines = [
+        f"session      {summary['file']}",
+        f"uid          {summary['uid']}",
+        f"status       {status}",
+        f"views        {summary['views']}" + (f" of {planned} planned" if planned is not None else ""),
+        f"frames       {shape} {summary['dtype']} (H x W[ x C]), pixel {summary['pixel_size_um'][0]:g} x {summary['pixel_size_um'][1]:g} um, "
+        f"ROI offset {summary['roi_offset_px'][0]}, {summary['roi_offset_px'][1]} px",
+        "angles       " + (f"{len(a)} commanded, {a[0]:g} .. {a[-1]:g} deg" + (f", step {a[1] - a[0]:.4f} deg" if len(a) > 1 else "") if a else "none"),
+        f"masks        {'yes' if summary['masks'] else 'no'}; known cameras {'yes' if summary['known_cameras'] else 'no'}",
+    ]
+    if "readback_max_error_usteps" in summary:
+        lines.append(f"stage        {summary['usteps_per_revolution']} usteps/rev, max read-back error {summary['readback_max_error_usteps']} usteps")
+    if not summary["stages"]:
+        lines.append("stages run   none (next: vastcal calibrate)")
+    for stage, runs in summary["stages"].items():
+        for r in runs:
+            details = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items() if k not in ("run", "time"))
+            lines.append(f"{stage:<12} {r['run']}  {r.get('time', '')}  {details}")
+    return "\n".join(lines)
