@@ -139,6 +139,13 @@ class SessionWriter:
         self._h5 = h5
         self.path = path
         self._finished = "stop" in h5[VASTCAL]
+        det, views = h5[DETECTOR], h5[VASTCAL]["views"]
+        # Growable 1-D datasets written once per view, looked up once (hot path of acquisition).
+        self._data = det["data"]
+        self._columns = {c.name: views[c.name] for c in VIEW_COLUMNS}
+        self._keys = (det["image_key"], det["image_key_control"])
+        self._count_time = det["count_time"]
+        self._angle = h5[ENTRY]["sample"]["rotation_angle"]
 
     # -- creation -------------------------------------------------------------------------
     @classmethod
@@ -259,13 +266,23 @@ class SessionWriter:
             if status == "success":
                 h5.close()
                 raise OutputExistsError(f"{path}: the session is complete (exit_status success); nothing to resume")
-            resumes = h5[VASTCAL].require_group("resumed")
+            resumes = h5[VASTCAL].require_group("resumed")  # keep the history of earlier endings
             old = h5[VASTCAL]["stop"]
             rec = resumes.create_group(f"stop_{len(resumes):03d}")
             _set_attrs(rec, {k: _attr_str(v) for k, v in old.attrs.items()})
             del h5[VASTCAL]["stop"]
             h5.flush()
-        return cls(h5, Path(path))
+        writer = cls(h5, Path(path))
+        writer._drop_unfinished_view()
+        return writer
+
+    def _drop_unfinished_view(self) -> None:
+        """Cut per-view records beyond the last complete frame (an append cut short by a kill)."""
+        n = self.n_views
+        for ds in (*self._columns.values(), *self._keys, self._count_time, self._angle):
+            if ds.shape[0] > n:
+                ds.resize((n,))
+        self._h5.flush()
 
     # -- appending ------------------------------------------------------------------------
     @property
@@ -279,32 +296,26 @@ class SessionWriter:
         ``columns`` fill the per-view table (see :data:`VIEW_COLUMNS`; missing ones get their
         fill value, e.g. ``readback_usteps=-1`` for imported images). Unknown names raise.
         """
-        det = self._h5[DETECTOR]
-        data = det["data"]
+        data = self._data
         if frame.shape != data.shape[1:] or frame.dtype != data.dtype:
             raise ValueError(f"frame {frame.shape} {frame.dtype} does not match session frames {data.shape[1:]} {data.dtype}")
-        unknown = set(columns) - {c.name for c in VIEW_COLUMNS}
+        unknown = set(columns) - set(self._columns)
         if unknown:
             raise ValueError(f"unknown per-view columns: {sorted(unknown)}")
         i = data.shape[0]
-        views = self._h5[VASTCAL]["views"]
-        # Metadata columns first, frames last: a view counts once its frame is in place.
+        values = {c.name: columns.get(c.name, c.fill) for c in VIEW_COLUMNS}
+        values["commanded_angle_deg"] = angle_deg
         for col in VIEW_COLUMNS:
-            ds = views[col.name]
-            ds.resize((i + 1,))
-            v = columns.get(col.name, col.fill)
-            ds[i] = v.encode() if isinstance(v, str) else v
-        views["commanded_angle_deg"][i] = angle_deg
-        for name in ("image_key", "image_key_control"):
-            det[name].resize((i + 1,))
-            det[name][i] = image_key
-        det["count_time"].resize((i + 1,))
-        det["count_time"][i] = columns.get("exposure_us", np.nan) * 1e-6
-        ra = self._h5[ENTRY]["sample"]["rotation_angle"]
-        ra.resize((i + 1,))
-        ra[i] = angle_deg
+            v = values[col.name]
+            _append(self._columns[col.name], i, v.encode() if isinstance(v, str) else v)
+        for ds in self._keys:
+            _append(ds, i, image_key)
+        _append(self._count_time, i, values["exposure_us"] * 1e-6)
+        _append(self._angle, i, angle_deg)
+        # The frame last: a view counts once its frame is in place. One frame = one chunk,
+        # written directly (no selection machinery, no conversion).
         data.resize((i + 1,) + data.shape[1:])
-        data[i] = frame
+        data.id.write_direct_chunk((i,) + (0,) * frame.ndim, np.ascontiguousarray(frame).tobytes())
         self._h5.flush()
         return i
 
@@ -405,7 +416,8 @@ class Session:
                 raise NotASessionError(f"{p}: session schema version {version} is newer than this vastcal understands ({SCHEMA_VERSION})")
             n = h5[DETECTOR]["data"].shape[0]
             n_angles = h5[ENTRY]["sample"]["rotation_angle"].shape[0]
-            if n_angles != n:
+            if n_angles < n or (n_angles > n + 1) or (n_angles == n + 1 and "stop" in h5[VASTCAL]):
+                # One extra record without its frame is an append cut short (kill mid-view): tolerated.
                 raise NotASessionError(f"{p}: damaged session: {n} frames but {n_angles} rotation angles")
         except NotASessionError:
             h5.close()
@@ -450,7 +462,7 @@ class Session:
     @property
     def image_key(self) -> np.ndarray:
         """(N,) 0 projection, 1 flat, 2 dark."""
-        return self._h5[DETECTOR]["image_key"][...]
+        return self._h5[DETECTOR]["image_key"][: self.n_views]
 
     @property
     def projection_indices(self) -> np.ndarray:
@@ -478,7 +490,7 @@ class Session:
     @property
     def angles_deg(self) -> np.ndarray:
         """Commanded rotation angle of every projection, degrees."""
-        return self._h5[ENTRY]["sample"]["rotation_angle"][...][self.projection_indices]
+        return self._h5[ENTRY]["sample"]["rotation_angle"][: self.n_views][self.projection_indices]
 
     @property
     def pixel_size_um(self) -> tuple[float, float]:
@@ -513,7 +525,7 @@ class Session:
     def view_table(self) -> dict[str, np.ndarray]:
         """The per-view table, one array per column."""
         views = self._h5[VASTCAL]["views"]
-        return {k: views[k][...] for k in views}
+        return {k: views[k][: self.n_views] for k in views}
 
     @property
     def masks(self) -> np.ndarray | None:
@@ -603,6 +615,12 @@ class Session:
     def flush(self) -> None:
         """Flush pending writes of later stages."""
         self._h5.flush()
+
+
+def _append(ds: h5py.Dataset, i: int, value: Any) -> None:
+    """Grow a 1-D dataset to ``i + 1`` elements and set element ``i``."""
+    ds.resize((i + 1,))
+    ds[i] = value
 
 
 def _decode_json(v: Any) -> Any:

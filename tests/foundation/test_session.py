@@ -156,3 +156,16 @@ def test_later_stage_adds_group_without_touching_images(tmp_path: Path) -> None:
         np.testing.assert_array_equal(s.projections(), frames)
         assert s.stages_run() == {"calibration": ["run_000", "run_001"]}
         assert s.latest_result("calibration").name.endswith("run_001")
+
+
+def test_append_cut_short_before_its_frame_is_tolerated_and_resumed(tmp_path: Path) -> None:
+    make_session(tmp_path / "s.h5", n=3, finish=False)
+    with h5py.File(tmp_path / "s.h5", "r+") as f:  # records of a 4th view written, its frame not
+        for name in ("/entry/sample/rotation_angle", "/entry/instrument/detector/image_key", "/entry/vastcal/views/frame_id"):
+            f[name].resize((4,))
+    with Session.open(tmp_path / "s.h5") as s:
+        assert s.n_views == 3 and len(s.angles_deg) == 3 and s.exit_status == "incomplete"
+    with SessionWriter.resume(tmp_path / "s.h5") as w:
+        w.append_view(np.zeros((16, 24), np.uint16), 216.0)
+    with Session.open(tmp_path / "s.h5") as s:
+        assert s.n_views == 4 and list(s.angles_deg) == [0.0, 72.0, 144.0, 216.0]

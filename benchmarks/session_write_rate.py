@@ -1,0 +1,48 @@
+"""Rate of appending 1024 x 1024 Mono12 frames to a session (target >= 100 frames/s).
+
+Each append grows every dataset by one view, writes the frame (one chunk) and flushes — the
+same call acquisition makes. Prints frames/s and MB/s.
+
+    python benchmarks/session_write_rate.py [--frames 200] [--dir /tmp]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vastcal.session import Session, SessionWriter
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--dir", default=None, help="folder for the temporary session (default: system temp)")
+    args = ap.parse_args()
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 4096, (1024, 1024), dtype=np.uint16) for _ in range(8)]
+    with tempfile.TemporaryDirectory(dir=args.dir) as d:
+        path = Path(d) / "bench.h5"
+        w = SessionWriter.create(path, frame_shape=(1024, 1024), dtype=np.uint16, rig_yaml="name: bench\n",
+                                 plan={"views": args.frames}, pixel_size_um=(5.5, 5.5))
+        t0 = time.perf_counter()
+        for i in range(args.frames):
+            w.append_view(frames[i % len(frames)], i * 360.0 / args.frames, commanded_usteps=i, readback_usteps=i, frame_id=i + 1)
+        elapsed = time.perf_counter() - t0
+        w.finish("success")
+        w.close()
+        with Session.open(path) as s:
+            assert s.n_views == args.frames
+        size_mb = path.stat().st_size / 1e6
+    rate = args.frames / elapsed
+    print(f"session write: {args.frames} frames of 1024x1024 Mono12 (uint16) in {elapsed:.2f} s")
+    print(f"  {rate:.0f} frames/s, {rate * 2.097:.0f} MB/s, {1000 / rate:.2f} ms per append+flush (target >= 100 frames/s)")
+    print(f"  file size {size_mb:.0f} MB")
+
+
+if __name__ == "__main__":
+    main()
