@@ -168,4 +168,4 @@ def test_append_cut_short_before_its_frame_is_tolerated_and_resumed(tmp_path: Pa
     with SessionWriter.resume(tmp_path / "s.h5") as w:
         w.append_view(np.zeros((16, 24), np.uint16), 216.0)
     with Session.open(tmp_path / "s.h5") as s:
-        assert s.n_views == 4 and list(s.angles_deg) == [0.0, 72.0, 144.0, 216.0]
+        assert s.n_views == 4 and list(s.angles_deg) == [0.0, 120.0, 240.0, 216.0]
