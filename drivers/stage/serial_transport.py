@@ -83,6 +83,11 @@ class SerialTransport:
         if port is None:
             return
         try:
+            # pyserial 3.5's socket:// close() skips socket.close() when shutdown() fails (peer
+            # already gone) and leaks the socket; close it first (shutdown then fails harmlessly).
+            sock = getattr(port, "_socket", None)
+            if sock is not None:
+                sock.close()
             port.close()
         except (serial.SerialException, OSError) as exc:
             log.warning("error closing %s: %s", self.url, exc)

@@ -99,7 +99,10 @@ class ZaberDevice:
             data = self._execute(req.axis, req.words)
         except _Reject as rj:
             return [self._reply(req.axis, req.msgid, "RJ", rj.reason, checksum)]
-        return [self._reply(req.axis, req.msgid, "OK", data, checksum)]
+        reply = self._reply(req.axis, req.msgid, "OK", data, checksum)
+        if req.words.split() == ["warnings", "clear"]:
+            self.flags -= CLEARABLE_FLAGS  # after the reply: it shows the flags being cleared
+        return [reply]
 
     def _reply(self, axis: int, msgid: int | None, flag: str, data: str, checksum: bool) -> bytes:
         return za.format_reply(self.device, axis, flag, self._status(), self._warn(), data, msgid=msgid, checksum=checksum)
@@ -131,10 +134,7 @@ class ZaberDevice:
                 self.flags.add("NI")
             return "0"
         if head == "warnings" and args in ([], ["clear"]):
-            data = za.format_warnings_data(list(self.flags))
-            if args:
-                self.flags -= CLEARABLE_FLAGS
-            return data
+            return za.format_warnings_data(list(self.flags))
         raise _Reject("BADCOMMAND")
 
     def _get(self, name: str) -> str:
