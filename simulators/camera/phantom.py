@@ -1,0 +1,160 @@
+"""Specimen phantoms with known volume and surface area, and the exact truth of their visual hull.
+
+A phantom is a translucent **body of revolution about world x** (the rotation axis; profile
+from :mod:`simulators.camera.profiles`) with darker absorbing ellipsoids (eyes, yolk) that lie
+**fully inside** the body, so that its silhouette is exactly the body's. World frame = specimen
+frame, µm.
+
+Visual hull truth (orthographic views perpendicular to the axis, body coaxial with the axis):
+view i at angle φ_i constrains every cross-section to the strip between two tangent lines of the
+circle of radius r(x), with normals at φ_i + 90° and φ_i + 270°. The hull's cross-section is the
+polygon circumscribing the circle with those 2N tangent directions. With the 2N sorted gaps Δ_k
+between consecutive normal directions, each polygon corner contributes a kite of area
+r² tan(Δ_k/2) and two tangent segments of total length 2 r tan(Δ_k/2), so
+
+    area(polygon) / (π r²) = perimeter(polygon) / (2π r) = Σ_k tan(Δ_k/2) / π =: F.
+
+F does not depend on x, so the hull volume is F·V. Each hull face is a ruled surface
+x ↦ r(x)·n_k + t·e_k whose area element is √(1 + r'²) dx dt, so the hull area is
+∫ √(1 + r'²) · perimeter(x) dx = F·A as well.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from simulators.camera.profiles import CapsuleProfile, LarvaProfile, RevolutionProfile, SpheroidProfile
+from vastcal.errors import AnalysisError
+
+log = logging.getLogger(__name__)
+
+UM3_PER_MM3 = 1e9
+UM2_PER_MM2 = 1e6
+
+
+@dataclass(frozen=True)
+class EllipsoidFeature:
+    """An axis-aligned absorbing ellipsoid in the specimen frame.
+
+    Attributes:
+        name: e.g. ``"left eye"``.
+        centre_um: (x, y, z) centre, µm.
+        semi_axes_um: (a, b, c) semi-axes along x, y, z, µm.
+        attenuation_per_um: extra Beer–Lambert attenuation inside it, 1/µm.
+    """
+
+    name: str
+    centre_um: tuple[float, float, float]
+    semi_axes_um: tuple[float, float, float]
+    attenuation_per_um: float
+
+    def surface_points(self, n: int = 64) -> np.ndarray:
+        """(n², 3) points on the surface, µm (for containment checks)."""
+        th, ph = np.meshgrid(np.linspace(0, np.pi, n), np.linspace(0, 2 * np.pi, n), indexing="ij")
+        unit = np.stack([np.cos(th), np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph)], -1).reshape(-1, 3)
+        return np.asarray(self.centre_um) + unit * np.asarray(self.semi_axes_um)
+
+
+@dataclass(frozen=True)
+class Phantom:
+    """A translucent body of revolution about world x with dark features inside.
+
+    Attributes:
+        profile: the radius profile r(x).
+        features: absorbing ellipsoids, each fully inside the body.
+        body_attenuation_per_um: Beer–Lambert attenuation of the body tissue, 1/µm (mild).
+        edge_transmission: transmission of the body's boundary (refraction/scatter loss), 0–1;
+            it gives the silhouette a sharp step even where the chord length tends to 0.
+        colour_scale: relative attenuation in (R, G, B) for colour frames.
+    """
+
+    profile: RevolutionProfile
+    features: tuple[EllipsoidFeature, ...] = ()
+    body_attenuation_per_um: float = 4.5e-4
+    edge_transmission: float = 0.72
+    colour_scale: tuple[float, float, float] = (1.5, 0.6, 1.0)
+    name: str = field(default="")
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            object.__setattr__(self, "name", self.profile.name)
+        for f in self.features:
+            if not self.contains(f.surface_points()).all():
+                raise AnalysisError(f"phantom feature {f.name!r} is not fully inside the body")
+
+    def contains(self, points_um: np.ndarray) -> np.ndarray:
+        """Boolean mask: which (M, 3) points (µm) are strictly inside the body."""
+        p = np.asarray(points_um, float)
+        q = self.profile.q(p[:, 0])[0]
+        return p[:, 1] ** 2 + p[:, 2] ** 2 < q
+
+    def volume_mm3(self) -> float:
+        """True volume of the body, mm³."""
+        return self.profile.volume_um3() / UM3_PER_MM3
+
+    def area_mm2(self) -> float:
+        """True surface area of the body, mm²."""
+        return self.profile.area_um2() / UM2_PER_MM2
+
+    def hull_volume_mm3(self, angles_deg: Sequence[float]) -> float:
+        """Exact volume of the orthographic visual hull from views at ``angles_deg``, mm³."""
+        return orthographic_hull_factor(angles_deg) * self.volume_mm3()
+
+    def hull_area_mm2(self, angles_deg: Sequence[float]) -> float:
+        """Exact surface area of the orthographic visual hull from views at ``angles_deg``, mm²."""
+        return orthographic_hull_factor(angles_deg) * self.area_mm2()
+
+    def truth(self) -> dict[str, float | str]:
+        """Name, true volume (mm³) and area (mm²), JSON-able."""
+        return {"phantom": self.name, "true_volume_mm3": self.volume_mm3(), "true_area_mm2": self.area_mm2()}
+
+
+def orthographic_hull_factor(angles_deg: Sequence[float]) -> float:
+    """F = Σ_k tan(Δ_k/2) / π over the 2N sorted gaps of {φ_i, φ_i + 180°} (module docstring).
+
+    Views 180° apart give the same constraint, so duplicates modulo 180° are merged.
+    Returns ``inf`` when fewer than two distinct directions remain (an unbounded hull).
+    """
+    phi = np.mod(np.asarray(angles_deg, float), 180.0)
+    phi = np.unique(np.round(phi, 9))
+    phi = phi[np.r_[True, np.diff(phi) > 1e-9]]
+    if phi.size >= 2 and (phi[-1] - phi[0]) > 180.0 - 1e-9:
+        phi = phi[:-1]
+    if phi.size < 2:
+        return float("inf")
+    dirs = np.sort(np.concatenate([phi, phi + 180.0]))
+    gaps = np.diff(np.r_[dirs, dirs[0] + 360.0])
+    return float(np.sum(np.tan(np.radians(gaps) / 2.0)) / np.pi)
+
+
+def zebrafish_phantom() -> Phantom:
+    """A 3 mm zebrafish-larva-like phantom: head left (−x), two dark eyes, a dark yolk.
+
+    Body: :class:`LarvaProfile` (3.0 mm long, 0.54 mm widest). Eyes: ellipsoids 150 × 110 ×
+    90 µm (semi-axes 75 × 55 × 45) at x = −1090 µm, z = ±80 µm. Yolk: 380 × 260 × 260 µm
+    ellipsoid at x = −480 µm, slightly below the axis.
+    """
+    profile = LarvaProfile()
+    eyes = tuple(
+        EllipsoidFeature(f"{side} eye", (-1090.0, 0.0, sign * 80.0), (75.0, 55.0, 45.0), 0.02) for side, sign in (("left", 1.0), ("right", -1.0))
+    )
+    yolk = EllipsoidFeature("yolk", (-480.0, 30.0, 0.0), (190.0, 130.0, 130.0), 0.004)
+    return Phantom(profile, eyes + (yolk,))
+
+
+def spheroid_phantom(a_um: float = 1500.0, b_um: float = 280.0) -> Phantom:
+    """A plain prolate spheroid (semi-axes a along x, b radially, µm); closed-form truth."""
+    return Phantom(SpheroidProfile(a_um, b_um))
+
+
+def capsule_phantom(radius_um: float = 250.0, length_um: float = 2000.0) -> Phantom:
+    """A plain capsule (cylinder length L with hemispherical caps of radius R, µm)."""
+    return Phantom(CapsuleProfile(radius_um, length_um))
+
+
+PHANTOMS = {"zebrafish": zebrafish_phantom, "spheroid": spheroid_phantom, "capsule": capsule_phantom}
+"""Phantom factories by short name."""

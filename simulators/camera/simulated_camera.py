@@ -1,0 +1,223 @@
+"""A numpy camera behind the :class:`vastcal.devices.Camera` interface.
+
+It renders the phantom at the stage's ACTUAL angle (read from ``angle_source`` at the moment of
+the snap) through a rig whose true axis pose (:class:`RigTruth`) the pipeline is not told.
+What happened — truth pose, phantom truth, the actual angle of every snap — is available from
+:meth:`SimulatedCamera.truth_record` for acquisition to store APART from the session
+(a sidecar JSON); nothing of it is in the frames or in :meth:`describe`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from simulators.camera.phantom import Phantom, zebrafish_phantom
+from simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, Sensor
+from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
+from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
+from vastcal.devices import Camera, CameraSettings, Frame
+from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError
+
+log = logging.getLogger(__name__)
+
+TRUTH_SCHEMA = "vastcal.simulated-camera-truth/1"
+WAIT_SLICE_S = 0.02
+DEVICE_TICK_HZ = 1_000_000_000
+"""Simulated device clock: nanosecond ticks since :meth:`SimulatedCamera.open`."""
+
+
+class SimulatedCamera(Camera):
+    """Simulated GenICam-like camera rendering a phantom at the stage's actual angle.
+
+    Args:
+        optics: fixes K (focal length, principal point, sensor size).
+        camera: pixel format, exposure, gain, ROI (the initial settings).
+        simulation: seed, tilt/offset limits of the hidden truth, noise scale.
+        angle_source: returns the stage's actual angle in degrees when called (e.g. the stage
+            simulator's ``actual_angle_deg``).
+        phantom: the specimen (default :func:`zebrafish_phantom`).
+        truth: the hidden axis pose (default drawn from ``simulation``).
+        capillary, sensor: rendering models (defaults of :mod:`simulators.camera.render`).
+    """
+
+    def __init__(
+        self,
+        optics: OpticsConfig,
+        camera: CameraConfig,
+        simulation: SimulationConfig,
+        angle_source: Callable[[], float],
+        phantom: Phantom | None = None,
+        truth: RigTruth | None = None,
+        *,
+        capillary: Capillary | None = None,
+        sensor: Sensor | None = None,
+    ) -> None:
+        super().__init__()
+        self._optics = optics
+        self._sim = simulation
+        self._angle_source = angle_source
+        self.phantom = phantom or zebrafish_phantom()
+        self._truth = truth or RigTruth.draw(simulation, optics)
+        self._renderer = BrightfieldRenderer(self.phantom, capillary, sensor)
+        self._reference_exposure_us = float(camera.exposure_us)
+        roi = camera.roi
+        self._settings = CameraSettings(camera.pixel_format, camera.exposure_us, camera.gain_db, (roi.x, roi.y, roi.width, roi.height), camera.packet_size)
+        self._streaming = False
+        self._frame_id = 0
+        self._t_open = 0.0
+        self._snaps: list[dict[str, Any]] = []
+        self._faults: list[str] = []
+        self._lock = threading.Lock()
+        self._check_settings(self._settings)
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def _do_open(self) -> None:
+        self._t_open = time.monotonic()
+        self._frame_id = 0
+        log.info("simulated camera open (phantom %s)", self.phantom.name)
+
+    def _do_close(self) -> None:
+        self._streaming = False
+
+    # -- settings ----------------------------------------------------------------------------
+
+    def _check_settings(self, s: CameraSettings) -> None:
+        if s.pixel_format not in OUTPUT_FORMATS:
+            raise CameraError(f"camera refused PixelFormat = {s.pixel_format!r} (allowed: {', '.join(OUTPUT_FORMATS)})")
+        if not s.exposure_us > 0:
+            raise CameraError(f"camera refused ExposureTime = {s.exposure_us!r} (allowed > 0 µs)")
+        if not 0.0 <= s.gain_db <= 48.0:
+            raise CameraError(f"camera refused Gain = {s.gain_db!r} (allowed 0…48 dB)")
+        if s.roi is not None:
+            x, y, w, h = s.roi
+            W, H = self._optics.sensor_width_px, self._optics.sensor_height_px
+            if w < 1 or h < 1 or x < 0 or y < 0 or x + w > W or y + h > H:
+                raise CameraError(f"camera refused ROI x={x} y={y} width={w} height={h} (sensor {W} x {H} px)")
+
+    def configure(self, settings: CameraSettings) -> dict[str, Any]:
+        """Apply settings (before :meth:`start`); return them as read back (like the real driver)."""
+        self._check_open()
+        if self._streaming:
+            raise CameraError("configure() must be called before start(): the buffer size is fixed when the stream starts")
+        self._check_settings(settings)
+        self._settings = CameraSettings(settings.pixel_format, float(settings.exposure_us), float(settings.gain_db), settings.roi, settings.packet_size)
+        return self._readback()
+
+    def _roi(self) -> tuple[int, int, int, int]:
+        return self._settings.roi or (0, 0, self._optics.sensor_width_px, self._optics.sensor_height_px)
+
+    def _readback(self) -> dict[str, Any]:
+        x, y, w, h = self._roi()
+        s = self._settings
+        return {"pixel_format": s.pixel_format, "width": w, "height": h, "offset_x": x, "offset_y": y, "exposure_us": s.exposure_us,
+                "gain_db": s.gain_db, "packet_size": s.packet_size, "unavailable": []}
+
+    # -- streaming ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the (simulated) stream."""
+        self._check_open()
+        self._streaming = True
+
+    def stop_stream(self) -> None:
+        """Stop the stream; safe when stopped."""
+        self._streaming = False
+
+    def inject_fault(self, kind: str, count: int = 1) -> None:
+        """Make the next ``count`` snaps fail. ``kind``: ``"no_frame"`` (the wait times out)."""
+        if kind != "no_frame":
+            raise ValueError(f"unknown camera fault {kind!r}; known: no_frame")
+        self._faults += [kind] * count
+
+    def snap(self, timeout_s: float, cancel: threading.Event | None = None) -> Frame:
+        """Render one frame at the stage's actual angle now.
+
+        Raises:
+            DeviceTimeoutError: a ``no_frame`` fault was injected (after waiting ``timeout_s``).
+            AcquisitionAborted: ``cancel`` was set during the wait.
+            CameraError: not started.
+        """
+        self._check_open()
+        if not self._streaming:
+            raise CameraError("snap() before start(): call start() first")
+        if not timeout_s > 0:
+            raise CameraError(f"snap timeout must be > 0 s, got {timeout_s}")
+        with self._lock:
+            if cancel is not None and cancel.is_set():
+                raise AcquisitionAborted("camera wait cancelled")
+            if self._faults:
+                self._faults.pop(0)
+                self._wait(timeout_s, cancel)
+                raise DeviceTimeoutError(f"simulated camera delivered no frame within {timeout_s:g} s (injected fault)")
+            angle = float(self._angle_source())
+            x, y, w, h = self._roi()
+            K = PinholeIntrinsics.from_optics(self._optics, (x, y)).K
+            R, t = camera_pose(self._truth, angle)
+            self._frame_id += 1
+            rng = np.random.default_rng(np.random.SeedSequence([self._sim.seed, 0xF4A, self._frame_id]))
+            s = self._settings
+            pixels = self._renderer.render(K, R, t, w, h, s.pixel_format, noise=self._sim.noise, rng=rng,
+                                           exposure_scale=s.exposure_us / self._reference_exposure_us, gain_db=s.gain_db)
+            host = time.time()
+            device = time.monotonic() - self._t_open
+            self._snaps.append({"frame_id": self._frame_id, "actual_angle_deg": angle, "host_time_s": host})
+            return Frame(pixels=pixels, frame_id=self._frame_id, host_time_s=host, device_time_s=round(device * DEVICE_TICK_HZ) / DEVICE_TICK_HZ,
+                         exposure_us=s.exposure_us, gain_db=s.gain_db, pixel_format=s.pixel_format)
+
+    @staticmethod
+    def _wait(timeout_s: float, cancel: threading.Event | None) -> None:
+        deadline = time.monotonic() + timeout_s
+        while (remaining := deadline - time.monotonic()) > 0:
+            if cancel is not None and cancel.wait(min(WAIT_SLICE_S, remaining)):
+                raise AcquisitionAborted("camera wait cancelled")
+            if cancel is None:
+                time.sleep(min(WAIT_SLICE_S, remaining))
+
+    # -- records -----------------------------------------------------------------------------
+
+    def describe(self) -> dict[str, Any]:
+        """What a real camera would say about itself (no hidden truth in here)."""
+        return {"driver": "simulated", "vendor": "vastcal", "model": "SimulatedCamera", "serial": f"sim-{self._sim.seed}", "firmware": "1",
+                "trigger": "software", "settings": self._readback(), "unavailable": []}
+
+    @property
+    def truth(self) -> RigTruth:
+        """The hidden axis pose (for tests and the truth sidecar only)."""
+        return self._truth
+
+    def projection_matrix(self, angle_deg: float) -> np.ndarray:
+        """TRUE P (3×4) for the current ROI at stage angle ``angle_deg`` (tests/benchmarks only)."""
+        x, y, _, _ = self._roi()
+        return truth_projection_matrix(PinholeIntrinsics.from_optics(self._optics, (x, y)), self._truth, angle_deg)
+
+    def truth_record(self) -> dict[str, Any]:
+        """The hidden truth as JSON-able data, to be written APART from the session.
+
+        Keys: ``schema``; ``phantom``, ``true_volume_mm3``, ``true_area_mm2``; ``yaw_deg``,
+        ``pitch_deg``, ``gamma_deg``, ``axis_offset_um``, ``distance_um``; ``seed``; ``roi``
+        (x, y, w, h px); ``K`` (3×3 of the ROI frame); ``snaps`` — one
+        ``{"frame_id", "actual_angle_deg", "host_time_s"}`` per frame delivered; and
+        ``hull_volume_mm3`` / ``hull_area_mm2`` — the exact orthographic visual hull of the
+        phantom from the actual angles (``None`` with fewer than two distinct directions).
+        """
+        angles = [s["actual_angle_deg"] for s in self._snaps]
+        hv = self.phantom.hull_volume_mm3(angles) if angles else float("inf")
+        ha = self.phantom.hull_area_mm2(angles) if angles else float("inf")
+        x, y, w, h = self._roi()
+        return {
+            "schema": TRUTH_SCHEMA,
+            **self.phantom.truth(),
+            **self._truth.to_dict(),
+            "seed": self._sim.seed,
+            "roi": [x, y, w, h],
+            "K": PinholeIntrinsics.from_optics(self._optics, (x, y)).K.tolist(),
+            "snaps": [dict(s) for s in self._snaps],
+            "hull_volume_mm3": hv if np.isfinite(hv) else None,
+            "hull_area_mm2": ha if np.isfinite(ha) else None,
+        }
