@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -150,18 +149,5 @@ class SerialTransport:
             return
         try:
             port.reset_input_buffer()
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceDisconnectedError(f"{self.url}: cannot reset input: {exc}") from exc
-
-    def drain_for(self, quiet_s: float) -> None:
-        """Discard input until nothing has arrived for ``quiet_s`` seconds (bounded: ≤ 10 × quiet_s)."""
-        port = self._require_port()
-        deadline = time.monotonic() + 10 * quiet_s
-        try:
-            while time.monotonic() < deadline:
-                port.reset_input_buffer()
-                time.sleep(quiet_s)
-                if not port.in_waiting:
-                    return
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnectedError(f"{self.url}: cannot reset input: {exc}") from exc

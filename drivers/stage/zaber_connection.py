@@ -5,6 +5,9 @@ device, axis and id match the request, so a late reply to an earlier command is 
 and dropped. Idempotent queries (``get …``, status polls, ``warnings``) are retried once
 after a timeout or an unparsable reply, with the input drained first; motion commands are
 never retried automatically (a lost ``move rel`` reply does not mean the move did not happen).
+
+A device that does not echo message ids would have every reply dropped as stale and time out;
+every Zaber ASCII firmware echoes them, so this is treated as "not a Zaber device".
 """
 
 from __future__ import annotations
