@@ -172,8 +172,9 @@ def acquire(
     result = AcquisitionResult(out, "fail", "", first_index)
     t0 = time.monotonic()
     try:
-        if cfg.stage.home_on_start or "WR" in stage.warnings() or "WH" in stage.warnings():
-            log.info("homing the stage")
+        flags = stage.warnings()
+        if "WR" in flags or "WH" in flags:  # no reference position: absolute targets would be meaningless
+            log.info("the stage reports %s: homing before the first view", "/".join(f for f in flags if f in ("WR", "WH")))
             stage.home(cancel)
         camera.start()
         state = RunState.ACQUIRING

@@ -1,0 +1,129 @@
+"""Connect the devices a rig description names: real drivers or simulators.
+
+This module is the *composition root* of acquisition: the only place in ``vastcal`` that
+knows the concrete device classes. :mod:`vastcal.acquire` receives the devices through the
+interfaces of :mod:`vastcal.devices` and never learns which kind it got.
+
+The simulated rig (``camera.driver: simulated``) wires a :class:`~simulators.stage.StageSimulator`
+(reached by the *real* Zaber driver through the in-process ``sim://`` serial scheme, so the real
+driver is what runs) to a :class:`~simulators.camera.SimulatedCamera` that renders at the
+stage's **actual** angle. Its hidden truth goes to a JSON file beside the session, rewritten
+after every view, never into the session itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import uuid
+from contextlib import ExitStack
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Callable
+
+from vastcal.config import RigConfig
+from vastcal.devices import Camera, RotationStage
+
+log = logging.getLogger(__name__)
+
+
+class Rig:
+    """Open stage and camera of one rig; use as a context manager (closes both, idempotently).
+
+    Attributes:
+        stage, camera: the open devices.
+        start_info: extra start-record attributes (e.g. ``{"simulated": True}``).
+        on_view: called by acquisition with each written view index.
+    """
+
+    def __init__(self, stage: RotationStage, camera: Camera, stack: ExitStack, start_info: dict[str, Any],
+                 on_view: Callable[[int], None] | None = None) -> None:
+        self.stage = stage
+        self.camera = camera
+        self.start_info = start_info
+        self._stack = stack
+        self.on_view = on_view or (lambda k: None)
+
+    def close(self) -> None:
+        """Close camera and stage (safe to call twice)."""
+        self._stack.close()
+
+    def __enter__(self) -> "Rig":
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
+
+def connect_rig(cfg: RigConfig, truth_path: str | Path | None = None) -> Rig:
+    """Open (handshake, home if configured) the stage and the camera of ``cfg``.
+
+    Args:
+        cfg: the rig description.
+        truth_path: for a simulated rig, where to keep the hidden truth (JSON).
+
+    Raises:
+        DeviceError: a device cannot be opened (anything already opened is closed again).
+        ConfigError: an unknown stage protocol or camera driver.
+    """
+    from drivers.stage import open_stage
+
+    stack = ExitStack()
+    try:
+        if cfg.camera.driver == "simulated":
+            return _simulated_rig(cfg, stack, Path(truth_path) if truth_path else None)
+        from drivers.camera.genicam_camera import GenICamCamera
+
+        stage = stack.enter_context(_closing(open_stage(cfg.stage)))
+        camera = GenICamCamera.from_config(cfg.camera)
+        camera.open()
+        stack.enter_context(_closing(camera))
+        return Rig(stage, camera, stack, {"simulated": False})
+    except BaseException:
+        stack.close()
+        raise
+
+
+def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) -> Rig:
+    import simulators.stage as simstage
+    from drivers.stage import open_stage
+    from simulators.camera import SimulatedCamera
+
+    assert cfg.simulation is not None  # parse_config fills it for simulated cameras
+    name = f"vastcal-{uuid.uuid4().hex[:8]}"
+    sim = simstage.register(name, simstage.StageSimulator(sim_cfg=cfg.simulation))
+    stack.callback(simstage.unregister, name)
+    url = cfg.stage.url if "name=" in cfg.stage.url else f"{cfg.stage.url}{'&' if '?' in cfg.stage.url else '?'}name={name}"
+    stage = stack.enter_context(_closing(open_stage(dataclasses.replace(cfg.stage, url=url))))
+    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=sim.actual_angle_deg)
+    camera.open()
+    stack.enter_context(_closing(camera))
+
+    def write_truth(k: int) -> None:
+        if truth_path is not None:
+            record = camera.truth_record()
+            record["actual_angles_deg"] = [s["actual_angle_deg"] for s in record["snaps"]]
+            _write_json_atomically(truth_path, record)
+
+    return Rig(stage, camera, stack, {"simulated": True, "truth_file": str(truth_path) if truth_path else ""}, write_truth)
+
+
+class _closing:
+    """Context manager that closes a device on exit (ExitStack helper)."""
+
+    def __init__(self, device: Any) -> None:
+        self.device = device
+
+    def __enter__(self) -> Any:
+        return self.device
+
+    def __exit__(self, *exc: Any) -> None:
+        self.device.close()
+
+
+def _write_json_atomically(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)
