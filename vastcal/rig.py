@@ -92,12 +92,20 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
     from simulators.camera import SimulatedCamera
 
     assert cfg.simulation is not None  # parse_config fills it for simulated cameras
-    name = f"vastcal-{uuid.uuid4().hex[:8]}"
-    sim = simstage.register(name, simstage.StageSimulator(sim_cfg=cfg.simulation))
-    stack.callback(simstage.unregister, name)
-    url = cfg.stage.url if "name=" in cfg.stage.url else f"{cfg.stage.url}{'&' if '?' in cfg.stage.url else '?'}name={name}"
-    stage = stack.enter_context(_closing(open_stage(dataclasses.replace(cfg.stage, url=url))))
-    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=sim.actual_angle_deg)
+    if cfg.stage.url.startswith("sim://"):
+        name = f"vastcal-{uuid.uuid4().hex[:8]}"
+        sim = simstage.register(name, simstage.StageSimulator(sim_cfg=cfg.simulation))
+        stack.callback(simstage.unregister, name)
+        url = cfg.stage.url if "name=" in cfg.stage.url else f"{cfg.stage.url}{'&' if '?' in cfg.stage.url else '?'}name={name}"
+        stage = stack.enter_context(_closing(open_stage(dataclasses.replace(cfg.stage, url=url))))
+        angle_source: Callable[[], float] = sim.actual_angle_deg
+    else:
+        # A stage (or stage simulator process) on a real port: its true angle is out of reach,
+        # so the camera renders at the read-back position.
+        stage = stack.enter_context(_closing(open_stage(cfg.stage)))
+        angle_source = lambda: stage.usteps_to_degrees(stage.position())  # noqa: E731
+        log.warning("simulated camera with the stage at %s: frames are rendered at the read-back angle (no drift truth)", cfg.stage.url)
+    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=angle_source)
     camera.open()
     stack.enter_context(_closing(camera))
 
