@@ -1,0 +1,14 @@
+"""Calibration of the camera pose of every view (probabilistic inference, voxel-residual baseline).
+
+Public API::
+
+    calibrate_session(path_or_session, method="pi", seed=..., free=..., mask=...) -> CalibrationResult
+    calibrate_views(images, K, distance, theta0_deg, ...)                        -> CalibrationResult
+    ColourModel.from_group(run["colour_model"]).foreground_probability(images)   -> (N, H, W) float32
+"""
+
+from vastcal.calibrate.colour_model import ColourModel, Gaussian, fit_automatic, fit_from_mask, fit_from_scribbles
+from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Level, calibrate_views
+
+__all__ = ["CalibrationResult", "CalibrationSettings", "ColourModel", "Gaussian", "Level", "calibrate_views",
+           "fit_automatic", "fit_from_mask", "fit_from_scribbles"]

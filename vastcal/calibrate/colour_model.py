@@ -1,0 +1,342 @@
+"""Gaussian colour models of specimen (foreground) and background, and probability maps.
+
+Every pixel value x (RGB or grey, scaled to [0, 1] by the pixel type's maximum) is explained
+by one of two full-covariance Gaussians, N(x; μ_f, Σ_f) and N(x; μ_b, Σ_b), with prior π_f for
+the foreground. The posterior
+
+    p_f(x) = π_f N_f(x) / (π_f N_f(x) + (1 − π_f) N_b(x)),   p_b = 1 − p_f
+
+is what the probabilistic-inference calibration samples (paper, Sec. 2). It is computed in the
+log domain and clamped to [ε, 1 − ε] (ε = 1e-4 by default), so that no single pixel can
+veto a voxel with log 0 = −∞.
+
+Where the models come from
+--------------------------
+* :func:`fit_from_mask` — a rough mask on one view (nonzero = specimen).
+* :func:`fit_from_scribbles` — a label image on one view: 0 unknown, 1 specimen, 2 background.
+* :func:`fit_automatic` — no user input. Assumptions, stated so they can be checked:
+
+  1. The image border (the outer ``border_frac`` of rows and columns of every view) is mostly
+     background — at least half of its pixels. This holds for a larva in a capillary (bright
+     background) and for a statuette on a turntable (dark background): the *colour* of the
+     background is never assumed, only its place.
+  2. The background is one colour cluster: it is fitted robustly (median, then a few rounds of
+     refitting on the pixels within the 97.5 % Mahalanobis quantile), so border pixels of
+     other things (capillary walls, a bright ceiling corner) are rejected as outliers.
+  3. The specimen is whatever lies far from that cluster: pixels beyond the 99.9 % quantile of
+     the background Gaussian, over all views, give the initial foreground Gaussian and prior;
+     a few EM rounds of the two-Gaussian mixture over all views then refine both (the border's
+     background may be brighter or more uniform than the field's: vignetting, saturation).
+
+  When the two clusters do not separate (Bhattacharyya distance below ``min_separation``),
+  when almost nothing differs from the background, or when the images are blank or saturated,
+  :class:`~vastcal.errors.ColourModelError` says so in one line.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Literal
+
+import h5py
+import numpy as np
+
+from vastcal.errors import ColourModelError, UserInputError
+
+log = logging.getLogger(__name__)
+
+Space = Literal["rgb", "grey"]
+
+#: χ² quantiles used by the robust fits, by number of channels (1 or 3).
+_CHI2_975 = {1: 5.024, 3: 9.348}
+_CHI2_999 = {1: 10.83, 3: 16.27}
+
+#: Variance floor of every channel (features in [0, 1]): σ ≥ 0.01, i.e. 2.5 levels of 8 bits, so that
+#: a saturated or quantised background does not make a needle-thin Gaussian.
+MIN_VAR = 1e-4
+
+
+def image_space(images: np.ndarray) -> Space:
+    """``"rgb"`` for (…, H, W, 3) stacks, ``"grey"`` for (…, H, W)."""
+    return "rgb" if images.ndim >= 3 and images.shape[-1] == 3 else "grey"
+
+
+def features(images: np.ndarray) -> np.ndarray:
+    """Pixel values as float32 features in [0, 1]: (…, H, W, C) with C = 3 (RGB) or 1 (grey).
+
+    Integer images are divided by their type's maximum; float images are taken as they are.
+    """
+    a = np.asarray(images)
+    scale = float(np.iinfo(a.dtype).max) if np.issubdtype(a.dtype, np.integer) else 1.0
+    f = a.astype(np.float32) / np.float32(scale)
+    if image_space(a) == "grey":
+        f = f[..., None]
+    return f
+
+
+def check_images(images: np.ndarray) -> None:
+    """Refuse blank or saturated stacks (N, H, W[, 3]) before anything is fitted.
+
+    Raises:
+        ColourModelError: a view whose pixels barely vary, or that is mostly saturated/black.
+    """
+    f = features(images)
+    n = f.shape[0]
+    for i in range(n):
+        v = f[i].reshape(-1, f.shape[-1])
+        sub = v[:: max(1, v.shape[0] // 20000)]
+        if float(sub.std(axis=0).max()) < 2e-3:
+            raise ColourModelError(f"view {i} is blank (constant value {float(sub.mean()):.3g}): no specimen can be seen")
+        sat = float(np.mean(np.all(sub >= 0.999, axis=1)))
+        if sat > 0.9:
+            raise ColourModelError(f"view {i} is saturated ({100 * sat:.0f}% of pixels at full scale): reduce the exposure")
+
+
+@dataclass(frozen=True)
+class Gaussian:
+    """A full-covariance Gaussian over pixel features in [0, 1] (C channels)."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+
+    @classmethod
+    def fit(cls, samples: np.ndarray, weights: np.ndarray | None = None, min_var: float = MIN_VAR) -> "Gaussian":
+        """(Weighted) maximum-likelihood fit of samples (M, C), regularised by ``min_var`` on the diagonal."""
+        s = np.asarray(samples, np.float64)
+        w = np.ones(s.shape[0]) if weights is None else np.asarray(weights, np.float64)
+        if s.shape[0] < 2 * s.shape[1] + 2 or w.sum() < 2 * s.shape[1] + 2:
+            raise ColourModelError(f"too few pixels ({int(w.sum())}) to fit a colour model")
+        mean = (w[:, None] * s).sum(axis=0) / w.sum()
+        d = s - mean
+        cov = (w[:, None] * d).T @ d / w.sum() + min_var * np.eye(s.shape[1])
+        return cls(mean, cov)
+
+    @classmethod
+    def fit_robust(cls, samples: np.ndarray, rounds: int = 4) -> "Gaussian":
+        """Fit to the dominant cluster of ``samples`` (M, C), ignoring up to ~half outliers.
+
+        Starts from the median and a MAD scale, then refits on the pixels within the 97.5 %
+        χ² quantile of the current fit, ``rounds`` times (a concentration step as in MCD).
+        """
+        s = np.asarray(samples, np.float64)
+        c = s.shape[1]
+        med = np.median(s, axis=0)
+        mad = np.median(np.abs(s - med), axis=0) * 1.4826 + 1e-3
+        g = cls(med, np.diag(mad**2))
+        for _ in range(rounds):
+            inl = s[g.mahalanobis2(s) < _CHI2_975[c]]
+            if inl.shape[0] < 2 * c + 2:
+                break
+            g = cls.fit(inl)
+        return g
+
+    def mahalanobis2(self, x: np.ndarray) -> np.ndarray:
+        """Squared Mahalanobis distance of features x (…, C)."""
+        L = np.linalg.cholesky(self.cov)
+        d = (np.asarray(x, np.float64) - self.mean).reshape(-1, self.mean.size)
+        z = np.linalg.solve(L, d.T)
+        return np.sum(z * z, axis=0).reshape(np.shape(x)[:-1])
+
+    def log_pdf(self, x: np.ndarray) -> np.ndarray:
+        """log N(x; μ, Σ) for features x (…, C), float32, computed without forming Σ⁻¹ explicitly."""
+        c = self.mean.size
+        L = np.linalg.cholesky(self.cov).astype(np.float32)
+        Linv = np.linalg.inv(L).astype(np.float32)
+        d = x.reshape(-1, c) - self.mean.astype(np.float32)
+        z = d @ Linv.T
+        logdet = 2.0 * float(np.sum(np.log(np.diag(L))))
+        out = -0.5 * np.einsum("mc,mc->m", z, z) - np.float32(0.5 * (logdet + c * np.log(2 * np.pi)))
+        return out.reshape(x.shape[:-1]).astype(np.float32)
+
+
+def bhattacharyya(a: Gaussian, b: Gaussian) -> float:
+    """Bhattacharyya distance between two Gaussians (0 = identical; > 1 well separated)."""
+    S = (a.cov + b.cov) / 2
+    d = a.mean - b.mean
+    term1 = float(d @ np.linalg.solve(S, d)) / 8
+    _, ld = np.linalg.slogdet(S)
+    _, la = np.linalg.slogdet(a.cov)
+    _, lb = np.linalg.slogdet(b.cov)
+    return term1 + 0.5 * (ld - 0.5 * (la + lb))
+
+
+@dataclass(frozen=True)
+class ColourModel:
+    """Foreground and background Gaussians, the foreground prior and the feature space.
+
+    Attributes:
+        fg, bg: the two Gaussians over features in [0, 1].
+        prior_fg: π_f, prior probability of a specimen pixel.
+        space: ``"rgb"`` or ``"grey"`` (the images it applies to).
+        source: how it was learned (``"automatic"``, ``"mask:view 3"``, ``"scribbles:view 0"``).
+        eps: clamp of the posteriors, p in [eps, 1 − eps].
+    """
+
+    fg: Gaussian
+    bg: Gaussian
+    prior_fg: float
+    space: Space
+    source: str = "automatic"
+    eps: float = 1e-4
+
+    @property
+    def separation(self) -> float:
+        """Bhattacharyya distance between the foreground and background Gaussians."""
+        return bhattacharyya(self.fg, self.bg)
+
+    def log_foreground_probability(self, images: np.ndarray) -> np.ndarray:
+        """Clamped log p_f for every pixel, float32 (N, H, W) (or (H, W) for one image).
+
+        Raises:
+            UserInputError: images of the wrong colour space.
+        """
+        if image_space(np.asarray(images)) != self.space:
+            raise UserInputError(f"colour model is {self.space} but the images are {image_space(np.asarray(images))}")
+        f = features(images)
+        lf = self.fg.log_pdf(f) + np.float32(np.log(self.prior_fg))
+        lb = self.bg.log_pdf(f) + np.float32(np.log1p(-self.prior_fg))
+        # log p_f = −log(1 + exp(lb − lf)), stable for either sign of the difference.
+        diff = np.clip(lb - lf, -80.0, 80.0)
+        logp = -np.logaddexp(np.float32(0.0), diff)
+        return np.clip(logp, np.log(self.eps), np.log1p(-self.eps)).astype(np.float32)
+
+    def foreground_probability(self, images: np.ndarray) -> np.ndarray:
+        """Posterior p_f of the specimen for every pixel, float32 (N, H, W), clamped to [ε, 1 − ε]."""
+        return np.exp(self.log_foreground_probability(images)).astype(np.float32)
+
+    # -- storage -------------------------------------------------------------------------------
+    def to_group(self, group: h5py.Group) -> None:
+        """Write ``fg_mean``, ``fg_cov``, ``bg_mean``, ``bg_cov`` and attrs space, prior, source, eps."""
+        for name, g in (("fg", self.fg), ("bg", self.bg)):
+            group.create_dataset(f"{name}_mean", data=np.asarray(g.mean, float))
+            group.create_dataset(f"{name}_cov", data=np.asarray(g.cov, float))
+        group.attrs["space"] = self.space
+        group.attrs["prior"] = float(self.prior_fg)
+        group.attrs["source"] = self.source
+        group.attrs["eps"] = float(self.eps)
+        group.attrs["units"] = "pixel value / type maximum (features in [0, 1])"
+        group.attrs["bhattacharyya"] = float(self.separation)
+
+    @classmethod
+    def from_group(cls, group: h5py.Group) -> "ColourModel":
+        """Read a model written by :meth:`to_group` (e.g. ``run["colour_model"]``)."""
+        def s(v: object) -> str:
+            return v.decode() if isinstance(v, bytes) else str(v)
+
+        return cls(Gaussian(group["fg_mean"][...], group["fg_cov"][...]), Gaussian(group["bg_mean"][...], group["bg_cov"][...]),
+                   float(group.attrs["prior"]), s(group.attrs["space"]),  # type: ignore[arg-type]
+                   s(group.attrs.get("source", "stored")), float(group.attrs.get("eps", 1e-4)))
+
+
+def _checked(model: ColourModel, min_separation: float) -> ColourModel:
+    sep = model.separation
+    log.info("colour model (%s, %s): fg mean %s, bg mean %s, prior %.3f, Bhattacharyya %.2f", model.source, model.space,
+             np.round(model.fg.mean, 3), np.round(model.bg.mean, 3), model.prior_fg, sep)
+    if not np.isfinite(sep) or sep < min_separation:
+        raise ColourModelError(f"specimen and background colours do not separate (Bhattacharyya distance {sep:.2f} < {min_separation}); "
+                               "give a rough mask or scribbles on one view")
+    return model
+
+
+def _prior(p: float) -> float:
+    return float(np.clip(p, 0.02, 0.5))
+
+
+def fit_from_mask(image: np.ndarray, mask: np.ndarray, *, view: int = 0, min_separation: float = 0.5) -> ColourModel:
+    """Colour models from a rough mask (H, W), nonzero = specimen, on one image (H, W[, 3]).
+
+    Raises:
+        UserInputError: the mask's size differs from the image's.
+        ColourModelError: a mask with (almost) no specimen or no background, or no separation.
+    """
+    mask = np.asarray(mask)
+    if mask.ndim == 3:
+        mask = mask.max(axis=2)
+    if mask.shape != image.shape[:2]:
+        raise UserInputError(f"mask is {mask.shape[1]} x {mask.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px")
+    m = mask > 0
+    return fit_from_scribbles(image, np.where(m, 1, 2).astype(np.uint8), view=view, min_separation=min_separation, _source=f"mask:view {view}")
+
+
+def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, min_separation: float = 0.5,
+                       _source: str | None = None) -> ColourModel:
+    """Colour models from scribbles: a label image (H, W) with 0 unknown, 1 specimen, 2 background.
+
+    The prior π_f is the specimen fraction among labelled pixels when the labels cover the whole
+    image (a mask), otherwise it is estimated from the posterior mean over the image.
+
+    Raises:
+        UserInputError: labels of the wrong size.
+        ColourModelError: fewer than a few pixels of either class, or no separation.
+    """
+    labels = np.asarray(labels)
+    if labels.shape != image.shape[:2]:
+        raise UserInputError(f"scribbles are {labels.shape[1]} x {labels.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px")
+    check_images(np.asarray(image)[None])
+    f = features(image)
+    fg_px, bg_px = f[labels == 1], f[labels == 2]
+    if fg_px.shape[0] < 20 or bg_px.shape[0] < 20:
+        raise ColourModelError(f"view {view}: the mask/scribbles mark {fg_px.shape[0]} specimen and {bg_px.shape[0]} background pixels; need at least 20 of each")
+    fg, bg = Gaussian.fit(fg_px), Gaussian.fit(bg_px)
+    if np.all(labels > 0):
+        prior = fg_px.shape[0] / labels.size
+    else:
+        tmp = ColourModel(fg, bg, 0.5, image_space(np.asarray(image)))
+        prior = float(tmp.foreground_probability(np.asarray(image)[None]).mean())
+    return _checked(ColourModel(fg, bg, _prior(prior), image_space(np.asarray(image)), _source or f"scribbles:view {view}"), min_separation)
+
+
+def border_pixels(images: np.ndarray, border_frac: float = 0.03) -> np.ndarray:
+    """Features (M, C) of the outer ``border_frac`` of rows and columns of every view (≥ 2 px)."""
+    f = features(images)
+    n, h, w = f.shape[:3]
+    by, bx = max(2, int(round(border_frac * h))), max(2, int(round(border_frac * w)))
+    parts = [f[:, :by].reshape(-1, f.shape[-1]), f[:, -by:].reshape(-1, f.shape[-1]),
+             f[:, by:-by, :bx].reshape(-1, f.shape[-1]), f[:, by:-by, -bx:].reshape(-1, f.shape[-1])]
+    return np.concatenate(parts)
+
+
+def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separation: float = 0.5,
+                  max_samples: int = 200_000, em_rounds: int = 10, seed: int = 0) -> ColourModel:
+    """Colour models with no user input (assumptions in the module docstring).
+
+    Args:
+        images: (N, H, W[, 3]) views.
+        border_frac: fraction of rows/columns at each edge taken as mostly background.
+        min_separation: least Bhattacharyya distance accepted between the two Gaussians.
+        max_samples: pixels drawn (reproducibly, from ``seed``) for each fit.
+        em_rounds: EM rounds refining both Gaussians on all views' pixels (:func:`em_refine`).
+
+    Raises:
+        ColourModelError: blank or saturated views, nothing unlike the background, or no separation.
+    """
+    images = np.asarray(images)
+    check_images(images)
+    rng = np.random.default_rng(seed)
+    border = border_pixels(images, border_frac)
+    if border.shape[0] > max_samples:
+        border = border[rng.choice(border.shape[0], max_samples, replace=False)]
+    bg = Gaussian.fit_robust(border)
+    f = features(images).reshape(-1, border.shape[1])
+    sample = f[rng.choice(f.shape[0], min(max_samples, f.shape[0]), replace=False)]
+    far = bg.mahalanobis2(sample) > _CHI2_999[border.shape[1]]
+    frac = float(far.mean())
+    if far.sum() < 50 or frac < 1e-3:
+        raise ColourModelError(f"no specimen found: only {100 * frac:.2f}% of pixels differ from the background colour")
+    model = em_refine(ColourModel(Gaussian.fit(sample[far]), bg, _prior(frac), image_space(images), "automatic"), sample, em_rounds)
+    return _checked(model, min_separation)
+
+
+def em_refine(model: ColourModel, samples: np.ndarray, rounds: int) -> ColourModel:
+    """A few EM rounds of the two-Gaussian mixture on feature samples (M, C), from ``model``.
+
+    The border fit sees only the border's illumination; EM lets the background Gaussian widen to
+    the whole field's (vignetting, a brighter capillary interior) while the specimen keeps its own.
+    """
+    for _ in range(rounds):
+        lf = model.fg.log_pdf(samples) + np.log(model.prior_fg)
+        lb = model.bg.log_pdf(samples) + np.log1p(-model.prior_fg)
+        r = np.exp(-np.logaddexp(0.0, np.clip(lb - lf, -80, 80)))  # responsibility of the foreground
+        model = ColourModel(Gaussian.fit(samples, r), Gaussian.fit(samples, 1 - r), _prior(float(r.mean())), model.space, model.source, model.eps)
+    return model

@@ -1,0 +1,50 @@
+"""The voxel-residual (VR) baseline: silhouette consistency of a fixed voxel set.
+
+With soft silhouettes s_i ∈ [0, 1] (given masks, or the thresholded foreground posteriors,
+lightly blurred so that bilinear sampling is smooth) sampled at each voxel's projection,
+
+    r_j = (1/N) Σ_i s_ij − Π_i s_ij        cost(θ) = (1/M) Σ_j r_j   (minimised)
+
+r_j is 0 for a voxel inside every silhouette (part of the visual hull) and for a voxel outside
+every silhouette, and grows with the fraction of views that claim a voxel the others reject:
+the reprojection disagreement of the hull. The product is taken as exp Σ log max(s, ε).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vastcal.calibrate.sampling import Atlas, Projector
+
+
+class VRObjective:
+    """Voxel-residual cost for a population of θ, on one resolution level.
+
+    Args:
+        silhouettes: (N, H, W) float soft silhouettes in [0, 1] of the (resized) views.
+        projector: the level's voxels and intrinsics.
+        weights: (M,) voxel weights (0 for padding voxels), default 1.
+        eps: floor of s inside the logarithm.
+    """
+
+    name = "vr"
+
+    def __init__(self, silhouettes: np.ndarray, projector: Projector, weights: np.ndarray | None = None, eps: float = 1e-4) -> None:
+        self.atlas = Atlas.from_stack(np.clip(np.asarray(silhouettes, np.float32), 0.0, 1.0))
+        self.projector = projector
+        m = projector.n_voxels
+        w = np.ones(m, np.float32) if weights is None else np.asarray(weights, np.float32)
+        self.weights = w / max(float(w.sum()), 1.0)
+        self.eps = np.float32(eps)
+        self.n_evaluations = 0
+
+    def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
+        """Costs (B,) for θ (B, 3 + N) degrees (lower is better)."""
+        th = np.atleast_2d(theta_deg)
+        s = self.projector.sample(self.atlas, th)  # (B, N, M)
+        mean = s.mean(axis=1)
+        np.maximum(s, self.eps, out=s)
+        np.log(s, out=s)
+        prod = np.exp(s.sum(axis=1))
+        self.n_evaluations += th.shape[0]
+        return ((mean - prod) @ self.weights).astype(np.float64)

@@ -1,0 +1,109 @@
+"""The calibration parameter vector θ: which entries are free, their bounds and scaling.
+
+θ = [yaw, pitch, γ, ω_0 … ω_{N−1}] in degrees (see :mod:`vastcal.geometry`). ω_0 is always held
+fixed: view 0 defines the specimen's orientation about the axis, and a common roll of every
+view is unobservable (it only rotates the reconstruction).
+
+The optimiser works in normalised coordinates x ∈ [−1, 1] per free entry,
+θ_k = θ0_k + h_k · x_k, with h_k the half-width of the search box (from
+:class:`~vastcal.config.CalibrationBounds`). The box is then simply [−1, 1] and the initial
+step sizes are comparable fractions of each box.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+
+from vastcal.config import CalibrationBounds
+from vastcal.errors import UserInputError
+
+#: Names accepted in ``free``; ``all`` = yaw, pitch, gamma and rolls.
+FREE_NAMES = ("yaw", "pitch", "gamma", "rolls", "all")
+
+
+def normalise_free(free: Iterable[str] | str | None) -> tuple[str, ...]:
+    """Validated, canonical tuple of free groups (``all`` expanded), in θ order.
+
+    Raises:
+        UserInputError: an unknown name or an empty selection.
+    """
+    if free is None:
+        return ("yaw", "pitch", "gamma", "rolls")
+    names = [free] if isinstance(free, str) else list(free)
+    names = [n.strip().lower() for part in names for n in str(part).replace(",", " ").split()]
+    bad = [n for n in names if n not in FREE_NAMES]
+    if bad:
+        raise UserInputError(f"unknown free parameter(s) {bad}; choose from {', '.join(FREE_NAMES)}")
+    if "all" in names:
+        names = ["yaw", "pitch", "gamma", "rolls"]
+    out = tuple(n for n in ("yaw", "pitch", "gamma", "rolls") if n in names)
+    if not out:
+        raise UserInputError("no free parameter selected; choose from yaw, pitch, gamma, rolls, all")
+    return out
+
+
+@dataclass(frozen=True)
+class ParameterSpace:
+    """θ0, the free entries and their half-widths.
+
+    Attributes:
+        theta0: (3 + N,) initial θ, degrees.
+        free_mask: (3 + N,) bool, True where θ is optimised (never ω_0).
+        half_width: (3 + N,) search half-width per entry, degrees.
+        free: the free groups as given (``("yaw", "pitch", "gamma", "rolls")``).
+    """
+
+    theta0: np.ndarray
+    free_mask: np.ndarray
+    half_width: np.ndarray
+    free: tuple[str, ...]
+
+    @classmethod
+    def build(cls, theta0: np.ndarray, free: Iterable[str] | str | None, bounds: CalibrationBounds) -> "ParameterSpace":
+        """Free mask and half-widths for ``free`` groups with ``bounds`` around ``theta0``."""
+        th = np.asarray(theta0, float)
+        groups = normalise_free(free)
+        n = th.size - 3
+        mask = np.zeros(th.size, bool)
+        mask[0], mask[1], mask[2] = "yaw" in groups, "pitch" in groups, "gamma" in groups
+        if "rolls" in groups:
+            mask[4:] = True
+        hw = np.concatenate([[bounds.yaw_deg, bounds.pitch_deg, bounds.gamma_deg], np.full(n, bounds.roll_deg)])
+        mask &= hw > 0
+        if not mask.any():
+            raise UserInputError(f"nothing to optimise: free={list(groups)} with zero bounds or a single view")
+        return cls(th, mask, hw, groups)
+
+    @property
+    def n_free(self) -> int:
+        """Number of optimised entries."""
+        return int(self.free_mask.sum())
+
+    @property
+    def lower(self) -> np.ndarray:
+        """Lower bound of θ (degrees); fixed entries equal θ0."""
+        return self.theta0 - np.where(self.free_mask, self.half_width, 0.0)
+
+    @property
+    def upper(self) -> np.ndarray:
+        """Upper bound of θ (degrees)."""
+        return self.theta0 + np.where(self.free_mask, self.half_width, 0.0)
+
+    def theta(self, x: np.ndarray) -> np.ndarray:
+        """θ (B, 3 + N) in degrees from normalised free coordinates x (B, n_free) (or (n_free,))."""
+        x = np.atleast_2d(np.asarray(x, float))
+        th = np.repeat(self.theta0[None], x.shape[0], axis=0)
+        th[:, self.free_mask] += np.clip(x, -1.0, 1.0) * self.half_width[self.free_mask]
+        return th
+
+    def x(self, theta: np.ndarray) -> np.ndarray:
+        """Normalised free coordinates (n_free,) of a θ vector (degrees)."""
+        th = np.asarray(theta, float)
+        return (th[self.free_mask] - self.theta0[self.free_mask]) / self.half_width[self.free_mask]
+
+    def bounds_dict(self) -> dict[str, list[float]]:
+        """Lower and upper θ as JSON-able lists (degrees)."""
+        return {"lower_deg": self.lower.tolist(), "upper_deg": self.upper.tolist()}

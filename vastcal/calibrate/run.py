@@ -1,0 +1,289 @@
+"""Calibration of a whole revolution: from images and a camera model to calibrated θ.
+
+:func:`calibrate_views` is the pure function of arrays (images, K, d, θ0, …);
+:func:`calibrate_session` reads a session, calls it, and stores the run in
+``/entry/vastcal/calibration/run_NNN`` without touching the images.
+
+Coarse to fine: each :class:`Level` resizes the per-view maps to a given width, fills the region
+where the specimen can be with about ``voxels`` voxels, and runs CMA-ES from the previous level's
+best θ with a smaller step. The first level (¼ width, a few thousand voxels) finds the basin
+cheaply; the last refines it on sharper maps and more voxels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import resource
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Sequence
+
+import cv2
+import numpy as np
+
+from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
+from vastcal.calibrate.objective_pi import PIObjective
+from vastcal.calibrate.objective_vr import VRObjective
+from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
+from vastcal.calibrate.parameters import ParameterSpace, normalise_free
+from vastcal.calibrate.region import specimen_region
+from vastcal.calibrate.sampling import Projector, resize_stack
+from vastcal.config import CalibrationBounds, RoiConfig
+from vastcal.errors import AnalysisError, SessionIncompleteError, UserInputError
+from vastcal.geometry import decompose_circular, intrinsics_from_optics, projection_matrices
+
+log = logging.getLogger(__name__)
+
+Method = Literal["pi", "vr"]
+
+
+@dataclass(frozen=True)
+class Level:
+    """One resolution level of the coarse-to-fine search.
+
+    Attributes:
+        width_px: width the maps are resized to (area averaging), pixels; never upsampled.
+        voxels: approximate number of voxels in the specimen region at this level.
+        sigma0: initial CMA-ES step, as a fraction of each parameter's half-width.
+        max_evaluations: evaluation budget of this level.
+    """
+
+    width_px: int
+    voxels: int
+    sigma0: float
+    max_evaluations: int
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """Numerical settings of a calibration (stored with every run as JSON).
+
+    Attributes:
+        levels: coarse-to-fine schedule.
+        tolx: CMA-ES stop when steps fall below this (fraction of the half-widths).
+        tolfun: CMA-ES stop when the cost varies less than this.
+        popsize: CMA-ES population (None: cma's default 4 + 3 ln F).
+        eps: clamp of the posteriors (p in [ε, 1 − ε]).
+        threshold: p_f above which a pixel belongs to a rough silhouette (region, VR).
+        vr_blur_px: Gaussian blur (σ, level pixels) of the VR silhouettes, so bilinear sampling is smooth.
+        pi_form: ``"count"`` or ``"loglik"`` (see :mod:`.objective_pi`).
+        region_tolerance: cap of the first level's region tolerance, as a fraction of the image
+            height (the specimen region is carved under θ0 with the search box's displacement
+            bound, but never wider than this, so that the silhouettes do not merge with static
+            structures such as the capillary walls).
+        refine_tolerance_px: tolerance (level pixels) of the region of later levels, carved around the
+            previous level's solution.
+    """
+
+    levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 4000), Level(512, 16000, 0.03, 2500))
+    tolx: float = 2e-4
+    tolfun: float = 1e-8
+    popsize: int | None = None
+    eps: float = 1e-4
+    threshold: float = 0.5
+    vr_blur_px: float = 0.7
+    pi_form: str = "count"
+    region_tolerance: float = 0.1
+    refine_tolerance_px: float = 2.0
+
+    def to_json(self) -> str:
+        """JSON of every setting."""
+        return json.dumps(dataclasses.asdict(self))
+
+
+@dataclass
+class CalibrationResult:
+    """A calibrated revolution and how it was obtained.
+
+    Angles in degrees, pixels 0-based in the stored frames, world in µm (axis = x).
+    """
+
+    method: str
+    theta_deg: np.ndarray
+    theta0_deg: np.ndarray
+    K: np.ndarray
+    distance: float
+    P: np.ndarray
+    colour_model: ColourModel | None
+    seed: int
+    free: tuple[str, ...]
+    bounds: dict[str, list[float]]
+    settings: CalibrationSettings
+    n_evaluations: int
+    wall_time_s: float
+    time_per_evaluation_s: float
+    n_voxels: int
+    peak_rss_mb: float
+    cost_trace: np.ndarray = field(repr=False)
+    level_reports: list[dict[str, Any]] = field(default_factory=list)
+    run_name: str | None = None
+    session_path: Path | None = None
+
+    @property
+    def delta_angle_deg(self) -> np.ndarray:
+        """Calibrated minus commanded roll of every view, degrees."""
+        return self.theta_deg[3:] - self.theta0_deg[3:]
+
+    def summary(self) -> str:
+        """A few human lines."""
+        d = self.delta_angle_deg
+        where = f" → {self.session_path}:{self.run_name}" if self.run_name else ""
+        return (f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
+                f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
+                f"roll − commanded: RMS {np.sqrt(np.mean(d ** 2)):.3f}°, max {np.max(np.abs(d)):.3f}°\n"
+                f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
+                f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB")
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _area_resize(images: np.ndarray, factor: float) -> np.ndarray:
+    if factor <= 1.0:
+        return images
+    h, w = images.shape[1:3]
+    size = (max(4, int(round(w / factor))), max(4, int(round(h / factor))))
+    return np.stack([cv2.resize(im, size, interpolation=cv2.INTER_AREA) for im in images])
+
+
+def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scribbles: tuple[int, np.ndarray] | None,
+                  colour_model: ColourModel | None, seed: int) -> ColourModel:
+    if colour_model is not None:
+        return colour_model
+    for name, spec in (("mask", mask), ("scribbles", scribbles)):
+        if spec is None:
+            continue
+        try:
+            view, arr = int(spec[0]), np.asarray(spec[1])
+        except (TypeError, ValueError, IndexError):
+            raise UserInputError(f"{name}: expected (view index, image array)") from None
+        if not 0 <= view < images.shape[0]:
+            raise UserInputError(f"{name}: view {view} does not exist (views 0–{images.shape[0] - 1})")
+        if name == "mask":
+            return fit_from_mask(images[view], arr, view=view)
+        return fit_from_scribbles(images[view], arr, view=view)
+    return fit_automatic(images, seed=seed)
+
+
+def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_deg: np.ndarray, *, method: Method = "pi",
+                    seed: int = 0, free: Sequence[str] | str | None = None, bounds: CalibrationBounds | None = None,
+                    mask: tuple[int, np.ndarray] | None = None, scribbles: tuple[int, np.ndarray] | None = None,
+                    silhouettes: np.ndarray | None = None, colour_model: ColourModel | None = None,
+                    settings: CalibrationSettings | None = None, progress: ProgressCallback | None = None) -> CalibrationResult:
+    """Calibrate θ from the views themselves (pure function of arrays).
+
+    Args:
+        images: (N, H, W[, 3]) views, as stored.
+        K: 3×3 intrinsics, 0-based pixels of ``images``.
+        distance: camera-to-axis distance d, µm.
+        theta0_deg: (3 + N,) start [yaw, pitch, γ, commanded rolls], degrees.
+        method: ``"pi"`` (probabilistic inference) or ``"vr"`` (voxel residual on silhouettes).
+        seed: CMA-ES seed.
+        free: groups to optimise (yaw, pitch, gamma, rolls, all); ω_0 stays fixed.
+        bounds: half-widths of the box around θ0.
+        mask, scribbles: (view, array) to learn the colour models from (default automatic).
+        silhouettes: (N, H, W) given masks; used by VR instead of thresholded posteriors.
+        colour_model: a ready model (skips fitting).
+        settings: numerical settings.
+        progress: callback (evaluations, best cost, elapsed s, ETA s).
+
+    Raises:
+        AnalysisError: fewer than 3 views or a θ0 of the wrong length; ColourModelError and
+            EmptyHullError (subclasses) when the data cannot be calibrated.
+        UserInputError: bad mask/scribbles or free names.
+    """
+    t0 = time.monotonic()
+    settings = settings or CalibrationSettings()
+    bounds = bounds or CalibrationBounds()
+    images = np.asarray(images)
+    n = images.shape[0]
+    if n < 3:
+        raise AnalysisError(f"calibration needs at least 3 views, got {n}")
+    theta0 = np.asarray(theta0_deg, float)
+    if theta0.shape != (3 + n,) or not np.all(np.isfinite(theta0)):
+        raise AnalysisError(f"θ0 must hold 3 + {n} finite angles, got shape {theta0.shape}")
+    if method not in ("pi", "vr"):
+        raise UserInputError(f"unknown calibration method {method!r}; choose pi or vr")
+    if silhouettes is not None and np.asarray(silhouettes).shape != images.shape[:3]:
+        raise UserInputError(f"silhouettes are {np.asarray(silhouettes).shape}, the images {images.shape[:3]}")
+    space = ParameterSpace.build(theta0, normalise_free(free), bounds)
+    check_images(images)
+    model = _colour_model(images, mask, scribbles, colour_model, seed)
+
+    # Posteriors once, at the finest level's resolution (area-averaged colours: less noise, 4× fewer pixels).
+    w_full = images.shape[2]
+    finest = max(1.0, w_full / max(lv.width_px for lv in settings.levels))
+    small = _area_resize(images, finest)
+    logp = model.log_foreground_probability(small)
+    pf = np.exp(logp)
+    if silhouettes is not None:
+        sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
+        sil_src = np.stack([cv2.resize(s, (pf.shape[2], pf.shape[1]), interpolation=cv2.INTER_AREA) for s in sil_full])
+    else:
+        sil_src = (pf > settings.threshold).astype(np.float32)
+    S_small = np.diag([pf.shape[2] / w_full, pf.shape[1] / images.shape[1], 1.0])
+    S_small[:2, 2] = 0.5 * np.diag(S_small)[:2] - 0.5
+    K_small = S_small @ np.asarray(K, float)
+
+    clock = ProgressClock(progress, sum(lv.max_evaluations for lv in settings.levels))
+    x = np.zeros(space.n_free)
+    trace: list[tuple[int, float]] = []
+    reports: list[dict[str, Any]] = []
+    evals_done = 0
+    eval_time = 0.0
+    n_vox_final = 0
+    for li, lv in enumerate(settings.levels):
+        factor = max(1.0, pf.shape[2] / lv.width_px)
+        maps_pf, S = resize_stack(pf, factor)
+        K_lv = S @ K_small
+        if li == 0:  # the region is carved from the coarsest rough silhouettes (world µm), first under θ0 …
+            coarse_sil, K_region = resize_stack(sil_src, factor)[0] > 0.5, K_lv
+            region = specimen_region(K_region, distance, theta0, space.half_width, space.free_mask, coarse_sil, lv.voxels,
+                                     max_tolerance_px=settings.region_tolerance * coarse_sil.shape[1])
+        else:  # … then around the previous level's solution, with a small tolerance
+            region = specimen_region(K_region, distance, space.theta(x)[0], space.half_width, np.zeros_like(space.free_mask),
+                                     coarse_sil, lv.voxels, extra_px=settings.refine_tolerance_px)
+        vox = region.voxels
+        pad = (-len(vox)) % 1024
+        weights = np.concatenate([np.ones(len(vox)), np.zeros(pad)])
+        vox = np.concatenate([vox, np.repeat(vox[:1], pad, axis=0)]) if pad else vox
+        proj = Projector(K_lv, distance, vox)
+        if method == "pi":
+            lmap = np.clip(np.log(np.clip(maps_pf, settings.eps, 1 - settings.eps)), np.log(settings.eps), np.log1p(-settings.eps))
+            obj: PIObjective | VRObjective = PIObjective(lmap.astype(np.float32), proj, weights, settings.pi_form)
+        else:
+            s_lv = resize_stack(sil_src, factor)[0]
+            s_lv = np.stack([cv2.GaussianBlur(s, (0, 0), settings.vr_blur_px) for s in s_lv])
+            obj = VRObjective(s_lv, proj, weights, settings.eps)
+        t_lv = time.monotonic()
+        base = evals_done
+
+        def batch(xb: np.ndarray, _obj: Any = obj) -> np.ndarray:
+            return _obj(space.theta(xb))
+
+        res = minimise(batch, x, lv.sigma0, np.ones(space.n_free), seed=seed + li, max_evaluations=lv.max_evaluations,
+                       tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize,
+                       progress=lambda e, f, _b=base: clock.update(_b + e, f))
+        dt = time.monotonic() - t_lv
+        eval_time += dt
+        evals_done += res.n_evaluations
+        trace += [(base + e, f) for e, f in zip(res.trace_evals, res.trace_best)]
+        x = res.x_best
+        n_vox_final = len(region.voxels)
+        reports.append({"level": li, "map_shape": list(maps_pf.shape[1:]), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
+                        "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
+                        "n_evaluations": res.n_evaluations, "generations": res.n_generations, "best_cost": res.f_best,
+                        "time_s": dt, "stop": {k: str(v) for k, v in res.stop.items()}})
+        log.info("level %d: maps %s, %d voxels, %d evaluations in %.2f s (%.2f ms each), cost %.6g, stop %s", li, maps_pf.shape[1:],
+                 len(region.voxels), res.n_evaluations, dt, 1e3 * dt / max(res.n_evaluations, 1), res.f_best, list(res.stop))
+
+    theta = space.theta(x)[0]
+    P = projection_matrices(K, distance, theta[None])[0]
+    wall = time.monotonic() - t0
+    return CalibrationResult(method, theta, theta0, np.asarray(K, float), float(distance), P, model, int(seed), space.free,
+                             space.bounds_dict(), settings, evals_done, wall, eval_time / max(evals_done, 1), n_vox_final,
+                             _peak_rss_mb(), np.array(trace, float).reshape(-1, 2), reports)

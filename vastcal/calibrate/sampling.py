@@ -1,0 +1,123 @@
+"""Projecting voxels into every view for a whole population of θ, and bilinear sampling of maps.
+
+The inner loop of calibration. For B candidate θ vectors, N views and M voxels it
+
+1. builds the B × N cameras with :func:`vastcal.geometry.projection_matrices` (float64, then
+   normalised so that the depth row is O(1) and cast to float32),
+2. projects the M voxels: three (B·N, 3) @ (3, M) products, one reciprocal, two products,
+3. samples the N per-view maps at the B·N·M sub-pixel positions with **one** ``cv2.remap`` call
+   on an *atlas* — the N maps stacked vertically into one (N·H, W) float32 image — which is
+   bilinear, so the sampled values (and any cost built on them) are continuous in θ.
+
+Positions are clamped to the image (a voxel seen outside a view reads the nearest border pixel,
+which is background in any sensible framing) and never bleed into the neighbouring tile.
+Work is split into chunks of candidates so that memory stays below ``max_samples`` floats.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vastcal.geometry import projection_matrices
+
+
+def downsample_matrix(scale_x: float, scale_y: float) -> np.ndarray:
+    """Pixel transform from a frame to one resized by 1/scale (0-based pixel centres preserved).
+
+    u' = (u + 0.5) / s − 0.5: apply as ``S @ K`` or ``S @ P``.
+    """
+    return np.array([[1 / scale_x, 0.0, 0.5 / scale_x - 0.5], [0.0, 1 / scale_y, 0.5 / scale_y - 0.5], [0.0, 0.0, 1.0]])
+
+
+def resize_stack(maps: np.ndarray, factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Area-average each (H, W) map of (N, H, W) by ``factor`` ≥ 1; returns (maps, S) with S for K.
+
+    Returns the resized float32 stack and the 3×3 pixel transform (see :func:`downsample_matrix`).
+    """
+    n, h, w = maps.shape
+    if factor <= 1.0:
+        return np.ascontiguousarray(maps, np.float32), np.eye(3)
+    hs, ws = max(4, int(round(h / factor))), max(4, int(round(w / factor)))
+    out = np.stack([cv2.resize(np.asarray(m, np.float32), (ws, hs), interpolation=cv2.INTER_AREA) for m in maps])
+    return out, downsample_matrix(w / ws, h / hs)
+
+
+@dataclass(frozen=True)
+class Atlas:
+    """N maps of H × W stacked into one (N·H, W) float32 image for a single remap."""
+
+    image: np.ndarray
+    n: int
+    h: int
+    w: int
+
+    @classmethod
+    def from_stack(cls, maps: np.ndarray) -> "Atlas":
+        """Atlas of an (N, H, W) stack."""
+        n, h, w = maps.shape
+        if n * h >= 32767 or w >= 32767:
+            raise ValueError(f"atlas of {n} maps of {h}x{w} exceeds the remap size limit; downsample the maps")
+        return cls(np.ascontiguousarray(maps.reshape(n * h, w), np.float32), n, h, w)
+
+
+class Projector:
+    """Projects fixed voxels (M, 3) µm through B × N cameras and samples an :class:`Atlas`.
+
+    Args:
+        K: 3×3 intrinsics in pixels of the *sampled maps* (after any downsampling).
+        distance: axis distance d, µm.
+        voxels: (M, 3) world points, µm.
+        max_samples: upper bound of B·N·M values held at once (memory: ~24 bytes each).
+    """
+
+    def __init__(self, K: np.ndarray, distance: float, voxels: np.ndarray, max_samples: int = 6_000_000) -> None:
+        self.K = np.asarray(K, float)
+        self.distance = float(distance)
+        self.voxels = np.ascontiguousarray(np.asarray(voxels, np.float32).T)  # (3, M)
+        self.max_samples = int(max_samples)
+
+    @property
+    def n_voxels(self) -> int:
+        """M."""
+        return int(self.voxels.shape[1])
+
+    def cameras(self, theta_deg: np.ndarray) -> np.ndarray:
+        """(B, N, 3, 4) float64 cameras, each scaled so that its depth row's translation is 1."""
+        P = projection_matrices(self.K, self.distance, theta_deg)
+        return P / P[..., 2:3, 3:4]
+
+    def sample(self, atlas: Atlas, theta_deg: np.ndarray) -> np.ndarray:
+        """Bilinear samples (B, N, M) float32 of ``atlas`` at every voxel's projection."""
+        th = np.atleast_2d(theta_deg)
+        b, n, m = th.shape[0], atlas.n, self.n_voxels
+        out = np.empty((b, n, m), np.float32)
+        chunk = max(1, self.max_samples // max(1, n * m))
+        for s in range(0, b, chunk):
+            out[s:s + chunk] = self._sample_chunk(atlas, th[s:s + chunk])
+        return out
+
+    def _sample_chunk(self, atlas: Atlas, th: np.ndarray) -> np.ndarray:
+        P = self.cameras(th).astype(np.float32)  # (b, N, 3, 4)
+        b, n = P.shape[:2]
+        P = P.reshape(b * n, 3, 4)
+        X = self.voxels
+        den = P[:, 2, :3] @ X
+        den += P[:, 2, 3:]
+        np.reciprocal(den, out=den)
+        u = P[:, 0, :3] @ X
+        u += P[:, 0, 3:]
+        u *= den
+        v = P[:, 1, :3] @ X
+        v += P[:, 1, 3:]
+        v *= den
+        np.clip(u, 0.0, atlas.w - 1.0, out=u)
+        np.clip(v, 0.0, atlas.h - 1.001, out=v)
+        v += (np.arange(b * n, dtype=np.float32) % n * atlas.h)[:, None]
+        m = X.shape[1]
+        total = u.size
+        cols = 4096 if total % 4096 == 0 else (1024 if total % 1024 == 0 else m)
+        vals = cv2.remap(atlas.image, u.reshape(-1, cols), v.reshape(-1, cols), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return vals.reshape(b, n, m)
