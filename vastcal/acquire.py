@@ -8,7 +8,7 @@ Plan: N views over 360°, view k at the **absolute** target ``round(k · cycle /
 rounding never accumulates (``cycle`` = µsteps per revolution read from the stage).
 
 Per view: absolute move (the stage waits for idle with a finite, distance-derived timeout and
-verifies the read-back position), settle, snap (software trigger; the camera re-triggers once
+verifies the read-back position), settle, snap (software trigger; the runner re-triggers once
 on a timeout), append the frame and its record, flush. A view is either complete in the file
 or absent — never shifted.
 
@@ -32,8 +32,8 @@ from typing import Any, Callable
 import numpy as np
 
 from vastcal.config import RigConfig, dump_config
-from vastcal.devices import Camera, CameraSettings, RotationStage
-from vastcal.errors import AcquisitionAborted, DeviceError, SessionIncompleteError, UserInputError, VastcalError
+from vastcal.devices import Camera, CameraSettings, Frame, RotationStage
+from vastcal.errors import AcquisitionAborted, DeviceError, DeviceTimeoutError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.session import Session, SessionWriter, check_writable_output
 
 log = logging.getLogger(__name__)
@@ -184,7 +184,7 @@ def acquire(
             t_view = time.monotonic()
             move = stage.move_absolute(plan.targets_usteps[k], cancel)
             _sleep(cfg.stage.settle_s, cancel)
-            frame = camera.snap(cfg.camera.fetch_timeout_s + cfg.camera.exposure_us * 1e-6, cancel)
+            frame = _snap(camera, cfg.camera.fetch_timeout_s + cfg.camera.exposure_us * 1e-6, cancel, k)
             if frame.pixels.size == 0:
                 raise DeviceError(f"view {k}: the camera delivered an empty frame")
             if writer is None:
@@ -227,6 +227,20 @@ def acquire(
     log.info("acquisition %s: %d of %d views in %s%s", result.exit_status, result.views_written, plan.views, out,
              f" ({result.reason})" if result.reason else "")
     return result
+
+
+def _snap(camera: Camera, timeout_s: float, cancel: threading.Event, k: int) -> Frame:
+    """One frame; a timeout is re-triggered once (safe: the stage is not touched, no stale frame).
+
+    The runner does this itself rather than trusting every camera to: the simulated camera
+    raises on the first expiry. A camera that already re-triggers internally (the GenICam
+    driver) waits at most twice as long before the run fails.
+    """
+    try:
+        return camera.snap(timeout_s, cancel)
+    except DeviceTimeoutError as exc:
+        log.warning("view %d: %s; re-triggering once", k, exc)
+        return camera.snap(timeout_s, cancel)
 
 
 def _pixel_um(cfg: RigConfig) -> tuple[float, float]:

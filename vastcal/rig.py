@@ -16,7 +16,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
+import urllib.parse
 import uuid
 from contextlib import ExitStack
 from pathlib import Path
@@ -93,10 +95,17 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
 
     assert cfg.simulation is not None  # parse_config fills it for simulated cameras
     if cfg.stage.url.startswith("sim://"):
-        name = f"vastcal-{uuid.uuid4().hex[:8]}"
-        sim = simstage.register(name, simstage.StageSimulator(sim_cfg=cfg.simulation))
-        stack.callback(simstage.unregister, name)
-        url = cfg.stage.url if "name=" in cfg.stage.url else f"{cfg.stage.url}{'&' if '?' in cfg.stage.url else '?'}name={name}"
+        # The driver connects to the simulator registered under the URL's name, so the camera
+        # must render from that same one: a simulator the caller registered under that name
+        # (e.g. with faults armed) is used as it is; otherwise one is made from cfg.simulation.
+        given = (urllib.parse.parse_qs(urllib.parse.urlsplit(cfg.stage.url).query).get("name") or [""])[0]
+        if given and given in simstage.names():
+            sim = simstage.get(given)
+        else:
+            name = given or f"vastcal-{uuid.uuid4().hex[:8]}"
+            sim = simstage.register(name, simstage.StageSimulator(sim_cfg=cfg.simulation))
+            stack.callback(simstage.unregister, name)
+        url = cfg.stage.url if given else f"{cfg.stage.url}{'&' if '?' in cfg.stage.url else '?'}name={name}"
         stage = stack.enter_context(_closing(open_stage(dataclasses.replace(cfg.stage, url=url))))
         angle_source: Callable[[], float] = sim.actual_angle_deg
     else:
@@ -109,11 +118,23 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
     camera.open()
     stack.enter_context(_closing(camera))
 
+    earlier: list[dict[str, Any]] | None = None
+
     def write_truth(k: int) -> None:
-        if truth_path is not None:
-            record = camera.truth_record()
-            record["actual_angles_deg"] = [s["actual_angle_deg"] for s in record["snaps"]]
-            _write_json_atomically(truth_path, record)
+        nonlocal earlier
+        if truth_path is None:
+            return
+        if earlier is None:  # first view of this run: a resumed run keeps the truth of views 0..k-1
+            earlier = _earlier_snaps(truth_path, k)
+        record = camera.truth_record()
+        if earlier:
+            record["snaps"] = earlier + record["snaps"]
+            known = [s["actual_angle_deg"] for s in record["snaps"] if s.get("actual_angle_deg") is not None]
+            for key, hull in (("hull_volume_mm3", camera.phantom.hull_volume_mm3), ("hull_area_mm2", camera.phantom.hull_area_mm2)):
+                value = hull(known) if known else float("inf")
+                record[key] = value if math.isfinite(value) else None
+        record["actual_angles_deg"] = [s["actual_angle_deg"] for s in record["snaps"]]
+        _write_json_atomically(truth_path, record)
 
     return Rig(stage, camera, stack, {"simulated": True, "truth_file": str(truth_path) if truth_path else ""}, write_truth)
 
@@ -129,6 +150,25 @@ class _closing:
 
     def __exit__(self, *exc: Any) -> None:
         self.device.close()
+
+
+def _earlier_snaps(truth_path: Path, first_view: int) -> list[dict[str, Any]]:
+    """Truth snaps of views ``0 … first_view − 1`` from the run that a resumed run continues.
+
+    Index i of the result is view i; a view whose truth is missing (e.g. the process was
+    killed between writing the view and its truth) gets ``actual_angle_deg: None``.
+    """
+    if first_view <= 0:
+        return []
+    snaps: list[dict[str, Any]] = []
+    try:
+        snaps = list(json.loads(truth_path.read_text()).get("snaps", []))[:first_view]
+    except (OSError, ValueError, AttributeError) as exc:
+        log.warning("truth of the first %d views not readable from %s (%s)", first_view, truth_path, exc)
+    if len(snaps) < first_view:
+        log.warning("%s: truth of views %d..%d is missing", truth_path, len(snaps), first_view - 1)
+        snaps += [{"frame_id": None, "actual_angle_deg": None, "host_time_s": None}] * (first_view - len(snaps))
+    return snaps
 
 
 def _write_json_atomically(path: Path, data: dict[str, Any]) -> None:
