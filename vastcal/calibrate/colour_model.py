@@ -86,11 +86,11 @@ def check_images(images: np.ndarray) -> None:
     for i in range(n):
         v = f[i].reshape(-1, f.shape[-1])
         sub = v[:: max(1, v.shape[0] // 20000)]
-        if float(sub.std(axis=0).max()) < 2e-3:
-            raise ColourModelError(f"view {i} is blank (constant value {float(sub.mean()):.3g}): no specimen can be seen")
         sat = float(np.mean(np.all(sub >= 0.999, axis=1)))
         if sat > 0.9:
             raise ColourModelError(f"view {i} is saturated ({100 * sat:.0f}% of pixels at full scale): reduce the exposure")
+        if float(sub.std(axis=0).max()) < 2e-3:
+            raise ColourModelError(f"view {i} is blank (constant value {float(sub.mean()):.3g}): no specimen can be seen")
 
 
 @dataclass(frozen=True)

@@ -64,6 +64,12 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
         progress: called after every generation with (evaluations so far, best cost).
     """
     cma = _cma()
+    if np.size(x0) == 1:  # cma needs at least two dimensions: add an inert one
+        inner = objective
+        r = minimise(lambda X: inner(np.asarray(X)[:, :1]), np.r_[np.ravel(x0), 0.0], sigma0, np.r_[np.ravel(stds), 1.0], seed=seed,
+                     max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress)
+        r.x_best = r.x_best[:1]
+        return r
     opts = {"bounds": [-1.0, 1.0], "seed": int(seed) + 1, "CMA_stds": list(np.asarray(stds, float)), "maxfevals": int(max_evaluations),
             "tolx": float(tolx), "tolfun": float(tolfun), "tolfunhist": 0.0, "verbose": -9, "verb_log": 0, "verb_disp": 0}
     if popsize:

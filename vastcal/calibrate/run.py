@@ -31,9 +31,9 @@ from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.sampling import Projector, resize_stack
-from vastcal.config import CalibrationBounds, RoiConfig
-from vastcal.errors import AnalysisError, SessionIncompleteError, UserInputError
-from vastcal.geometry import decompose_circular, intrinsics_from_optics, projection_matrices
+from vastcal.config import CalibrationBounds
+from vastcal.errors import AnalysisError, UserInputError
+from vastcal.geometry import projection_matrices
 
 log = logging.getLogger(__name__)
 

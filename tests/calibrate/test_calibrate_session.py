@@ -1,0 +1,79 @@
+"""calibrate_session stores a complete run, several runs coexist, and bad input leaves the file untouched."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import synthetic as sy
+from conftest import FAST, write_session
+
+from vastcal.calibrate import ColourModel, calibrate_session
+from vastcal.errors import ColourModelError, SessionIncompleteError, UserInputError
+from vastcal.session import Session, read_attrs
+
+
+def _digest(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+def test_run_is_stored_with_every_field(session_path: Path, views: np.ndarray) -> None:
+    r = calibrate_session(session_path, method="pi", seed=1, free=["pitch", "gamma", "rolls"], settings=FAST)
+    with Session.open(session_path) as s:
+        g = s.latest_result("calibration")
+        n = len(views)
+        assert g["theta_deg"].shape == (n + 3,) and g["theta0_deg"].shape == (n + 3,)
+        assert g["P"].shape == (n, 3, 4) and g["P"].dtype == np.float64 and g["K"].shape == (3, 3)
+        np.testing.assert_allclose(g["delta_angle_deg"][...], g["theta_deg"][3:] - g["theta0_deg"][3:])
+        assert g["cost_trace"].shape[1] == 2
+        a = read_attrs(g)
+        for key in ("method", "seed", "free", "bounds", "settings", "wall_time_s", "n_evaluations", "time_per_evaluation_s",
+                    "n_voxels", "versions", "distance"):
+            assert key in a, key
+        assert a["method"] == "pi" and a["seed"] == 1 and a["free"] == ["pitch", "gamma", "rolls"]
+        cm = ColourModel.from_group(g["colour_model"])
+        assert cm.space == "grey"
+        p = cm.foreground_probability(s.projections())
+        assert p.dtype == np.float32 and p.shape == views.shape
+        assert np.array_equal(s.projections(), views)  # images untouched
+    assert r.run_name == "run_000" and "calibration" in r.summary()
+
+
+def test_several_runs_coexist_latest_is_default(session_path: Path) -> None:
+    calibrate_session(session_path, seed=0, free="pitch", settings=FAST)
+    r2 = calibrate_session(session_path, method="vr", seed=0, free="pitch", settings=FAST)
+    with Session.open(session_path) as s:
+        assert s.stages_run()["calibration"] == ["run_000", "run_001"]
+        assert read_attrs(s.latest_result("calibration"))["method"] == "vr"
+    assert r2.run_name == "run_001"
+
+
+def test_vr_uses_imported_masks(tmp_path: Path, views: np.ndarray, truth: np.ndarray) -> None:
+    p = write_session(tmp_path / "m.h5", views, np.arange(len(views)) * 30.0, masks=sy.silhouettes(truth))
+    calibrate_session(p, method="vr", free="pitch", settings=FAST)
+    with Session.open(p) as s:
+        assert read_attrs(s.latest_result("calibration"))["silhouettes"] == "imported masks"
+
+
+@pytest.mark.parametrize("case", ["two-views", "blank", "mask-size", "mask-view", "bad-free"])
+def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(tmp_path: Path, views: np.ndarray, case: str) -> None:
+    kwargs: dict = {"settings": FAST}
+    if case == "two-views":
+        p, err = write_session(tmp_path / "s.h5", views[:2], np.array([0.0, 180.0])), SessionIncompleteError
+    elif case == "blank":
+        p, err = write_session(tmp_path / "s.h5", np.full_like(views, 200), np.arange(len(views)) * 30.0), ColourModelError
+    else:
+        p, err = write_session(tmp_path / "s.h5", views, np.arange(len(views)) * 30.0), UserInputError
+        if case == "mask-size":
+            kwargs["mask"] = (0, np.ones((10, 10), np.uint8))
+        elif case == "mask-view":
+            kwargs["mask"] = (99, np.ones(views.shape[1:], np.uint8))
+        else:
+            kwargs["free"] = ["roll"]
+    before = _digest(p)
+    with pytest.raises(err) as info:
+        calibrate_session(p, **kwargs)
+    assert "\n" not in str(info.value)
+    assert _digest(p) == before

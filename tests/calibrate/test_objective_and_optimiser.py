@@ -1,0 +1,91 @@
+"""The objectives are smooth in θ; CMA-ES runs are reproducible; axis parameters are recovered."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import synthetic as sy
+from conftest import FAST
+
+from vastcal.calibrate import calibrate_views, fit_automatic
+from vastcal.calibrate.objective_pi import PIObjective
+from vastcal.calibrate.objective_vr import VRObjective
+from vastcal.calibrate.region import specimen_region
+from vastcal.calibrate.sampling import Projector
+from vastcal.config import CalibrationBounds
+
+
+def _objectives(views: np.ndarray, truth: np.ndarray):
+    K, d = sy.camera()
+    pf = fit_automatic(views).foreground_probability(views)
+    n = len(views)
+    region = specimen_region(K, d, truth, np.full(n + 3, 1.0), np.zeros(n + 3, bool), pf > 0.5, 4000, extra_px=2.0)
+    proj = Projector(K, d, region.voxels)
+    logp = np.log(np.clip(pf, 1e-4, 1 - 1e-4)).astype(np.float32)
+    return {"pi-count": PIObjective(logp, proj), "pi-loglik": PIObjective(logp, proj, form="loglik"),
+            "vr": VRObjective((pf > 0.5).astype(np.float32), proj)}
+
+
+@pytest.mark.parametrize("name", ["pi-count", "pi-loglik", "vr"])
+@pytest.mark.parametrize("k", [1, 5], ids=["pitch", "roll5"])
+def test_cost_changes_continuously_without_plateaus(views: np.ndarray, truth: np.ndarray, name: str, k: int) -> None:
+    obj = _objectives(views, truth)[name]
+    steps = np.linspace(-0.05, 0.05, 41)  # 0.0025° apart: far below a pixel
+    thetas = truth[None] + np.outer(steps, np.eye(len(truth))[k])
+    c = obj(thetas)
+    diffs = np.diff(c)
+    assert np.all(diffs != 0.0), "a plateau: equal costs for different θ"
+    # Continuity: no jump much larger than the typical step.
+    assert np.max(np.abs(diffs)) < 20 * np.median(np.abs(diffs)) + 1e-12
+
+
+def test_population_batch_equals_one_by_one(views: np.ndarray, truth: np.ndarray) -> None:
+    obj = _objectives(views, truth)["pi-count"]
+    rng = np.random.default_rng(1)
+    thetas = truth[None] + rng.normal(0, 0.3, (7, len(truth)))
+    np.testing.assert_allclose(obj(thetas), np.concatenate([obj(t[None]) for t in thetas]), rtol=1e-5)
+
+
+def test_same_seed_same_result_and_bounds_respected(views: np.ndarray) -> None:
+    K, d = sy.camera()
+    n = len(views)
+    th0 = np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n]
+    b = CalibrationBounds(2.0, 2.0, 0.1, 3.0)
+    r1 = calibrate_views(views, K, d, th0, seed=3, bounds=b, settings=FAST)
+    r2 = calibrate_views(views, K, d, th0, seed=3, bounds=b, settings=FAST)
+    np.testing.assert_array_equal(r1.theta_deg, r2.theta_deg)
+    assert r1.theta_deg[3] == th0[3]  # ω_0 fixed
+    assert np.all(np.abs(r1.theta_deg - th0) <= np.r_[2.0, 2.0, 0.1, np.full(n, 3.0)] + 1e-9)
+    assert r1.n_evaluations > 0 and len(r1.cost_trace) > 0
+
+
+def test_progress_callback_reports_evaluations_and_eta(views: np.ndarray) -> None:
+    K, d = sy.camera()
+    n = len(views)
+    calls: list[tuple[int, float, float, float]] = []
+    calibrate_views(views, K, d, np.r_[0.0, 0.0, 0.0, np.arange(n) * 30.0], seed=0, free="pitch", settings=FAST,
+                    progress=lambda *a: calls.append(a))
+    assert calls and all(c[2] >= 0 and c[3] >= 0 for c in calls)
+    assert [c[0] for c in calls] == sorted(c[0] for c in calls)
+
+
+def test_recovers_pitch_and_gamma_with_true_rolls(views: np.ndarray, truth: np.ndarray) -> None:
+    K, d = sy.camera()
+    th0 = truth.copy()
+    th0[:3] = 0.0
+    r = calibrate_views(views, K, d, th0, seed=0, free=["pitch", "gamma"], bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=FAST)
+    assert abs(r.theta_deg[1] - truth[1]) < 0.1
+    assert abs(r.theta_deg[2] - truth[2]) < 0.01
+
+
+@pytest.mark.xfail(reason="known limitation (see report): the fixed-voxel PI/VR costs are not stationary at the true rolls/yaw, "
+                          "even on exact synthetic views; a silhouette-coherence (reprojection) cost is the next step", strict=False)
+def test_recovers_perturbed_rolls_and_axis(views: np.ndarray, truth: np.ndarray) -> None:
+    K, d = sy.camera()
+    n = len(views)
+    th0 = np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n]
+    r = calibrate_views(views, K, d, th0, seed=0, bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=dataclasses.replace(FAST))
+    err = r.theta_deg - truth
+    assert np.sqrt(np.mean(err[4:] ** 2)) < 0.1 and abs(err[0]) < 0.1 and abs(err[1]) < 0.1

@@ -1,0 +1,139 @@
+"""Session-level calibration: read a session, calibrate, store ``/entry/vastcal/calibration/run_NNN``.
+
+Everything is checked and computed before the file is opened for writing; the run group is
+written last and removed again if writing fails, so a bad input or a failure leaves the session
+exactly as it was. Images are never modified.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from vastcal.calibrate.colour_model import ColourModel
+from vastcal.calibrate.optimise import ProgressCallback
+from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method, calibrate_views
+from vastcal.config import CalibrationBounds, RoiConfig
+from vastcal.errors import SessionIncompleteError, UserInputError
+from vastcal.geometry import decompose_circular, intrinsics_from_optics
+from vastcal.session import Session, software_versions, write_attrs
+
+log = logging.getLogger(__name__)
+
+
+def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarray, dict[str, Any]]:
+    """K (stored-frame pixels, 0-based), d (µm), θ0 (degrees) and notes for a session.
+
+    Imported known cameras are decomposed (:func:`vastcal.geometry.decompose_circular`): K, d, yaw,
+    pitch and γ come from them; otherwise K comes from the rig optics shifted by the stored ROI
+    offset and d is the working distance. The rolls of θ0 are the commanded angles.
+
+    Raises:
+        SessionIncompleteError: no rotation angles, or non-finite ones.
+    """
+    angles = np.asarray(session.angles_deg, float)
+    if angles.size == 0 or not np.all(np.isfinite(angles)):
+        raise SessionIncompleteError(f"{session.path}: the session has no (finite) rotation angles for its views")
+    known = session.known_cameras
+    if known is not None:
+        fit = decompose_circular(known)
+        m = fit.motion
+        theta0 = np.concatenate([[m.yaw_deg, m.pitch_deg, m.gamma_deg], angles])
+        return np.asarray(m.K, float), float(m.distance), theta0, {"camera_source": "imported cameras (decompose_circular)",
+                                                                      "decomposition_rms_px": fit.rms_px,
+                                                                      "world_from_data": fit.world_from_data.tolist()}
+    cfg = session.rig_config()
+    rx, ry = session.roi_offset_px
+    h, w = session.frame_shape[:2]
+    K = intrinsics_from_optics(cfg.optics, RoiConfig(rx, ry, w, h))
+    return K, float(cfg.optics.working_distance_um), np.concatenate([[0.0, 0.0, 0.0], angles]), {"camera_source": "rig optics + ROI offset"}
+
+
+def calibrate_session(path_or_session: str | Path | Session, *, method: Method | None = None, seed: int | None = None,
+                      free: Sequence[str] | str | None = None, bounds: CalibrationBounds | None = None,
+                      mask: tuple[int, np.ndarray] | None = None, scribbles: tuple[int, np.ndarray] | None = None,
+                      use_masks: bool | None = None, settings: CalibrationSettings | None = None,
+                      progress: ProgressCallback | None = None) -> CalibrationResult:
+    """Calibrate a session and store the run (see the module docstring).
+
+    Args:
+        path_or_session: a session file, or a :class:`Session` opened with ``mode="a"``.
+        method: ``"pi"`` or ``"vr"`` (default: the rig config's ``calibration.method``).
+        seed, free, bounds: CMA-ES seed, free groups, half-widths (defaults from the rig config).
+        mask: (view, array) rough mask (nonzero = specimen) for the colour models.
+        scribbles: (view, labels) with 0 unknown, 1 specimen, 2 background.
+        use_masks: VR only — use the session's imported masks as silhouettes (default: when present).
+        settings: numerical settings.
+        progress: callback (evaluations, best cost, elapsed s, ETA s).
+
+    Raises:
+        SessionIncompleteError: incomplete session, fewer than 3 views, no angles.
+        UserInputError: bad mask/scribbles/free; ColourModelError, EmptyHullError: data that cannot be calibrated.
+    """
+    own = not isinstance(path_or_session, Session)
+    session = Session.open(path_or_session, "r") if own else path_or_session
+    try:
+        session.require_complete(min_views=3)
+        cfg = session.rig_config().calibration
+        method = method or cfg.method
+        seed = cfg.seed if seed is None else int(seed)
+        free = cfg.free if free is None else free
+        bounds = bounds or cfg.bounds
+        K, d, theta0, notes = session_camera_model(session)
+        images = session.projections()
+        masks = session.masks
+        sil = masks if (method == "vr" and masks is not None and use_masks is not False) else None
+        if use_masks and masks is None:
+            raise UserInputError(f"{session.path}: no imported masks to use as silhouettes")
+    finally:
+        if own:
+            session.close()
+    result = calibrate_views(images, K, d, theta0, method=method, seed=seed, free=free, bounds=bounds, mask=mask, scribbles=scribbles,
+                             silhouettes=sil, settings=settings, progress=progress)
+    target = Session.open(path_or_session, "a") if own else session
+    try:
+        group = target.new_result_group("calibration")
+        try:
+            store_result(group, result, notes, silhouettes="imported masks" if sil is not None else "p_f > threshold")
+        except BaseException:
+            name = group.name
+            del target.h5[name]
+            raise
+        target.flush()
+        result.run_name = group.name.rsplit("/", 1)[-1]
+        result.session_path = Path(target.path)
+    finally:
+        if own:
+            target.close()
+    log.info("stored %s in %s", result.run_name, result.session_path)
+    return result
+
+
+def store_result(group: Any, r: CalibrationResult, notes: dict[str, Any], silhouettes: str) -> None:
+    """Write a :class:`CalibrationResult` into an (empty) run group."""
+    def ds(name: str, data: np.ndarray, units: str, doc: str) -> None:
+        d = group.create_dataset(name, data=data)
+        d.attrs["units"] = units
+        d.attrs["description"] = doc
+
+    ds("theta_deg", r.theta_deg, "degree", "[yaw, pitch, gamma, omega_0..omega_{N-1}] calibrated")
+    ds("theta0_deg", r.theta0_deg, "degree", "start: decomposed/zero axis, commanded rolls")
+    ds("P", r.P, "pixel per um (homogeneous)", "world um (axis = x) -> 0-based pixels of the stored frames")
+    ds("K", r.K, "pixel", "intrinsics, 0-based pixels of the stored frames")
+    ds("delta_angle_deg", r.delta_angle_deg, "degree", "calibrated minus commanded roll per view")
+    ds("cost_trace", r.cost_trace, "", "columns: evaluations so far, best cost (per generation, all levels)")
+    write_attrs(group, {"method": r.method, "seed": r.seed, "free": list(r.free), "bounds": r.bounds, "settings": r.settings.to_json(),
+                        "distance": r.distance, "distance_units": "um", "wall_time_s": r.wall_time_s, "n_evaluations": r.n_evaluations,
+                        "time_per_evaluation_s": r.time_per_evaluation_s, "n_voxels": r.n_voxels, "peak_rss_mb": r.peak_rss_mb,
+                        "levels": json.dumps(r.level_reports), "silhouettes": silhouettes, "versions": software_versions(), **notes})
+    if r.colour_model is not None:
+        r.colour_model.to_group(group.create_group("colour_model"))
+
+
+def load_colour_model(run_group: Any) -> ColourModel:
+    """The colour model stored with a calibration run."""
+    return ColourModel.from_group(run_group["colour_model"])
