@@ -33,7 +33,7 @@ import numpy as np
 
 from vastcal.config import RigConfig, dump_config
 from vastcal.devices import Camera, CameraSettings, Frame, RotationStage
-from vastcal.errors import AcquisitionAborted, DeviceError, DeviceTimeoutError, SessionIncompleteError, UserInputError, VastcalError
+from vastcal.errors import AcquisitionAborted, DeviceError, DeviceTimeoutError, SessionError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.session import Session, SessionWriter, check_writable_output
 
 log = logging.getLogger(__name__)
@@ -207,7 +207,7 @@ def acquire(
         result.exit_status = "abort"
         result.reason = str(exc) or "interrupted by the operator"
         _safe(stage.stop, "stopping the stage")
-    except DeviceError as exc:
+    except (DeviceError, SessionError) as exc:
         result.exit_status, result.reason = "fail", f"{type(exc).__name__}: {exc}"
         _safe(stage.stop, "stopping the stage")
     finally:

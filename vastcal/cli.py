@@ -80,11 +80,17 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     out = args.resume or args.output
     if not out:
         raise UserInputError("no output: give -o S.h5 (or --resume S.h5)")
-    cfg = load_config(None if args.simulate and not args.config else args.config)
+    if args.resume and not args.config:
+        from vastcal.session import Session
+
+        with Session.open(args.resume) as s:  # continue on the rig the session was started with
+            cfg = s.rig_config()
+    elif args.simulate or args.config:
+        cfg = load_config(None if args.simulate and not args.config else args.config)
+    else:
+        raise UserInputError("give --config RIG.yaml for the real rig, or --simulate for the simulated one")
     if args.simulate and cfg.camera.driver != "simulated":
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
-    if not args.simulate and not args.config:
-        raise UserInputError("give --config RIG.yaml for the real rig, or --simulate for the simulated one")
     from vastcal.rig import connect_rig
 
     cancel = _cancel_on_sigint()

@@ -49,7 +49,7 @@ import h5py
 import numpy as np
 
 from vastcal import __version__
-from vastcal.errors import NotASessionError, OutputExistsError, SessionIncompleteError
+from vastcal.errors import NotASessionError, OutputExistsError, SessionError, SessionIncompleteError
 
 log = logging.getLogger(__name__)
 
@@ -298,7 +298,8 @@ class SessionWriter:
         """
         data = self._data
         if frame.shape != data.shape[1:] or frame.dtype != data.dtype:
-            raise ValueError(f"frame {frame.shape} {frame.dtype} does not match session frames {data.shape[1:]} {data.dtype}")
+            raise SessionError(f"{self.path}: a {frame.shape} {frame.dtype} frame does not fit this session's {data.shape[1:]} {data.dtype} "
+                               "frames (was the rig's ROI or pixel format changed?)")
         unknown = set(columns) - set(self._columns)
         if unknown:
             raise ValueError(f"unknown per-view columns: {sorted(unknown)}")

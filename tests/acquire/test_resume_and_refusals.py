@@ -126,3 +126,24 @@ def test_cli_with_a_stage_process_that_answers_garbage_exits_non_zero_with_one_e
     # Besides the error, at most the driver's notice that it retried the handshake once.
     assert all("retrying once" in line for line in run.stderr.splitlines()[:-1])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.yaml"]
+
+
+def test_resume_without_config_uses_the_rig_stored_in_the_session(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from vastcal.session import Session
+
+    session = tmp_path / "s.h5"
+    env_cmd = [sys.executable, "-m", "vastcal.cli", "-q"]
+    first = subprocess.run([*env_cmd, "acquire", "--simulate", "-o", str(session), "--views", "4"], capture_output=True, text=True, timeout=120)
+    assert first.returncode == 0, first.stderr
+    import h5py
+
+    with h5py.File(session, "r+") as f:  # pretend the run stopped after 2 views
+        for path in ("/entry/vastcal/stop",):
+            del f[path]
+    proc = subprocess.run([*env_cmd, "acquire", "--resume", str(session)], capture_output=True, text=True, timeout=120)
+    assert "complete" in proc.stderr or proc.returncode == 0, proc.stderr
+    with Session.open(session) as s:
+        assert s.n_views == 4 and s.exit_status == "success"
