@@ -1,4 +1,4 @@
-"""Exact silhouettes of the simulator's phantoms (or an analytic spheroid) for hull tests.
+"""Views for the hull tests and benchmarks: exact phantom silhouettes, small sessions, the zebrafish cameras.
 
 Silhouettes are the renderer's geometric coverage ≥ 0.5 (exact to sub-pixel: the 50 % level of
 the anti-aliased coverage lies on the true edge), seen through the simulator's own truth
@@ -8,6 +8,7 @@ cameras (:mod:`simulators.camera.truth_geometry`) at drifting "actual" angles.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -37,13 +38,19 @@ class PhantomViews:
 
 
 def render_views(phantom: Phantom, n_views: int = 21, *, width: int = 1024, height: int = 320, seed: int = 1,
-                 drift_deg: float = 2.0, tilt_deg: float = 0.5, offset_um: float = 40.0, f_px: float = 65000.0 / 5.5) -> PhantomViews:
-    """Exact silhouettes of ``phantom`` for ``n_views`` views with random drift, tilt and axis offset."""
+                 drift_deg: float = 2.0, tilt_deg: float = 0.5, offset_um: float = 40.0, distance_um: float = 65000.0,
+                 pixel_um: float = 5.5) -> PhantomViews:
+    """Exact silhouettes of ``phantom`` for ``n_views`` views with random drift, tilt and axis offset.
+
+    The camera is a pinhole at ``distance_um`` from the axis with pixels of ``pixel_um`` on the
+    specimen (f = distance / pixel); a large distance approaches the orthographic views of the
+    analytic hull truth.
+    """
     rng = np.random.default_rng(seed)
     angles = np.arange(n_views) * 360.0 / n_views + rng.uniform(-drift_deg, drift_deg, n_views)
     angles[0] = 0.0
-    truth = RigTruth(float(rng.uniform(-tilt_deg, tilt_deg)), float(rng.uniform(-tilt_deg, tilt_deg)), offset_um, 65000.0)
-    intr = PinholeIntrinsics(f_px, (width - 1) / 2, (height - 1) / 2)
+    truth = RigTruth(float(rng.uniform(-tilt_deg, tilt_deg)), float(rng.uniform(-tilt_deg, tilt_deg)), offset_um, distance_um)
+    intr = PinholeIntrinsics(distance_um / pixel_um, (width - 1) / 2, (height - 1) / 2)
     renderer = BrightfieldRenderer(phantom)
     Ps, covs = [], []
     for a in angles:
@@ -53,3 +60,46 @@ def render_views(phantom: Phantom, n_views: int = 21, *, width: int = 1024, heig
         Ps.append(truth_projection_matrix(intr, truth, float(a)))
     cov = np.array(covs, np.float32)
     return PhantomViews(np.array(Ps), cov >= 0.5, cov, angles, phantom)
+
+
+def make_session(path: Path, views: PhantomViews, *, masks: bool = True, cameras: bool = True, calibration: bool = False) -> Path:
+    """A small session of Mono8 brightfield-like frames of ``views`` (specimen dark on bright).
+
+    Optionally with imported masks, imported known cameras, and a calibration run in the
+    calibration engineer's layout (P, θ, θ0, delta angles, cost trace, attributes; no colour model).
+    """
+    from vastcal.config import dump_config, RigConfig
+    from vastcal.session import Session, SessionWriter, write_attrs
+
+    n = len(views.angles_deg)
+    frames = (230 - 150 * views.coverage).astype(np.uint8)
+    commanded = np.arange(n) * 360.0 / n
+    with SessionWriter.create(path, frame_shape=frames.shape[1:], dtype=np.uint8, rig_yaml=dump_config(RigConfig()), plan={"views": n},
+                              pixel_size_um=(5.5, 5.5), title=f"phantom {views.phantom.name}") as w:
+        for i in range(n):
+            w.append_view(frames[i], float(commanded[i]))
+        if masks:
+            w.write_masks(views.silhouettes)
+        if cameras:
+            w.write_cameras(views.P, source="phantom truth")
+        w.finish("success")
+    if calibration:
+        with Session.open(path, mode="a") as s:
+            g = s.new_result_group("calibration")
+            g.create_dataset("P", data=views.P)
+            theta = np.r_[0.1, -0.2, 0.01, views.angles_deg]
+            g.create_dataset("theta_deg", data=theta)
+            g.create_dataset("theta0_deg", data=np.r_[0.0, 0.0, 0.0, commanded])
+            g.create_dataset("delta_angle_deg", data=views.angles_deg - commanded)
+            g.create_dataset("cost_trace", data=np.geomspace(100.0, 1.0, 40))
+            write_attrs(g, {"method": "pi", "seed": 7, "wall_time_s": 12.5, "n_evaluations": 4000})
+    return path
+
+
+def read_authors_cameras(path: Path) -> np.ndarray:
+    """The zebrafish authors' P matrices as 0-based pixels of the 250-row crop."""
+    from vastcal.geometry import shift_pixels
+
+    rows = [line.split()[1:] for line in path.read_text().splitlines() if line.strip()]
+    P = np.array(rows, float).reshape(-1, 3, 4)
+    return shift_pixels(P, 1, 1 + 387)
