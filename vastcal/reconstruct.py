@@ -454,7 +454,7 @@ class ReconstructionInputs:
 
     Attributes:
         P: (N, 3, 4) cameras, 0-based pixels of the stored frames.
-        silhouettes: (N, H, W) bool.
+        silhouettes: (N, H, W) bool masks or float32 probability maps in [0, 1].
         camera_source: ``"calibration/run_NNN"`` or ``"cameras (imported)"``.
         silhouette_source: ``"masks"`` or ``"colour_model of calibration/run_NNN (p >= 0.5)"``.
         calibration_run: name of the calibration run used, or None.
@@ -476,8 +476,9 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
 
     Cameras: the calibration run ``calibration_run`` (default: the latest), else the imported
     known cameras. Silhouettes: the imported masks when ``use_masks``; otherwise the colour
-    model of the calibration run thresholded at p ≥ 0.5 (:data:`FOREGROUND_THRESHOLD`), falling
-    back to imported masks when there is no colour model.
+    model's foreground probability maps of the calibration run (float32, soft: a voxel is inside
+    when the bilinearly sampled p ≥ 0.5, :data:`FOREGROUND_THRESHOLD`), falling back to imported
+    masks when there is no colour model.
 
     Raises:
         MissingStageError: no cameras, or no silhouettes, with the command that makes them.
@@ -516,8 +517,9 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
 
         model = ColourModel.from_group(cal["colour_model"])
         prob = model.foreground_probability(session.projections())
-        sil = np.asarray(prob) >= FOREGROUND_THRESHOLD
-        sil_src = f"colour_model of {cam_src} (p >= {FOREGROUND_THRESHOLD})"
+        # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)
+        sil = np.clip(np.nan_to_num(np.asarray(prob, np.float32)), 0.0, 1.0)
+        sil_src = f"colour_model of {cam_src} (bilinear p >= {FOREGROUND_THRESHOLD})"
     elif masks is not None:
         sil = np.asarray(masks) > 0
         sil_src = "masks (imported)"
@@ -532,7 +534,9 @@ def choose_grid(P: np.ndarray, silhouettes: np.ndarray, *, voxel_size_um: float 
     """The grid around the specimen: coarse carving, bounding box plus margin
     (:func:`vastcal.voxels.grid_around_specimen`), voxel edge ``voxel_size_um`` (µm) or chosen
     for about ``target_voxels`` voxels in the box."""
-    return grid_around_specimen(np.asarray(P, float), np.asarray(silhouettes, bool), target_voxels, voxel_size=voxel_size_um)
+    s = np.asarray(silhouettes)
+    mask = s >= FOREGROUND_THRESHOLD if np.issubdtype(s.dtype, np.floating) else s != 0
+    return grid_around_specimen(np.asarray(P, float), mask, target_voxels, voxel_size=voxel_size_um)
 
 
 def store_reconstruction(group: "h5py.Group", hull: HullResult, inputs: ReconstructionInputs | None = None,
