@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
+from vastcal.calibrate.objective_coherence import CoherenceObjective, axis_crossings, signed_distance_maps, silhouette_edges
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
@@ -55,6 +56,7 @@ class Level:
     voxels: int
     sigma0: float
     max_evaluations: int
+    edge_lines: int = 48
 
 
 @dataclass(frozen=True)
@@ -69,7 +71,9 @@ class CalibrationSettings:
         eps: clamp of the posteriors (p in [ε, 1 − ε]).
         threshold: p_f above which a pixel belongs to a rough silhouette (region, VR).
         vr_blur_px: Gaussian blur (σ, level pixels) of the VR silhouettes, so bilinear sampling is smooth.
-        pi_form: ``"count"`` or ``"loglik"`` (see :mod:`.objective_pi`).
+        pi_form: ``"coherence"`` (default: silhouette coherence of the posteriors, :mod:`.objective_coherence`),
+            or the voxel sums ``"count"`` / ``"loglik"`` of :mod:`.objective_pi` (kept for comparison).
+        coherence_sigma_px: softness of the coherence penalty, pixels of the level.
         region_tolerance: cap of the first level's region tolerance, as a fraction of the image
             height (the specimen region is carved under θ0 with the search box's displacement
             bound, but never wider than this, so that the silhouettes do not merge with static
@@ -85,7 +89,8 @@ class CalibrationSettings:
     eps: float = 1e-4
     threshold: float = 0.5
     vr_blur_px: float = 0.7
-    pi_form: str = "count"
+    pi_form: str = "coherence"
+    coherence_sigma_px: float = 0.1
     region_tolerance: float = 0.1
     refine_tolerance_px: float = 2.0
 
@@ -247,14 +252,23 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         else:  # … then around the previous level's solution, with a small tolerance
             region = specimen_region(K_region, distance, space.theta(x)[0], space.half_width, np.zeros_like(space.free_mask),
                                      coarse_sil, lv.voxels, extra_px=settings.refine_tolerance_px)
+        obj: PIObjective | VRObjective | CoherenceObjective
         vox = region.voxels
         pad = (-len(vox)) % 1024
         weights = np.concatenate([np.ones(len(vox)), np.zeros(pad)])
         vox = np.concatenate([vox, np.repeat(vox[:1], pad, axis=0)]) if pad else vox
         proj = Projector(K_lv, distance, vox)
-        if method == "pi":
+        if method == "pi" and settings.pi_form == "coherence":
+            # Silhouette coherence of the posteriors (see .objective_coherence): edges found under the
+            # previous level's θ (the axis image barely moves), rays searched within the region's radius.
+            th_now = space.theta(x)[0]
+            P_now = projection_matrices(K_lv, distance, th_now[None])[0]
+            edges = silhouette_edges(maps_pf, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines)
+            radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
+            obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px)
+        elif method == "pi":
             lmap = np.clip(np.log(np.clip(maps_pf, settings.eps, 1 - settings.eps)), np.log(settings.eps), np.log1p(-settings.eps))
-            obj: PIObjective | VRObjective = PIObjective(lmap.astype(np.float32), proj, weights, settings.pi_form)
+            obj = PIObjective(lmap.astype(np.float32), proj, weights, settings.pi_form)
         else:
             s_lv = resize_stack(sil_src, factor)[0]
             s_lv = np.stack([cv2.GaussianBlur(s, (0, 0), settings.vr_blur_px) for s in s_lv])
