@@ -90,18 +90,23 @@ def _crossing(profile: np.ndarray, a: int, b: int, level: float) -> float:
     return a + (level - pa) / (pb - pa) * (b - a)
 
 
-def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, level: float = 0.5, min_run_px: int = 3) -> EdgeSamples:
+def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, level: float = 0.5, min_run_px: int = 3,
+                     all_runs: bool = False, max_axis_gap: float = 0.08) -> EdgeSamples:
     """Boundary samples of the specimen in every view, on scan lines across the rotation axis.
 
     Scan lines run perpendicular to the image of the axis (image columns when the axis is closer to
     horizontal, rows otherwise). On each line, the run of ``pf > level`` that contains the axis (or
     is nearest to it) is the specimen; static structures such as the capillary walls form other runs
     and are ignored. Runs touching the image border are skipped (the specimen is cut there).
+    The ``max_lines`` scan lines are chosen evenly among the lines that have edges.
 
     Args:
         pf: (N, H, W) foreground posteriors.
         axis_uv: (N, L, 2) where the axis crosses each scan line in each view (``axis_crossings``).
         max_lines: at most this many scan lines per view (evenly chosen among the usable ones).
+        all_runs: take the edges of every run, not only the one around the axis (for internal
+            features such as the eyes, which appear as one or two runs depending on the angle).
+        max_axis_gap: a specimen run must reach within this fraction of the scan line's length of the axis.
     """
     n, h, w = pf.shape
     horizontal = axis_uv.shape[1] == w
@@ -109,26 +114,32 @@ def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, l
     for i in range(n):
         maps = pf[i] if horizontal else pf[i].T
         lines, length = (w, h) if horizontal else (h, w)
-        found: list[tuple[float, float, float, float]] = []
+        found: list[tuple[int, list[float]]] = []
         for c in range(lines):
             prof = maps[:, c]
             a_pos = axis_uv[i, c, 1] if horizontal else axis_uv[i, c, 0]
-            runs = [r for r in _runs(prof > level) if r[1] - r[0] >= min_run_px]
+            runs = [r for r in _runs(prof > level) if r[1] - r[0] >= min_run_px and r[0] > 0 and r[1] < length]
             if not runs:
                 continue
-            s, e = min(runs, key=lambda r: 0.0 if r[0] <= a_pos < r[1] else min(abs(r[0] - a_pos), abs(r[1] - 1 - a_pos)))
-            if s == 0 or e == length:
-                continue
-            lo = _crossing(prof, s - 1, s, level)
-            hi = _crossing(prof, e - 1, e, level)
-            found.append((c, lo, c, hi))
+            if not all_runs:
+                # The specimen's run holds the axis (a tail tip may miss it by a little); a run far from
+                # the axis is a static structure such as a capillary wall.
+                margin = max_axis_gap * length
+                runs = [r for r in runs if r[0] - margin <= a_pos < r[1] + margin]
+                if not runs:
+                    continue
+                runs = [min(runs, key=lambda r: 0.0 if r[0] <= a_pos < r[1] else min(abs(r[0] - a_pos), abs(r[1] - 1 - a_pos)))]
+            pos: list[float] = []
+            for s, e in runs:
+                pos += [_crossing(prof, s - 1, s, level), _crossing(prof, e - 1, e, level)]
+            found.append((c, pos))
         if len(found) > max_lines:
             idx = np.round(np.linspace(0, len(found) - 1, max_lines)).astype(int)
             found = [found[k] for k in idx]
         pts: list[tuple[float, float]] = []
-        for c, lo, _, hi in found:
-            for pos in (lo, hi):
-                pts.append((c, pos) if horizontal else (pos, c))
+        for c, positions in found:
+            for p in positions:
+                pts.append((c, p) if horizontal else (p, c))
         per_view.append(pts)
     r_max = max((len(p) for p in per_view), default=0)
     if r_max == 0:
@@ -184,6 +195,53 @@ def signed_distance_maps(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6
         sd = (np.where(inside > 0, d_in - 0.5, -(d_out - 0.5))) / upsample
         out[i] = cv2.resize(sd, (w, h), interpolation=cv2.INTER_AREA)
     return np.clip(out, -clamp_px, clamp_px)
+
+
+def dark_feature_probability(images: np.ndarray, pf: np.ndarray, min_fraction: float = 0.003) -> np.ndarray | None:
+    """Probability (N, H, W) that a pixel shows a dark internal feature (eyes, yolk) of the specimen.
+
+    The silhouette of a specimen whose cross-sections are convex says almost nothing about the
+    roll of each view: a slightly rotated set of tangent lines still bounds a convex section. The
+    dark, strongly absorbing features inside a translucent larva do: the two eyes project as one
+    or two blobs depending on the angle. Their "silhouettes" are found as the darker of two
+    luminance classes within the specimen (Otsu's split of the foreground pixels, decided at the
+    midpoint of the two class means), softened over a tenth of the gap between the means. Returns None when fewer than
+    ``min_fraction`` of the foreground pixels are dark (no usable internal features).
+    """
+    img = np.asarray(images, np.float32)
+    lum = img.mean(axis=-1) if img.ndim == 4 else img
+    fg = pf > 0.5
+    if fg.sum() < 100:
+        return None
+    vals = lum[fg]
+    lo, hi = np.percentile(vals, [0.5, 99.5])
+    if hi - lo < 1e-6:
+        return None
+    q = np.clip((vals - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
+    t_otsu, _ = cv2.threshold(q, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    thr = lo + t_otsu / 255.0 * (hi - lo)
+    dark_mean, light_mean = vals[vals <= thr].mean(), vals[vals > thr].mean()
+    if (vals <= thr).mean() < min_fraction or light_mean - dark_mean < 1e-6:
+        return None
+    mid = 0.5 * (dark_mean + light_mean)  # Otsu splits the classes; their midpoint is the decision level
+    scale = 0.1 * (light_mean - dark_mean)
+    p = 1.0 / (1.0 + np.exp(np.clip((lum - mid) / scale, -50, 50)))
+    return (p * pf).astype(np.float32)
+
+
+class SumObjective:
+    """Sum of objectives over the same θ (e.g. body silhouettes + dark internal features)."""
+
+    def __init__(self, parts: list["CoherenceObjective"], weights: list[float]) -> None:
+        self.parts, self.weights = parts, weights
+        self.name = "+".join(p.name for p in parts)
+        self.n_evaluations = 0
+
+    def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
+        """Costs (B,) for θ (B, 3 + N) degrees."""
+        th = np.atleast_2d(theta_deg)
+        self.n_evaluations += th.shape[0]
+        return sum(w * p(th) for p, w in zip(self.parts, self.weights))
 
 
 class CoherenceObjective:

@@ -104,6 +104,18 @@ class ParameterSpace:
         th = np.asarray(theta, float)
         return (th[self.free_mask] - self.theta0[self.free_mask]) / self.half_width[self.free_mask]
 
+    def level_selection(self, groups: Iterable[str] | None) -> np.ndarray:
+        """Bool mask over the free coordinates: those in ``groups`` (all when None or when none match)."""
+        if groups is None:
+            return np.ones(self.n_free, bool)
+        names = set(groups)
+        entry = np.zeros(self.theta0.size, bool)
+        entry[0], entry[1], entry[2] = "yaw" in names, "pitch" in names, "gamma" in names
+        if "rolls" in names:
+            entry[4:] = True
+        sel = entry[self.free_mask]
+        return sel if sel.any() else np.ones(self.n_free, bool)
+
     def bounds_dict(self) -> dict[str, list[float]]:
         """Lower and upper θ as JSON-able lists (degrees)."""
         return {"lower_deg": self.lower.tolist(), "upper_deg": self.upper.tolist()}

@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
-from vastcal.calibrate.objective_coherence import CoherenceObjective, axis_crossings, signed_distance_maps, silhouette_edges
+from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, dark_feature_probability,
+                                                   signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
@@ -57,6 +58,8 @@ class Level:
     sigma0: float
     max_evaluations: int
     edge_lines: int = 48
+    groups: tuple[str, ...] | None = None
+    """Parameter groups this level optimises (None: all free ones); e.g. the axis first, rolls later."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,14 @@ class CalibrationSettings:
         pi_form: ``"coherence"`` (default: silhouette coherence of the posteriors, :mod:`.objective_coherence`),
             or the voxel sums ``"count"`` / ``"loglik"`` of :mod:`.objective_pi` (kept for comparison).
         coherence_sigma_px: softness of the coherence penalty, pixels of the level.
+        roll_prior_deg, roll_prior_weight: a weak Gaussian prior on each roll around its commanded
+            angle (σ in degrees, weight relative to the data cost). Silhouettes of a specimen whose
+            cross-sections are convex hardly constrain the individual rolls (a slightly rotated set of
+            tangent lines still bounds a convex section); without the prior CMA-ES wanders along
+            those flat directions and drags the axis yaw with it. The stage's commanded steps are
+            the natural prior ("seeded from the commanded motor steps"). Weight 0 disables it.
+        dark_weight: weight of the coherence of the dark internal features (eyes, yolk), which is what
+            fixes the per-view rolls (0 disables it); see :func:`.objective_coherence.dark_feature_probability`.
         region_tolerance: cap of the first level's region tolerance, as a fraction of the image
             height (the specimen region is carved under θ0 with the search box's displacement
             bound, but never wider than this, so that the silhouettes do not merge with static
@@ -82,7 +93,7 @@ class CalibrationSettings:
             previous level's solution.
     """
 
-    levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 4000), Level(512, 16000, 0.03, 2500))
+    levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 1200, 32), Level(512, 16000, 0.05, 600, 48))
     tolx: float = 2e-4
     tolfun: float = 1e-8
     popsize: int | None = None
@@ -91,6 +102,9 @@ class CalibrationSettings:
     vr_blur_px: float = 0.7
     pi_form: str = "coherence"
     coherence_sigma_px: float = 0.1
+    dark_weight: float = 0.0
+    roll_prior_deg: float = 1.0
+    roll_prior_weight: float = 0.0
     region_tolerance: float = 0.1
     refine_tolerance_px: float = 2.0
 
@@ -141,6 +155,12 @@ class CalibrationResult:
                 f"roll − commanded: RMS {np.sqrt(np.mean(d ** 2)):.3f}°, max {np.max(np.abs(d)):.3f}°\n"
                 f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
                 f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB")
+
+
+def roll_prior(theta: np.ndarray, theta0: np.ndarray, sigma_deg: float) -> np.ndarray:
+    """Mean squared standardised deviation (B,) of the rolls from their commanded angles."""
+    d = (np.atleast_2d(theta)[:, 4:] - np.asarray(theta0)[4:]) / sigma_deg
+    return np.mean(d * d, axis=1) if d.shape[1] else np.zeros(len(np.atleast_2d(theta)))
 
 
 def _peak_rss_mb() -> float:
@@ -252,7 +272,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         else:  # … then around the previous level's solution, with a small tolerance
             region = specimen_region(K_region, distance, space.theta(x)[0], space.half_width, np.zeros_like(space.free_mask),
                                      coarse_sil, lv.voxels, extra_px=settings.refine_tolerance_px)
-        obj: PIObjective | VRObjective | CoherenceObjective
+        obj: PIObjective | VRObjective | CoherenceObjective | SumObjective
         vox = region.voxels
         pad = (-len(vox)) % 1024
         weights = np.concatenate([np.ones(len(vox)), np.zeros(pad)])
@@ -266,6 +286,12 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             edges = silhouette_edges(maps_pf, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines)
             radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
             obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px)
+            level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in images])
+            pdark = dark_feature_probability(level_images, maps_pf) if settings.dark_weight > 0 else None
+            if pdark is not None:
+                dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2, all_runs=True)
+                dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px)
+                obj = SumObjective([obj, dark], [1.0, settings.dark_weight])
         elif method == "pi":
             lmap = np.clip(np.log(np.clip(maps_pf, settings.eps, 1 - settings.eps)), np.log(settings.eps), np.log1p(-settings.eps))
             obj = PIObjective(lmap.astype(np.float32), proj, weights, settings.pi_form)
@@ -276,12 +302,20 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         t_lv = time.monotonic()
         base = evals_done
 
-        def batch(xb: np.ndarray, _obj: Any = obj) -> np.ndarray:
-            return _obj(space.theta(xb))
+        sel = space.level_selection(lv.groups)  # which free coordinates this level moves
 
-        res = minimise(batch, x, lv.sigma0, np.ones(space.n_free), seed=seed + li, max_evaluations=lv.max_evaluations,
+        def batch(xb: np.ndarray, _obj: Any = obj, _sel: np.ndarray = sel, _x: np.ndarray = x.copy()) -> np.ndarray:
+            full = np.repeat(_x[None], len(xb), axis=0)
+            full[:, _sel] = xb
+            th = space.theta(full)
+            return _obj(th) + settings.roll_prior_weight * roll_prior(th, theta0, settings.roll_prior_deg)
+
+        res = minimise(batch, x[sel], lv.sigma0, np.ones(int(sel.sum())), seed=seed + li, max_evaluations=lv.max_evaluations,
                        tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize,
                        progress=lambda e, f, _b=base: clock.update(_b + e, f))
+        x_best = x.copy()
+        x_best[sel] = res.x_best
+        res = dataclasses.replace(res, x_best=x_best) if dataclasses.is_dataclass(res) else res
         dt = time.monotonic() - t_lv
         eval_time += dt
         evals_done += res.n_evaluations
