@@ -159,10 +159,10 @@ def score_against_truth(session: Path, truth_path: Path) -> dict[str, Any]:
         if meas is not None:
             vol = float(meas.attrs.get("volume_mm3", np.nan))
             area = float(meas.attrs.get("surface_area_mm2", np.nan))
-            hull = truth.get("visual_hull", {})
-            if "volume_mm3" in hull:
-                scores["volume_vs_true_hull_pct"] = 100.0 * (vol / hull["volume_mm3"] - 1.0)
-                scores["area_vs_true_hull_pct"] = 100.0 * (area / hull["surface_area_mm2"] - 1.0)
-            if "volume_mm3" in truth.get("solid", {}):
-                scores["volume_vs_solid_pct"] = 100.0 * (vol / truth["solid"]["volume_mm3"] - 1.0)
+            if truth.get("hull_volume_mm3"):
+                scores["volume_vs_true_hull_pct"] = 100.0 * (vol / truth["hull_volume_mm3"] - 1.0)
+                scores["area_vs_true_hull_pct"] = 100.0 * (area / truth["hull_area_mm2"] - 1.0)
+            if truth.get("true_volume_mm3"):
+                scores["volume_vs_solid_pct"] = 100.0 * (vol / truth["true_volume_mm3"] - 1.0)
+                scores["area_vs_solid_pct"] = 100.0 * (area / truth["true_area_mm2"] - 1.0)
     return scores

@@ -91,7 +91,7 @@ def connect_rig(cfg: RigConfig, truth_path: str | Path | None = None) -> Rig:
 def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) -> Rig:
     import simulators.stage as simstage
     from drivers.stage import open_stage
-    from simulators.camera import SimulatedCamera
+    from simulators.camera import Capillary, SimulatedCamera
 
     assert cfg.simulation is not None  # parse_config fills it for simulated cameras
     if cfg.stage.url.startswith("sim://"):
@@ -114,7 +114,8 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
         stage = stack.enter_context(_closing(open_stage(cfg.stage)))
         angle_source = lambda: stage.usteps_to_degrees(stage.position())  # noqa: E731
         log.warning("simulated camera with the stage at %s: frames are rendered at the read-back angle (no drift truth)", cfg.stage.url)
-    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=angle_source)
+    # A water-filled capillary in brightfield: lumen as bright as the surroundings, thin dark walls (as in the real frames).
+    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=angle_source, capillary=Capillary(lumen_transmission=1.0))
     camera.open()
     stack.enter_context(_closing(camera))
 

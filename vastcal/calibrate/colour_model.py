@@ -65,10 +65,17 @@ def image_space(images: np.ndarray) -> Space:
 def features(images: np.ndarray) -> np.ndarray:
     """Pixel values as float32 features in [0, 1]: (…, H, W, C) with C = 3 (RGB) or 1 (grey).
 
-    Integer images are divided by their type's maximum; float images are taken as they are.
+    Integer images are divided by the full scale of their bit depth: 255 for uint8; for wider types
+    the smallest 2^k − 1 that holds the data (4095 for Mono12 stored in uint16, 1023 for Mono10), so
+    a 12-bit camera's frames span [0, 1] like 8-bit ones. Float images are taken as they are.
     """
     a = np.asarray(images)
-    scale = float(np.iinfo(a.dtype).max) if np.issubdtype(a.dtype, np.integer) else 1.0
+    scale = 1.0
+    if np.issubdtype(a.dtype, np.integer):
+        scale = float(np.iinfo(a.dtype).max)
+        if a.dtype.itemsize > 1 and a.size:
+            bits = max(8, int(np.ceil(np.log2(float(a.max()) + 1.0))))
+            scale = float(2**bits - 1)
     f = a.astype(np.float32) / np.float32(scale)
     if image_space(a) == "grey":
         f = f[..., None]
