@@ -241,6 +241,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=("pi", "vr"), default="pi")
     s.add_argument("--seed", type=int, default=None)
     s.set_defaults(func=cmd_run)
+    for sp in sub.choices.values():  # the global flags are accepted after the command too
+        sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
+        sp.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)")
     return p
 
 

@@ -394,7 +394,28 @@ def _grow_counts(P: np.ndarray, maps: np.ndarray, shape2d: tuple[int, int], grid
     return counts
 
 
-def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_count: int | None = None) -> HullResult:
+def _largest_component(counts: np.ndarray, n: int, margin: int = 2) -> np.ndarray:
+    """Counts with every hull component but the largest (the specimen) cleared.
+
+    Static dark things that every view sees at the same place — a holder at the frame's edge, dirt
+    on the capillary — survive carving as separate blobs; the specimen is the largest connected
+    (26-neighbour) part of the hull. Voxels beyond ``margin`` of it are zeroed.
+    """
+    from scipy import ndimage
+
+    occ = counts == n
+    labels, k = ndimage.label(occ, structure=np.ones((3, 3, 3), bool))
+    if k <= 1:
+        return counts
+    sizes = np.bincount(labels.ravel())[1:]
+    keep = labels == (1 + int(np.argmax(sizes)))
+    near = ndimage.binary_dilation(keep, structure=np.ones((3, 3, 3), bool), iterations=margin)
+    log.info("visual hull: kept the largest of %d components (%d of %d voxels)", k, int(sizes.max()), int(sizes.sum()))
+    return np.where(near, counts, 0).astype(counts.dtype)
+
+
+def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_count: int | None = None,
+                keep_largest: bool = True) -> HullResult:
     """Visual hull and silhouette counts on ``grid``.
 
     Args:
@@ -406,6 +427,8 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
         grid: the voxel grid (world µm).
         min_count: lowest silhouette count made exact around the hull (default N − 1, enough
             for iso-levels above N − 2; see the module docstring).
+        keep_largest: keep only the largest connected part of the hull (the specimen), dropping
+            static blobs that every view sees at the same place.
 
     Raises:
         AnalysisError: shapes that do not match, or cameras/grid that are inconsistent.
@@ -434,6 +457,8 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
                              "silhouettes — the cameras do not agree with the silhouettes (wrong calibration run, "
                              "wrong pixel convention) or the colour model segmented the wrong region")
     counts = _grow_counts(Pn, maps, sil.shape[1:], grid, occ, min_count)
+    if keep_largest:
+        counts = _largest_component(counts, n)
     t2 = time.perf_counter()
     res = HullResult(grid, counts, n, int(min_count), t2 - t0, {"carve": t1 - t0, "counts": t2 - t1})
     log.info("visual hull: %d of %d voxels (%.2f µm) inside all %d silhouettes, %.4f mm³; carve %.3f s, counts %.3f s",
@@ -513,10 +538,10 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
     sil: np.ndarray | None = None
     sil_src = ""
     if not use_masks and cal is not None and "colour_model" in cal:
-        from vastcal.calibrate.colour_model import ColourModel  # the calibration engineer's model
+        from vastcal.calibrate.colour_model import ColourModel, specimen_only
 
         model = ColourModel.from_group(cal["colour_model"])
-        prob = model.foreground_probability(session.projections())
+        prob = specimen_only(model.foreground_probability(session.projections()))
         # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)
         sil = np.clip(np.nan_to_num(np.asarray(prob, np.float32)), 0.0, 1.0)
         sil_src = f"colour_model of {cam_src} (bilinear p >= {FOREGROUND_THRESHOLD})"

@@ -91,7 +91,7 @@ def connect_rig(cfg: RigConfig, truth_path: str | Path | None = None) -> Rig:
 def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) -> Rig:
     import simulators.stage as simstage
     from drivers.stage import open_stage
-    from simulators.camera import Capillary, SimulatedCamera
+    from simulators.camera import SimulatedCamera
 
     assert cfg.simulation is not None  # parse_config fills it for simulated cameras
     if cfg.stage.url.startswith("sim://"):
@@ -114,8 +114,7 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
         stage = stack.enter_context(_closing(open_stage(cfg.stage)))
         angle_source = lambda: stage.usteps_to_degrees(stage.position())  # noqa: E731
         log.warning("simulated camera with the stage at %s: frames are rendered at the read-back angle (no drift truth)", cfg.stage.url)
-    # A water-filled capillary in brightfield: lumen as bright as the surroundings, thin dark walls (as in the real frames).
-    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=angle_source, capillary=Capillary(lumen_transmission=1.0))
+    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=angle_source, capillary=simulated_capillary())
     camera.open()
     stack.enter_context(_closing(camera))
 
@@ -138,6 +137,17 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
         _write_json_atomically(truth_path, record)
 
     return Rig(stage, camera, stack, {"simulated": True, "truth_file": str(truth_path) if truth_path else ""}, write_truth)
+
+
+def simulated_capillary() -> Any:
+    """The capillary the simulated rig images: lumen as bright as the surroundings, thin dark walls.
+
+    That is what the real brightfield frames show (a water-filled glass capillary); a darker lumen
+    would look like a second background to the automatic colour model.
+    """
+    from simulators.camera import Capillary
+
+    return Capillary(lumen_transmission=1.0)
 
 
 class _closing:

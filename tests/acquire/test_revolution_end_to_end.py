@@ -15,7 +15,7 @@ from simulators.camera import SimulatedCamera
 from vastcal import cli
 from vastcal.acquire import acquire, camera_settings
 from vastcal.config import RigConfig, load_config
-from vastcal.rig import connect_rig
+from vastcal.rig import connect_rig, simulated_capillary
 from vastcal.session import Session
 
 VIEWS = 21
@@ -99,7 +99,7 @@ def test_simulated_revolution_is_a_valid_session_with_truth_beside_it_and_frames
         commanded = s.angles_deg
     for angles, same in ((truth["actual_angles_deg"], True), (commanded[:3], False)):
         it = iter(angles)
-        with SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=lambda: float(next(it))) as cam:
+        with SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=lambda: float(next(it)), capillary=simulated_capillary()) as cam:
             cam.configure(camera_settings(cfg))
             cam.start()
             for k in range(len(angles)):

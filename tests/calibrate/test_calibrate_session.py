@@ -8,7 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import synthetic as sy
-from conftest import FAST, write_session
+import importlib.util as _importlib_util
+_spec = _importlib_util.spec_from_file_location("calibrate_test_helpers", __import__("pathlib").Path(__file__).with_name("conftest.py"))
+_helpers = _importlib_util.module_from_spec(_spec)
+_spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
+FAST = _helpers.FAST
+write_session = _helpers.write_session
 
 from vastcal.calibrate import ColourModel, calibrate_session
 from vastcal.errors import ColourModelError, SessionIncompleteError, UserInputError

@@ -7,7 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 import synthetic as sy
-from conftest import FAST
+import importlib.util as _importlib_util
+_spec = _importlib_util.spec_from_file_location("calibrate_test_helpers", __import__("pathlib").Path(__file__).with_name("conftest.py"))
+_helpers = _importlib_util.module_from_spec(_spec)
+_spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
+FAST = _helpers.FAST
 
 from vastcal.calibrate import calibrate_views, fit_automatic
 from vastcal.calibrate.objective_pi import PIObjective

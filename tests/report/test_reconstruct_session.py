@@ -79,6 +79,7 @@ def test_silhouettes_from_the_calibration_colour_model(session_factory, monkeypa
     pkg = types.ModuleType("vastcal.calibrate")
     mod = types.ModuleType("vastcal.calibrate.colour_model")
     mod.ColourModel = FakeModel  # type: ignore[attr-defined]
+    mod.specimen_only = lambda p: p  # type: ignore[attr-defined]  # no static blobs in these views
     monkeypatch.setitem(sys.modules, "vastcal.calibrate", pkg)
     monkeypatch.setitem(sys.modules, "vastcal.calibrate.colour_model", mod)
     m = reconstruct_session(path, target_voxels=300_000)

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import h5py
+import cv2
 import numpy as np
 
 from vastcal.errors import ColourModelError, UserInputError
@@ -51,6 +52,10 @@ Space = Literal["rgb", "grey"]
 #: χ² quantiles used by the robust fits, by number of channels (1 or 3).
 _CHI2_975 = {1: 5.024, 3: 9.348}
 _CHI2_999 = {1: 10.83, 3: 16.27}
+
+#: Pixels closer to the background colour than this multiple of its 99.9 % Mahalanobis radius² are
+#: background whatever the specimen model says (faint halos, dust, a dim corner of the field).
+BACKGROUND_GATE = 3.0
 
 #: Variance floor of every channel (features in [0, 1]): σ ≥ 0.01, i.e. 2.5 levels of 8 bits, so that
 #: a saturated or quantised background does not make a needle-thin Gaussian.
@@ -79,7 +84,43 @@ def features(images: np.ndarray) -> np.ndarray:
     f = a.astype(np.float32) / np.float32(scale)
     if image_space(a) == "grey":
         f = f[..., None]
-    return f
+    return flatten_background(f)
+
+
+def flatten_background(f: np.ndarray) -> np.ndarray:
+    """Divide out slow illumination changes behind a dark specimen (features (…, H, W, C) in [0, 1]).
+
+    Brightfield frames are brighter in the middle than at the ends and tinted differently across
+    the field; a single Gaussian for "background" then either misses the dim corners or swallows the
+    translucent specimen. The background level of each frame is estimated by a grey closing (a
+    maximum filter wider than the specimen, then a blur) — which removes everything darker and
+    smaller than the kernel, i.e. the specimen and the thin capillary walls — and divided out, so
+    the background sits at 1 everywhere. Frames whose border is not clearly at the bright end of
+    their range (a bright specimen on a dark background, e.g. a turntable scene, or no specimen at
+    all) are returned unchanged.
+    """
+    if f.ndim < 3:
+        return f
+    single = f.ndim == 3
+    stack = f[None] if single else f
+    n, h, w, c = stack.shape
+    if h < 16 or w < 16:
+        return f
+    border = float(np.median(np.concatenate([stack[:, :2].reshape(n, -1, c), stack[:, -2:].reshape(n, -1, c)], 1)))
+    p5, p95 = np.percentile(stack[:, ::4, ::4], [5, 95])
+    if border - p5 <= 2.0 * (p95 - border):  # the border is not clearly at the bright end
+        return f
+    ky, kx = 2 * int(0.3 * h) + 1, 2 * int(w / 32) + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (kx, ky))
+    out = np.empty_like(stack)
+    for i in range(n):
+        img = stack[i] if c > 1 else stack[i, :, :, 0]
+        bg = cv2.blur(cv2.dilate(img, kernel), (kx, kx))
+        bg = np.maximum(bg, 1e-3)
+        corr = img / bg
+        out[i] = corr if c > 1 else corr[..., None]
+    np.clip(out, 0.0, 1.0, out=out)
+    return out[0] if single else out
 
 
 def check_images(images: np.ndarray) -> None:
@@ -206,6 +247,10 @@ class ColourModel:
         # log p_f = −log(1 + exp(lb − lf)), stable for either sign of the difference.
         diff = np.clip(lb - lf, -80.0, 80.0)
         logp = -np.logaddexp(np.float32(0.0), diff)
+        # A pixel whose colour the background model explains (within BACKGROUND_GATE × its 99.9 % radius²) is background,
+        # however broad the specimen's Gaussian is: the specimen's colours are multimodal (black eyes,
+        # grey body, clear fin), so its single Gaussian is wide and would otherwise claim faint halos.
+        logp = np.where(self.bg.mahalanobis2(f) < BACKGROUND_GATE * _CHI2_999[f.shape[-1]], np.float32(np.log(self.eps)), logp)
         return np.clip(logp, np.log(self.eps), np.log1p(-self.eps)).astype(np.float32)
 
     def foreground_probability(self, images: np.ndarray) -> np.ndarray:
@@ -347,3 +392,28 @@ def em_refine(model: ColourModel, samples: np.ndarray, rounds: int) -> ColourMod
         r = np.exp(-np.logaddexp(0.0, np.clip(lb - lf, -80, 80)))  # responsibility of the foreground
         model = ColourModel(Gaussian.fit(samples, r), Gaussian.fit(samples, 1 - r), _prior(float(r.mean())), model.space, model.source, model.eps)
     return model
+
+
+def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_px: int = 3) -> np.ndarray:
+    """Posteriors (N, H, W) with the static blobs cut by the frame's edge set to 0.
+
+    What the colour model calls foreground also includes things that are not the specimen: the
+    capillary walls (thin lines across the whole frame) and holders or shadows at the frame's edge.
+    The specimen is framed whole but may touch a wall, so the walls are first removed from the test
+    by an opening with a ``wall_px``-tall vertical kernel (thin horizontal lines vanish, the body
+    stays); every remaining region that touches the frame's edge is a static blob and is cleared
+    (grown by ``margin_px``). The walls themselves are left: they are consistent with no voxel near
+    the axis and so are carved away, and calibration ignores runs that do not hold the axis.
+    """
+    out = np.array(pf, dtype=np.float32, copy=True)
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (1, wall_px))
+    grow = np.ones((2 * margin_px + 1,) * 2, np.uint8)
+    for i, p in enumerate(out):
+        body = cv2.morphologyEx((p > level).astype(np.uint8), cv2.MORPH_OPEN, kernel)
+        n, labels = cv2.connectedComponents(body, connectivity=8)
+        edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+        edge = edge[edge > 0]
+        if edge.size:
+            blobs = cv2.dilate(np.isin(labels, edge).astype(np.uint8), grow) > 0
+            p[blobs] = 0.0
+    return out

@@ -24,7 +24,7 @@ from typing import Any, Literal, Sequence
 import cv2
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
+from vastcal.calibrate.colour_model import ColourModel, specimen_only, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
 from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, dark_feature_probability,
                                                    signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
@@ -243,8 +243,8 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     w_full = images.shape[2]
     finest = max(1.0, w_full / max(lv.width_px for lv in settings.levels))
     small = _area_resize(images, finest)
-    logp = model.log_foreground_probability(small)
-    pf = np.exp(logp)
+    pf = specimen_only(np.exp(model.log_foreground_probability(small)))
+    logp = np.log(np.clip(pf, settings.eps, 1 - settings.eps))
     if silhouettes is not None:
         sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
         sil_src = np.stack([cv2.resize(s, (pf.shape[2], pf.shape[1]), interpolation=cv2.INTER_AREA) for s in sil_full])
