@@ -120,12 +120,8 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
 
     earlier: list[dict[str, Any]] | None = None
 
-    def write_truth(k: int) -> None:
-        nonlocal earlier
-        if truth_path is None:
-            return
-        if earlier is None:  # first view of this run: a resumed run keeps the truth of views 0..k-1
-            earlier = _earlier_snaps(truth_path, k)
+    def full_record() -> dict[str, Any]:
+        """The camera's whole truth record (phantom, hull for the actual angles), with earlier runs' views."""
         record = camera.truth_record()
         if earlier:
             record["snaps"] = earlier + record["snaps"]
@@ -134,8 +130,27 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
                 value = hull(known) if known else float("inf")
                 record[key] = value if math.isfinite(value) else None
         record["actual_angles_deg"] = [s["actual_angle_deg"] for s in record["snaps"]]
-        _write_json_atomically(truth_path, record)
+        return record
 
+    angles: list[float] = []
+
+    def write_truth(k: int) -> None:
+        """After each view: the actual angles so far and the hidden geometry (cheap; the hull comes at the end)."""
+        nonlocal earlier
+        if truth_path is None:
+            return
+        if earlier is None:  # first view of this run: a resumed run keeps the truth of views 0..k-1
+            earlier = _earlier_snaps(truth_path, k)
+        angles.append(float(angle_source()))
+        prior = [s.get("actual_angle_deg") for s in earlier]
+        _write_json_atomically(truth_path, {"partial": True, **camera.truth.to_dict(), "actual_angles_deg": prior + angles,
+                                            "snaps": earlier + [{"actual_angle_deg": a} for a in angles]})
+
+    def finish_truth() -> None:
+        if truth_path is not None and angles:
+            _write_json_atomically(truth_path, full_record())
+
+    stack.callback(finish_truth)
     return Rig(stage, camera, stack, {"simulated": True, "truth_file": str(truth_path) if truth_path else ""}, write_truth)
 
 
