@@ -538,10 +538,11 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
     sil: np.ndarray | None = None
     sil_src = ""
     if not use_masks and cal is not None and "colour_model" in cal:
-        from vastcal.calibrate.colour_model import ColourModel, specimen_only
+        from vastcal.calibrate.colour_model import ColourModel
+        from vastcal.calibrate.silhouettes import specimen_maps
 
         model = ColourModel.from_group(cal["colour_model"])
-        prob = specimen_only(model.foreground_probability(session.projections()))
+        prob = specimen_maps(model, session.projections())
         # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)
         sil = np.clip(np.nan_to_num(np.asarray(prob, np.float32)), 0.0, 1.0)
         sil_src = f"colour_model of {cam_src} (bilinear p >= {FOREGROUND_THRESHOLD})"

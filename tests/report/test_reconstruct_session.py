@@ -79,9 +79,11 @@ def test_silhouettes_from_the_calibration_colour_model(session_factory, monkeypa
     pkg = types.ModuleType("vastcal.calibrate")
     mod = types.ModuleType("vastcal.calibrate.colour_model")
     mod.ColourModel = FakeModel  # type: ignore[attr-defined]
-    mod.specimen_only = lambda p: p  # type: ignore[attr-defined]  # no static blobs in these views
+    sil = types.ModuleType("vastcal.calibrate.silhouettes")
+    sil.specimen_maps = lambda model, images: model.foreground_probability(images)  # type: ignore[attr-defined]  # no static blobs here
     monkeypatch.setitem(sys.modules, "vastcal.calibrate", pkg)
     monkeypatch.setitem(sys.modules, "vastcal.calibrate.colour_model", mod)
+    monkeypatch.setitem(sys.modules, "vastcal.calibrate.silhouettes", sil)
     m = reconstruct_session(path, target_voxels=300_000)
     assert m.provenance["silhouette_source"].startswith("colour_model of calibration/run_000")
     assert m.volume_mm3 == pytest.approx(small_views.hull_volume_mm3, rel=0.03)  # type: ignore[attr-defined]

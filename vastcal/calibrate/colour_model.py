@@ -392,28 +392,3 @@ def em_refine(model: ColourModel, samples: np.ndarray, rounds: int) -> ColourMod
         r = np.exp(-np.logaddexp(0.0, np.clip(lb - lf, -80, 80)))  # responsibility of the foreground
         model = ColourModel(Gaussian.fit(samples, r), Gaussian.fit(samples, 1 - r), _prior(float(r.mean())), model.space, model.source, model.eps)
     return model
-
-
-def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_px: int = 3) -> np.ndarray:
-    """Posteriors (N, H, W) with the static blobs cut by the frame's edge set to 0.
-
-    What the colour model calls foreground also includes things that are not the specimen: the
-    capillary walls (thin lines across the whole frame) and holders or shadows at the frame's edge.
-    The specimen is framed whole but may touch a wall, so the walls are first removed from the test
-    by an opening with a ``wall_px``-tall vertical kernel (thin horizontal lines vanish, the body
-    stays); every remaining region that touches the frame's edge is a static blob and is cleared
-    (grown by ``margin_px``). The walls themselves are left: they are consistent with no voxel near
-    the axis and so are carved away, and calibration ignores runs that do not hold the axis.
-    """
-    out = np.array(pf, dtype=np.float32, copy=True)
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (1, wall_px))
-    grow = np.ones((2 * margin_px + 1,) * 2, np.uint8)
-    for i, p in enumerate(out):
-        body = cv2.morphologyEx((p > level).astype(np.uint8), cv2.MORPH_OPEN, kernel)
-        n, labels = cv2.connectedComponents(body, connectivity=8)
-        edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-        edge = edge[edge > 0]
-        if edge.size:
-            blobs = cv2.dilate(np.isin(labels, edge).astype(np.uint8), grow) > 0
-            p[blobs] = 0.0
-    return out

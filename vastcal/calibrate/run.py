@@ -24,7 +24,7 @@ from typing import Any, Literal, Sequence
 import cv2
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, specimen_only, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
+from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
 from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, dark_feature_probability,
                                                    signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
@@ -32,6 +32,7 @@ from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.region import specimen_region
+from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds
 from vastcal.errors import AnalysisError, UserInputError
@@ -243,7 +244,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     w_full = images.shape[2]
     finest = max(1.0, w_full / max(lv.width_px for lv in settings.levels))
     small = _area_resize(images, finest)
-    pf = specimen_only(np.exp(model.log_foreground_probability(small)))
+    pf = specimen_maps(model, small, band_px=max(1.0, 2.0 / finest))  # the rim band is 2 px of the full frame
     logp = np.log(np.clip(pf, settings.eps, 1 - settings.eps))
     if silhouettes is not None:
         sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)

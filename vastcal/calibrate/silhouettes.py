@@ -1,0 +1,117 @@
+"""From colour posteriors to the specimen's silhouettes: static structures out, edges where they are.
+
+The colour model (:mod:`.colour_model`) says, per pixel, how likely the specimen's colours are.
+Three things in that map are not the specimen's outline, and this module removes them:
+
+1. **Static bands** — the capillary walls, and the dim strip of lumen next to them: foreground in
+   (almost) every view, across (almost) the whole frame, in the same rows (or columns). A rotating
+   specimen of finite length never does that. :func:`static_bands` finds such rows/columns from
+   the whole stack and :func:`specimen_only` clears them.
+2. **Static blobs at the frame's edge** — holders, shadows, the turntable's base: every region
+   that still touches the frame's edge once thin lines are opened away (:func:`specimen_only`).
+3. **The outward bias of the Bayes boundary** — the background Gaussian is narrow (a flat bright
+   field) and the specimen's is wide (black eyes to clear fin), so p_f = ½ falls close to the
+   background's colour: on an edge blurred by the optics that is about a pixel *outside* the
+   physical edge. For a symmetric point-spread function the physical edge is where the intensity
+   is half-way between the two sides (the half-contrast point). :func:`half_contrast_edges` moves
+   the silhouette's rim there; on the zebrafish of Guo et al. this takes the hull volume from the
+   authors' cameras and automatic silhouettes from +12 % to +5 % of the hand-made masks' value.
+
+:func:`specimen_maps` composes them; calibration and reconstruction both use it.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+from vastcal.calibrate.colour_model import ColourModel, features
+
+log = logging.getLogger(__name__)
+
+#: A row/column is a static band when at least ``STATIC_VIEWS`` of the views call at least
+#: ``STATIC_SPAN`` of its pixels foreground.
+STATIC_VIEWS = 0.9
+STATIC_SPAN = 0.85
+
+
+def static_bands(silhouettes: np.ndarray, *, views: float = STATIC_VIEWS, span: float = STATIC_SPAN) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (H,) and columns (W,) that are foreground across the frame in almost every view.
+
+    Args:
+        silhouettes: (N, H, W) bool rough silhouettes of a revolution.
+        views: fraction of views in which a pixel must be foreground to count as static.
+        span: fraction of a row's (column's) pixels that must be static.
+    """
+    s = np.asarray(silhouettes, bool)
+    if s.ndim != 3 or s.shape[0] < 3:
+        return np.zeros(s.shape[-2], bool), np.zeros(s.shape[-1], bool)
+    static = s.mean(axis=0) >= views
+    return static.mean(axis=1) >= span, static.mean(axis=0) >= span
+
+
+def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_px: int = 3) -> np.ndarray:
+    """Posteriors (N, H, W) with static bands and the static blobs cut by the frame's edge set to 0.
+
+    Static bands (capillary walls and the strip beside them, :func:`static_bands`) are cleared in
+    every view, grown by one pixel. The specimen is framed whole but may touch a wall, so the
+    remaining thin lines are first removed from the blob test by an opening with a ``wall_px``-tall
+    vertical kernel (thin horizontal lines vanish, the body stays); every remaining region that
+    touches the frame's edge is a static blob and is cleared (grown by ``margin_px``).
+    """
+    out = np.array(pf, dtype=np.float32, copy=True)
+    if out.ndim == 3:
+        rows, cols = static_bands(out > level)
+        if rows.any() or cols.any():
+            rows = cv2.dilate(rows.astype(np.uint8)[:, None], np.ones((3, 1), np.uint8))[:, 0] > 0
+            cols = cv2.dilate(cols.astype(np.uint8)[None, :], np.ones((1, 3), np.uint8))[0] > 0
+            out[:, rows, :] = 0.0
+            out[:, :, cols] = 0.0
+            log.info("static bands cleared: %d rows, %d columns", int(rows.sum()), int(cols.sum()))
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (1, wall_px))
+    grow = np.ones((2 * margin_px + 1,) * 2, np.uint8)
+    for p in out.reshape((-1,) + out.shape[-2:]):
+        body = cv2.morphologyEx((p > level).astype(np.uint8), cv2.MORPH_OPEN, kernel)
+        n, labels = cv2.connectedComponents(body, connectivity=8)
+        edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+        edge = edge[edge > 0]
+        if edge.size:
+            blobs = cv2.dilate(np.isin(labels, edge).astype(np.uint8), grow) > 0
+            p[blobs] = 0.0
+    return out
+
+
+def contrast(model: ColourModel, images: np.ndarray) -> np.ndarray:
+    """Where each pixel lies between the background and specimen means, float32 (N, H, W).
+
+    t = (x − μ_b)·(μ_f − μ_b) / |μ_f − μ_b|²: 0 at the background's colour, 1 at the specimen's
+    mean colour (features of :func:`.colour_model.features`, so flattened like the posteriors).
+    """
+    f = features(images)
+    mb = np.asarray(model.bg.mean, np.float32).reshape(-1)
+    d = np.asarray(model.fg.mean, np.float32).reshape(-1) - mb
+    return (((f - mb) @ d) / max(float(d @ d), 1e-12)).astype(np.float32)
+
+
+def half_contrast_edges(pf: np.ndarray, t: np.ndarray, *, band_px: float = 2.0, level: float = 0.5) -> np.ndarray:
+    """Posteriors with the silhouettes' rims moved in to the half-contrast point (module docstring).
+
+    Pixels within ``band_px`` (pixels) of a silhouette's boundary whose contrast ``t`` is below ½
+    are set to 0; deeper pale parts of the specimen (a clear fin inside the outline) are kept.
+    """
+    out = np.array(pf, dtype=np.float32, copy=True)
+    flat_p = out.reshape((-1,) + out.shape[-2:])
+    flat_t = np.asarray(t, np.float32).reshape(flat_p.shape)
+    for p, tt in zip(flat_p, flat_t):
+        inside = (p > level).astype(np.uint8)
+        depth = cv2.distanceTransform(inside, cv2.DIST_L2, 3)
+        p[(inside > 0) & (depth <= band_px) & (tt < 0.5)] = 0.0
+    return out
+
+
+def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 2.0) -> np.ndarray:
+    """The specimen's probability maps (N, H, W) float32: posteriors → :func:`specimen_only` → :func:`half_contrast_edges`."""
+    pf = specimen_only(model.foreground_probability(images))
+    return half_contrast_edges(pf, contrast(model, images), band_px=band_px)
