@@ -239,9 +239,20 @@ class ColourModel:
         Raises:
             UserInputError: images of the wrong colour space.
         """
+        return self.log_foreground_probability_of_features(self.features(images))
+
+    def features(self, images: np.ndarray) -> np.ndarray:
+        """The images' features (:func:`features`) after checking their colour space.
+
+        Raises:
+            UserInputError: images of the wrong colour space.
+        """
         if image_space(np.asarray(images)) != self.space:
             raise UserInputError(f"colour model is {self.space} but the images are {image_space(np.asarray(images))}")
-        f = features(images)
+        return features(images)
+
+    def log_foreground_probability_of_features(self, f: np.ndarray) -> np.ndarray:
+        """Clamped log p_f, float32 (…, H, W), of features (…, H, W, C) from :meth:`features`."""
         lf = self.fg.log_pdf(f) + np.float32(np.log(self.prior_fg))
         lb = self.bg.log_pdf(f) + np.float32(np.log1p(-self.prior_fg))
         # log p_f = −log(1 + exp(lb − lf)), stable for either sign of the difference.
