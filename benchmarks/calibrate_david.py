@@ -34,7 +34,7 @@ def main() -> None:
         angles = Path(tmp) / "angles.txt"
         angles.write_text("\n".join(f"{a:.6f}" for a in commanded))
         s = Path(tmp) / "david.h5"
-        import_folder(DATA, s, angles=angles, cameras=DATA, pixel_origin=0)
+        import_folder(DATA, s, angles=angles, cameras=DATA, pixel_origin=0.5)
         t = time.perf_counter()
         r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0))
         wall = time.perf_counter() - t

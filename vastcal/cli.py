@@ -204,7 +204,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--masks", help="folder of silhouettes, one per image")
     s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: uniform over 360)")
     s.add_argument("--cameras", help="known cameras: a 'name + 12 numbers' file, or a folder of .pa files")
-    s.add_argument("--pixel-origin", type=int, choices=(0, 1), default=0, help="pixel convention of --cameras (default 0)")
+    s.add_argument("--pixel-origin", type=float, choices=(0.0, 0.5, 1.0), default=0.0,
+                   help="coordinate --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at integers), 1 (1-based, MATLAB); default 0")
     s.add_argument("--roi-offset", type=int, nargs=2, metavar=("X", "Y"), help="offset of the images on the sensor, px (default from --config, else 0 0)")
     s.add_argument("--config", help="rig description YAML for the optics (pixel size, focal length, principal point)")
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")

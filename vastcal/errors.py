@@ -45,6 +45,24 @@ class VastcalError(Exception):
 
     exit_code: int = 1
 
+    def about(self, source: object) -> "VastcalError":
+        """The same error, its message prefixed with ``source`` (e.g. the session file) unless it names it.
+
+        For errors raised deep in pure functions of arrays, re-raised where the file is known::
+
+            except VastcalError as exc:
+                raise exc.about(path) from None
+        """
+        text = str(self)
+        if str(source) in text:
+            return self
+        try:
+            new = type(self)(f"{source}: {text}")
+        except TypeError:  # a subclass with its own constructor: keep it as it is
+            return self
+        new.__dict__.update(self.__dict__)
+        return new
+
 
 class UserInputError(VastcalError):
     """The user gave input that cannot be used (raised before anything is written)."""

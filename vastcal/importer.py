@@ -9,8 +9,9 @@ Inputs, all but the images optional:
   default: uniform over 360° starting at 0°.
 * cameras — known projection matrices, either one text file with ``name p11 … p34`` per line
   (12 numbers, row-major 3 × 4; the zebrafish authors' format) or a folder of ``*.pa`` files
-  with one 3 × 4 matrix each (ETH's format). ``pixel_origin`` says whether they are 0- or
-  1-based; ``roi_offset`` (x, y) says where the stored frames sit on the sensor the cameras
+  with one 3 × 4 matrix each (ETH's format). ``pixel_origin`` is the coordinate those cameras give to the
+  *centre* of the first pixel: 0 (0-based centres), 1 (1-based, MATLAB) or 0.5 (pixel corners at
+  integers, the continuous-image convention); ``roi_offset`` (x, y) says where the stored frames sit on the sensor the cameras
   were given for. The matrices are stored exactly as given (``cameras/P_given``) and converted
   to 0-based pixels of the stored frames (``cameras/P``).
 """
@@ -32,6 +33,9 @@ from vastcal.geometry import shift_pixels
 from vastcal.session import SessionWriter, check_writable_output
 
 log = logging.getLogger(__name__)
+
+#: Accepted coordinates of the first pixel's centre in imported cameras (0-based, corner-origin, 1-based).
+PIXEL_ORIGINS = (0.0, 0.5, 1.0)
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bmp")
 
@@ -138,7 +142,7 @@ def import_folder(
     masks: str | Path | None = None,
     angles: str | Path | None = None,
     cameras: str | Path | None = None,
-    pixel_origin: int = 0,
+    pixel_origin: float = 0,
     roi_offset: tuple[int, int] | None = None,
     config: RigConfig | None = None,
     force: bool = False,
@@ -152,7 +156,7 @@ def import_folder(
         masks: folder of silhouettes matching the images one to one.
         angles: text file of commanded angles (degrees); default uniform over 360°.
         cameras: ``name + 12 numbers`` file or folder of ``.pa`` files.
-        pixel_origin: 0 or 1, the pixel convention of ``cameras``.
+        pixel_origin: 0, 0.5 or 1 — the coordinate ``cameras`` give to the first pixel's centre.
         roi_offset: (x, y) of the stored frames on the sensor (px, 0-based); default from
             ``config.camera.roi`` or (0, 0).
         config: rig description for the optics (pixel size, K); default: an "imported" rig.
@@ -165,8 +169,9 @@ def import_folder(
     """
     folder, out = Path(folder), Path(output)
     check_writable_output(out, force)
-    if pixel_origin not in (0, 1):
-        raise ImportDataError(f"pixel origin must be 0 or 1, got {pixel_origin}")
+    if pixel_origin not in PIXEL_ORIGINS:
+        raise ImportDataError(f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
+                              f"(the coordinate of the first pixel's centre), got {pixel_origin}")
     files = list_images(folder)
     first = read_image(files[0])
     n = len(files)
@@ -202,7 +207,7 @@ def import_folder(
         if P_given is not None:
             P = shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])
             writer.write_cameras(P, source=str(Path(cameras).resolve()), P_given=P_given,
-                                 attrs={"pixel_origin": pixel_origin, "roi_offset": list(roi_offset), "names": names})
+                                 attrs={"pixel_origin": float(pixel_origin), "roi_offset": list(roi_offset), "names": names})
         writer.finish("success", views_planned=n)
     log.info("imported %d views %s %s into %s", n, first.shape, first.dtype, out)
     return out

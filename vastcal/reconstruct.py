@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from vastcal.errors import AnalysisError, EmptyHullError, MissingStageError, UserInputError
+from vastcal.errors import AnalysisError, EmptyHullError, MissingStageError, UserInputError, VastcalError
 from vastcal.voxels import VoxelGrid, grid_around_specimen
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -651,10 +651,13 @@ def reconstruct_session(
             log.warning("%s: stored rig configuration unreadable (%s); reconstruction defaults used", path, exc)
         size = voxel_size_um if voxel_size_um is not None else (cfg.voxel_size_um if cfg else None)
         target = target_voxels or (cfg.target_voxels if cfg else 5_000_000)
-        grid = choose_grid(inputs.P, inputs.silhouettes, voxel_size_um=size, target_voxels=target)
         settings = MeasureSettings()
-        hull = visual_hull(inputs.P, inputs.silhouettes, grid, min_count=settings.min_count(inputs.P.shape[0]))
-        meas = measure_hull(hull, settings)
+        try:
+            grid = choose_grid(inputs.P, inputs.silhouettes, voxel_size_um=size, target_voxels=target)
+            hull = visual_hull(inputs.P, inputs.silhouettes, grid, min_count=settings.min_count(inputs.P.shape[0]))
+            meas = measure_hull(hull, settings)
+        except VastcalError as exc:  # name the session in errors found in its data
+            raise exc.about(path) from None
         rec = s.new_result_group("reconstruction")
         store_reconstruction(rec, hull, inputs, {"voxel_size_um": size, "target_voxels": target, "block": BLOCK,
                                                   "foreground_threshold": FOREGROUND_THRESHOLD, "use_masks": use_masks})

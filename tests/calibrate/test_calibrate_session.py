@@ -80,5 +80,5 @@ def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(tmp_path:
     before = _digest(p)
     with pytest.raises(err) as info:
         calibrate_session(p, **kwargs)
-    assert "\n" not in str(info.value)
+    assert "\n" not in str(info.value) and str(p) in str(info.value)  # one line that names the session file
     assert _digest(p) == before

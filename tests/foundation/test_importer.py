@@ -127,3 +127,18 @@ def test_config_for_optics_is_stored(tmp_path: Path) -> None:
     import_folder(tmp_path / "img", tmp_path / "s.h5", config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"))
     with Session.open(tmp_path / "s.h5") as s:
         assert s.roi_offset_px == (0, 387) and s.pixel_size_um == (5.5, 5.5)
+
+
+def test_pixel_origin_half_shifts_cameras_by_half_a_pixel(tmp_path: Path) -> None:
+    write_images(tmp_path / "img", 3)
+    P = np.hstack([np.eye(3), np.ones((3, 1))])
+    lines = [f"view{i} " + " ".join(f"{v:.6f}" for v in P.ravel()) for i in range(3)]
+    (tmp_path / "cams.txt").write_text("\n".join(lines))
+    import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt", pixel_origin=0.5)
+    with Session.open(tmp_path / "s.h5") as s:
+        np.testing.assert_allclose(s.known_cameras[0], shift_pixels(P, 0.5, 0.5))
+    with pytest.raises(ImportDataError, match="pixel origin must be one of 0.0, 0.5, 1.0"):
+        import_folder(tmp_path / "img", tmp_path / "t.h5", cameras=tmp_path / "cams.txt", pixel_origin=2)
+    assert not (tmp_path / "t.h5").exists()
+    proc = run_cli("import", str(tmp_path / "img"), "-o", str(tmp_path / "u.h5"), "--cameras", str(tmp_path / "cams.txt"), "--pixel-origin", "2")
+    assert proc.returncode == 2 and "--pixel-origin" in proc.stderr and not (tmp_path / "u.h5").exists()

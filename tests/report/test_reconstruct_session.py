@@ -87,3 +87,17 @@ def test_silhouettes_from_the_calibration_colour_model(session_factory, monkeypa
     m = reconstruct_session(path, target_voxels=300_000)
     assert m.provenance["silhouette_source"].startswith("colour_model of calibration/run_000")
     assert m.volume_mm3 == pytest.approx(small_views.hull_volume_mm3, rel=0.03)  # type: ignore[attr-defined]
+
+
+def test_an_empty_hull_names_the_session_file(session_factory) -> None:  # type: ignore[no-untyped-def]
+    import h5py
+
+    from vastcal.errors import EmptyHullError
+    from vastcal.session import VASTCAL
+
+    path = session_factory(masks=True, cameras=True)
+    with h5py.File(path, "a") as f:
+        f[VASTCAL]["masks"][2] = 0  # one view sees nothing: every voxel is carved away
+    with pytest.raises(EmptyHullError) as info:
+        reconstruct_session(path)
+    assert str(info.value).startswith(f"{path}: ") and "\n" not in str(info.value)

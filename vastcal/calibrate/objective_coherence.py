@@ -68,9 +68,20 @@ class EdgeSamples:
         return int(self.weight.sum())
 
 
-def axis_direction_px(P0: np.ndarray, length_um: float = 1000.0) -> np.ndarray:
+def _axis_probe(P: np.ndarray) -> np.ndarray:
+    """Two world points (2, 3) on the rotation axis (world x), ±5 % of the camera distance from the origin.
+
+    Probes must stay well in front of every camera, whatever the units (µm on the rig, arbitrary
+    units on imported turntable data), so their length is scaled to the first camera's distance.
+    """
+    M, p4 = np.asarray(P, float).reshape(-1, 3, 4)[0, :, :3], np.asarray(P, float).reshape(-1, 3, 4)[0, :, 3]
+    length = 0.05 * float(np.linalg.norm(np.linalg.solve(M, -p4)))
+    return np.array([[-length, 0.0, 0.0], [length, 0.0, 0.0]])
+
+
+def axis_direction_px(P0: np.ndarray) -> np.ndarray:
     """Unit image direction (du, dv) of the rotation axis (world x) in view 0 of cameras P0."""
-    uv = project(P0[:1], np.array([[-length_um, 0.0, 0.0], [length_um, 0.0, 0.0]]))[0]
+    uv = project(P0[:1], _axis_probe(P0))[0]
     d = uv[1] - uv[0]
     return d / np.linalg.norm(d)
 
@@ -164,7 +175,7 @@ def axis_crossings(P0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     h, w = shape
     d = axis_direction_px(P0)
     horizontal = abs(d[0]) >= abs(d[1])
-    pts = project(P0, np.array([[-1e4, 0.0, 0.0], [1e4, 0.0, 0.0]]))  # (N, 2, 2)
+    pts = project(P0, _axis_probe(P0))  # (N, 2, 2)
     a, b = pts[:, 0], pts[:, 1]
     out = []
     for i in range(P0.shape[0]):
@@ -253,16 +264,24 @@ class CoherenceObjective:
         K: intrinsics of the level's pixels.
         distance: axis distance d, µm.
         radius_um: the specimen lies within this distance of the axis (sets the depth range of the rays).
-        stages: samples along each ray at each zoom stage: the first spans ±``radius_um`` around the
-            axis depth, each next one ±1 step of the previous around its best sample.
-        window, window_um: samples and half-width (µm) of the per-candidate window around the peaks.
+        stages: samples of each zoom stage after the first (each spans ±1 step of the previous
+            stage around its best sample). The first stage samples the ray's chord through the
+            cylinder of ``radius_um`` about the axis at about one pixel of the level per step (as
+            seen from the other views), so that no thin part of the specimen falls between samples;
+            at most ``max_first_stage`` samples.
+        window, window_px: samples and half-width of the per-candidate window around the peaks; the
+            half-width is ``window_px`` pixels of the level at the axis distance (converted to µm).
         sigma_px: softness σ of the one-sided penalty, pixels.
+        research_deg: repeat the full search along the rays when the population mean has moved more
+            than this (degrees, any entry) since the last one.
     """
 
     name = "pi-coherence"
 
     def __init__(self, sd: np.ndarray, edges: EdgeSamples, K: np.ndarray, distance: float, radius_um: float,
-                 stages: tuple[int, ...] = (12, 7, 7, 7), window: int = 7, window_um: float = 15.0, sigma_px: float = 0.33, trim: int = 1, cap_px: float = 1.5, max_points: int = 4_000_000) -> None:
+                 stages: tuple[int, ...] = (7, 7, 7), window: int = 7, window_px: float = 1.5, sigma_px: float = 0.33,
+                 trim: int = 1, cap_px: float = 1.5, max_first_stage: int = 256, research_deg: float = 0.1,
+                 max_points: int = 4_000_000) -> None:
         self.atlas = Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
@@ -271,8 +290,12 @@ class CoherenceObjective:
         self.radius = float(radius_um)
         self.stages = tuple(int(c) for c in stages)
         self.window = int(window)
-        self.window_um = float(window_um)
+        self.footprint_um = self.distance / float(np.sqrt(abs(np.linalg.det(self.K[:2, :2]))))  # one pixel at the axis, µm
+        self.window_um = float(window_px) * self.footprint_um
+        self.first_stage = int(np.clip(np.ceil(2.0 * self.radius / self.footprint_um) + 1, 12, max_first_stage))
         self.z_peak = np.zeros(edges.weight.shape, np.float32)
+        self._searched_at: np.ndarray | None = None
+        self.research_deg = float(research_deg)
         self.trim = int(trim)
         self.cap_px = float(cap_px)
         self.sigma = float(sigma_px)
@@ -298,9 +321,17 @@ class CoherenceObjective:
         mean θ; every candidate is then evaluated on a small window around those depths, with a
         parabolic fit through the best three samples. Candidates of one CMA-ES generation differ by
         a fraction of a degree, which moves the maximum by a few µm, well inside the window.
+        The full search along the whole chord is repeated only when the mean has moved by more than
+        ``research_deg`` in some entry since the last one; otherwise the zoom stages start from the
+        previous peaks (a few pixels either side), which is all a converging CMA-ES needs.
         """
         th = np.atleast_2d(np.asarray(theta_deg, float))
-        self.z_peak = self._search_peaks(th.mean(axis=0, keepdims=True))[0]
+        mean = th.mean(axis=0)
+        if self._searched_at is None or np.max(np.abs(mean - self._searched_at)) > self.research_deg:
+            self.z_peak = self._search_peaks(mean[None])[0]
+            self._searched_at = mean
+        else:  # the mean moved little since the last full search: zoom in around the known peaks
+            self.z_peak = self._search_peaks(mean[None], around=self.z_peak[None])[0]
         out = np.empty((th.shape[0],) + self.edges.weight.shape, np.float32)
         n, r = self.edges.weight.shape
         chunk = max(1, self.max_points // max(1, n * r * self.window * n))
@@ -322,36 +353,77 @@ class CoherenceObjective:
         np.clip(u, 0.0, a.w - 1.0, out=u)
         np.clip(v, 0.0, a.h - 1.001, out=v)
         v += (np.arange(n, dtype=np.float32) * a.h)[None, :, None]
-        m = u.size
-        cols = 1024
-        pad = (-m) % cols
-        uf = np.concatenate([u.ravel(), np.zeros(pad, np.float32)]).reshape(-1, cols)
-        vf = np.concatenate([v.ravel(), np.zeros(pad, np.float32)]).reshape(-1, cols)
-        vals = cv2.remap(a.image, uf, vf, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()[:m]
-        vals = vals.reshape(b, n, n, r, s)  # (B, view j, ray view i, R, S)
+        vals = self._remap(u.reshape(b * n, -1), v.reshape(b * n, -1)).reshape(b, n, n, r, s)  # (B, view j, ray view i, R, S)
         idx = np.arange(n)
         vals[:, idx, idx] = np.inf  # a ray is always on its own view's boundary: skip j = i
         if self.trim == 0:
             return vals.min(axis=1)
-        # Robust minimum: the (trim+1)-th smallest, so one mis-segmented view cannot veto a point.
+        if self.trim == 1:  # second smallest, as a running pair over the contiguous view slices (no partition)
+            lo, second = vals[:, 0].copy(), np.full(vals.shape[:1] + vals.shape[2:], np.inf, np.float32)
+            for j in range(1, n):
+                x = vals[:, j]
+                np.minimum(second, np.maximum(lo, x), out=second)
+                np.minimum(lo, x, out=lo)
+            return second
+        # Robust minimum: the (trim+1)-th smallest, so that a mis-segmented view cannot veto a point.
         return np.partition(vals, self.trim, axis=1)[:, self.trim]
 
-    def _search_peaks(self, th: np.ndarray) -> np.ndarray:
-        """Depth (B, N, R) of each ray's maximum, by successive zooms over ±radius around the axis."""
+    def _remap(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Bilinear samples of the atlas at (u, v) (rows × cols float32), one ``cv2.remap``.
+
+        remap takes maps of fewer than 32767 columns; wider rows are re-cut into rows of 1024 (padded).
+        """
+        rows, cols = u.shape
+        if cols < 32767:
+            return cv2.remap(self.atlas.image, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        m, width = u.size, 1024
+        pad = (-m) % width
+        uf = np.concatenate([u.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
+        vf = np.concatenate([v.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
+        out = cv2.remap(self.atlas.image, uf, vf, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return out.ravel()[:m].reshape(rows, cols)
+
+    def _search_peaks(self, th: np.ndarray, around: np.ndarray | None = None) -> np.ndarray:
+        """Depth (B, N, R) of each ray's maximum: a dense pass over the ray's chord through the cylinder
+        of radius ``radius_um`` about the axis (or, given ``around``, a pass of ±4 windows about those
+        depths), then successive zooms around the best sample."""
         R, t = self._poses(th)
         R, t = R.astype(np.float32), t.astype(np.float32)
         Pm = self._cameras(R, t)
-        b = th.shape[0]
-        n, r = self.edges.weight.shape
-        zc = np.full((b, n, r), self.distance, np.float32)
-        half = np.float32(self.radius)
-        for count in self.stages:
-            offs = np.linspace(-half, half, count, dtype=np.float32)
-            Z = zc[..., None] + offs
+        if around is None:
+            zc, half = self._axis_chords(R, t)
+            count = self.first_stage
+        else:
+            zc, half = around.astype(np.float32), np.full(around.shape, 4.0 * self.window_um, np.float32)
+            count = 2 * self.window + 1
+        for stage in range(len(self.stages) + 1):
+            offs = np.linspace(-1.0, 1.0, count, dtype=np.float32)
+            Z = zc[..., None] + half[..., None] * offs
             vals = self._sample_min_others(self._ray_points(R, t, Z), Pm)
             zc = np.take_along_axis(Z, np.argmax(vals, axis=-1)[..., None], -1)[..., 0]
-            half = np.float32(2.0 * half / (count - 1))
+            half = (2.0 * half / (count - 1)).astype(np.float32)
+            if stage < len(self.stages):
+                count = self.stages[stage]
         return zc
+
+    def _axis_chords(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centre and half-length (B, N, R), camera depths, of each ray's chord through the cylinder.
+
+        A ray X(z) = Rᵀ(z·ray − t) comes closest to the axis (world x) at the depth minimising the
+        squared (y, z) distance; the chord through a cylinder of radius ρ around the axis spans
+        ±ρ/|D_yz| around it (D the ray's world direction per unit depth), an upper bound of the
+        exact chord. Depths stay in front of the camera.
+        """
+        D = self.rays_cam[None] @ R  # (B, N, R, 3): rows (Rᵀ ray)ᵀ
+        C = -(t[:, None, None, :] @ R)[:, :, 0]  # (B, N, 3) camera centres in the world: −Rᵀ t
+        dyz = D[..., 1:]
+        cyz = C[:, :, None, 1:]
+        nrm2 = np.maximum((dyz * dyz).sum(-1), 1e-12)
+        zc = -(cyz * dyz).sum(-1) / nrm2
+        half = self.radius / np.sqrt(nrm2)
+        zc = np.maximum(zc, 1e-3 * self.distance)
+        half = np.minimum(half, 0.999 * zc)
+        return zc.astype(np.float32), half.astype(np.float32)
 
     def _local_max(self, th: np.ndarray) -> np.ndarray:
         R, t = self._poses(th)

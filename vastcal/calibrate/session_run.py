@@ -18,7 +18,7 @@ from vastcal.calibrate.colour_model import ColourModel
 from vastcal.calibrate.optimise import ProgressCallback
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method, calibrate_views
 from vastcal.config import CalibrationBounds, RoiConfig
-from vastcal.errors import SessionIncompleteError, UserInputError
+from vastcal.errors import SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import decompose_circular, intrinsics_from_optics
 from vastcal.session import Session, software_versions, write_attrs
 
@@ -92,8 +92,11 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
     finally:
         if own:
             session.close()
-    result = calibrate_views(images, K, d, theta0, method=method, seed=seed, free=free, bounds=bounds, mask=mask, scribbles=scribbles,
-                             silhouettes=sil, settings=settings, progress=progress)
+    try:
+        result = calibrate_views(images, K, d, theta0, method=method, seed=seed, free=free, bounds=bounds, mask=mask, scribbles=scribbles,
+                                 silhouettes=sil, settings=settings, progress=progress)
+    except VastcalError as exc:  # name the session in errors found in its data
+        raise exc.about(getattr(path_or_session, "path", path_or_session)) from None
     target = Session.open(path_or_session, "a") if own else session
     try:
         group = target.new_result_group("calibration")
