@@ -1,6 +1,7 @@
 """ETH David (../shared/data/eth_david): recover per-view angles against ground-truth cameras.
 
-The true cameras are imported and decomposed (circular motion); the commanded angles of 10 views
+The true cameras are imported (pixel corners at integers: ``pixel_origin=0.5``, see the README) and
+decomposed (circular motion); the commanded angles of 10 views
 are offset by +10°; only the rolls are free, bounds ±15°. Prints mean and max absolute angle error
 (paper: 0.31° mean, 0.71° max). Usage: python benchmarks/calibrate_david.py [seed] [pi|vr]
 """
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.calibrate import calibrate_session
+from vastcal.calibrate.run import CalibrationSettings
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import decompose_circular
 from vastcal.importer import import_folder, read_cameras
@@ -36,7 +38,8 @@ def main() -> None:
         s = Path(tmp) / "david.h5"
         import_folder(DATA, s, angles=angles, cameras=DATA, pixel_origin=0.5)
         t = time.perf_counter()
-        r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0))
+        r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
+                                  settings=CalibrationSettings(roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0))
         wall = time.perf_counter() - t
     err = (r.theta_deg[3:] - r.theta_deg[3]) - true_rolls
     print(f"{method} seed {seed}: {wall:.2f} s, {r.n_evaluations} evaluations, {r.n_voxels} voxels")

@@ -92,6 +92,8 @@ class CalibrationSettings:
             structures such as the capillary walls).
         refine_tolerance_px: tolerance (level pixels) of the region of later levels, carved around the
             previous level's solution.
+        roll_offset_scan_deg: after the first level, scan a common offset of all free rolls over the
+            box in steps of this many degrees and keep the best (0: off); see :func:`_common_roll_offset_scan`.
     """
 
     levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 1200, 32), Level(512, 16000, 0.05, 600, 48))
@@ -108,6 +110,7 @@ class CalibrationSettings:
     roll_prior_weight: float = 0.0
     region_tolerance: float = 0.1
     refine_tolerance_px: float = 2.0
+    roll_offset_scan_deg: float = 0.0
 
     def to_json(self) -> str:
         """JSON of every setting."""
@@ -162,6 +165,36 @@ def roll_prior(theta: np.ndarray, theta0: np.ndarray, sigma_deg: float) -> np.nd
     """Mean squared standardised deviation (B,) of the rolls from their commanded angles."""
     d = (np.atleast_2d(theta)[:, 4:] - np.asarray(theta0)[4:]) / sigma_deg
     return np.mean(d * d, axis=1) if d.shape[1] else np.zeros(len(np.atleast_2d(theta)))
+
+
+def _common_roll_offset_scan(obj: Any, space: ParameterSpace, x: np.ndarray, theta0: np.ndarray,
+                              settings: CalibrationSettings) -> tuple[np.ndarray, int]:
+    """Try a common offset c of every free roll over the whole box; keep the best (returns x, evaluations).
+
+    When many commanded angles are far off (the +10° test), CMA-ES may let the majority agree with
+    each other and leave view 0 — which is held fixed and defines 0° — as the odd one out: every other
+    view ends up off by the same angle. That trap is one-dimensional (a common rotation of all views
+    against view 0), so a scan of c in steps of ``roll_offset_scan_deg`` over the box finds it.
+    Candidates are scored one at a time (the coherence cost searches its rays around the batch mean).
+    """
+    rolls = np.flatnonzero(np.arange(space.theta0.size)[space.free_mask] >= 4)
+    if rolls.size == 0:
+        return x, 0
+    h = space.half_width[4]
+    offsets = np.arange(-h, h + 1e-9, settings.roll_offset_scan_deg)
+    costs = []
+    for c in offsets:
+        xc = x.copy()
+        xc[rolls] = np.clip(xc[rolls] + c / h, -1.0, 1.0)
+        th = space.theta(xc)
+        costs.append(float(obj(th)[0] + settings.roll_prior_weight * roll_prior(th, theta0, settings.roll_prior_deg)[0]))
+    best = int(np.argmin(costs))
+    zero = int(np.argmin(np.abs(offsets)))
+    if costs[best] < costs[zero]:
+        log.info("common roll offset scan: %+.2f° lowers the cost from %.6g to %.6g", offsets[best], costs[zero], costs[best])
+        x = x.copy()
+        x[rolls] = np.clip(x[rolls] + offsets[best] / h, -1.0, 1.0)
+    return x, len(offsets)
 
 
 def _peak_rss_mb() -> float:
@@ -322,6 +355,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         evals_done += res.n_evaluations
         trace += [(base + e, f) for e, f in zip(res.trace_evals, res.trace_best)]
         x = res.x_best
+        if li == 0 and settings.roll_offset_scan_deg > 0:
+            x, n_scan = _common_roll_offset_scan(obj, space, x, theta0, settings)
+            evals_done += n_scan
         n_vox_final = len(region.voxels)
         reports.append({"level": li, "map_shape": list(maps_pf.shape[1:]), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
                         "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
