@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vastcal.allocator import keep_large_blocks
 from vastcal.calibrate import calibrate_session
 from vastcal.config import load_config
 from vastcal.geometry import decompose_circular, shift_pixels
@@ -24,6 +25,7 @@ DATA = (ROOT / ".." / "shared" / "data" / "zf_3dpf_s001").resolve()
 
 
 def main() -> None:
+    keep_large_blocks()  # as the vastcal command does at start-up
     n_seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 5
     method = sys.argv[2] if len(sys.argv) > 2 else "pi"
     rows = [ln.split() for ln in (DATA / "authors_par_pi.txt").read_text().splitlines() if ln.strip()]

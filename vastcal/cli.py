@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from vastcal import __version__
+from vastcal.allocator import keep_large_blocks
 from vastcal.errors import UserInputError, VastcalError
 from vastcal.progress import ProgressLine
 
@@ -255,6 +256,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     level = max(logging.WARNING - 10 * args.verbose, logging.DEBUG)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     func: Callable[[argparse.Namespace], int] = args.func
+    keep_large_blocks()  # reuse the calibration's large temporaries instead of page-faulting them anew
     try:
         return func(args)
     except VastcalError as exc:

@@ -70,6 +70,14 @@ def image_space(images: np.ndarray) -> Space:
 def features(images: np.ndarray) -> np.ndarray:
     """Pixel values as float32 features in [0, 1]: (…, H, W, C) with C = 3 (RGB) or 1 (grey).
 
+    :func:`scaled_values`, then :func:`flatten_background`.
+    """
+    return flatten_background(scaled_values(images))
+
+
+def scaled_values(images: np.ndarray) -> np.ndarray:
+    """Pixel values as float32 in [0, 1], (…, H, W, C), before any background correction.
+
     Integer images are divided by the full scale of their bit depth: 255 for uint8; for wider types
     the smallest 2^k − 1 that holds the data (4095 for Mono12 stored in uint16, 1023 for Mono10), so
     a 12-bit camera's frames span [0, 1] like 8-bit ones. Float images are taken as they are.
@@ -82,9 +90,7 @@ def features(images: np.ndarray) -> np.ndarray:
             bits = max(8, int(np.ceil(np.log2(float(a.max()) + 1.0))))
             scale = float(2**bits - 1)
     f = a.astype(np.float32) / np.float32(scale)
-    if image_space(a) == "grey":
-        f = f[..., None]
-    return flatten_background(f)
+    return f[..., None] if image_space(a) == "grey" else f
 
 
 def flatten_background(f: np.ndarray) -> np.ndarray:
@@ -129,7 +135,7 @@ def check_images(images: np.ndarray) -> None:
     Raises:
         ColourModelError: a view whose pixels barely vary, or that is mostly saturated/black.
     """
-    f = features(images)
+    f = scaled_values(images)  # raw values: saturation is a property of the sensor's output
     n = f.shape[0]
     for i in range(n):
         v = f[i].reshape(-1, f.shape[-1])
@@ -352,7 +358,10 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
 
 def border_pixels(images: np.ndarray, border_frac: float = 0.03) -> np.ndarray:
     """Features (M, C) of the outer ``border_frac`` of rows and columns of every view (≥ 2 px)."""
-    f = features(images)
+    return _border_of(features(images), border_frac)
+
+
+def _border_of(f: np.ndarray, border_frac: float) -> np.ndarray:
     n, h, w = f.shape[:3]
     by, bx = max(2, int(round(border_frac * h))), max(2, int(round(border_frac * w)))
     parts = [f[:, :by].reshape(-1, f.shape[-1]), f[:, -by:].reshape(-1, f.shape[-1]),
@@ -377,11 +386,12 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
     images = np.asarray(images)
     check_images(images)
     rng = np.random.default_rng(seed)
-    border = border_pixels(images, border_frac)
+    f = features(images)  # once: the background flattening is the costly part
+    border = _border_of(f, border_frac)
     if border.shape[0] > max_samples:
         border = border[rng.choice(border.shape[0], max_samples, replace=False)]
     bg = Gaussian.fit_robust(border)
-    f = features(images).reshape(-1, border.shape[1])
+    f = f.reshape(-1, border.shape[1])
     sample = f[rng.choice(f.shape[0], min(max_samples, f.shape[0]), replace=False)]
     far = bg.mahalanobis2(sample) > _CHI2_999[border.shape[1]]
     frac = float(far.mean())

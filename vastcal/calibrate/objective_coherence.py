@@ -281,7 +281,7 @@ class CoherenceObjective:
     def __init__(self, sd: np.ndarray, edges: EdgeSamples, K: np.ndarray, distance: float, radius_um: float,
                  stages: tuple[int, ...] = (7, 7, 7), window: int = 7, window_px: float = 1.5, sigma_px: float = 0.33,
                  trim: int = 1, cap_px: float = 1.5, max_first_stage: int = 256, research_deg: float = 0.1,
-                 max_points: int = 4_000_000) -> None:
+                 max_points: int = 1_000_000) -> None:
         self.atlas = Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
