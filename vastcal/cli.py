@@ -118,10 +118,16 @@ def _truth_path(session: Path) -> Path:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method pi|vr] [--seed N] [--free …]"""
     from vastcal.calibrate import calibrate_session
+    from vastcal.calibrate.run import CalibrationSettings
 
+    settings = None
+    if args.offset_scan is not None:
+        if not 0.0 < args.offset_scan <= 5.0:
+            raise UserInputError(f"--offset-scan must be a step in degrees in (0, 5], got {args.offset_scan}")
+        settings = CalibrationSettings(roll_offset_scan_deg=args.offset_scan)
     bar = _progress(args, f"calibrate ({args.method})", "evaluations")
     try:
-        res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free,
+        res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, settings=settings,
                                 mask=_mask_arg(args.mask), progress=lambda n, best, el, eta: bar.update(n, n + eta / max(el / max(n, 1), 1e-9), f"cost {best:.6g}", el))
     finally:
         bar.close()
@@ -223,6 +229,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=None, help="random seed of CMA-ES (default from the rig config)")
     s.add_argument("--free", nargs="+", default=None, help="parameters to optimise: yaw pitch gamma rolls | all (default from the rig config)")
     s.add_argument("--mask", help="VIEW:FILE rough mask or scribble image on one view for the colour models (default: automatic)")
+    s.add_argument("--offset-scan", type=float, default=None, metavar="DEG",
+                   help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
+                        "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)")
     s.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("reconstruct", help="visual hull, volume (mm3) and surface area (mm2)")

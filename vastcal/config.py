@@ -137,6 +137,8 @@ class CalibrationConfig:
     free: tuple[str, ...] = ("yaw", "pitch", "gamma", "rolls")
     seed: int = field(default=0, metadata=_range(0, 2**31 - 1))
     bounds: CalibrationBounds = field(default_factory=CalibrationBounds)
+    offset_scan_deg: float = field(default=0.0, metadata=_range(0.0, 5.0))
+    """Step (degrees) of the common roll-offset scan after the coarse level; 0 = off (``--offset-scan``)."""
 
 
 @dataclass(frozen=True)

@@ -82,3 +82,20 @@ def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(tmp_path:
         calibrate_session(p, **kwargs)
     assert "\n" not in str(info.value) and str(p) in str(info.value)  # one line that names the session file
     assert _digest(p) == before
+
+
+def test_offset_scan_option_reaches_the_settings(session_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import vastcal.calibrate as cal
+    from vastcal.cli import main
+
+    seen: dict = {}
+
+    def fake(path, **kw):  # type: ignore[no-untyped-def]
+        seen.update(kw)
+        return object()
+
+    monkeypatch.setattr(cal, "calibrate_session", fake)
+    assert main(["calibrate", str(session_path), "--offset-scan", "0.5"]) == 0
+    assert seen["settings"].roll_offset_scan_deg == 0.5
+    assert main(["calibrate", str(session_path), "--offset-scan", "0"]) == 2  # one line, no run
+    assert main(["calibrate", str(session_path)]) == 0 and seen["settings"] is None

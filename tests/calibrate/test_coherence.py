@@ -153,3 +153,18 @@ def test_david_cameras_put_pixel_corners_at_integers(david_scene: tuple, view: i
     K_half[0, 2] -= 0.5
     K_half[1, 2] -= 0.5
     assert abs(_roll_minimum(theta, pf, K_half, d, view, steps)) <= 0.25
+
+
+def test_very_large_samplings_are_remapped_in_blocks(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
+    """cv2.remap refuses maps of 32767 rows or more: a dense search over many rays must still work."""
+    _, _, obj = scene
+    rng = np.random.default_rng(0)
+    u = rng.uniform(0, obj.atlas.w - 1, (2, 40_000_000 // 2 // 1024 * 1024)).astype(np.float32)
+    v = rng.uniform(0, obj.atlas.h * obj.atlas.n - 1, u.shape).astype(np.float32)
+    out = obj._remap(u, v)
+    assert out.shape == u.shape and np.isfinite(out).all()
+    k = 12345
+    import cv2
+
+    ref = cv2.remap(obj.atlas.image, u[:1, k:k + 1], v[:1, k:k + 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    assert out[0, k] == ref[0, 0]

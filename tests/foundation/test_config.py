@@ -12,7 +12,7 @@ from vastcal.config import CONFIG_DIR, DEFAULT_CONFIG, dump_config, load_config,
 from vastcal.errors import ConfigError
 
 
-@pytest.mark.parametrize("name", ["simulated.yaml", "vast-rig.yaml", "guo2019-zebrafish.yaml"])
+@pytest.mark.parametrize("name", ["simulated.yaml", "vast-rig.yaml", "guo2019-zebrafish.yaml", "eth-david.yaml"])
 def test_shipped_configs_load(name: str) -> None:
     cfg = load_config(CONFIG_DIR / name)
     assert cfg.acquisition.views >= 3

@@ -371,16 +371,18 @@ class CoherenceObjective:
     def _remap(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Bilinear samples of the atlas at (u, v) (rows × cols float32), one ``cv2.remap``.
 
-        remap takes maps of fewer than 32767 columns; wider rows are re-cut into rows of 1024 (padded).
+        remap takes maps of fewer than 32767 rows and columns; larger ones are re-cut into rows of 1024
+        (padded) and remapped in blocks of rows.
         """
         rows, cols = u.shape
-        if cols < 32767:
+        if cols < 32767 and rows < 32767:
             return cv2.remap(self.atlas.image, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        m, width = u.size, 1024
+        m, width, block = u.size, 1024, 16384  # rows of the re-cut maps per remap call (< 32767)
         pad = (-m) % width
         uf = np.concatenate([u.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
         vf = np.concatenate([v.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
-        out = cv2.remap(self.atlas.image, uf, vf, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out = np.concatenate([cv2.remap(self.atlas.image, uf[k:k + block], vf[k:k + block], cv2.INTER_LINEAR,
+                                        borderMode=cv2.BORDER_REPLICATE) for k in range(0, uf.shape[0], block)])
         return out.ravel()[:m].reshape(rows, cols)
 
     def _search_peaks(self, th: np.ndarray, around: np.ndarray | None = None) -> np.ndarray:

@@ -78,6 +78,8 @@ class CalibrationSettings:
         pi_form: ``"coherence"`` (default: silhouette coherence of the posteriors, :mod:`.objective_coherence`),
             or the voxel sums ``"count"`` / ``"loglik"`` of :mod:`.objective_pi` (kept for comparison).
         coherence_sigma_px: softness of the coherence penalty, pixels of the level.
+        coherence_trim: the residual of a ray point is the (trim + 1)-th smallest signed distance over
+            the other views (0: the strict minimum; 1: one inconsistent view is forgiven per point).
         roll_prior_deg, roll_prior_weight: a weak Gaussian prior on each roll around its commanded
             angle (σ in degrees, weight relative to the data cost). Silhouettes of a specimen whose
             cross-sections are convex hardly constrain the individual rolls (a slightly rotated set of
@@ -105,6 +107,7 @@ class CalibrationSettings:
     vr_blur_px: float = 0.7
     pi_form: str = "coherence"
     coherence_sigma_px: float = 0.1
+    coherence_trim: int = 1
     dark_weight: float = 0.0
     roll_prior_deg: float = 1.0
     roll_prior_weight: float = 0.0
@@ -319,12 +322,14 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             P_now = projection_matrices(K_lv, distance, th_now[None])[0]
             edges = silhouette_edges(maps_pf, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines)
             radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
-            obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px)
+            obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px,
+                                     trim=settings.coherence_trim)
             level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in images])
             pdark = dark_feature_probability(level_images, maps_pf) if settings.dark_weight > 0 else None
             if pdark is not None:
                 dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2, all_runs=True)
-                dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px)
+                dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px,
+                                          trim=settings.coherence_trim)
                 obj = SumObjective([obj, dark], [1.0, settings.dark_weight])
         elif method == "pi":
             lmap = np.clip(np.log(np.clip(maps_pf, settings.eps, 1 - settings.eps)), np.log(settings.eps), np.log1p(-settings.eps))

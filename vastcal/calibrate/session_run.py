@@ -83,6 +83,8 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         seed = cfg.seed if seed is None else int(seed)
         free = cfg.free if free is None else free
         bounds = bounds or cfg.bounds
+        if settings is None and cfg.offset_scan_deg > 0:
+            settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg)
         K, d, theta0, notes = session_camera_model(session)
         images = session.projections()
         masks = session.masks
