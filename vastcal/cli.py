@@ -118,16 +118,12 @@ def _truth_path(session: Path) -> Path:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method pi|vr] [--seed N] [--free …]"""
     from vastcal.calibrate import calibrate_session
-    from vastcal.calibrate.run import CalibrationSettings
 
-    settings = None
-    if args.offset_scan is not None:
-        if not 0.0 < args.offset_scan <= 5.0:
-            raise UserInputError(f"--offset-scan must be a step in degrees in (0, 5], got {args.offset_scan}")
-        settings = CalibrationSettings(roll_offset_scan_deg=args.offset_scan)
+    if args.offset_scan is not None and not 0.0 < args.offset_scan <= 5.0:
+        raise UserInputError(f"--offset-scan must be a step in degrees in (0, 5], got {args.offset_scan}")
     bar = _progress(args, f"calibrate ({args.method})", "evaluations")
     try:
-        res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, settings=settings,
+        res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
                                 mask=_mask_arg(args.mask), progress=lambda n, best, el, eta: bar.update(n, n + eta / max(el / max(n, 1), 1e-9), f"cost {best:.6g}", el))
     finally:
         bar.close()

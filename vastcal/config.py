@@ -139,6 +139,13 @@ class CalibrationConfig:
     bounds: CalibrationBounds = field(default_factory=CalibrationBounds)
     offset_scan_deg: float = field(default=0.0, metadata=_range(0.0, 5.0))
     """Step (degrees) of the common roll-offset scan after the coarse level; 0 = off (``--offset-scan``)."""
+    prior_weight: float = field(default=0.05, metadata=_range(0.0, 100.0))
+    """Weight of the Gaussian prior (rolls around the commanded angles, yaw around 0) relative to the
+    data cost; 0 = none (for commanded angles known to be wrong, as in the ETH test)."""
+    roll_prior_deg: float = field(default=1.0, metadata=_range(0.0, 90.0, lo_open=True))
+    """σ of the roll prior, degrees: the stage's expected step error."""
+    yaw_prior_deg: float = field(default=0.5, metadata=_range(0.0, 45.0))
+    """σ of the yaw prior, degrees (0 = no yaw prior)."""
 
 
 @dataclass(frozen=True)

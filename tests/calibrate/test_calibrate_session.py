@@ -96,6 +96,25 @@ def test_offset_scan_option_reaches_the_settings(session_path: Path, monkeypatch
 
     monkeypatch.setattr(cal, "calibrate_session", fake)
     assert main(["calibrate", str(session_path), "--offset-scan", "0.5"]) == 0
-    assert seen["settings"].roll_offset_scan_deg == 0.5
+    assert seen["offset_scan_deg"] == 0.5
     assert main(["calibrate", str(session_path), "--offset-scan", "0"]) == 2  # one line, no run
-    assert main(["calibrate", str(session_path)]) == 0 and seen["settings"] is None
+    assert main(["calibrate", str(session_path)]) == 0 and seen["offset_scan_deg"] is None
+
+
+def test_prior_and_scan_come_from_the_rig_config(session_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import vastcal.calibrate.session_run as sr
+
+    seen: dict = {}
+
+    def stop(*args, **kw):  # type: ignore[no-untyped-def]
+        seen.update(kw)
+        raise SessionIncompleteError("stop here")
+
+    monkeypatch.setattr(sr, "calibrate_views", stop)
+    with pytest.raises(SessionIncompleteError):
+        calibrate_session(session_path)
+    st = seen["settings"]
+    assert (st.roll_prior_weight, st.roll_prior_deg, st.yaw_prior_deg, st.roll_offset_scan_deg) == (0.05, 1.0, 0.5, 0.0)
+    with pytest.raises(SessionIncompleteError):
+        calibrate_session(session_path, offset_scan_deg=0.5)
+    assert seen["settings"].roll_offset_scan_deg == 0.5 and seen["settings"].roll_prior_weight == 0.05

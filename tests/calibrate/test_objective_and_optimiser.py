@@ -109,9 +109,25 @@ def test_common_roll_offset_scan_finds_the_view0_trap() -> None:
         d = np.atleast_2d(th)[:, 4:] - target[None]
         return 1.0 - np.exp(-np.mean(d ** 2, axis=1)) + 0.5 * (1.0 - np.exp(-np.mean((d - 6.0) ** 2, axis=1) * 4)) - 0.5
 
-    x, n = _common_roll_offset_scan(cost, space, np.zeros(space.n_free), theta0, CalibrationSettings(roll_offset_scan_deg=0.5))
+    x, n = _common_roll_offset_scan(cost, space, np.zeros(space.n_free), theta0, CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0))
     assert n == 61
     np.testing.assert_allclose(space.theta(x)[0][4:], target, atol=1e-9)
     x_none, _ = _common_roll_offset_scan(lambda th: np.sum((np.atleast_2d(th)[:, 4:] - theta0[4:]) ** 2, axis=1), space,
-                                         np.zeros(space.n_free), theta0, CalibrationSettings(roll_offset_scan_deg=0.5))
+                                         np.zeros(space.n_free), theta0, CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0))
     np.testing.assert_array_equal(x_none, 0.0)  # already at the best offset: unchanged
+
+
+def test_per_candidate_coherence_does_not_depend_on_the_batch() -> None:
+    """With ``per_candidate`` every θ searches its own rays: the same θ costs the same in any population."""
+    from vastcal.calibrate.objective_coherence import CoherenceObjective, axis_crossings, signed_distance_maps, silhouette_edges
+    from vastcal.geometry import projection_matrices
+
+    theta = sy.truth_theta(n=8, seed=5)
+    K, d = sy.camera()
+    pf = np.stack([s.astype(np.float32) for s in sy.silhouettes(theta)])
+    edges = silhouette_edges(pf, axis_crossings(projection_matrices(K, d, theta[None])[0], pf.shape[1:]), max_lines=24)
+    obj = CoherenceObjective(signed_distance_maps(pf), edges, K, d, radius_um=400.0, per_candidate=True)
+    rng = np.random.default_rng(1)
+    batch = np.repeat(theta[None], 6, 0)
+    batch[1:, 4:] += rng.normal(0.0, 2.0, (5, batch.shape[1] - 4))
+    np.testing.assert_array_equal(obj(batch), np.array([obj(b[None])[0] for b in batch]))

@@ -281,7 +281,7 @@ class CoherenceObjective:
     def __init__(self, sd: np.ndarray, edges: EdgeSamples, K: np.ndarray, distance: float, radius_um: float,
                  stages: tuple[int, ...] = (7, 7, 7), window: int = 7, window_px: float = 1.5, sigma_px: float = 0.33,
                  trim: int = 1, cap_px: float = 1.5, max_first_stage: int = 256, research_deg: float = 0.1,
-                 max_points: int = 1_000_000) -> None:
+                 per_candidate: bool = False, max_points: int = 1_000_000) -> None:
         self.atlas = Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
@@ -296,6 +296,7 @@ class CoherenceObjective:
         self.z_peak = np.zeros(edges.weight.shape, np.float32)
         self._searched_at: np.ndarray | None = None
         self.research_deg = float(research_deg)
+        self.per_candidate = bool(per_candidate)
         self.trim = int(trim)
         self.cap_px = float(cap_px)
         self.sigma = float(sigma_px)
@@ -326,17 +327,23 @@ class CoherenceObjective:
         previous peaks (a few pixels either side), which is all a converging CMA-ES needs.
         """
         th = np.atleast_2d(np.asarray(theta_deg, float))
+        out = np.empty((th.shape[0],) + self.edges.weight.shape, np.float32)
+        n, r = self.edges.weight.shape
+        if self.per_candidate:  # every candidate searches its own rays: its cost does not depend on the batch
+            chunk = max(1, self.max_points // max(1, n * r * self.first_stage * n))
+            for s in range(0, th.shape[0], chunk):
+                z = self._search_peaks(th[s:s + chunk])
+                out[s:s + chunk] = self._local_max(th[s:s + chunk], z)
+            return out
         mean = th.mean(axis=0)
         if self._searched_at is None or np.max(np.abs(mean - self._searched_at)) > self.research_deg:
             self.z_peak = self._search_peaks(mean[None])[0]
             self._searched_at = mean
         else:  # the mean moved little since the last full search: zoom in around the known peaks
             self.z_peak = self._search_peaks(mean[None], around=self.z_peak[None])[0]
-        out = np.empty((th.shape[0],) + self.edges.weight.shape, np.float32)
-        n, r = self.edges.weight.shape
         chunk = max(1, self.max_points // max(1, n * r * self.window * n))
         for s in range(0, th.shape[0], chunk):
-            out[s:s + chunk] = self._local_max(th[s:s + chunk])
+            out[s:s + chunk] = self._local_max(th[s:s + chunk], np.broadcast_to(self.z_peak, (len(th[s:s + chunk]),) + self.z_peak.shape))
         return out
 
     def _sample_min_others(self, X: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -427,12 +434,13 @@ class CoherenceObjective:
         half = np.minimum(half, 0.999 * zc)
         return zc.astype(np.float32), half.astype(np.float32)
 
-    def _local_max(self, th: np.ndarray) -> np.ndarray:
+    def _local_max(self, th: np.ndarray, z_peak: np.ndarray) -> np.ndarray:
+        """Residuals (B, N, R): each ray's maximum on a window around ``z_peak`` (B, N, R), parabola-refined."""
         R, t = self._poses(th)
         R, t = R.astype(np.float32), t.astype(np.float32)
         Pm = self._cameras(R, t)
         offs = np.linspace(-self.window_um, self.window_um, self.window, dtype=np.float32)
-        Z = np.broadcast_to(self.z_peak[None, :, :, None] + offs, (th.shape[0],) + self.z_peak.shape + (self.window,))
+        Z = z_peak[..., None] + offs
         vals = self._sample_min_others(self._ray_points(R, t, Z), Pm)  # (B, N, R, S)
         k = np.clip(np.argmax(vals, axis=-1), 1, self.window - 2)[..., None]
         y0 = np.take_along_axis(vals, k - 1, -1)[..., 0]

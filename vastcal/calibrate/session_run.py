@@ -7,6 +7,7 @@ exactly as it was. Images are never modified.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from pathlib import Path
@@ -57,7 +58,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
                       free: Sequence[str] | str | None = None, bounds: CalibrationBounds | None = None,
                       mask: tuple[int, np.ndarray] | None = None, scribbles: tuple[int, np.ndarray] | None = None,
                       use_masks: bool | None = None, settings: CalibrationSettings | None = None,
-                      progress: ProgressCallback | None = None) -> CalibrationResult:
+                      offset_scan_deg: float | None = None, progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a session and store the run (see the module docstring).
 
     Args:
@@ -67,7 +68,9 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         mask: (view, array) rough mask (nonzero = specimen) for the colour models.
         scribbles: (view, labels) with 0 unknown, 1 specimen, 2 background.
         use_masks: VR only — use the session's imported masks as silhouettes (default: when present).
-        settings: numerical settings.
+        settings: numerical settings (default: :class:`CalibrationSettings` with the rig config's
+            ``calibration.offset_scan_deg``, ``prior_weight``, ``roll_prior_deg`` and ``yaw_prior_deg``).
+        offset_scan_deg: overrides the settings' common roll-offset scan step (``--offset-scan``).
         progress: callback (evaluations, best cost, elapsed s, ETA s).
 
     Raises:
@@ -83,8 +86,11 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         seed = cfg.seed if seed is None else int(seed)
         free = cfg.free if free is None else free
         bounds = bounds or cfg.bounds
-        if settings is None and cfg.offset_scan_deg > 0:
-            settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg)
+        if settings is None:
+            settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg, roll_prior_weight=cfg.prior_weight,
+                                           roll_prior_deg=cfg.roll_prior_deg, yaw_prior_deg=cfg.yaw_prior_deg)
+        if offset_scan_deg is not None:
+            settings = dataclasses.replace(settings, roll_offset_scan_deg=float(offset_scan_deg))
         K, d, theta0, notes = session_camera_model(session)
         images = session.projections()
         masks = session.masks
