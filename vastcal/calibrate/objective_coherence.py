@@ -28,11 +28,20 @@ i sticks out of the others' hull. The cost is the smooth one-sided penalty
 
 which is ≈ 0 when every edge ray touches the others' hull and grows linearly with the gap. The
 empty hull is the *worst* case here (every r < 0), so, unlike a volume, the cost cannot be gamed
-by pulling the views apart. The maximum along the ray is found on a coarse depth grid and refined
-around the best sample, so its error is a small fraction of a pixel.
+by pulling the views apart. The maximum along the ray is searched over the ray's chord through
+the cylinder where the specimen can be, about one pixel per step as seen from the other views (a
+coarser grid steps over thin parts, such as a statue's limbs), then refined by zooming and a
+parabola through the best three samples, so its error is a small fraction of a pixel.
+
+What it cannot see: with a nearly orthographic camera looking perpendicular to the axis, every view
+images the same slices, epipolar lines are perpendicular to the axis and the frontier points only
+constrain positions along it — the per-view rolls and a tilt of the axis towards the camera are then
+nearly free (see the README, "What it does and does not recover"); the calibration's prior decides them.
 
 Everything is batched over the CMA-ES population: (B, N, R, S) ray points are projected into all
-N views at once and the N signed-distance maps are sampled with one ``cv2.remap`` on an atlas.
+N views at once and the N signed-distance maps are sampled with one ``cv2.remap`` on an atlas. By
+default the depth search is done once for the population's mean θ (fast, but a candidate's cost then
+depends slightly on its population); ``per_candidate=True`` searches every candidate's own rays.
 """
 
 from __future__ import annotations
