@@ -98,7 +98,7 @@ def test_recovers_perturbed_rolls_and_axis(views: np.ndarray, truth: np.ndarray)
 def test_common_roll_offset_scan_finds_the_view0_trap() -> None:
     """Every free roll off by the same −6° against view 0 (one-dimensional trap) is found by the scan."""
     from vastcal.calibrate.parameters import ParameterSpace
-    from vastcal.calibrate.run import CalibrationSettings, _common_roll_offset_scan
+    from vastcal.calibrate.run import _common_roll_offset_scan
     from vastcal.config import CalibrationBounds
 
     theta0 = np.concatenate([[0.0, 0.0, 0.0], np.arange(8) * 45.0])
@@ -109,11 +109,11 @@ def test_common_roll_offset_scan_finds_the_view0_trap() -> None:
         d = np.atleast_2d(th)[:, 4:] - target[None]
         return 1.0 - np.exp(-np.mean(d ** 2, axis=1)) + 0.5 * (1.0 - np.exp(-np.mean((d - 6.0) ** 2, axis=1) * 4)) - 0.5
 
-    x, n = _common_roll_offset_scan(cost, space, np.zeros(space.n_free), theta0, CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0))
+    x, n = _common_roll_offset_scan(cost, space, np.zeros(space.n_free), 0.5)
     assert n == 61
     np.testing.assert_allclose(space.theta(x)[0][4:], target, atol=1e-9)
     x_none, _ = _common_roll_offset_scan(lambda th: np.sum((np.atleast_2d(th)[:, 4:] - theta0[4:]) ** 2, axis=1), space,
-                                         np.zeros(space.n_free), theta0, CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0))
+                                         np.zeros(space.n_free), 0.5)
     np.testing.assert_array_equal(x_none, 0.0)  # already at the best offset: unchanged
 
 

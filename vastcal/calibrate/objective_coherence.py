@@ -83,8 +83,8 @@ def _axis_probe(P: np.ndarray) -> np.ndarray:
     Probes must stay well in front of every camera, whatever the units (µm on the rig, arbitrary
     units on imported turntable data), so their length is scaled to the first camera's distance.
     """
-    M, p4 = np.asarray(P, float).reshape(-1, 3, 4)[0, :, :3], np.asarray(P, float).reshape(-1, 3, 4)[0, :, 3]
-    length = 0.05 * float(np.linalg.norm(np.linalg.solve(M, -p4)))
+    P0 = np.asarray(P, float).reshape(-1, 3, 4)[0]
+    length = 0.05 * float(np.linalg.norm(np.linalg.solve(P0[:, :3], -P0[:, 3])))  # |camera centre|
     return np.array([[-length, 0.0, 0.0], [length, 0.0, 0.0]])
 
 

@@ -22,7 +22,7 @@ import resource
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import Any, Callable, Literal, Sequence
 
 import cv2
 import numpy as np
@@ -193,27 +193,27 @@ def prior_cost(theta: np.ndarray, theta0: np.ndarray, settings: "CalibrationSett
     return settings.roll_prior_weight * p
 
 
-def _common_roll_offset_scan(obj: Any, space: ParameterSpace, x: np.ndarray, theta0: np.ndarray,
-                              settings: CalibrationSettings) -> tuple[np.ndarray, int]:
+def _common_roll_offset_scan(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray,
+                              step_deg: float) -> tuple[np.ndarray, int]:
     """Try a common offset c of every free roll over the whole box; keep the best (returns x, evaluations).
 
     When many commanded angles are far off (the +10° test), CMA-ES may let the majority agree with
     each other and leave view 0 — which is held fixed and defines 0° — as the odd one out: every other
     view ends up off by the same angle. That trap is one-dimensional (a common rotation of all views
-    against view 0), so a scan of c in steps of ``roll_offset_scan_deg`` over the box finds it.
-    Candidates are scored one at a time (the coherence cost searches its rays around the batch mean).
+    against view 0), so a scan of c in steps of ``step_deg`` over the box finds it. ``cost`` maps θ
+    (B, 3 + N) degrees to (B,) — the level's data cost plus the prior. Candidates are scored one at a
+    time (the coherence cost searches its rays around the batch mean).
     """
     rolls = np.flatnonzero(np.arange(space.theta0.size)[space.free_mask] >= 4)
     if rolls.size == 0:
         return x, 0
     h = space.half_width[4]
-    offsets = np.arange(-h, h + 1e-9, settings.roll_offset_scan_deg)
+    offsets = np.arange(-h, h + 1e-9, step_deg)
     costs = []
     for c in offsets:
         xc = x.copy()
         xc[rolls] = np.clip(xc[rolls] + c / h, -1.0, 1.0)
-        th = space.theta(xc)
-        costs.append(float(obj(th)[0] + prior_cost(th, theta0, settings)[0]))
+        costs.append(float(cost(space.theta(xc))[0]))
     best = int(np.argmin(costs))
     zero = int(np.argmin(np.abs(offsets)))
     if costs[best] < costs[zero]:
@@ -304,7 +304,6 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     finest = max(1.0, w_full / max(lv.width_px for lv in settings.levels))
     small = _area_resize(images, finest)
     pf = specimen_maps(model, small, band_px=max(1.0, 2.0 / finest))  # the rim band is 2 px of the full frame
-    logp = np.log(np.clip(pf, settings.eps, 1 - settings.eps))
     if silhouettes is not None:
         sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
         sil_src = np.stack([cv2.resize(s, (pf.shape[2], pf.shape[1]), interpolation=cv2.INTER_AREA) for s in sil_full])
@@ -347,8 +346,10 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
             obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px,
                                      trim=settings.coherence_trim, per_candidate=settings.coherence_per_candidate)
-            level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in images])
-            pdark = dark_feature_probability(level_images, maps_pf) if settings.dark_weight > 0 else None
+            pdark = None
+            if settings.dark_weight > 0:  # the images at the level's size are only needed for the dark features
+                level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in images])
+                pdark = dark_feature_probability(level_images, maps_pf)
             if pdark is not None:
                 dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2, all_runs=True)
                 dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px,
@@ -366,11 +367,15 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
 
         sel = space.level_selection(lv.groups)  # which free coordinates this level moves
 
-        def batch(xb: np.ndarray, _obj: Any = obj, _sel: np.ndarray = sel, _x: np.ndarray = x.copy()) -> np.ndarray:
+        def cost(th: np.ndarray, _obj: Any = obj) -> np.ndarray:
+            """The level's cost (B,) of θ (B, 3 + N) degrees: data + prior."""
+            return _obj(th) + prior_cost(th, theta0, settings)
+
+        def batch(xb: np.ndarray, _cost: Callable[[np.ndarray], np.ndarray] = cost, _sel: np.ndarray = sel,
+                  _x: np.ndarray = x.copy()) -> np.ndarray:
             full = np.repeat(_x[None], len(xb), axis=0)
             full[:, _sel] = xb
-            th = space.theta(full)
-            return _obj(th) + prior_cost(th, theta0, settings)
+            return _cost(space.theta(full))
 
         res = minimise(batch, x[sel], lv.sigma0, np.ones(int(sel.sum())), seed=seed + li, max_evaluations=lv.max_evaluations,
                        tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize,
@@ -384,7 +389,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         trace += [(base + e, f) for e, f in zip(res.trace_evals, res.trace_best)]
         x = res.x_best
         if li == 0 and settings.roll_offset_scan_deg > 0:
-            x, n_scan = _common_roll_offset_scan(obj, space, x, theta0, settings)
+            x, n_scan = _common_roll_offset_scan(cost, space, x, settings.roll_offset_scan_deg)
             evals_done += n_scan
         n_vox_final = len(region.voxels)
         reports.append({"level": li, "map_shape": list(maps_pf.shape[1:]), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
