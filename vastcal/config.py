@@ -167,6 +167,9 @@ class SimulationConfig:
     max_drift_deg: float = field(default=2.0, metadata=_range(0.0, 30.0))
     max_tilt_deg: float = field(default=1.0, metadata=_range(0.0, 10.0))
     max_axis_offset_um: float = field(default=60.0, metadata=_range(0.0, 10_000.0))
+    max_specimen_offset_um: float = field(default=0.0, metadata=_range(0.0, 1_000.0))
+    """Largest distance of the specimen's own axis from the rotation axis, µm (it lies against the
+    capillary wall); 0 = a coaxial specimen."""
     usteps_per_revolution: int = field(default=1_152_000, metadata=_range(360, 100_000_000))
     backlash_usteps: int = field(default=0, metadata=_range(0, 100_000))
     noise: float = field(default=1.0, metadata=_range(0.0, 100.0))

@@ -16,7 +16,9 @@ r² tan(Δ_k/2) and two tangent segments of total length 2 r tan(Δ_k/2), so
 
 F does not depend on x, so the hull volume is F·V. Each hull face is a ruled surface
 x ↦ r(x)·n_k + t·e_k whose area element is √(1 + r'²) dx dt, so the hull area is
-∫ √(1 + r'²) · perimeter(x) dx = F·A as well.
+∫ √(1 + r'²) · perimeter(x) dx = F·A as well. A body lying off the rotation axis (parallel to
+it, :class:`simulators.camera.truth_geometry.RigTruth` ``specimen_offset_um``) has the translated
+hull: the same volume and area.
 """
 
 from __future__ import annotations

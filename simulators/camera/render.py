@@ -27,6 +27,7 @@ Noise: shot noise (Gaussian approximation of Poisson — every pixel holds ≫ 1
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,7 +83,10 @@ class Sensor:
 
 @dataclass
 class RayGeometry:
-    """Per-pixel quantities of one view (internal; float32 H×W unless noted)."""
+    """Per-pixel quantities of one view (internal; float32 H×W unless noted).
+
+    ``rho0`` is the ray's closest approach to the capillary (= rotation) axis, µm.
+    """
 
     rho0: np.ndarray
     coverage: np.ndarray
@@ -109,26 +113,34 @@ class BrightfieldRenderer:
 
     # -- geometry ----------------------------------------------------------------------------
 
-    def ray_geometry(self, K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int) -> RayGeometry:
-        """Coverage, optical depths and axis distance of every pixel's ray (see module docstring).
+    def ray_geometry(self, K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
+                     body_offset_um: tuple[float, float] = (0.0, 0.0)) -> RayGeometry:
+        """Coverage, optical depths and capillary-axis distance of every pixel's ray (see module docstring).
 
         Args:
             K: 3×3 intrinsics (px) of the stored frame, no skew.
-            R, t: x_cam = R·X + t (µm).
+            R, t: x_cam = R·X + t (µm), X in the world (rotation-axis) frame.
             width, height: frame size, px.
+            body_offset_um: (y, z) position of the phantom's own axis in the world frame, µm: the
+                specimen lies off the rotation axis (against the capillary wall); the capillary
+                stays coaxial with the rotation axis.
         """
         f, cx, cy = float(K[0, 0]), float(K[0, 2]), float(K[1, 2])
         if abs(K[0, 1]) > 0 or abs(K[1, 1] - f) > 1e-9 * f:
             raise CameraError("the renderer supports square pixels without skew")
-        C = -R.T @ t
+        if self._r_max + math.hypot(*body_offset_um) >= self.capillary.inner_radius_um:
+            raise CameraError(f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis does not fit "
+                              f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)")
+        C_world = -R.T @ t
+        C = C_world - np.array([0.0, float(body_offset_um[0]), float(body_offset_um[1])])  # camera centre in the phantom frame
         du = (np.arange(width) - cx) / f
         dv = (np.arange(height) - cy) / f
         # d_world[k] = R[0,k]·du + R[1,k]·dv + R[2,k]  (separable in u and v)
         dy = (R[0, 1] * du)[None, :] + (R[1, 1] * dv + R[2, 1])[:, None]
         dz = (R[0, 2] * du)[None, :] + (R[1, 2] * dv + R[2, 2])[:, None]
         a2 = dy * dy + dz * dz
-        cross = C[1] * dz - C[2] * dy
-        rho0 = np.abs(cross) / np.sqrt(a2)
+        rho0 = np.abs(C[1] * dz - C[2] * dy) / np.sqrt(a2)  # closest approach to the phantom's axis
+        rho0_capillary = np.abs(C_world[1] * dz - C_world[2] * dy) / np.sqrt(a2)
 
         coverage = np.zeros((height, width), np.float32)
         tau_body = np.zeros((height, width), np.float32)
@@ -180,7 +192,7 @@ class BrightfieldRenderer:
                 disc = B * B - 4.0 * A * (p @ p - 1.0)
                 tf[inside] += feat.attenuation_per_um * np.sqrt(np.maximum(disc, 0.0)) / A * dnorm[inside]
             tau_feat[iy, ix] = tf
-        return RayGeometry(rho0.astype(np.float32), coverage, tau_body, tau_feat)
+        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat)
 
     def transmission(self, geom: RayGeometry, channel_scale: float = 1.0) -> np.ndarray:
         """Noise-free transmission 0–1 of each pixel (background = capillary lumen)."""
@@ -203,6 +215,7 @@ class BrightfieldRenderer:
         rng: np.random.Generator | None = None,
         exposure_scale: float = 1.0,
         gain_db: float = 0.0,
+        body_offset_um: tuple[float, float] = (0.0, 0.0),
     ) -> np.ndarray:
         """One frame.
 
@@ -214,11 +227,12 @@ class BrightfieldRenderer:
             rng: random generator for the noise.
             exposure_scale: exposure relative to the reference (brightness ∝ exposure).
             gain_db: analogue gain, dB (amplifies signal and noise).
+            body_offset_um: (y, z) of the phantom's axis off the rotation axis, µm (see :meth:`ray_geometry`).
         """
         if pixel_format not in OUTPUT_FORMATS:
             raise CameraError(f"simulated camera cannot deliver {pixel_format!r}; use one of {', '.join(OUTPUT_FORMATS)}")
         rng = rng if rng is not None else np.random.default_rng()
-        geom = self.ray_geometry(K, R, t, width, height)
+        geom = self.ray_geometry(K, R, t, width, height, body_offset_um)
         if pixel_format == "RGB8":
             chans = [self._to_dn(self.transmission(geom, s) * tint, noise, rng, exposure_scale, gain_db)
                      for s, tint in zip(self.phantom.colour_scale, self.sensor.tint_rgb)]

@@ -163,7 +163,8 @@ class SimulatedCamera(Camera):
             rng = np.random.default_rng(np.random.SeedSequence([self._sim.seed, 0xF4A, self._frame_id]))
             s = self._settings
             pixels = self._renderer.render(K, R, t, w, h, s.pixel_format, noise=self._sim.noise, rng=rng,
-                                           exposure_scale=s.exposure_us / self._reference_exposure_us, gain_db=s.gain_db)
+                                           exposure_scale=s.exposure_us / self._reference_exposure_us, gain_db=s.gain_db,
+                                           body_offset_um=self._truth.specimen_offset_um)
             host = time.time()
             device = time.monotonic() - self._t_open
             self._snaps.append({"frame_id": self._frame_id, "actual_angle_deg": angle, "host_time_s": host})
@@ -200,7 +201,7 @@ class SimulatedCamera(Camera):
         """The hidden truth as JSON-able data, to be written APART from the session.
 
         Keys: ``schema``; ``phantom``, ``true_volume_mm3``, ``true_area_mm2``; ``yaw_deg``,
-        ``pitch_deg``, ``gamma_deg``, ``axis_offset_um``, ``distance_um``; ``seed``; ``roi``
+        ``pitch_deg``, ``gamma_deg``, ``axis_offset_um``, ``distance_um``, ``specimen_offset_um`` (y, z); ``seed``; ``roi``
         (x, y, w, h px); ``K`` (3×3 of the ROI frame); ``snaps`` — one
         ``{"frame_id", "actual_angle_deg", "host_time_s"}`` per frame delivered; and
         ``hull_volume_mm3`` / ``hull_area_mm2`` — the exact orthographic visual hull of the

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -49,25 +50,31 @@ class RigTruth:
         yaw_deg, pitch_deg: axis tilt, degrees.
         axis_offset_um: displacement of the axis from the optical axis, µm (= d·sin γ).
         distance_um: distance d from the camera centre to the axis, µm.
+        specimen_offset_um: (y, z) of the specimen's own axis off the rotation axis, in the world
+            (specimen) frame at stage angle 0, µm — a larva lies against the capillary wall, not on
+            the axis. A coaxial body of revolution (0, 0) looks the same from every angle: its
+            silhouettes say nothing about the per-view angles.
     """
 
     yaw_deg: float
     pitch_deg: float
     axis_offset_um: float
     distance_um: float
+    specimen_offset_um: tuple[float, float] = (0.0, 0.0)
 
     @property
     def gamma_deg(self) -> float:
         """Axis placement angle γ = asin(offset / d), degrees."""
         return math.degrees(math.asin(self.axis_offset_um / self.distance_um))
 
-    def to_dict(self) -> dict[str, float]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-able record including γ."""
-        return {**asdict(self), "gamma_deg": self.gamma_deg}
+        return {**asdict(self), "specimen_offset_um": list(self.specimen_offset_um), "gamma_deg": self.gamma_deg}
 
     @classmethod
     def draw(cls, sim: SimulationConfig, optics: OpticsConfig) -> "RigTruth":
-        """Draw yaw, pitch within ±max_tilt_deg and the offset within ±max_axis_offset_um.
+        """Draw yaw, pitch within ±max_tilt_deg, the offset within ±max_axis_offset_um and the
+        specimen offset uniformly over the disc of radius max_specimen_offset_um.
 
         Uses its own stream of ``sim.seed`` (SeedSequence([seed, 0xCA3])) so that other
         simulators drawing from the same seed get independent numbers.
@@ -75,7 +82,9 @@ class RigTruth:
         rng = np.random.default_rng(np.random.SeedSequence([sim.seed, 0xCA3]))
         yaw, pitch = rng.uniform(-sim.max_tilt_deg, sim.max_tilt_deg, 2)
         offset = rng.uniform(-sim.max_axis_offset_um, sim.max_axis_offset_um)
-        return cls(float(yaw), float(pitch), float(offset), float(optics.working_distance_um))
+        rho, phi = sim.max_specimen_offset_um * math.sqrt(rng.uniform()), rng.uniform(0.0, 2.0 * math.pi)
+        specimen = (rho * math.cos(phi), rho * math.sin(phi))
+        return cls(float(yaw), float(pitch), float(offset), float(optics.working_distance_um), (float(specimen[0]), float(specimen[1])))
 
 
 @dataclass(frozen=True)

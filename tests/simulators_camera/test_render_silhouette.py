@@ -15,6 +15,7 @@ from simulators.camera.profiles import SpheroidProfile
 from simulators.camera.render import BrightfieldRenderer, Capillary
 from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
 from vastcal.config import OpticsConfig, RoiConfig
+from vastcal.errors import CameraError
 from vastcal.geometry import intrinsics_from_optics, projection_matrices
 
 OPTICS = OpticsConfig()
@@ -27,10 +28,13 @@ def reference_P(angle: float) -> np.ndarray:
     return projection_matrices(K, TRUTH.distance_um, np.array([[TRUTH.yaw_deg, TRUTH.pitch_deg, TRUTH.gamma_deg, angle]]))[0, 0]
 
 
-def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float) -> float:
-    """min over the ray of (distance to the axis − r(x)), µm: < 0 iff the ray meets the body."""
+def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float, offset: tuple[float, float] = (0.0, 0.0)) -> float:
+    """min over the ray of (distance to the body's axis − r(x)), µm: < 0 iff the ray meets the body.
+
+    ``offset``: (y, z) of the body's axis off the rotation axis, µm.
+    """
     M = P[:, :3]
-    C = -np.linalg.solve(M, P[:, 3])
+    C = -np.linalg.solve(M, P[:, 3]) - np.array([0.0, *offset])
     D = np.linalg.solve(M, np.array([u, v, 1.0]))
     D /= np.linalg.norm(D)
     s0 = -(C[1] * D[1] + C[2] * D[2]) / (D[1] ** 2 + D[2] ** 2)
@@ -43,9 +47,9 @@ def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float) -> float:
     return float(res.fun)
 
 
-def reference_edges(P: np.ndarray, ph: Phantom, u: float, v_inside: float) -> tuple[float, float]:
-    top = brentq(lambda v: ray_gap(P, ph, u, v), v_inside - 150.0, v_inside, xtol=1e-7)
-    bottom = brentq(lambda v: ray_gap(P, ph, u, v), v_inside, v_inside + 150.0, xtol=1e-7)
+def reference_edges(P: np.ndarray, ph: Phantom, u: float, v_inside: float, offset: tuple[float, float] = (0.0, 0.0)) -> tuple[float, float]:
+    top = brentq(lambda v: ray_gap(P, ph, u, v, offset), v_inside - 150.0, v_inside, xtol=1e-7)
+    bottom = brentq(lambda v: ray_gap(P, ph, u, v, offset), v_inside, v_inside + 150.0, xtol=1e-7)
     return top, bottom
 
 
@@ -72,6 +76,32 @@ def test_silhouette_edges_are_subpixel_exact(phantom: Phantom, columns: list[int
         ref = reference_edges(P, phantom, float(u), v_in)
         got = edges_from_coverage(col)
         assert got == pytest.approx(ref, abs=0.02), (u, got, ref)
+
+
+@pytest.mark.parametrize("angle", [0.0, 73.0, 200.0])
+def test_an_off_axis_specimen_is_rendered_where_it_lies_and_the_capillary_stays(angle: float) -> None:
+    """A larva lying off the rotation axis: exact edges of the displaced body; capillary lines unmoved."""
+    offset = (25.0, -15.0)
+    ph = zebrafish_phantom()
+    r = BrightfieldRenderer(ph)
+    K = PinholeIntrinsics.from_optics(OPTICS, (ROI.x, ROI.y)).K
+    R, t = camera_pose(TRUTH, angle)
+    moved = r.ray_geometry(K, R, t, ROI.width, ROI.height, offset)
+    still = r.ray_geometry(K, R, t, ROI.width, ROI.height)
+    assert np.array_equal(moved.rho0, still.rho0)  # the capillary turns about the rotation axis
+    assert np.abs(moved.coverage - still.coverage).max() > 0.5
+    P = reference_P(angle)
+    for u in (380, 560):
+        col = moved.coverage[:, u].astype(float)
+        v_in = float(np.mean(np.nonzero(col >= 1.0)[0]))
+        assert edges_from_coverage(col) == pytest.approx(reference_edges(P, ph, float(u), v_in, offset), abs=0.02)
+
+
+def test_a_specimen_that_does_not_fit_in_the_capillary_is_refused() -> None:
+    r = BrightfieldRenderer(zebrafish_phantom())
+    K = PinholeIntrinsics.from_optics(OPTICS, (ROI.x, ROI.y)).K
+    with pytest.raises(CameraError, match="does not fit"):
+        r.ray_geometry(K, *camera_pose(TRUTH, 0.0), ROI.width, ROI.height, (80.0, 0.0))
 
 
 def test_grey_levels_carry_the_subpixel_edge() -> None:

@@ -34,3 +34,13 @@ def test_truth_draw_is_seeded_and_within_limits() -> None:
     assert RigTruth.draw(sim, OpticsConfig()) == RigTruth.draw(sim, OpticsConfig())
     assert all(abs(d.yaw_deg) <= 1 and abs(d.pitch_deg) <= 1 and abs(d.axis_offset_um) <= 60 for d in draws)
     assert len({d.yaw_deg for d in draws}) == 20
+    assert all(d.specimen_offset_um == (0.0, 0.0) for d in draws)  # coaxial unless asked
+
+
+def test_specimen_offset_is_drawn_within_its_disc() -> None:
+    draws = [RigTruth.draw(SimulationConfig(seed=s, max_specimen_offset_um=40.0), OpticsConfig()) for s in range(50)]
+    radii = np.array([np.hypot(*d.specimen_offset_um) for d in draws])
+    assert radii.max() <= 40.0 and radii.min() >= 0.0 and len(set(radii)) == 50
+    same = RigTruth.draw(SimulationConfig(seed=3), OpticsConfig())
+    moved = RigTruth.draw(SimulationConfig(seed=3, max_specimen_offset_um=40.0), OpticsConfig())
+    assert (same.yaw_deg, same.pitch_deg, same.axis_offset_um) == (moved.yaw_deg, moved.pitch_deg, moved.axis_offset_um)
