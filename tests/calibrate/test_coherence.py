@@ -168,3 +168,45 @@ def test_very_large_samplings_are_remapped_in_blocks(scene: tuple[np.ndarray, np
 
     ref = cv2.remap(obj.atlas.image, u[:1, k:k + 1], v[:1, k:k + 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     assert out[0, k] == ref[0, 0]
+
+
+def _ray_maxima(obj: CoherenceObjective, theta: np.ndarray) -> np.ndarray:
+    """Each edge ray's maximum depth for θ alone (full search)."""
+    return obj._search_peaks(theta[None])[0]
+
+
+def _residuals_without_slides(obj: CoherenceObjective, theta: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Residuals (N, R) read on the windows at depths z only (the window never slides)."""
+    slides = obj.max_slides
+    try:
+        obj.max_slides = 0
+        return obj._local_max(theta[None], z[None])[0]
+    finally:
+        obj.max_slides = slides
+
+
+def test_a_candidate_is_scored_on_its_own_rays_wherever_the_population_is(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
+    """The ray windows sit at the population's peaks. A candidate whose own peaks lie outside them
+    must still get (about) the residuals of its own full search — not the window's end value (too
+    low: exploration is penalised) nor a parabola extrapolated beyond it (unbounded)."""
+    theta, _, obj = scene
+    moved = theta.copy()
+    moved[4:] += np.linspace(-1.5, 1.5, moved.size - 4)
+    z_own = _ray_maxima(obj, moved)
+    own = obj._local_max(moved[None], z_own[None])[0]
+    w = obj.edges.weight > 0
+    for side in (-1, 1):
+        z_far = z_own + np.float32(side * 2.5 * obj.window_um)  # the population's peaks: 2.5 windows away
+        far = obj._local_max(moved[None], z_far[None])[0]
+        step = 2 * obj.window_um / (obj.window - 1) / obj.footprint_um  # pixels
+        err = np.abs(far - own)[w]  # a kinked maximum sampled on another grid; a few rays reach another local maximum
+        assert np.median(err) < step / 4 and np.percentile(err, 95) < step
+        stuck = _residuals_without_slides(obj, moved, z_far)
+        assert np.median((own - stuck)[w]) > 0.2  # what the window alone reads
+
+
+def test_the_parabola_never_extrapolates_past_the_window(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
+    """With sliding switched off, a window far from every peak reads the best sample it has."""
+    theta, _, obj = scene
+    r = _residuals_without_slides(obj, theta, _ray_maxima(obj, theta) + np.float32(10 * obj.window_um))
+    assert np.all(r[obj.edges.weight > 0] <= 6.0 + 1e-3)

@@ -131,3 +131,24 @@ def test_per_candidate_coherence_does_not_depend_on_the_batch() -> None:
     batch = np.repeat(theta[None], 6, 0)
     batch[1:, 4:] += rng.normal(0.0, 2.0, (5, batch.shape[1] - 4))
     np.testing.assert_array_equal(obj(batch), np.array([obj(b[None])[0] for b in batch]))
+
+
+def test_image_sensitivity_of_each_coordinate() -> None:
+    """Pixels of image motion per box unit: a roll moves one view (RMS over N views = its motion / √N);
+    γ moves every view by d·(π/180)·f/d pixels per degree — some hundred times more."""
+    from vastcal.calibrate.parameters import ParameterSpace
+
+    K, d = sy.camera()
+    n, rho = 8, 200.0
+    theta0 = np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n]
+    bounds = CalibrationBounds(3.0, 3.0, 0.5, 4.0)
+    space = ParameterSpace.build(theta0, "all", bounds)
+    point = np.array([[0.0, rho, 0.0]])
+    s = space.image_sensitivity(K, d, np.zeros(space.n_free), point)
+    f = K[0, 0]
+    per_view_roll = np.radians(bounds.roll_deg) * rho * f / d  # the point's motion in its own view, px per box unit
+    across = np.abs(np.sin(np.radians(theta0[4:])))  # the image sees the motion across the axis (none at 0° and 180°)
+    rolls = s[3:]
+    assert rolls == pytest.approx(per_view_roll * across / np.sqrt(n), abs=0.01 * per_view_roll)
+    assert s[2] == pytest.approx(np.radians(bounds.gamma_deg) * f, rel=0.02)  # γ: the axis moves by d·δγ, seen at f/d
+    assert s[2] > 50 * rolls.max()
