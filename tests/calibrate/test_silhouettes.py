@@ -51,3 +51,19 @@ def test_half_contrast_moves_a_blurred_rim_to_the_physical_edge() -> None:
     t = np.ones((1, 40, 40), np.float32)
     t[0, 15:25, 15:25] = 0.1
     assert (half_contrast_edges(pf, t)[0, 15:25, 15:25] == 1.0).all()
+
+
+def test_a_dark_rim_is_cut_at_half_its_own_contrast() -> None:
+    """A larva's rim is lined with pigment, darker than its mean colour: the physical edge is at half
+    the *rim's* contrast, not half the mean's. Disc of radius 30 px, a 5 px dark rim (contrast 1.5)
+    around a paler inside (contrast 0.8), blurred by the optics."""
+    t_img = np.zeros((100, 100), np.float32)
+    cv2.circle(t_img, (50, 50), 30, 1.5, -1)
+    cv2.circle(t_img, (50, 50), 25, 0.8, -1)
+    r_true = np.sqrt((t_img > 0).sum() / np.pi)
+    t = cv2.GaussianBlur(t_img, (0, 0), 1.5)[None]
+    pf = (t > 0.2).astype(np.float32)  # a rough silhouette 1.7 px outside the edge, like the Bayes rim
+    r = np.sqrt((half_contrast_edges(pf, t)[0] > 0.5).sum() / np.pi)
+    assert abs(r - r_true) < 0.25
+    flat_plateau = np.sqrt((half_contrast_edges(pf, t, plateau_px=0.0)[0] > 0.5).sum() / np.pi)  # no plateau: half of 1
+    assert flat_plateau > r_true + 0.4

@@ -312,7 +312,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     w_full = images.shape[2]
     finest = max(1.0, w_full / max(lv.width_px for lv in settings.levels))
     small = _area_resize(images, finest)
-    pf = specimen_maps(model, small, band_px=max(1.0, 2.0 / finest))  # the rim band is 2 px of the full frame
+    pf = specimen_maps(model, small, band_px=max(1.0, 3.0 / finest))  # the rim band is 3 px of the full frame
     if silhouettes is not None:
         sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
         sil_src = np.stack([cv2.resize(s, (pf.shape[2], pf.shape[1]), interpolation=cv2.INTER_AREA) for s in sil_full])
