@@ -31,8 +31,10 @@ def _progress(args: argparse.Namespace, label: str, unit: str = "") -> ProgressL
 def cmd_import(args: argparse.Namespace) -> int:
     """vastcal import FOLDER -o S.h5 …"""
     from vastcal.config import load_config
-    from vastcal.importer import import_folder
+    from vastcal.importer import PIXEL_ORIGINS, import_folder
 
+    if args.pixel_origin not in PIXEL_ORIGINS:
+        raise UserInputError(f"--pixel-origin: expected one of {', '.join(f'{p:g}' for p in PIXEL_ORIGINS)}, got {args.pixel_origin:g}")
     cfg = load_config(args.config) if args.config else None
     bar = _progress(args, "import", "views")
     try:
@@ -119,8 +121,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method pi|vr] [--seed N] [--free …]"""
     from vastcal.calibrate import calibrate_session
 
-    if args.offset_scan is not None and not 0.0 < args.offset_scan <= 5.0:
-        raise UserInputError(f"--offset-scan must be a step in degrees in (0, 5], got {args.offset_scan}")
+    from vastcal.config import CalibrationConfig, check_setting
+
+    if args.offset_scan is not None:
+        check_setting(CalibrationConfig, "offset_scan_deg", args.offset_scan, "--offset-scan")
     bar = _progress(args, f"calibrate ({args.method})", "evaluations")
     try:
         res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
@@ -207,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--masks", help="folder of silhouettes, one per image")
     s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: uniform over 360)")
     s.add_argument("--cameras", help="known cameras: a 'name + 12 numbers' file, or a folder of .pa files")
-    s.add_argument("--pixel-origin", type=float, choices=(0.0, 0.5, 1.0), default=0.0,
+    s.add_argument("--pixel-origin", type=float, default=0.0,
                    help="coordinate --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at integers), 1 (1-based, MATLAB); default 0")
     s.add_argument("--roi-offset", type=int, nargs=2, metavar=("X", "Y"), help="offset of the images on the sensor, px (default from --config, else 0 0)")
     s.add_argument("--config", help="rig description YAML for the optics (pixel size, focal length, principal point)")

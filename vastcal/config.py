@@ -289,6 +289,21 @@ def _build(cls: Any, data: Any, where: str, fail: typing.Callable[[str, str], Co
     return cls(**kwargs)
 
 
+def check_setting(section: Any, name: str, value: Any, given_as: str) -> Any:
+    """Check one override of a rig-file field (e.g. a command-line option) against the field's type
+    and range in ``section`` (a config dataclass); returns it converted.
+
+    Raises:
+        ConfigError: naming ``given_as`` (e.g. ``--offset-scan``), the expected and the given value.
+    """
+    f = {fl.name: fl for fl in dataclasses.fields(section)}[name]
+
+    def fail(path: str, what: str) -> ConfigError:
+        return ConfigError(f"{path}: {what}")
+
+    return _convert(value, typing.get_type_hints(section)[name], given_as, fail, dict(f.metadata))
+
+
 def parse_config(data: Any, source: str = "<string>") -> RigConfig:
     """Validate a mapping (as from ``yaml.safe_load``) into a :class:`RigConfig`.
 

@@ -97,7 +97,8 @@ def test_offset_scan_option_reaches_the_settings(session_path: Path, monkeypatch
     monkeypatch.setattr(cal, "calibrate_session", fake)
     assert main(["calibrate", str(session_path), "--offset-scan", "0.5"]) == 0
     assert seen["offset_scan_deg"] == 0.5
-    assert main(["calibrate", str(session_path), "--offset-scan", "0"]) == 2  # one line, no run
+    assert main(["calibrate", str(session_path), "--offset-scan", "0"]) == 0 and seen["offset_scan_deg"] == 0.0  # 0 = off
+    assert main(["calibrate", str(session_path), "--offset-scan", "7"]) == 2  # one line, no run (the rig file's range: 0–5°)
     assert main(["calibrate", str(session_path)]) == 0 and seen["offset_scan_deg"] is None
 
 
