@@ -499,17 +499,18 @@ class CoherenceObjective:
 
     def _follow_rising_ends(self, R: np.ndarray, t: np.ndarray, Pm: np.ndarray, Z: np.ndarray, vals: np.ndarray,
                             best: np.ndarray) -> None:
-        """Slide the window of every ray whose best sample is at an end, until its maximum is bracketed.
+        """Slide the window of every ray whose profile rises to an end of it, until its maximum is bracketed.
 
         The window sits at the population's peaks; a candidate far from the population mean may have
         its own peak outside it. Its residual would then be under-estimated (the end sample), which
         penalises exploration. Such rays — usually a few — get their window re-centred on that end
-        sample (half a window towards the rising end), up to ``max_slides`` times. ``Z``, ``vals`` and ``best`` (B, N, R[, S])
+        sample (half a window towards the rising end), up to ``max_slides`` times. Flat profiles (a
+        ray clamped outside or inside every view) stay. ``Z``, ``vals`` and ``best`` (B, N, R[, S])
         are updated in place.
         """
         count = Z.shape[-1]
         for _ in range(self.max_slides):
-            ends = (best == 0) | (best == count - 1)
+            ends = ((best == 0) & (vals[..., 0] > vals[..., 1])) | ((best == count - 1) & (vals[..., -1] > vals[..., -2]))
             if not ends.any():
                 return
             b, i, r = np.nonzero(ends)
