@@ -519,7 +519,9 @@ class CoherenceObjective:
             zr = np.maximum(zr, np.float32(1e-3 * self.distance))
             cam = self.rays_cam[i, r][:, None, :] * zr[..., None] - t[b][:, None, :]  # (M, S, 3) camera frame
             X = np.matmul(cam, R[b, i])  # (M, S, 3) world: Rᵀ c, as rows cᵀ R
-            v = self._min_others_of_rays(X, Pm[b], i)
+            step = max(1, self.max_points // (Pm.shape[1] * count))  # rays per chunk: memory as in the batched path
+            v = np.concatenate([self._min_others_of_rays(X[c:c + step], Pm[b[c:c + step]], i[c:c + step])
+                                for c in range(0, len(b), step)])
             Z[b, i, r], vals[b, i, r] = zr, v
             best[b, i, r] = np.argmax(v, axis=-1)
 
