@@ -129,7 +129,7 @@ class ParameterSpace:
         figures give it per-coordinate steps that move the image about equally. Central differences
         of ``step`` box units; returns (n_free,) pixels per box unit.
         """
-        x = np.asarray(x, float)
+        x = np.clip(np.asarray(x, float), -1.0 + step, 1.0 - step)  # both differences inside the box
         n = self.n_free
         X = np.repeat(x[None], 2 * n, axis=0)
         X[np.arange(n), np.arange(n)] += step

@@ -389,7 +389,8 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         stds = np.ones(int(sel.sum()))
         if lv.scaled_steps:
             motion = space.image_sensitivity(K_lv, distance, x, region.voxels[:: max(1, len(region.voxels) // 2000)])[sel]
-            stds = motion.min() / np.maximum(motion, 1e-12)
+            if motion.min() > 0:  # a coordinate that does not move the image at all keeps equal steps
+                stds = np.clip(motion.min() / motion, 1e-3, 1.0)
         res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
                        tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize,
                        progress=lambda e, f, _b=base: clock.update(_b + e, f))
