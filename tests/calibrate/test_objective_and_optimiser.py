@@ -45,6 +45,17 @@ def test_cost_changes_continuously_without_plateaus(views: np.ndarray, truth: np
     assert np.max(np.abs(diffs)) < 20 * np.median(np.abs(diffs)) + 1e-12
 
 
+def test_vr_cannot_win_by_moving_the_specimen_out_of_view(views: np.ndarray, truth: np.ndarray) -> None:
+    """Unnormalised, the voxel residual is 0 when no voxel projects into any silhouette; on ZF1 the
+    axis-only coarse level found that (γ pushing the larva out of view). The fraction of the cones'
+    union the hull does not explain makes it the worst case instead."""
+    obj = _objectives(views, truth)["vr"]
+    away = truth.copy()
+    away[2] += 5.0  # γ: the axis, and every voxel with it, far outside the frames
+    cost_truth, cost_away = obj(np.stack([truth, away]))
+    assert cost_away == 1.0 and cost_truth < 0.5
+
+
 def test_population_batch_equals_one_by_one(views: np.ndarray, truth: np.ndarray) -> None:
     obj = _objectives(views, truth)["pi-count"]
     rng = np.random.default_rng(1)

@@ -3,11 +3,17 @@
 With soft silhouettes s_i ∈ [0, 1] (given masks, or the thresholded foreground posteriors,
 lightly blurred so that bilinear sampling is smooth) sampled at each voxel's projection,
 
-    r_j = (1/N) Σ_i s_ij − Π_i s_ij        cost(θ) = (1/M) Σ_j r_j   (minimised)
+    r_j = (1/N) Σ_i s_ij − Π_i s_ij        cost(θ) = Σ_j r_j / Σ_j (1/N) Σ_i s_ij   (minimised)
 
 r_j is 0 for a voxel inside every silhouette (part of the visual hull) and for a voxel outside
 every silhouette, and grows with the fraction of views that claim a voxel the others reject:
 the reprojection disagreement of the hull. The product is taken as exp Σ log max(s, ε).
+
+The sum of residuals is divided by the (soft) union of the silhouettes' cones over the voxels, so
+the cost is the fraction of that union the hull does not explain (1 − hull / union). Unnormalised,
+the residual has a trivial minimum: move the axis until no voxel projects into any silhouette
+(every r_j = 0). On ZF1 the coarse level found exactly that (cost 2e-11, γ pushing the specimen
+out of view) and the next level had no voxels left; a cone union that vanishes now costs 1.
 """
 
 from __future__ import annotations
@@ -47,4 +53,6 @@ class VRObjective:
         np.log(s, out=s)
         prod = np.exp(s.sum(axis=1))
         self.n_evaluations += th.shape[0]
-        return ((mean - prod) @ self.weights).astype(np.float64)
+        union = (mean @ self.weights).astype(np.float64)
+        residual = ((mean - prod) @ self.weights).astype(np.float64)
+        return np.where(union > 1e-6, residual / np.maximum(union, 1e-6), 1.0)
