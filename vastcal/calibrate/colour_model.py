@@ -347,7 +347,9 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
     fg_px, bg_px = f[labels == 1], f[labels == 2]
     if fg_px.shape[0] < 20 or bg_px.shape[0] < 20:
         raise ColourModelError(f"view {view}: the mask/scribbles mark {fg_px.shape[0]} specimen and {bg_px.shape[0]} background pixels; need at least 20 of each")
-    fg, bg = Gaussian.fit(fg_px), Gaussian.fit(bg_px)
+    # The marked background holds static structures too (capillary walls, the dim strip beside them):
+    # fit its dominant cluster, or a widened background Gaussian swallows the pale parts of the specimen.
+    fg, bg = Gaussian.fit(fg_px), Gaussian.fit_robust(bg_px)
     if np.all(labels > 0):
         prior = fg_px.shape[0] / labels.size
     else:
