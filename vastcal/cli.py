@@ -128,19 +128,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     bar = _progress(args, f"calibrate ({args.method})", "evaluations")
     try:
         res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
-                                mask=_mask_arg(args.mask), progress=lambda n, best, el, eta: bar.update(n, n + eta / max(el / max(n, 1), 1e-9), f"cost {best:.6g}", el))
+                                mask=_view_image_arg("--mask", args.mask), scribbles=_view_image_arg("--scribbles", args.scribbles), progress=lambda n, best, el, eta: bar.update(n, n + eta / max(el / max(n, 1), 1e-9), f"cost {best:.6g}", el))
     finally:
         bar.close()
     print(res.summary() if hasattr(res, "summary") else f"stored calibration run in {args.session}")
     return 0
 
 
-def _mask_arg(spec: str | None) -> Any:
+def _view_image_arg(option: str, spec: str | None) -> Any:
+    """(view, image array) of a VIEW:FILE option, or None."""
     if not spec:
         return None
     view, _, file = spec.partition(":")
     if not file or not view.isdigit():
-        raise UserInputError(f"--mask: expected VIEW:FILE (e.g. 0:mask.png), got {spec!r}")
+        raise UserInputError(f"{option}: expected VIEW:FILE (e.g. 0:{option.strip('-')}.png), got {spec!r}")
     from vastcal.importer import read_image
 
     return int(view), read_image(Path(file))
@@ -228,7 +229,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=("pi", "vr"), default="pi", help="pi: probabilistic inference (default); vr: voxel residual")
     s.add_argument("--seed", type=int, default=None, help="random seed of CMA-ES (default from the rig config)")
     s.add_argument("--free", nargs="+", default=None, help="parameters to optimise: yaw pitch gamma rolls | all (default from the rig config)")
-    s.add_argument("--mask", help="VIEW:FILE rough mask or scribble image on one view for the colour models (default: automatic)")
+    s.add_argument("--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)")
+    s.add_argument("--scribbles", help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background")
     s.add_argument("--offset-scan", type=float, default=None, metavar="DEG",
                    help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
                         "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)")

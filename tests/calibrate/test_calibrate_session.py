@@ -119,3 +119,35 @@ def test_prior_and_scan_come_from_the_rig_config(session_path: Path, monkeypatch
     with pytest.raises(SessionIncompleteError):
         calibrate_session(session_path, offset_scan_deg=0.5)
     assert seen["settings"].roll_offset_scan_deg == 0.5 and seen["settings"].roll_prior_weight == 0.05
+
+
+def test_scribbles_option_passes_labels_and_refuses_other_values(session_path: Path, views: np.ndarray, truth: np.ndarray,
+                                                                 tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`--scribbles VIEW:FILE` reaches the colour model as labels (0 unknown, 1 specimen, 2 background);
+    before, a scribble image given to --mask made its background strokes specimen. A label image
+    with other values is one line, exit 2, and no run is stored."""
+    import cv2
+
+    from vastcal.calibrate import fit_from_scribbles
+    from vastcal.cli import main
+
+    sil = sy.silhouettes(truth)[0]
+    labels = np.zeros(sil.shape, np.uint8)
+    labels[cv2.erode(sil.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0] = 1
+    labels[:3] = 2
+    good, bad = tmp_path / "scribbles.png", tmp_path / "painted.png"
+    cv2.imwrite(str(good), labels)
+    cv2.imwrite(str(bad), labels * 120)
+    seen: dict = {}
+    import vastcal.calibrate as cal
+
+    monkeypatch.setattr(cal, "calibrate_session", lambda path, **kw: seen.update(kw) or object())
+    assert main(["calibrate", str(session_path), "--scribbles", f"0:{good}"]) == 0
+    view, arr = seen["scribbles"]
+    assert view == 0 and set(np.unique(arr)) == {0, 1, 2} and seen["mask"] is None
+    monkeypatch.undo()
+    before = _digest(session_path)
+    assert main(["calibrate", str(session_path), "--scribbles", f"0:{bad}"]) == 2
+    assert _digest(session_path) == before
+    with pytest.raises(UserInputError, match="expected labels 0"):
+        fit_from_scribbles(views[0], labels * 120)
