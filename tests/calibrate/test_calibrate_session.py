@@ -148,6 +148,7 @@ def test_scribbles_option_passes_labels_and_refuses_other_values(session_path: P
     monkeypatch.undo()
     before = _digest(session_path)
     assert main(["calibrate", str(session_path), "--scribbles", f"0:{bad}"]) == 2
+    assert main(["calibrate", str(session_path), "--scribbles", f"0:{good}", "--mask", f"0:{good}"]) == 2
     assert _digest(session_path) == before
     with pytest.raises(UserInputError, match="expected labels 0"):
         fit_from_scribbles(views[0], labels * 120)
