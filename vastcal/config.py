@@ -35,6 +35,10 @@ DEFAULT_CONFIG = CONFIG_DIR / "simulated.yaml"
 """The embedded default rig: fully simulated, no hardware."""
 
 
+FREE_NAMES = ("yaw", "pitch", "gamma", "rolls", "all")
+"""Names of the parameter groups calibration may free (``calibration.free``, ``--free``)."""
+
+
 def _range(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> dict[str, Any]:
     """Field metadata giving an allowed numeric range (inclusive unless ``lo_open``)."""
     return {"lo": lo, "hi": hi, "lo_open": lo_open}
@@ -321,8 +325,8 @@ def parse_config(data: Any, source: str = "<string>") -> RigConfig:
     if roi.x + roi.width > optics.sensor_width_px or roi.y + roi.height > optics.sensor_height_px:
         raise fail("camera.roi", f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, got x={roi.x} width={roi.width} y={roi.y} height={roi.height}")
     for name in cfg.calibration.free:
-        if name not in ("yaw", "pitch", "gamma", "rolls", "all", "none"):
-            raise fail("calibration.free", f"expected names from yaw, pitch, gamma, rolls, all, none; got {name!r}")
+        if name not in FREE_NAMES:
+            raise fail("calibration.free", f"expected names from {', '.join(FREE_NAMES)}; got {name!r}")
     return dataclasses.replace(cfg, source=source)
 
 

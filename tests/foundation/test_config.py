@@ -76,3 +76,14 @@ def test_cli_config_error_is_one_line_exit_2(tmp_path: Path) -> None:
     assert "camera.gain_db: expected a number >= 0.0 and <= 48.0, got 99" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "s.h5").exists()
+
+
+def test_free_names_are_the_ones_calibration_accepts() -> None:
+    """A rig file may not free a group that `vastcal calibrate` would then refuse ('none' was accepted here)."""
+    from vastcal.calibrate.parameters import normalise_free
+    from vastcal.config import FREE_NAMES, parse_config
+
+    for name in FREE_NAMES:
+        assert normalise_free(parse_config({"calibration": {"free": [name]}}).calibration.free)
+    with pytest.raises(ConfigError, match="calibration.free"):
+        parse_config({"calibration": {"free": ["none"]}})

@@ -17,12 +17,11 @@ from typing import Iterable
 
 import numpy as np
 
-from vastcal.config import CalibrationBounds
+from vastcal.config import FREE_NAMES, CalibrationBounds
 from vastcal.errors import UserInputError
 from vastcal.geometry import project, projection_matrices
 
 #: Names accepted in ``free``; ``all`` = yaw, pitch, gamma and rolls.
-FREE_NAMES = ("yaw", "pitch", "gamma", "rolls", "all")
 
 
 def normalise_free(free: Iterable[str] | str | None) -> tuple[str, ...]:
