@@ -152,3 +152,14 @@ def test_scribbles_option_passes_labels_and_refuses_other_values(session_path: P
     assert _digest(session_path) == before
     with pytest.raises(UserInputError, match="expected labels 0"):
         fit_from_scribbles(views[0], labels * 120)
+
+
+def test_a_negative_seed_is_one_line_not_a_traceback(session_path: Path) -> None:
+    """cma seeds NumPy's legacy generator, which refuses negative seeds with a ValueError deep inside."""
+    from vastcal.cli import main
+
+    before = _digest(session_path)
+    assert main(["calibrate", str(session_path), "--seed", "-3"]) == 2
+    with pytest.raises(ValueError, match="seed"):
+        calibrate_session(session_path, seed=-3)
+    assert _digest(session_path) == before

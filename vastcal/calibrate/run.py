@@ -43,7 +43,7 @@ from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.calibrate.sampling import Projector, resize_stack
-from vastcal.config import CalibrationBounds
+from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
 from vastcal.errors import AnalysisError, UserInputError
 from vastcal.geometry import projection_matrices
 
@@ -302,6 +302,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         raise AnalysisError(f"θ0 must hold 3 + {n} finite angles, got shape {theta0.shape}")
     if method not in ("pi", "vr"):
         raise UserInputError(f"unknown calibration method {method!r}; choose pi or vr")
+    seed = check_setting(CalibrationConfig, "seed", int(seed) if isinstance(seed, np.integer) else seed, "seed")  # cma needs ≥ 0
     if silhouettes is not None and np.asarray(silhouettes).shape != images.shape[:3]:
         raise UserInputError(f"silhouettes are {np.asarray(silhouettes).shape}, the images {images.shape[:3]}")
     space = ParameterSpace.build(theta0, normalise_free(free), bounds)
