@@ -19,7 +19,7 @@ from typing import Any, Callable, Sequence
 from vastcal import __version__
 from vastcal.allocator import keep_large_blocks
 from vastcal.errors import UserInputError, VastcalError
-from vastcal.progress import ProgressLine
+from vastcal.progress import ProgressLine, evaluations_callback
 
 log = logging.getLogger("vastcal")
 
@@ -132,7 +132,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     bar = _progress(args, f"calibrate ({args.method})", "evaluations")
     try:
         res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
-                                mask=_view_image_arg("--mask", args.mask), scribbles=_view_image_arg("--scribbles", args.scribbles), progress=lambda n, best, el, eta: bar.update(n, n + eta / max(el / max(n, 1), 1e-9), f"cost {best:.6g}", el))
+                                mask=_view_image_arg("--mask", args.mask), scribbles=_view_image_arg("--scribbles", args.scribbles), progress=evaluations_callback(bar))
     finally:
         bar.close()
     print(res.summary() if hasattr(res, "summary") else f"stored calibration run in {args.session}")

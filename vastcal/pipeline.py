@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from vastcal.errors import VastcalError
-from vastcal.progress import ProgressLine, format_duration
+from vastcal.progress import ProgressLine, evaluations_callback, format_duration
 
 log = logging.getLogger(__name__)
 
@@ -76,7 +76,7 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     t = time.monotonic()
     try:
         cal = calibrate_session(path, method=method, seed=seed,
-                                progress=lambda n, best, el, eta: bar.update(n, n + eta / max(el / max(n, 1), 1e-9), f"cost {best:.6g}", el))
+                                progress=evaluations_callback(bar))
     finally:
         bar.close()
     res.timings_s["calibrate"] = time.monotonic() - t

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+from typing import Callable, TextIO
 
 
 def format_duration(seconds: float) -> str:
@@ -35,8 +35,9 @@ class ProgressLine:
         self._t0 = time.monotonic()
         self._open = False
 
-    def update(self, done: float, total: float, extra: str = "", elapsed_s: float | None = None) -> None:
-        """Report ``done`` of ``total``; ETA assumes the remaining work goes at the mean rate."""
+    def update(self, done: float, total: float, extra: str = "", elapsed_s: float | None = None, eta_s: float | None = None) -> None:
+        """Report ``done`` of ``total`` (NaN: open-ended, only ``done`` is shown); the ETA is ``eta_s``
+        when given (NaN: unknown), else the remaining work at the mean rate."""
         if not self.enabled:
             return
         now = time.monotonic()
@@ -45,8 +46,11 @@ class ProgressLine:
         if not finished and not self._tty and now - self._last < self.every_s:
             return
         self._last = now
-        eta = elapsed / done * (total - done) if done > 0 else float("nan")
-        count = f"{done:g}/{total:g}{' ' + self.unit if self.unit else ''}"
+        if eta_s is not None:
+            eta = eta_s
+        else:
+            eta = elapsed / done * (total - done) if done > 0 else float("nan")
+        count = (f"{done:g}/{total:g}" if total == total else f"{done:g}") + (f" {self.unit}" if self.unit else "")
         text = f"{self.label}  {count}  {format_duration(elapsed)} elapsed  ETA {format_duration(eta)}{'  ' + extra if extra else ''}"
         if self._tty:
             self.stream.write("\r\x1b[2K" + text)
@@ -64,3 +68,16 @@ class ProgressLine:
             self.stream.write("\n")
             self.stream.flush()
             self._open = False
+
+
+def evaluations_callback(bar: ProgressLine) -> Callable[[int, float, float, float], None]:
+    """A calibration progress callback — (evaluations, best cost, elapsed s, ETA s) — drawing on ``bar``.
+
+    The evaluation count is open-ended (the budget is an upper bound; tolerances usually stop
+    earlier), so only the count, the best cost and the optimiser's own ETA are shown.
+    """
+
+    def report(evaluations: int, best: float, elapsed_s: float, eta_s: float) -> None:
+        bar.update(evaluations, float("nan"), f"cost {best:.6g}", elapsed_s, eta_s=eta_s)
+
+    return report

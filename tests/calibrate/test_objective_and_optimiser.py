@@ -82,8 +82,27 @@ def test_progress_callback_reports_evaluations_and_eta(views: np.ndarray) -> Non
     calls: list[tuple[int, float, float, float]] = []
     calibrate_views(views, K, d, np.r_[0.0, 0.0, 0.0, np.arange(n) * 30.0], seed=0, free="pitch", settings=FAST,
                     progress=lambda *a: calls.append(a))
-    assert calls and all(c[2] >= 0 and c[3] >= 0 for c in calls)
+    assert calls and all(c[2] >= 0 for c in calls) and all(c[3] >= 0 for c in calls[1:])  # the first ETA is unknown (NaN)
     assert [c[0] for c in calls] == sorted(c[0] for c in calls)
+
+
+def test_eta_is_measured_after_the_first_generation(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first generation also pays for one-off work (the full ray search): timed from the start,
+    ZF1's first ETA was four minutes for a 7 s calibration."""
+    import math
+    import types
+
+    from vastcal.calibrate import optimise
+
+    now = [100.0]
+    monkeypatch.setattr(optimise, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
+    seen: list[tuple[int, float, float, float]] = []
+    clock = optimise.ProgressClock(lambda *a: seen.append(a), budget=1000)
+    now[0] += 5.0
+    clock.update(10, 1.0)  # 5 s, mostly one-off work
+    now[0] += 1.0
+    clock.update(110, 0.5)  # then 100 evaluations per second
+    assert math.isnan(seen[0][3]) and seen[1][3] == pytest.approx(8.9) and seen[1][2] == pytest.approx(6.0)
 
 
 def test_recovers_pitch_and_gamma_with_true_rolls(views: np.ndarray, truth: np.ndarray) -> None:
