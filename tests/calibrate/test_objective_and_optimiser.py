@@ -182,3 +182,23 @@ def test_image_sensitivity_of_each_coordinate() -> None:
     assert rolls == pytest.approx(per_view_roll * across / np.sqrt(n), abs=0.01 * per_view_roll)
     assert s[2] == pytest.approx(np.radians(bounds.gamma_deg) * f, rel=0.02)  # γ: the axis moves by d·δγ, seen at f/d
     assert s[2] > 50 * rolls.max()
+
+
+def test_a_coarse_search_that_wanders_off_says_so(views: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With 3 simulated views the coarse level found an axis far off (cost ≈ 0: three silhouettes
+    agree with many axes) and the next level's region was empty; the error blamed the commanded angles."""
+    import vastcal.calibrate.run as run
+    from vastcal.errors import EmptyHullError
+
+    real = run.specimen_region
+
+    def empty_after_the_coarse_level(*a, **kw):  # type: ignore[no-untyped-def]
+        if "extra_px" in kw:
+            raise EmptyHullError("no voxel projects inside every view's foreground under the commanded angles")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(run, "specimen_region", empty_after_the_coarse_level)
+    K, d = sy.camera()
+    n = len(views)
+    with pytest.raises(EmptyHullError, match="coarse search ended .* hold more of θ fixed"):
+        calibrate_views(views, K, d, np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n], seed=0, settings=FAST)

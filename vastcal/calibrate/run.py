@@ -44,7 +44,7 @@ from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
-from vastcal.errors import AnalysisError, UserInputError
+from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
 from vastcal.geometry import projection_matrices
 
 log = logging.getLogger(__name__)
@@ -339,8 +339,14 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             region = specimen_region(K_region, distance, theta0, space.half_width, space.free_mask, coarse_sil, lv.voxels,
                                      max_tolerance_px=settings.region_tolerance * coarse_sil.shape[1])
         else:  # … then around the previous level's solution, with a small tolerance
-            region = specimen_region(K_region, distance, space.theta(x)[0], space.half_width, np.zeros_like(space.free_mask),
-                                     coarse_sil, lv.voxels, extra_px=settings.refine_tolerance_px)
+            th_prev = space.theta(x)[0]
+            try:
+                region = specimen_region(K_region, distance, th_prev, space.half_width, np.zeros_like(space.free_mask),
+                                         coarse_sil, lv.voxels, extra_px=settings.refine_tolerance_px)
+            except EmptyHullError:
+                raise EmptyHullError(f"the coarse search ended at a pose where the {n} views share no specimen (yaw {th_prev[0]:+.2f}°, "
+                                     f"pitch {th_prev[1]:+.2f}°, γ {th_prev[2]:+.3f}°): their silhouettes do not pin down the axis; "
+                                     f"take more views or hold more of θ fixed (--free)") from None
         obj: PIObjective | VRObjective | CoherenceObjective | SumObjective
         vox = region.voxels
         pad = (-len(vox)) % 1024
