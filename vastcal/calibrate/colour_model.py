@@ -304,7 +304,7 @@ def _checked(model: ColourModel, min_separation: float) -> ColourModel:
              np.round(model.fg.mean, 3), np.round(model.bg.mean, 3), model.prior_fg, sep)
     if not np.isfinite(sep) or sep < min_separation:
         raise ColourModelError(f"specimen and background colours do not separate (Bhattacharyya distance {sep:.2f} < {min_separation}); "
-                               "give a rough mask or scribbles on one view")
+                               "give a rough mask or scribbles of one view (calibrate --mask VIEW:FILE or --scribbles VIEW:FILE)")
     return model
 
 
