@@ -363,21 +363,26 @@ class CoherenceObjective:
     def _sample_min_others(self, X: np.ndarray, P: np.ndarray) -> np.ndarray:
         """(Robust) min over j ≠ i of sd_j at the projections of X (B, N, R, S, 3); returns (B, N, R, S)."""
         b, n, r, s, _ = X.shape
+        vals = self._sample_views(P, X.reshape(b, n * r * s, 3).transpose(0, 2, 1)).reshape(b, n, n, r, s)  # (B, view j, ray view i, R, S)
+        idx = np.arange(n)
+        vals[:, idx, idx] = np.inf  # a ray is always on its own view's boundary: skip j = i
+        return self._robust_min(vals)
+
+    def _sample_views(self, P: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Signed distances (K, N, M) of every view j at its projection of points ``pts`` (K, 3, M) µm,
+        through cameras P (K, N, 3, 4): one BLAS product per group, one remap for all."""
         a = self.atlas
-        pts = X.reshape(b, n * r * s, 3).transpose(0, 2, 1)  # (B, 3, M)
-        proj = P[:, :, :, :3].reshape(b, n * 3, 3) @ pts  # (B, 3Nj, M), BLAS
-        proj += P[:, :, :, 3].reshape(b, n * 3, 1)
-        proj = proj.reshape(b, n, 3, -1)
+        k, n = P.shape[:2]
+        proj = P[..., :3].reshape(k, n * 3, 3) @ pts  # (K, 3N, M)
+        proj += P[..., 3].reshape(k, n * 3, 1)
+        proj = proj.reshape(k, n, 3, -1)
         den = np.reciprocal(proj[:, :, 2])
         u = proj[:, :, 0] * den
         v = proj[:, :, 1] * den
         np.clip(u, 0.0, a.w - 1.0, out=u)
         np.clip(v, 0.0, a.h - 1.001, out=v)
         v += (np.arange(n, dtype=np.float32) * a.h)[None, :, None]
-        vals = self._remap(u.reshape(b * n, -1), v.reshape(b * n, -1)).reshape(b, n, n, r, s)  # (B, view j, ray view i, R, S)
-        idx = np.arange(n)
-        vals[:, idx, idx] = np.inf  # a ray is always on its own view's boundary: skip j = i
-        return self._robust_min(vals)
+        return self._remap(u.reshape(k * n, -1), v.reshape(k * n, -1)).reshape(k, n, -1)
 
     def _robust_min(self, vals: np.ndarray) -> np.ndarray:
         """The (trim + 1)-th smallest of ``vals`` over axis 1 (the other views), so that one
@@ -396,15 +401,8 @@ class CoherenceObjective:
     def _min_others_of_rays(self, X: np.ndarray, P: np.ndarray, own: np.ndarray) -> np.ndarray:
         """Like :meth:`_sample_min_others` for an irregular set of M rays: points X (M, S, 3) µm,
         the cameras P (M, N, 3, 4) of each ray's candidate and its own view ``own`` (M,); returns (M, S)."""
-        a = self.atlas
-        m, n = P.shape[:2]
-        proj = np.matmul(P[..., :3].reshape(m, 3 * n, 3), X.transpose(0, 2, 1)).reshape(m, n, 3, -1)  # (M, N, 3, S)
-        proj += P[..., 3][..., None]
-        den = np.reciprocal(proj[:, :, 2])
-        u = np.clip(proj[:, :, 0] * den, 0.0, a.w - 1.0)
-        v = np.clip(proj[:, :, 1] * den, 0.0, a.h - 1.001) + (np.arange(n, dtype=np.float32) * a.h)[None, :, None]
-        vals = self._remap(u.reshape(1, -1).astype(np.float32), v.reshape(1, -1).astype(np.float32)).reshape(m, n, -1)
-        vals[np.arange(m), own] = np.inf
+        vals = self._sample_views(P, X.transpose(0, 2, 1))  # (M, N, S)
+        vals[np.arange(len(own)), own] = np.inf
         return self._robust_min(vals)
 
     def _remap(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
