@@ -121,12 +121,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method pi|vr] [--seed N] [--free …]"""
     from vastcal.calibrate import calibrate_session
 
-    from vastcal.config import CalibrationConfig, check_setting
-
-    if args.offset_scan is not None:
-        check_setting(CalibrationConfig, "offset_scan_deg", args.offset_scan, "--offset-scan")
-    if args.seed is not None:
-        check_setting(CalibrationConfig, "seed", args.seed, "--seed")
     if args.mask and args.scribbles:
         raise UserInputError("give either --mask or --scribbles for the colour models, not both")
     bar = _progress(args, f"calibrate ({args.method})", "evaluations")

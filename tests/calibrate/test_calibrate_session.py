@@ -98,8 +98,13 @@ def test_offset_scan_option_reaches_the_settings(session_path: Path, monkeypatch
     assert main(["calibrate", str(session_path), "--offset-scan", "0.5"]) == 0
     assert seen["offset_scan_deg"] == 0.5
     assert main(["calibrate", str(session_path), "--offset-scan", "0"]) == 0 and seen["offset_scan_deg"] == 0.0  # 0 = off
-    assert main(["calibrate", str(session_path), "--offset-scan", "7"]) == 2  # one line, no run (the rig file's range: 0–5°)
     assert main(["calibrate", str(session_path)]) == 0 and seen["offset_scan_deg"] is None
+    monkeypatch.undo()  # the range is checked where the override is applied, for library callers too
+    before = _digest(session_path)
+    assert main(["calibrate", str(session_path), "--offset-scan", "7"]) == 2  # one line, no run (the rig file's range: 0–5°)
+    with pytest.raises(ValueError, match="offset scan"):
+        calibrate_session(session_path, offset_scan_deg=7.0)
+    assert _digest(session_path) == before
 
 
 def test_prior_and_scan_come_from_the_rig_config(session_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -345,7 +345,7 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
     if labels.shape != image.shape[:2]:
         raise UserInputError(f"scribbles are {labels.shape[1]} x {labels.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px")
     stray = np.setdiff1d(np.unique(labels), [0, 1, 2])
-    if _source is None and stray.size:
+    if stray.size:
         raise UserInputError(f"scribbles of view {view}: expected labels 0 (unknown), 1 (specimen), 2 (background); "
                              f"found {', '.join(map(str, stray[:5].tolist()))}")
     check_images(np.asarray(image)[None])

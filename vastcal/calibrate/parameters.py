@@ -21,8 +21,6 @@ from vastcal.config import FREE_NAMES, CalibrationBounds
 from vastcal.errors import UserInputError
 from vastcal.geometry import project, projection_matrices
 
-#: Names accepted in ``free``; ``all`` = yaw, pitch, gamma and rolls.
-
 
 def normalise_free(free: Iterable[str] | str | None) -> tuple[str, ...]:
     """Validated, canonical tuple of free groups (``all`` expanded), in θ order.

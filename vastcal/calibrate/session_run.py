@@ -18,7 +18,7 @@ import numpy as np
 from vastcal.calibrate.colour_model import ColourModel
 from vastcal.calibrate.optimise import ProgressCallback
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method, calibrate_views
-from vastcal.config import CalibrationBounds, RoiConfig
+from vastcal.config import CalibrationBounds, CalibrationConfig, RoiConfig, check_setting
 from vastcal.errors import SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import decompose_circular, intrinsics_from_optics
 from vastcal.session import Session, software_versions, write_attrs
@@ -89,8 +89,9 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         if settings is None:
             settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg, roll_prior_weight=cfg.prior_weight,
                                            roll_prior_deg=cfg.roll_prior_deg, yaw_prior_deg=cfg.yaw_prior_deg)
-        if offset_scan_deg is not None:
-            settings = dataclasses.replace(settings, roll_offset_scan_deg=float(offset_scan_deg))
+        if offset_scan_deg is not None:  # the rig file's range applies to the override too
+            scan = check_setting(CalibrationConfig, "offset_scan_deg", offset_scan_deg, "offset scan (--offset-scan)")
+            settings = dataclasses.replace(settings, roll_offset_scan_deg=float(scan))
         K, d, theta0, notes = session_camera_model(session)
         images = session.projections()
         masks = session.masks
