@@ -31,10 +31,8 @@ def _progress(args: argparse.Namespace, label: str, unit: str = "") -> ProgressL
 def cmd_import(args: argparse.Namespace) -> int:
     """vastcal import FOLDER -o S.h5 …"""
     from vastcal.config import load_config
-    from vastcal.importer import PIXEL_ORIGINS, import_folder
+    from vastcal.importer import import_folder
 
-    if args.pixel_origin not in PIXEL_ORIGINS:
-        raise UserInputError(f"--pixel-origin: expected one of {', '.join(f'{p:g}' for p in PIXEL_ORIGINS)}, got {args.pixel_origin:g}")
     cfg = load_config(args.config) if args.config else None
     bar = _progress(args, "import", "views")
     try:

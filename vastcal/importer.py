@@ -171,7 +171,7 @@ def import_folder(
     check_writable_output(out, force)
     if pixel_origin not in PIXEL_ORIGINS:
         raise ImportDataError(f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
-                              f"(the coordinate of the first pixel's centre), got {pixel_origin}")
+                              f"(the coordinate of the first pixel's centre, --pixel-origin), got {pixel_origin}")
     files = list_images(folder)
     first = read_image(files[0])
     n = len(files)
