@@ -6,7 +6,9 @@ With ρ(s) the distance of X(s) from the rotation axis (world x),
 
     the body meets the ray  ⇔  m = min_s h(s) < 0,   h(s) = ρ(s)² − q(x(s)),   q = r².
 
-ρ(s)² = ρ0² + a²(s − s0)² is a parabola (s0 = closest approach to the axis, a = |d⊥|), so the
+(For a body flattened sideways — cross-sections y² + (z/s)² ≤ r², :class:`Phantom` ``lateral_scale`` —
+the same is done in coordinates with z divided by s, where the body is one of revolution and the
+ray is still a line.) ρ(s)² = ρ0² + a²(s − s0)² is a parabola (s0 = closest approach to the axis, a = |d⊥|), so the
 minimum is found by starting at s0 and taking a few vectorised Newton steps on h'(s) = 0
 (h'' ≈ 2a² > 0: rays are nearly perpendicular to the axis; converges in 2–3 steps).
 
@@ -132,15 +134,23 @@ class BrightfieldRenderer:
             raise CameraError(f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis does not fit "
                               f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)")
         C_world = -R.T @ t
-        C = C_world - np.array([0.0, float(body_offset_um[0]), float(body_offset_um[1])])  # camera centre in the phantom frame
+        C_phantom = C_world - np.array([0.0, float(body_offset_um[0]), float(body_offset_um[1])])  # camera centre in the phantom frame
         du = (np.arange(width) - cx) / f
         dv = (np.arange(height) - cy) / f
         # d_world[k] = R[0,k]·du + R[1,k]·dv + R[2,k]  (separable in u and v)
-        dy = (R[0, 1] * du)[None, :] + (R[1, 1] * dv + R[2, 1])[:, None]
-        dz = (R[0, 2] * du)[None, :] + (R[1, 2] * dv + R[2, 2])[:, None]
+        dy_w = (R[0, 1] * du)[None, :] + (R[1, 1] * dv + R[2, 1])[:, None]
+        dz_w = (R[0, 2] * du)[None, :] + (R[1, 2] * dv + R[2, 2])[:, None]
+        rho0_capillary = np.abs(C_world[1] * dz_w - C_world[2] * dy_w) / np.sqrt(dy_w * dy_w + dz_w * dz_w)
+        # Elliptic cross-sections y² + (z/s)² ≤ r²: in coordinates with z divided by s the body is one
+        # of revolution and rays stay lines with the same parameter s, so everything below runs there
+        # (R_s = R·diag(1, 1, 1/s) maps pixels to scaled directions); chord lengths and the features
+        # use the unscaled directions.
+        lat = 1.0 / self.phantom.lateral_scale
+        Rs = R * np.array([1.0, 1.0, lat])
+        C = C_phantom * np.array([1.0, 1.0, lat])
+        dy, dz = dy_w, dz_w * np.float64(lat)
         a2 = dy * dy + dz * dz
-        rho0 = np.abs(C[1] * dz - C[2] * dy) / np.sqrt(a2)  # closest approach to the phantom's axis
-        rho0_capillary = np.abs(C_world[1] * dz - C_world[2] * dy) / np.sqrt(a2)
+        rho0 = np.abs(C[1] * dz - C[2] * dy) / np.sqrt(a2)  # closest approach to the phantom's (scaled) axis
 
         coverage = np.zeros((height, width), np.float32)
         tau_body = np.zeros((height, width), np.float32)
@@ -173,19 +183,20 @@ class BrightfieldRenderer:
             hx = -s * dq
             hy = 2.0 * s * (C[1] + s * dy_)
             hz = 2.0 * s * (C[2] + s * dz_)
-            mu = (hx * R[0, 0] + hy * R[0, 1] + hz * R[0, 2]) / f
-            mv = (hx * R[1, 0] + hy * R[1, 1] + hz * R[1, 2]) / f
+            mu = (hx * Rs[0, 0] + hy * Rs[0, 1] + hz * Rs[0, 2]) / f
+            mv = (hx * Rs[1, 0] + hy * Rs[1, 1] + hz * Rs[1, 2]) / f
             delta = m / np.maximum(np.sqrt(mu * mu + mv * mv), 1e-30)
             cov = np.clip(0.5 - delta, 0.0, 1.0)
             coverage[iy, ix] = cov
             inside = cov > 0
-            dnorm = np.sqrt(a2c + dx_ * dx_)
+            dz_ = dz_ / lat  # back to the phantom frame: chord lengths and the features
+            dnorm = np.sqrt(dx_ * dx_ + dy_ * dy_ + dz_ * dz_)
             chord = 2.0 * np.sqrt(np.maximum(-m, 0.0) / a2c) * dnorm
             tau_body[iy, ix] = self.phantom.body_attenuation_per_um * chord
             tf = np.zeros_like(chord)
             for feat in self.phantom.features:
                 ax = np.asarray(feat.semi_axes_um, float)
-                p = (C - np.asarray(feat.centre_um, float)) / ax
+                p = (C_phantom - np.asarray(feat.centre_um, float)) / ax
                 qx, qy, qz = dx_[inside] / ax[0], dy_[inside] / ax[1], dz_[inside] / ax[2]
                 A = qx * qx + qy * qy + qz * qz
                 B = 2.0 * (p[0] * qx + p[1] * qy + p[2] * qz)

@@ -17,6 +17,27 @@ def test_quadrature_matches_closed_forms(phantom: Phantom) -> None:
     assert phantom.area_mm2() * 1e6 == pytest.approx(prof.exact_area_um2(), rel=1e-10)
 
 
+def test_flattened_spheroid_is_the_triaxial_ellipsoid() -> None:
+    """Lateral scale s: a spheroid becomes the ellipsoid with semi-axes (a, b, s·b), whose area is
+    4π·abc·R_G(a⁻², b⁻², c⁻²) (Carlson's symmetric elliptic integral)."""
+    from scipy.special import elliprg
+
+    a, b, s = 1500.0, 280.0, 0.6
+    ph = Phantom(SpheroidProfile(a, b), lateral_scale=s)
+    c = s * b
+    assert ph.volume_mm3() * 1e9 == pytest.approx(4.0 / 3.0 * np.pi * a * b * c, rel=1e-10)
+    assert ph.area_mm2() * 1e6 == pytest.approx(4.0 * np.pi * a * b * c * elliprg(a**-2, b**-2, c**-2), rel=1e-6)
+    assert ph.area_mm2() < 0.9 * spheroid_phantom(a, b).area_mm2()  # the test has teeth
+    assert ph.contains(np.array([[0.0, 0.0, 0.95 * c], [0.0, 0.95 * b, 0.0]])).all()
+    assert not ph.contains(np.array([[0.0, 0.0, 1.05 * c]])).any()
+
+
+def test_lateral_scale_outside_0_1_is_rejected() -> None:
+    for s in (0.0, 1.2):
+        with pytest.raises(AnalysisError, match="lateral_scale"):
+            Phantom(SpheroidProfile(), lateral_scale=s)
+
+
 def test_larva_truth_matches_brute_force_integration() -> None:
     prof = LarvaProfile()
     lo, hi = prof.x_range
@@ -58,12 +79,14 @@ def test_hull_factor_of_regular_views_is_the_regular_polygon() -> None:
     assert orthographic_hull_factor([10.0, 100.0]) == pytest.approx(4 / np.pi)
 
 
-def test_hull_factor_matches_a_brute_force_voxel_hull_for_uneven_views() -> None:
-    """Orthographic hull of a spheroid from 3 uneven views, by voxels (volume) and marching cubes (area)."""
+@pytest.mark.parametrize("lateral_scale", [1.0, 0.6])
+def test_hull_truth_matches_a_brute_force_voxel_hull_for_uneven_views(lateral_scale: float) -> None:
+    """Orthographic hull of a spheroid (round or flattened sideways) from 3 uneven views, by voxels
+    (volume) and marching cubes (area)."""
     from skimage.measure import marching_cubes, mesh_surface_area
 
     a, b = 600.0, 300.0
-    ph = spheroid_phantom(a, b)
+    ph = Phantom(SpheroidProfile(a, b), lateral_scale=lateral_scale)
     angles = [0.0, 50.0, 110.0]
     step = 5.0
     xs = np.arange(-a - 3 * step, a + 3 * step + 1e-9, step)
@@ -71,12 +94,13 @@ def test_hull_factor_matches_a_brute_force_voxel_hull_for_uneven_views() -> None
     X, Y, Z = np.meshgrid(xs, ys, ys, indexing="ij")
     r = ph.profile.radius_um(xs)[:, None, None]
     field = np.full(X.shape, -np.inf, np.float32)
-    for phi in np.radians(angles):  # view i constrains |p · n_i| ≤ r(x), n_i ⟂ the viewing direction
-        field = np.maximum(field, np.abs(Y * np.cos(phi) + Z * np.sin(phi)) - r)
+    for phi in np.radians(angles):  # view i constrains |p · n_i| ≤ support h_i·r(x), n_i ⟂ the viewing direction
+        h = np.hypot(np.cos(phi), lateral_scale * np.sin(phi))
+        field = np.maximum(field, np.abs(Y * np.cos(phi) + Z * np.sin(phi)) - h * r)
     assert (field[:, [0, -1], :] > 0).all() and (field[:, :, [0, -1]] > 0).all()
     vol_voxels = np.count_nonzero(field <= 0) * step**3 / 1e9
     verts, faces, _, _ = marching_cubes(field, 0.0, spacing=(step, step, step))
     area_mc = mesh_surface_area(verts, faces) / 1e6
     assert ph.hull_volume_mm3(angles) == pytest.approx(vol_voxels, rel=3e-3)
     assert ph.hull_area_mm2(angles) == pytest.approx(area_mc, rel=1e-2)
-    assert orthographic_hull_factor(angles) > 1.1  # a visibly fat hull: the test has teeth
+    assert ph.hull_volume_mm3(angles) > 1.1 * ph.volume_mm3()  # a visibly fat hull: the test has teeth

@@ -29,7 +29,7 @@ def reference_P(angle: float) -> np.ndarray:
 
 
 def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float, offset: tuple[float, float] = (0.0, 0.0)) -> float:
-    """min over the ray of (distance to the body's axis − r(x)), µm: < 0 iff the ray meets the body.
+    """min over the ray of (elliptic distance √(y² + (z/s)²) to the body's axis − r(x)), µm: < 0 iff the ray meets the body.
 
     ``offset``: (y, z) of the body's axis off the rotation axis, µm.
     """
@@ -41,7 +41,7 @@ def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float, offset: tuple[float,
 
     def gap(s: float) -> float:
         X = C + s * D
-        return float(np.hypot(X[1], X[2]) - ph.profile.radius_um(X[0]))
+        return float(np.hypot(X[1], X[2] / ph.lateral_scale) - ph.profile.radius_um(X[0]))
 
     res = minimize_scalar(gap, bounds=(s0 - 400.0, s0 + 400.0), method="bounded", options={"xatol": 1e-7})
     return float(res.fun)
@@ -62,7 +62,9 @@ def edges_from_coverage(col: np.ndarray) -> tuple[float, float]:
     return float(top), float(bottom)
 
 
-@pytest.mark.parametrize("phantom,columns", [(spheroid_phantom(), [300, 512, 700]), (zebrafish_phantom(), [300, 380, 470, 560])], ids=["spheroid", "zebrafish"])
+@pytest.mark.parametrize("phantom,columns", [(spheroid_phantom(), [300, 512, 700]), (zebrafish_phantom(), [300, 380, 470, 560]),
+                                             (Phantom(SpheroidProfile(1500.0, 280.0), lateral_scale=0.5), [300, 512, 700])],
+                         ids=["spheroid", "zebrafish", "flat-spheroid"])
 @pytest.mark.parametrize("angle", [0.0, 73.0])
 def test_silhouette_edges_are_subpixel_exact(phantom: Phantom, columns: list[int], angle: float) -> None:
     r = BrightfieldRenderer(phantom)
