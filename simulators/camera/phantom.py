@@ -127,7 +127,7 @@ class Phantom:
             q = np.maximum(q, 0.0)[:, None]
             return (2.0 * np.pi / t.size) * np.sqrt(0.25 * s * s * dq[:, None] ** 2 + q * shape).sum(axis=1)
 
-        return self.profile._integrate(perimeter_density) / UM2_PER_MM2
+        return self.profile.integrate(perimeter_density) / UM2_PER_MM2
 
     def hull_volume_mm3(self, angles_deg: Sequence[float]) -> float:
         """Exact volume of the orthographic visual hull from views at ``angles_deg``, mm³."""
@@ -148,7 +148,7 @@ class Phantom:
                 q, dq, _ = self.profile.q(x)
                 return np.sqrt(np.maximum(q + 0.25 * h * h * dq * dq, 0.0))
 
-            total += float(side) * self.profile._integrate(face_density)
+            total += float(side) * self.profile.integrate(face_density)
         return total / UM2_PER_MM2
 
     def truth(self) -> dict[str, float | str]:
