@@ -116,10 +116,14 @@ class HullResult:
         idx = np.argwhere(self.occupancy)
         return np.asarray(self.grid.origin, float) + idx * self.grid.size
 
+    def border_faces(self) -> np.ndarray:
+        """(3, 2) bool: whether hull voxels lie on the grid's lower / upper outer layer along x, y, z."""
+        occ = self.occupancy
+        return np.array([[occ[0].any(), occ[-1].any()], [occ[:, 0].any(), occ[:, -1].any()], [occ[:, :, 0].any(), occ[:, :, -1].any()]])
+
     def touches_grid_border(self) -> bool:
         """True when a hull voxel lies on the grid's outer layer (the grid may crop the specimen)."""
-        occ = self.occupancy
-        return bool(occ[0].any() or occ[-1].any() or occ[:, 0].any() or occ[:, -1].any() or occ[:, :, 0].any() or occ[:, :, -1].any())
+        return bool(self.border_faces().any())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -415,7 +419,7 @@ def _largest_component(counts: np.ndarray, n: int, margin: int = 2) -> np.ndarra
 
 
 def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_count: int | None = None,
-                keep_largest: bool = True) -> HullResult:
+                keep_largest: bool = True, warn_border: bool = True) -> HullResult:
     """Visual hull and silhouette counts on ``grid``.
 
     Args:
@@ -429,6 +433,8 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
             for iso-levels above N − 2; see the module docstring).
         keep_largest: keep only the largest connected part of the hull (the specimen), dropping
             static blobs that every view sees at the same place.
+        warn_border: log a warning when the hull touches the grid's border (see
+            :func:`visual_hull_in_grid`, which grows the grid instead).
 
     Raises:
         AnalysisError: shapes that do not match, or cameras/grid that are inconsistent.
@@ -463,9 +469,31 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
     res = HullResult(grid, counts, n, int(min_count), t2 - t0, {"carve": t1 - t0, "counts": t2 - t1})
     log.info("visual hull: %d of %d voxels (%.2f µm) inside all %d silhouettes, %.4f mm³; carve %.3f s, counts %.3f s",
              res.n_inside, grid.n_voxels, grid.size, n, res.volume_mm3, t1 - t0, t2 - t1)
-    if res.touches_grid_border():
+    if warn_border and res.touches_grid_border():
         log.warning("the visual hull touches the border of the voxel grid: the specimen may be cropped")
     return res
+
+
+def visual_hull_in_grid(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_count: int | None = None,
+                        max_growths: int = 3) -> HullResult:
+    """:func:`visual_hull`, growing the grid (same voxel size) on every face the hull touches.
+
+    The grid comes from a coarse carve (:func:`choose_grid`), which misses parts thinner than a
+    coarse voxel — a larva's tail tip: the hull then ends at the grid's face. Each growth adds
+    max(16 voxels, 10 % of the extent) on the touched faces; after ``max_growths`` the warning of
+    :func:`visual_hull` stands.
+    """
+    for _ in range(max_growths):
+        hull = visual_hull(P, silhouettes, grid, min_count=min_count, warn_border=False)
+        faces = hull.border_faces()
+        if not faces.any():
+            return hull
+        extent = grid.upper - grid.lower
+        pad = np.maximum(16 * grid.size, 0.1 * extent)[:, None] * faces
+        grid = VoxelGrid.from_bounds(grid.lower - pad[:, 0], grid.upper + pad[:, 1], grid.size)
+        log.info("the hull touched the grid's %s face(s): grid grown to %s voxels", ", ".join(
+            f"{'xyz'[a]}{'−+'[b]}" for a, b in np.argwhere(faces)), "x".join(map(str, grid.shape)))
+    return visual_hull(P, silhouettes, grid, min_count=min_count)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -654,7 +682,7 @@ def reconstruct_session(
         settings = MeasureSettings()
         try:
             grid = choose_grid(inputs.P, inputs.silhouettes, voxel_size_um=size, target_voxels=target)
-            hull = visual_hull(inputs.P, inputs.silhouettes, grid, min_count=settings.min_count(inputs.P.shape[0]))
+            hull = visual_hull_in_grid(inputs.P, inputs.silhouettes, grid, min_count=settings.min_count(inputs.P.shape[0]))
             meas = measure_hull(hull, settings)
         except VastcalError as exc:  # name the session in errors found in its data
             raise exc.about(path) from None

@@ -12,7 +12,7 @@ from phantom_views import PhantomViews, read_authors_cameras, render_views
 from simulators.camera.phantom import capsule_phantom, zebrafish_phantom
 from vastcal.errors import AnalysisError, EmptyHullError
 from vastcal.measure import MeasureSettings, measure_hull
-from vastcal.reconstruct import choose_grid, hull_boundary, silhouette_counts, visual_hull
+from vastcal.reconstruct import choose_grid, hull_boundary, silhouette_counts, visual_hull, visual_hull_in_grid
 from vastcal.voxels import VoxelGrid, inside_all
 
 SMALL_GRID = VoxelGrid.from_bounds([-1600.0, -320.0, -320.0], [1600.0, 320.0, 320.0], 20.0)
@@ -109,3 +109,22 @@ def test_published_zebrafish_numbers_with_the_authors_cameras(zebrafish_dir: Pat
     assert m.iso_level == pytest.approx(19.4)
     assert m.volume_mm3 == pytest.approx(volume, rel=0.005)
     assert m.surface_area_mm2 == pytest.approx(area, rel=0.005)
+
+
+def test_a_grid_that_crops_the_tail_is_grown_until_the_hull_fits() -> None:
+    """The coarse carve behind choose_grid misses parts thinner than a coarse voxel (a larva's tail tip,
+    seen on the simulated rig: 7 hull voxels on the grid's +x face). visual_hull_in_grid grows the
+    touched faces instead of returning a cropped hull."""
+    views = render_views(zebrafish_phantom(), 21, seed=3)
+    full = choose_grid(views.P, views.silhouettes, target_voxels=1_000_000)
+    upper = full.upper.copy()
+    upper[0] = 1200.0  # the tail reaches x = +1500 µm
+    cropped_grid = VoxelGrid.from_bounds(full.lower, upper, full.size)
+    cropped = visual_hull(views.P, views.coverage, cropped_grid, warn_border=False)
+    assert cropped.border_faces().tolist() == [[False, True], [False, False], [False, False]]
+    grown = visual_hull_in_grid(views.P, views.coverage, cropped_grid)
+    assert not grown.touches_grid_border()
+    assert grown.grid.size == cropped_grid.size and grown.grid.shape[0] > cropped_grid.shape[0]
+    assert grown.grid.shape[1:] == cropped_grid.shape[1:]  # only the touched face moved
+    assert grown.volume_mm3 == pytest.approx(views.hull_volume_mm3, rel=0.005)
+    assert cropped.volume_mm3 < grown.volume_mm3
