@@ -131,11 +131,7 @@ class Phantom:
 
     def hull_volume_mm3(self, angles_deg: Sequence[float]) -> float:
         """Exact volume of the orthographic visual hull from views at ``angles_deg``, mm³."""
-        poly = circumscribed_polygon(angles_deg, self.lateral_scale)
-        if poly is None:
-            return float("inf")
-        area_unit = 0.5 * float(np.sum(poly[0] * poly[1]))
-        return area_unit * self.profile.volume_um3() / np.pi / UM3_PER_MM3
+        return orthographic_hull_factor(angles_deg, self.lateral_scale) * self.profile.volume_um3() / UM3_PER_MM3
 
     def hull_area_mm2(self, angles_deg: Sequence[float]) -> float:
         """Exact surface area of the orthographic visual hull from views at ``angles_deg``, mm²."""
@@ -156,18 +152,16 @@ class Phantom:
         return {"phantom": self.name, "true_volume_mm3": self.volume_mm3(), "true_area_mm2": self.area_mm2()}
 
 
-def orthographic_hull_factor(angles_deg: Sequence[float]) -> float:
-    """F = Σ_k tan(Δ_k/2) / π over the 2N sorted gaps of {φ_i, φ_i + 180°} (module docstring).
+def orthographic_hull_factor(angles_deg: Sequence[float], lateral_scale: float = 1.0) -> float:
+    """F = area(hull cross-section) / (π r²) for views at ``angles_deg`` (module docstring):
+    ½ Σ_k h_k L_k / π of :func:`circumscribed_polygon`; for a round section (s = 1) that is
+    Σ_k tan(Δ_k/2) / π over the 2N sorted gaps Δ_k of {φ_i, φ_i + 180°}.
 
     Views 180° apart give the same constraint, so duplicates modulo 180° are merged.
     Returns ``inf`` when fewer than two distinct directions remain (an unbounded hull).
     """
-    phi = _distinct_directions(angles_deg)
-    if phi.size < 2:
-        return float("inf")
-    dirs = np.sort(np.concatenate([phi, phi + 180.0]))
-    gaps = np.diff(np.r_[dirs, dirs[0] + 360.0])
-    return float(np.sum(np.tan(np.radians(gaps) / 2.0)) / np.pi)
+    poly = circumscribed_polygon(angles_deg, lateral_scale)
+    return float("inf") if poly is None else 0.5 * float(np.sum(poly[0] * poly[1])) / np.pi
 
 
 def _distinct_directions(angles_deg: Sequence[float]) -> np.ndarray:
