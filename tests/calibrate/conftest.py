@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -55,3 +56,21 @@ def session_path(tmp_path: Path, views: np.ndarray) -> Path:
     """A synthetic session with commanded angles k·30°."""
     n = len(views)
     return write_session(tmp_path / "s.h5", views, np.arange(n) * 360.0 / n)
+
+
+@pytest.fixture(scope="session")
+def simulated(tmp_path_factory: pytest.TempPathFactory) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(images, commanded angles, truth) of one revolution of the simulated rig (simulation seed 1)."""
+    from vastcal.acquire import acquire
+    from vastcal.config import load_config
+    from vastcal.rig import connect_rig
+    from vastcal.session import Session
+
+    cfg = load_config(None)
+    d = tmp_path_factory.mktemp("sim")
+    session, truth = d / "sim.h5", d / "sim.truth.json"
+    with connect_rig(cfg, truth_path=truth) as rig:
+        res = acquire(rig.stage, rig.camera, cfg, session, start_info=rig.start_info, on_view=rig.on_view)
+    assert res.exit_status == "success"
+    with Session.open(session) as s:
+        return s.projections(), np.asarray(s.angles_deg, float), json.loads(Path(truth).read_text())

@@ -8,31 +8,13 @@ at 8 px of image motion (``Level.max_initial_step_px``) fixes it.
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import vastcal.calibrate.run as run
-from vastcal.acquire import acquire
 from vastcal.calibrate import calibrate_views
-from vastcal.config import CalibrationBounds, load_config
-from vastcal.rig import connect_rig
-from vastcal.session import Session
-
-
-@pytest.fixture(scope="module")
-def simulated(tmp_path_factory: pytest.TempPathFactory) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(images, commanded angles, truth) of one revolution of the simulated rig (simulation seed 1)."""
-    cfg = load_config(None)
-    d = tmp_path_factory.mktemp("sim")
-    session, truth = d / "sim.h5", d / "sim.truth.json"
-    with connect_rig(cfg, truth_path=truth) as rig:
-        res = acquire(rig.stage, rig.camera, cfg, session, start_info=rig.start_info, on_view=rig.on_view)
-    assert res.exit_status == "success"
-    with Session.open(session) as s:
-        return s.projections(), np.asarray(s.angles_deg, float), json.loads(Path(truth).read_text())
+from vastcal.config import CalibrationBounds
 
 
 def test_gamma_step_is_capped_in_image_pixels(simulated: tuple[np.ndarray, np.ndarray, dict], monkeypatch: pytest.MonkeyPatch) -> None:

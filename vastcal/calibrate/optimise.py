@@ -138,3 +138,9 @@ class ProgressClock:
         if now - self._last_log >= self.every_s:
             self._last_log = now
             log.info("calibration: %d evaluations, best cost %.6g, %.1f s elapsed", evals_total, best, el)
+
+    def start_phase(self, evaluations: int) -> None:
+        """A new phase of ``evaluations`` more evaluations at a rate of its own (e.g. reconstructions after
+        the CMA-ES levels): the budget becomes what is done plus that, and the rate is measured afresh."""
+        self.budget = self.done + max(1, int(evaluations))
+        self._first = None

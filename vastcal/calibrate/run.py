@@ -40,6 +40,8 @@ from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
+from vastcal.calibrate.photometric_yaw import SCHEDULE as YAW_SCHEDULE
+from vastcal.calibrate.photometric_yaw import refine_yaw
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.calibrate.sampling import Projector, resize_stack
@@ -121,6 +123,9 @@ class CalibrationSettings:
             previous level's solution.
         roll_offset_scan_deg: after the first level, scan a common offset of all free rolls over the
             box in steps of this many degrees and keep the best (0: off); see :func:`_common_roll_offset_scan`.
+        photometric_yaw: after the silhouette levels, search the axis yaw (when free) by projection matching
+            of absorption images (:mod:`.photometric_yaw`): silhouettes hardly see it. Brightfield
+            (absorption contrast) only; skipped with a warning otherwise.
     """
 
     levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 1200, 32, ("yaw", "pitch", "gamma"), max_initial_step_px=8.0),
@@ -142,6 +147,7 @@ class CalibrationSettings:
     region_tolerance: float = 0.1
     refine_tolerance_px: float = 2.0
     roll_offset_scan_deg: float = 0.0
+    photometric_yaw: bool = False
 
     def to_json(self) -> str:
         """JSON of every setting."""
@@ -430,6 +436,17 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
                  len(region.voxels), res.n_evaluations, dt, 1e3 * dt / max(res.n_evaluations, 1), res.f_best, list(res.stop))
 
     theta = space.theta(x)[0]
+    if settings.photometric_yaw and method == "pi" and space.free_mask[0]:
+        base = evals_done
+        clock.start_phase(sum(2 * half + 1 for _, _, half in YAW_SCHEDULE))
+        pf_full = pf if pf.shape[1:] == images.shape[1:3] else specimen_maps(model, images)
+        refined = refine_yaw(images, pf_full, K, distance, theta, (float(space.lower[0]), float(space.upper[0])),
+                             progress=lambda e, f: clock.update(base + e, f))
+        if refined is not None:
+            theta[0] = refined.yaw_deg
+            evals_done += refined.n_evaluations
+            eval_time += refined.time_s
+            reports.append(refined.report())
     P = projection_matrices(K, distance, theta[None])[0]
     wall = time.monotonic() - t0
     return CalibrationResult(method, theta, theta0, np.asarray(K, float), float(distance), P, model, int(seed), space.free,
