@@ -27,8 +27,8 @@ of non-negative SIRT iterations from zero, so E is a deterministic function of �
 Only the yaw is searched (:data:`SCHEDULE`: a scan of the yaw box on coarse maps, then finer steps,
 then a few reconstructions on maps twice as wide, each stage ending at a parabola's vertex); the
 rolls, pitch and γ stay at the silhouette solution. Measured on the simulator's three rigs (rolls
-there 0.9–1.16° RMS off): yaw errors +0.73, −0.26, −0.20° → +0.011, −0.031, +0.040°, in 24–26
-reconstructions (~35 s on 2 cores). A Gauss–Newton over every θ on this cost found poses of lower
+there 0.9–1.16° RMS off): yaw errors +0.73, −0.26, −0.20° → −0.027, +0.025, +0.003°, in 24–26
+reconstructions (~23 s on 2 cores); over 8 rigs mean |error| 0.037°, max 0.074°. A Gauss–Newton over every θ on this cost found poses of lower
 cost than the truth (the early-stopped reconstruction and the voxel discretisation bias it), so the
 rolls are deliberately left alone.
 
@@ -151,10 +151,14 @@ class AbsorptionMatch:
         # Voxels of one pixel at the axis, inside the hull of the dilated silhouettes at the start θ.
         P0 = projection_matrices(self.K, self.distance, np.asarray(theta, float)[None])[0]
         self.voxel_um = self.distance / float(self.K[0, 0])
-        lo, hi = viewing_box(P0, (h, w), self.distance)
-        grid = VoxelGrid.from_bounds(lo, hi, self.voxel_um)
         sil = np.stack([cv2.dilate((p > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)) for p in self.pf]) > 0
-        X = grid.centres(np.float64)
+        lo, hi = viewing_box(P0, (h, w), self.distance)
+        coarse = VoxelGrid.from_bounds(lo, hi, 4 * self.voxel_um)  # the hull's box first: the field's box is ~50× larger
+        Xc = coarse.centres(np.float64)
+        Xc = Xc[inside_all(P0, sil, Xc)]
+        if Xc.size:
+            lo, hi = Xc.min(axis=0) - 16 * self.voxel_um, Xc.max(axis=0) + 16 * self.voxel_um  # a thin tail tip may escape the coarse test
+        X = VoxelGrid.from_bounds(lo, hi, self.voxel_um).centres(np.float64)
         self.X = X[inside_all(P0, sil, X)]
 
     @property
@@ -167,20 +171,21 @@ class AbsorptionMatch:
         n, h, w = self.shape
         P = projection_matrices(self.K, self.distance, np.asarray(theta, float)[None])[0]
         m = self.n_voxels
-        rows, vals = [], []
+        rows = np.empty((n, 4, m), np.int32)  # preallocated 32-bit triplets: ~10 M of them at ½ width
+        vals = np.empty((n, 4, m), np.float32)
         for i in range(n):
             x = self.X @ P[i, :, :3].T + P[i, :, 3]
             u, v, z = x[:, 0] / x[:, 2], x[:, 1] / x[:, 2], x[:, 2]
             scale = self.voxel_um ** 2 * (self.K[0, 0] / z) ** 2  # voxel volume over the pixel's footprint at depth, / µm
             u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
             fu, fv = u - u0, v - v0
-            for du, dv, wt in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):
+            for k, (du, dv, wt) in enumerate(((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))):
                 uu, vv = u0 + du, v0 + dv
                 ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-                rows.append(np.where(ok, i * h * w + vv * w + uu, 0))
-                vals.append(np.where(ok, wt, 0.0) * scale)
-        cols = np.tile(np.arange(m), 4 * n)
-        return sp.csr_matrix((np.concatenate(vals).astype(np.float32), (np.concatenate(rows), cols)), shape=(n * h * w, m))
+                rows[i, k] = np.where(ok, i * h * w + vv * w + uu, 0)
+                vals[i, k] = np.where(ok, wt, 0.0) * scale
+        cols = np.broadcast_to(np.arange(m, dtype=np.int32), (n, 4, m))
+        return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(n * h * w, m))
 
     def __call__(self, theta: np.ndarray) -> float:
         """E(θ) for one θ (3 + N,) degrees."""
@@ -274,7 +279,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             factor = max(1.0, w / float(width))
             a_small, S = resize_stack(a_full, factor)
             pf_small, _ = resize_stack(pf_full, factor)
-            matches[width] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, theta, sirt_iterations)
+            th_support = theta.copy()
+            th_support[0] = centre
+            matches[width] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations)
         th = theta.copy()
         th[0] = yaw
         e = matches[width](th)

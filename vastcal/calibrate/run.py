@@ -438,7 +438,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     theta = space.theta(x)[0]
     if settings.photometric_yaw and method == "pi" and space.free_mask[0]:
         base = evals_done
-        clock.start_phase(sum(2 * half + 1 for _, _, half in YAW_SCHEDULE))
+        clock.start_phase(sum(2 * half + 1 for _, _, half in YAW_SCHEDULE) + 3)  # + the usual extensions and the last vertex
         pf_full = pf if pf.shape[1:] == images.shape[1:3] else specimen_maps(model, images)
         refined = refine_yaw(images, pf_full, K, distance, theta, (float(space.lower[0]), float(space.upper[0])),
                              progress=lambda e, f: clock.update(base + e, f))
