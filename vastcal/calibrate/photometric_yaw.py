@@ -28,9 +28,9 @@ Only the yaw is searched (:data:`SCHEDULE`: a scan of the yaw box on coarse maps
 then a few reconstructions on maps twice as wide, each stage ending at a parabola's vertex); the
 rolls, pitch and γ stay at the silhouette solution. Measured on the simulator's three rigs (rolls
 there 0.9–1.16° RMS off): yaw errors +0.73, −0.26, −0.20° → −0.027, +0.025, +0.003°, in 24–26
-reconstructions (~23 s on 2 cores); over 8 rigs mean |error| 0.037°, max 0.074°. A Gauss–Newton over every θ on this cost found poses of lower
-cost than the truth (the early-stopped reconstruction and the voxel discretisation bias it), so the
-rolls are deliberately left alone.
+reconstructions (~23 s on 2 cores); over 8 rigs mean |error| 0.037°, max 0.074°. A Gauss–Newton
+over every θ on this cost found poses of lower cost than the truth (the early-stopped reconstruction
+and the voxel discretisation bias it), so the rolls are deliberately left alone.
 
 Applies to absorption contrast only (a specimen darker than a bright background); :func:`refine_yaw`
 returns ``None`` with a warning otherwise (e.g. a white statue on a dark turntable).
