@@ -152,7 +152,8 @@ class CalibrationConfig:
     """σ of the yaw prior, degrees (0 = no yaw prior)."""
     photometric_yaw: bool = False
     """After the silhouettes, search the axis yaw by projection matching of absorption images
-    (brightfield only; about 25 s more on the simulated rig). See :mod:`vastcal.calibrate.photometric_yaw`."""
+    (PI with the yaw free; brightfield only; about 25 s more on the simulated rig). See
+    :mod:`vastcal.calibrate.photometric_yaw`."""
 
 
 @dataclass(frozen=True)

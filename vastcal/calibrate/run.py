@@ -123,9 +123,10 @@ class CalibrationSettings:
             previous level's solution.
         roll_offset_scan_deg: after the first level, scan a common offset of all free rolls over the
             box in steps of this many degrees and keep the best (0: off); see :func:`_common_roll_offset_scan`.
-        photometric_yaw: after the silhouette levels, search the axis yaw (when free) by projection matching
-            of absorption images (:mod:`.photometric_yaw`): silhouettes hardly see it. Brightfield
-            (absorption contrast) only; skipped with a warning otherwise.
+        photometric_yaw: after the silhouette levels, search the axis yaw by projection matching of
+            absorption images (:mod:`.photometric_yaw`): silhouettes hardly see it. PI with the yaw free
+            only (VR, the baseline, and a held yaw skip it); brightfield (absorption contrast) only,
+            skipped with a warning otherwise.
     """
 
     levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 1200, 32, ("yaw", "pitch", "gamma"), max_initial_step_px=8.0),
