@@ -2,7 +2,8 @@
 flattened sideways lying up to 40 µm off the rotation axis, 21 views).
 
 Acquires a revolution from the simulated rig (seeds from ``simulation.seed``), runs PI calibration
-and prints per-view roll RMS error, yaw and pitch errors (degrees), evaluations and wall time.
+with the rig file's settings (config/simulated.yaml: the photometric yaw search is on, ~23 s of each
+calibration) and prints per-view roll RMS error, yaw and pitch errors (degrees), evaluations and wall time.
 
     python benchmarks/calibrate_simulated.py [n_rigs=3] [method=pi]
 """
