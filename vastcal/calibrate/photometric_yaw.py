@@ -111,6 +111,7 @@ def absorption_images(images: np.ndarray, pf: np.ndarray, P: np.ndarray) -> np.n
 
     I_bg per view: the mean of the pixels at least 4 px away from ``pf > 0.1``, binned by distance to
     the axis image in ¼ px (gaps interpolated). Colour images are averaged over their channels first.
+    ``P`` (N, 3, 4): the views' cameras (world µm, axis = x), used only to place the axis image.
     """
     img = np.asarray(images, np.float32)
     if img.ndim == 4:
@@ -134,7 +135,17 @@ def absorption_images(images: np.ndarray, pf: np.ndarray, P: np.ndarray) -> np.n
 
 
 class AbsorptionMatch:
-    """E(θ) of the module docstring on maps of one resolution (see :func:`refine_yaw`)."""
+    """E(θ) of the module docstring on maps of one resolution (see :func:`refine_yaw`).
+
+    Args:
+        absorption: (N, h, w) absorption maps a.
+        pf: (N, h, w) specimen posteriors on the same pixels (static structures already removed).
+        K: 3×3 intrinsics of those pixels; ``distance``: camera-to-axis distance, µm.
+        theta: (3 + N,) θ, degrees, under which the voxel support (the dilated hull) is carved; it
+            stays fixed for every θ the cost is then evaluated at, so that E is continuous.
+        sirt_iterations: iterations of the inner non-negative reconstruction (from zero).
+        band_px: width of the excluded band around the silhouette edges, pixels.
+    """
 
     def __init__(self, absorption: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: float, theta: np.ndarray,
                  sirt_iterations: int = 100, band_px: int = 3) -> None:
