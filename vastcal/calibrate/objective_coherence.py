@@ -79,7 +79,7 @@ class EdgeSamples:
         return int(self.weight.sum())
 
 
-def _axis_probe(P: np.ndarray) -> np.ndarray:
+def axis_probe(P: np.ndarray) -> np.ndarray:
     """Two world points (2, 3) on the rotation axis (world x), ±5 % of the camera distance from the origin.
 
     Probes must stay well in front of every camera, whatever the units (µm on the rig, arbitrary
@@ -92,7 +92,7 @@ def _axis_probe(P: np.ndarray) -> np.ndarray:
 
 def axis_direction_px(P0: np.ndarray) -> np.ndarray:
     """Unit image direction (du, dv) of the rotation axis (world x) in view 0 of cameras P0."""
-    uv = project(P0[:1], _axis_probe(P0))[0]
+    uv = project(P0[:1], axis_probe(P0))[0]
     d = uv[1] - uv[0]
     return d / np.linalg.norm(d)
 
@@ -186,7 +186,7 @@ def axis_crossings(P0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     h, w = shape
     d = axis_direction_px(P0)
     horizontal = abs(d[0]) >= abs(d[1])
-    pts = project(P0, _axis_probe(P0))  # (N, 2, 2)
+    pts = project(P0, axis_probe(P0))  # (N, 2, 2)
     a, b = pts[:, 0], pts[:, 1]
     out = []
     for i in range(P0.shape[0]):

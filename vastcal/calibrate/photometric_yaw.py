@@ -47,8 +47,9 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 
+from vastcal.calibrate.objective_coherence import axis_probe
 from vastcal.calibrate.sampling import resize_stack
-from vastcal.geometry import projection_matrices
+from vastcal.geometry import project, projection_matrices
 from vastcal.voxels import VoxelGrid, inside_all, viewing_box
 
 log = logging.getLogger(__name__)
@@ -94,12 +95,10 @@ def drop_static(pf: np.ndarray, level: float = 0.5) -> np.ndarray:
     return np.where(keep, pf, 0.0).astype(np.float32)
 
 
-def _distance_to_axis_image(P: np.ndarray, shape: tuple[int, int], half_length_um: float = 3000.0) -> np.ndarray:
+def _distance_to_axis_image(P: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(H, W) signed distance (pixels) of every pixel from the image of the rotation axis (world x)."""
     h, w = shape
-    a = P @ np.array([-half_length_um, 0.0, 0.0, 1.0])
-    b = P @ np.array([half_length_um, 0.0, 0.0, 1.0])
-    a, b = a[:2] / a[2], b[:2] / b[2]
+    a, b = project(P[None], axis_probe(P))[0]
     n = np.array([-(b - a)[1], (b - a)[0]])
     n /= np.linalg.norm(n)
     vv, uu = np.mgrid[0:h, 0:w]
@@ -233,6 +232,12 @@ def _parabola_vertex(x: np.ndarray, y: np.ndarray) -> float | None:
 #: simulated rig 1: at ¼ width alone the minimum lay 0.17° off the truth, at ½ width 0.05° — the phantom's
 #: eyes are ~4 voxels across at ¼ width.
 SCHEDULE: tuple[tuple[int, float, int], ...] = ((256, 0.25, 6), (256, 0.0625, 2), (512, 0.1, 2))
+
+
+def expected_evaluations(schedule: tuple[tuple[int, float, int], ...] = SCHEDULE) -> int:
+    """About how many reconstructions :func:`refine_yaw` makes: every stage's samples, plus the usual
+    extensions and the final vertex (for a progress bar's budget)."""
+    return sum(2 * half + 1 for _, _, half in schedule) + 3
 
 
 def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: float, theta: np.ndarray,

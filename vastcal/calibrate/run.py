@@ -40,8 +40,7 @@ from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
-from vastcal.calibrate.photometric_yaw import SCHEDULE as YAW_SCHEDULE
-from vastcal.calibrate.photometric_yaw import refine_yaw
+from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.calibrate.sampling import Projector, resize_stack
@@ -439,7 +438,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     theta = space.theta(x)[0]
     if settings.photometric_yaw and method == "pi" and space.free_mask[0]:
         base = evals_done
-        clock.start_phase(sum(2 * half + 1 for _, _, half in YAW_SCHEDULE) + 3)  # + the usual extensions and the last vertex
+        clock.start_phase(expected_evaluations())
         pf_full = pf if pf.shape[1:] == images.shape[1:3] else specimen_maps(model, images)
         refined = refine_yaw(images, pf_full, K, distance, theta, (float(space.lower[0]), float(space.upper[0])),
                              progress=lambda e, f: clock.update(base + e, f))
