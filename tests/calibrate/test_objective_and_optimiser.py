@@ -121,7 +121,7 @@ def test_recovers_pitch_and_gamma_with_true_rolls(views: np.ndarray, truth: np.n
     assert abs(r.theta_deg[2] - truth[2]) < 0.01
 
 
-@pytest.mark.xfail(reason="open (issue 4): per-view rolls and yaw are nearly unobservable from silhouettes of convex "
+@pytest.mark.xfail(reason="issue 4 (blocked): per-view rolls and yaw are nearly unobservable from silhouettes of convex "
                           "cross-sections; the coherence cost recovers pitch and gamma, not these", strict=False)
 def test_recovers_perturbed_rolls_and_axis(views: np.ndarray, truth: np.ndarray) -> None:
     K, d = sy.camera()
