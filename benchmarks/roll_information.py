@@ -40,7 +40,7 @@ from simulators.camera.truth_geometry import RigTruth, camera_pose
 from vastcal.acquire import acquire
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.objective_coherence import axis_probe
-from vastcal.calibrate.photometric_yaw import absorption_images, drop_static
+from vastcal.calibrate.photometric_yaw import absorption_images, background_noise, drop_static
 from vastcal.calibrate.session_run import load_colour_model
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.config import load_config
@@ -122,8 +122,8 @@ def slice_moments(session: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     m0 = np.stack([binned(a_lin[i], i) for i in range(n)], 1)
     m1 = np.stack([binned(a_lin[i] * s_across, i) for i in range(n)], 1)
     s1 = np.stack([binned(cov[i] * s_across, i) for i in range(n)], 1)
-    background = np.stack([cv2.dilate((p > 0.1).astype(np.uint8), np.ones((9, 9), np.uint8)) == 0 for p in pf])
-    sigma_a = 1.4826 * np.median(np.abs(a[background] - np.median(a[background])))
+    sigma_a = background_noise(a, pf)
+    assert sigma_a is not None, "no background pixels"
     noise = sigma_a * np.sqrt(np.stack([binned(s_across ** 2, i) for i in range(n)], 1).mean(1))
     keep = m0.min(1) > 0.05 * m0.max()
     return m1[keep], s1[keep], noise[keep], theta

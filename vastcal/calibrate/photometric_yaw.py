@@ -133,6 +133,17 @@ def absorption_images(images: np.ndarray, pf: np.ndarray, P: np.ndarray) -> np.n
     return out
 
 
+def background_noise(absorption: np.ndarray, pf: np.ndarray) -> float | None:
+    """Robust σ (1.4826 · MAD) of the absorption maps (N, H, W) over the pixels at least 4 px away from
+    ``pf > 0.1`` (the same background :func:`absorption_images` levels to zero); None when there are none.
+    The MAD, not the standard deviation: capillary walls and other static structures are outliers there."""
+    outside = np.stack([cv2.dilate((p > 0.1).astype(np.uint8), np.ones((9, 9), np.uint8)) == 0 for p in pf])
+    if not outside.any():
+        return None
+    background = absorption[outside]
+    return 1.4826 * float(np.median(np.abs(background - np.median(background))))
+
+
 class AbsorptionMatch:
     """E(θ) of the module docstring on maps of one resolution (see :func:`refine_yaw`).
 
@@ -272,12 +283,10 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     P = projection_matrices(np.asarray(K, float), distance, theta[None])[0]
     a_full = absorption_images(images, pf_full, P)
     inside = pf_full > 0.9
-    outside = np.stack([cv2.dilate((p > 0.1).astype(np.uint8), np.ones((9, 9), np.uint8)) == 0 for p in pf_full])
-    if not inside.any() or not outside.any():
+    noise = background_noise(a_full, pf_full)
+    if not inside.any() or noise is None:
         log.warning("photometric yaw: no specimen or no background left after removing static structures; yaw kept")
         return None
-    background = a_full[outside]
-    noise = 1.4826 * float(np.median(np.abs(background - np.median(background))))  # robust σ: walls are outliers here
     contrast = float(np.median(a_full[inside]))
     if contrast < 3.0 * noise:
         log.warning("photometric yaw: the specimen is not darker than its background (median absorption %.3g, "
