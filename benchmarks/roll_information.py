@@ -18,7 +18,7 @@ Issue 4 asks for per-view angles within 0.05° RMS on the simulated rig. Silhoue
    estimator of the rolls whose only assumption is that the images are line integrals. Printed: its
    error against the truth and its own Cramér–Rao bound from the fit's Jacobian and residual.
 
-Usage: python benchmarks/roll_information.py [n_rigs=1]   (about 45 s per rig: acquisition, the rig
+Usage: python benchmarks/roll_information.py [n_rigs=1]   (about 35 s per rig: acquisition, the rig
 file's calibration as the start, the bound's renders)
 """
 
