@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
+import reprlib
 import types
 import typing
 from dataclasses import dataclass, field
@@ -37,6 +39,35 @@ DEFAULT_CONFIG = CONFIG_DIR / "simulated.yaml"
 
 FREE_NAMES = ("yaw", "pitch", "gamma", "rolls", "all")
 """Names of the parameter groups calibration may free (``calibration.free``, ``--free``)."""
+
+
+MAX_CONFIG_BYTES = 1 << 20
+"""Largest rig file read, bytes (a rig description is a few kB; anything larger is not one)."""
+
+MAX_NESTING = 50
+"""Deepest nesting of mappings/lists accepted in a rig file (the schema needs 3)."""
+
+MAX_NODES = 100_000
+"""Most values a rig file may expand to, counting every alias expansion (a "billion laughs"
+document of a few hundred bytes expands to 10^9 values)."""
+
+MAX_MESSAGE_CHARS = 300
+"""Longest error message about a rig file; longer ones end in an ellipsis."""
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = 60
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict = 2, 4, 4
+
+
+def _show(value: Any) -> str:
+    """A short repr of a value given in a rig file (bounded length and depth, for one-line messages)."""
+    return _REPR.repr(value)
+
+
+def _clip(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
+    """``text`` on one line and at most ``limit`` characters."""
+    text = " ".join(text.split("\n"))
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def _range(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> dict[str, Any]:
@@ -232,11 +263,11 @@ def _convert(value: Any, tp: Any, where: str, fail: typing.Callable[[str, str], 
         return _convert(value, inner[0], where, fail, meta)
     if origin is Literal:
         if value not in typing.get_args(tp):
-            raise fail(where, f"expected {_describe(tp)}, got {value!r}")
+            raise fail(where, f"expected {_describe(tp)}, got {_show(value)}")
         return value
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
-            raise fail(where, f"expected {_describe(tp)}, got {value!r}")
+            raise fail(where, f"expected {_describe(tp)}, got {_show(value)}")
         args = typing.get_args(tp)
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(v, args[0], f"{where}[{i}]", fail, {}) for i, v in enumerate(value))
@@ -247,25 +278,28 @@ def _convert(value: Any, tp: Any, where: str, fail: typing.Callable[[str, str], 
         return _build(tp, value, where, fail)
     if tp is bool:
         if not isinstance(value, bool):
-            raise fail(where, f"expected true or false, got {value!r}")
+            raise fail(where, f"expected true or false, got {_show(value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise fail(where, f"expected an integer, got {value!r}")
+            raise fail(where, f"expected an integer, got {_show(value)}")
     elif tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise fail(where, f"expected a number, got {value!r}")
+            raise fail(where, f"expected a number, got {_show(value)}")
         value = float(value)
     elif tp is str:
         if not isinstance(value, str):
-            raise fail(where, f"expected a string, got {value!r}")
+            raise fail(where, f"expected a string, got {_show(value)}")
         return value
+    if tp is float and not math.isfinite(value):  # NaN passes every `value < lo` test; inf is no setting
+        raise fail(where, f"expected a finite number, got {_show(value)}")
     lo, hi, lo_open = meta.get("lo"), meta.get("hi"), meta.get("lo_open", False)
-    too_low = lo is not None and (value < lo or (lo_open and value == lo))
-    too_high = hi is not None and value > hi
+    # Written as "not inside" so that anything incomparable (NaN) counts as outside.
+    too_low = lo is not None and not (value > lo or (not lo_open and value == lo))
+    too_high = hi is not None and not value <= hi
     if too_low or too_high:
         parts = ([f"> {lo}" if lo_open else f">= {lo}"] if lo is not None else []) + ([f"<= {hi}"] if hi is not None else [])
-        raise fail(where, f"expected {_describe(tp)} {' and '.join(parts)}, got {value!r}")
+        raise fail(where, f"expected {_describe(tp)} {' and '.join(parts)}, got {_show(value)}")
     return value
 
 
@@ -274,7 +308,7 @@ def _build(cls: Any, data: Any, where: str, fail: typing.Callable[[str, str], Co
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise fail(where or "<top level>", f"expected a mapping, got {data!r}")
+        raise fail(where or "<top level>", f"expected a mapping, got {_show(data)}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.name not in _NOT_KEYS}
     kwargs: dict[str, Any] = {}
@@ -307,7 +341,7 @@ def check_setting(section: Any, name: str, value: Any, given_as: str) -> Any:
     f = {fl.name: fl for fl in dataclasses.fields(section)}[name]
 
     def fail(path: str, what: str) -> ConfigError:
-        return ConfigError(f"{path}: {what}")
+        return ConfigError(_clip(f"{path}: {what}"))
 
     return _convert(value, typing.get_type_hints(section)[name], given_as, fail, dict(f.metadata))
 
@@ -320,7 +354,7 @@ def parse_config(data: Any, source: str = "<string>") -> RigConfig:
     """
 
     def fail(path: str, what: str) -> ConfigError:
-        return ConfigError(f"{source}: {path}: {what}")
+        return ConfigError(_clip(f"{source}: {_clip(path, 120)}: {what}"))
 
     cfg = _build(RigConfig, data, "", fail)
     if cfg.camera.driver == "simulated" and cfg.simulation is None:
@@ -330,30 +364,107 @@ def parse_config(data: Any, source: str = "<string>") -> RigConfig:
         raise fail("camera.roi", f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, got x={roi.x} width={roi.width} y={roi.y} height={roi.height}")
     for name in cfg.calibration.free:
         if name not in FREE_NAMES:
-            raise fail("calibration.free", f"expected names from {', '.join(FREE_NAMES)}; got {name!r}")
+            raise fail("calibration.free", f"expected names from {', '.join(FREE_NAMES)}; got {_show(name)}")
     return dataclasses.replace(cfg, source=source)
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses documents nested deeper than :data:`MAX_NESTING`
+    (PyYAML's composer recurses once per level: 3000 levels raise RecursionError)."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        self._depth += 1
+        try:
+            if self._depth > MAX_NESTING:
+                mark = self.peek_event().start_mark
+                raise _TooLarge(f"is nested deeper than {MAX_NESTING} levels (line {mark.line + 1})")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+class _TooLarge(Exception):
+    """A rig document beyond the bounds (internal; becomes a ConfigError)."""
+
+
+def _expanded_size(node: yaml.Node) -> int:
+    """Number of values ``node`` expands to, every alias counted in full; raises
+    :class:`_TooLarge` past :data:`MAX_NODES` or on a recursive alias (cost: one visit per
+    distinct node, whatever the expansion)."""
+    sizes: dict[int, int] = {}
+    busy: set[int] = set()
+
+    def size(n: yaml.Node) -> int:
+        key = id(n)
+        if key in sizes:
+            return sizes[key]
+        if key in busy:
+            raise _TooLarge("has an alias that refers to the mapping or list containing it")
+        busy.add(key)
+        total = 1
+        if isinstance(n, yaml.SequenceNode):
+            total += sum(size(c) for c in n.value)
+        elif isinstance(n, yaml.MappingNode):
+            total += sum(size(k) + size(v) for k, v in n.value)
+        busy.discard(key)
+        if total > MAX_NODES:
+            raise _TooLarge(f"expands to more than {MAX_NODES} values (aliases counted in full)")
+        sizes[key] = total
+        return total
+
+    return size(node)
+
+
+def _load_yaml(text: str) -> Any:
+    """``yaml.safe_load`` with bounded nesting and alias expansion; ``None`` for an empty document."""
+    loader = _BoundedLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node)
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
 
 
 def load_config(path: str | Path | None = None) -> RigConfig:
     """Read and validate a rig YAML file; ``None`` loads the embedded simulated rig.
+
+    A file that is not a regular file, larger than :data:`MAX_CONFIG_BYTES`, empty (or just
+    ``null``), nested deeper than :data:`MAX_NESTING` or expanding to more than
+    :data:`MAX_NODES` values through aliases is refused.
 
     Raises:
         ConfigError: unreadable file, YAML syntax error, or invalid content (one-line message).
     """
     p = Path(path) if path is not None else DEFAULT_CONFIG
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: cannot read the rig configuration: no such file") from None
+        if not p.is_file():
+            what = "no such file" if not p.exists() else "not a regular file"
+            raise ConfigError(f"{p}: cannot read the rig configuration: {what}")
+        with p.open("rb") as f:
+            raw = f.read(MAX_CONFIG_BYTES + 1)
+        if len(raw) > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{p}: cannot read the rig configuration: larger than {MAX_CONFIG_BYTES} bytes (a rig file is a few kB)")
+        text = raw.decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read the rig configuration: {exc}") from None
+        raise ConfigError(_clip(f"{p}: cannot read the rig configuration: {exc}")) from None
     try:
-        data = yaml.safe_load(text)
+        data = _load_yaml(text)
+    except _TooLarge as exc:
+        raise ConfigError(_clip(f"{p}: refused: the YAML document {exc}")) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{p}: YAML syntax error at {where}{problem}") from None
+        problem = getattr(exc, "problem", None) or (str(exc).splitlines() or [""])[0]
+        raise ConfigError(_clip(f"{p}: YAML syntax error at {where}{problem}")) from None
+    if data is None:
+        raise ConfigError(f"{p}: the rig configuration is empty; expected a mapping of sections (see config/vast-rig.yaml)")
     return parse_config(data, source=str(p))
 
 
