@@ -17,7 +17,9 @@ Tree::
     │   └── OutputExistsError(FileExistsError) refusing to overwrite without --force
     ├── SessionError                   a session file that is not ours or is damaged
     │   ├── NotASessionError(ValueError)   not HDF5, truncated, or written by another program
-    │   └── SessionIncompleteError         frames missing / acquisition did not finish
+    │   ├── SessionIncompleteError         frames missing / acquisition did not finish
+    │   ├── SessionBusyError(BlockingIOError) another process is writing the same file
+    │   └── SessionCorruptError            a stored frame does not match its checksum
     ├── DeviceError                    hardware (or simulated hardware) misbehaved
     │   ├── DeviceTimeoutError(TimeoutError)  no (complete) answer within the finite wait
     │   ├── ProtocolError(IOError)     garbage, wrong checksum, reply that does not parse
@@ -95,6 +97,14 @@ class NotASessionError(SessionError, ValueError):
 
 class SessionIncompleteError(SessionError):
     """The session lacks frames or metadata a stage needs (e.g. acquisition was interrupted)."""
+
+
+class SessionBusyError(SessionError, BlockingIOError):
+    """Another process holds the write lock of this session (or of its results file)."""
+
+
+class SessionCorruptError(SessionError):
+    """A committed frame no longer matches the CRC-32 recorded when it was written."""
 
 
 class DeviceError(VastcalError):
