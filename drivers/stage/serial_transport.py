@@ -3,7 +3,10 @@
 The transport knows nothing of Zaber: it writes a line and reads lines that end in a
 terminator. A read that returns without the terminator is a timeout (pyserial's
 ``read_until`` returns partial bytes silently). Every pyserial or OS error becomes
-:class:`~vastcal.errors.DeviceDisconnectedError`.
+:class:`~vastcal.errors.DeviceDisconnectedError` whose message names the operation and the
+reason — including ``termios.error``, which pyserial lets through from ``flush`` (``tcdrain``),
+``reset_input_buffer`` (``tcflush``) and timeout changes when a USB adapter is unplugged, and
+which is not an ``OSError``.
 """
 
 from __future__ import annotations
@@ -15,9 +18,31 @@ from typing import Iterator
 
 import serial
 
+try:
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - not POSIX
+    class _TermiosError(Exception):  # type: ignore[no-redef]
+        """Stand-in where the termios module does not exist (never raised)."""
+
 from vastcal.errors import DeviceDisconnectedError, DeviceError, DeviceTimeoutError
 
 log = logging.getLogger(__name__)
+
+PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError, _TermiosError)
+"""What pyserial lets escape when the port fails (an unplugged USB adapter gives any of them)."""
+
+
+def port_error_reason(exc: BaseException) -> str:
+    """A short reason for a port failure: ``Input/output error (errno 5)`` for OS and termios errors."""
+    args = getattr(exc, "args", ())
+    errno_, text = getattr(exc, "errno", None), getattr(exc, "strerror", None)
+    if errno_ is None and len(args) == 2 and isinstance(args[0], int):  # termios.error(errno, text)
+        errno_, text = args
+    if errno_ is not None and text:
+        reason = f"{text} (errno {errno_})"
+    else:
+        reason = str(exc).strip() or type(exc).__name__
+    return reason if len(reason) <= 200 else reason[:199] + "…"
 
 URL_HANDLER_PACKAGES: dict[str, str] = {"sim": "simulators.stage"}
 """Extra pyserial URL schemes → package holding ``protocol_<scheme>``; registered by *name*
@@ -72,8 +97,8 @@ class SerialTransport:
             kwargs["exclusive"] = True  # advisory flock on POSIX device paths
         try:
             self._port = serial.serial_for_url(self.url, **kwargs)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceDisconnectedError(f"cannot open {self.url}: {exc}") from exc
+        except (*PORT_ERRORS, ValueError) as exc:
+            raise DeviceDisconnectedError(f"cannot open {self.url}: {port_error_reason(exc)}") from exc
         log.debug("opened %s", self.url)
 
     def close(self) -> None:
@@ -88,8 +113,8 @@ class SerialTransport:
             if sock is not None:
                 sock.close()
             port.close()
-        except (serial.SerialException, OSError) as exc:
-            log.warning("error closing %s: %s", self.url, exc)
+        except PORT_ERRORS as exc:
+            log.warning("error closing %s: %s", self.url, port_error_reason(exc))
         log.debug("closed %s", self.url)
 
     @contextmanager
@@ -117,8 +142,8 @@ class SerialTransport:
             port.flush()
         except serial.SerialTimeoutException as exc:
             raise DeviceTimeoutError(f"{self.url}: write timed out") from exc
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceDisconnectedError(f"{self.url}: write failed: {exc}") from exc
+        except PORT_ERRORS as exc:
+            raise DeviceDisconnectedError(f"{self.url}: write failed, the port went away: {port_error_reason(exc)}") from exc
 
     def read_line(self, timeout_s: float | None = None) -> bytes:
         """Read one line ending in the terminator within ``timeout_s`` (default: the port's).
@@ -133,8 +158,8 @@ class SerialTransport:
             if port.timeout != timeout:
                 port.timeout = timeout
             line = port.read_until(self.terminator)
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceDisconnectedError(f"{self.url}: read failed: {exc}") from exc
+        except PORT_ERRORS as exc:
+            raise DeviceDisconnectedError(f"{self.url}: read failed, the port went away: {port_error_reason(exc)}") from exc
         if not line.endswith(self.terminator):
             self.drain()
             what = f"a partial line {line!r}" if line else "nothing"
@@ -149,5 +174,5 @@ class SerialTransport:
             return
         try:
             port.reset_input_buffer()
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceDisconnectedError(f"{self.url}: cannot reset input: {exc}") from exc
+        except PORT_ERRORS as exc:
+            raise DeviceDisconnectedError(f"{self.url}: cannot reset input, the port went away: {port_error_reason(exc)}") from exc
