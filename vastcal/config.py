@@ -214,6 +214,36 @@ class SimulationConfig:
     noise: float = field(default=1.0, metadata=_range(0.0, 100.0))
     """Shot-noise scale (1 = physical Poisson noise at the configured full well)."""
 
+    # -- specimen and scene realism (issue 15; simulators/camera/larva.py, scene.py). Each is drawn
+    # from ``seed``; false / 0 switches it off (the defaults: the fixed 3 mm phantom, a clean scene).
+    larva_varies: bool = False
+    """Draw the larva's age in ``age_dpf``, and from it length, height, flattening, yolk and contrast;
+    false = the fixed 3 mm phantom (:func:`simulators.camera.phantom.zebrafish_phantom`)."""
+    age_dpf: tuple[float, float] = (3.0, 5.0)
+    """Range of the larva's age, days post fertilisation (length 3.0 mm at 3 dpf to 4.5 mm at 5 dpf)."""
+    fin_fold: bool = False
+    """A translucent median fin fold (not part of the measured body)."""
+    fin_fold_height_um: tuple[float, float] = (60.0, 140.0)
+    """Range of the fin fold's largest height beyond the body, µm."""
+    pectoral_fins: bool = False
+    """Two thin translucent pectoral fins beside the yolk (not part of the measured body)."""
+    melanophores: float = field(default=0.0, metadata=_range(0.0, 1000.0))
+    """Mean number of melanophores (dark specks just under the skin, mostly dorsal/ventral), Poisson."""
+    wall_contact_probability: float = field(default=0.0, metadata=_range(0.0, 1.0))
+    """Chance that the larva lies against the capillary wall (its edge 0.5-3 µm from the wall)."""
+    tail_out_of_frame_probability: float = field(default=0.0, metadata=_range(0.0, 1.0))
+    """Chance that the larva is shifted along the axis so that its tail runs out of the frame."""
+    debris: float = field(default=0.0, metadata=_range(0.0, 100.0))
+    """Mean number of dark debris particles floating in the capillary (Poisson); they drift between views."""
+    bubbles: float = field(default=0.0, metadata=_range(0.0, 100.0))
+    """Mean number of small air bubbles (bright centre, dark rim) in the capillary (Poisson); they drift."""
+    illumination_gradient: float = field(default=0.0, metadata=_range(0.0, 0.5))
+    """Largest relative brightness change from the frame centre to its edge (drawn in ±, per direction)."""
+    vignetting: float = field(default=0.0, metadata=_range(0.0, 0.5))
+    """Largest relative darkening at the sensor's corners (drawn in [0, vignetting])."""
+    defocus_blur_px: tuple[float, float] = (0.0, 0.0)
+    """Range of the Gaussian σ of the defocus blur, px (0 = in focus)."""
+
 
 @dataclass(frozen=True)
 class RigConfig:
