@@ -129,12 +129,24 @@ class Phantom:
 
         return self.profile.integrate(perimeter_density) / UM2_PER_MM2
 
-    def hull_volume_mm3(self, angles_deg: Sequence[float]) -> float:
-        """Exact volume of the orthographic visual hull from views at ``angles_deg``, mm³."""
-        return orthographic_hull_factor(angles_deg, self.lateral_scale) * self.profile.volume_um3() / UM3_PER_MM3
+    def hull_volume_mm3(self, angles_deg: Sequence[float], x_bounds: tuple[float, float] | None = None) -> float:
+        """Exact volume of the orthographic visual hull from views at ``angles_deg``, mm³.
 
-    def hull_area_mm2(self, angles_deg: Sequence[float]) -> float:
-        """Exact surface area of the orthographic visual hull from views at ``angles_deg``, mm²."""
+        ``x_bounds`` = (x_lo, x_hi) µm keeps only the hull's part between two planes x = const
+        (the part every frame sees when the specimen runs out of the frame).
+        """
+        poly = circumscribed_polygon(angles_deg, self.lateral_scale)
+        if poly is None:
+            return float("inf")
+        area_p = 0.5 * float(np.sum(poly[0] * poly[1]))
+        return area_p * self.profile.integrate(lambda x: np.maximum(self.profile.q(x)[0], 0.0), x_bounds) / UM3_PER_MM3
+
+    def hull_area_mm2(self, angles_deg: Sequence[float], x_bounds: tuple[float, float] | None = None) -> float:
+        """Exact surface area of the orthographic visual hull from views at ``angles_deg``, mm².
+
+        With ``x_bounds`` (µm): the area of the hull cut by the planes x = x_lo and x = x_hi,
+        the flat cut faces (polygon area · q at the cut) included.
+        """
         poly = circumscribed_polygon(angles_deg, self.lateral_scale)
         if poly is None:
             return float("inf")
@@ -144,7 +156,13 @@ class Phantom:
                 q, dq, _ = self.profile.q(x)
                 return np.sqrt(np.maximum(q + 0.25 * h * h * dq * dq, 0.0))
 
-            total += float(side) * self.profile.integrate(face_density)
+            total += float(side) * self.profile.integrate(face_density, x_bounds)
+        if x_bounds is not None:
+            area_p = 0.5 * float(np.sum(poly[0] * poly[1]))
+            lo, hi = self.profile.x_range
+            for xc in x_bounds:
+                if lo < xc < hi:
+                    total += area_p * float(max(self.profile.q(np.array([float(xc)]))[0][0], 0.0))
         return total / UM2_PER_MM2
 
     def truth(self) -> dict[str, float | str]:

@@ -50,9 +50,14 @@ class RevolutionProfile(abc.ABC):
         lo, hi = self.x_range
         return float(self.radius_um(np.linspace(lo, hi, 20001)).max() * 1.001)
 
-    def integrate(self, f: Callable[[np.ndarray], np.ndarray]) -> float:
-        """∫ f(x) dx over the body's length, µm·[f] (Gauss–Legendre, 400 nodes per piece between breakpoints)."""
+    def integrate(self, f: Callable[[np.ndarray], np.ndarray], bounds: tuple[float, float] | None = None) -> float:
+        """∫ f(x) dx over the body's length (or its part within ``bounds`` = (x_lo, x_hi), µm), µm·[f]
+        (Gauss–Legendre, 400 nodes per piece between breakpoints)."""
         lo, hi = self.x_range
+        if bounds is not None:
+            lo, hi = max(lo, float(bounds[0])), min(hi, float(bounds[1]))
+            if hi <= lo:
+                return 0.0
         edges = [lo, *sorted(b for b in self.breakpoints if lo < b < hi), hi]
         total = 0.0
         for a, b in zip(edges, edges[1:]):
@@ -159,11 +164,13 @@ class LarvaProfile(RevolutionProfile):
     bumps: tuple[tuple[float, float, float], ...] = ((0.7, 0.12, 0.10), (0.9, 0.33, 0.11), (0.10, 0.5, 0.2))
     """(height h, centre m, width w) in units of u for the head, yolk and trunk bumps."""
     name: str = "zebrafish-larva"
+    x_centre: float = 0.0
+    """x of the profile's middle, µm (0: centred on the origin; a larva shifted along the axis)."""
 
     @property
     def x_head(self) -> float:
-        """x of the head's tip, µm (the profile is centred on x = 0)."""
-        return -0.5 * self.length
+        """x of the head's tip, µm (``x_centre − length/2``)."""
+        return self.x_centre - 0.5 * self.length
 
     @property
     def x_range(self) -> tuple[float, float]:

@@ -17,12 +17,17 @@ at the minimiser), so the signed distance to the silhouette in pixels is δ ≈ 
 pixel's coverage is clip(0.5 − δ, 0, 1): exact for edges along a pixel axis, and its 50 %
 level lies exactly on the geometric edge for every edge direction.
 
+What is not the measured body — the fin fold and pectoral fins of :mod:`simulators.camera.larva` —
+multiplies every ray's transmission by exp(−τ_extra) (Beer–Lambert through thin tissue; no
+anti-aliasing beyond the final blur).
+
 Grey levels (transmission, 1 = bare background): outside the body 1; inside
 ``edge_transmission · exp(−μ_body·L_body − Σ μ_f·L_f)`` with L the chord lengths through the
 body (≈ 2√(−m)/a·|d|, mild) and through each ellipsoid feature (exact quadratic). The capillary
 adds a thin dark line where a ray grazes its inner wall (ρ0 ≈ R_in), parallel to the axis.
 Noise: shot noise (Gaussian approximation of Poisson — every pixel holds ≫ 100 e⁻) scaled by
-``noise``, plus read noise, on a full-well scale; output Mono12 (uint16 0–4095), Mono16
+``noise``, plus read noise, on a full-well scale (after the scene's particles, defocus blur and
+lamp field, :mod:`simulators.camera.scene`); output Mono12 (uint16 0–4095), Mono16
 (uint16, 12-bit values ×16), Mono8 or RGB8 (a slightly tinted colour version).
 """
 
@@ -33,8 +38,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
-from simulators.camera.phantom import Phantom
+from simulators.camera.larva import FinFold, ellipsoid_depth
+from simulators.camera.phantom import EllipsoidFeature, Phantom
+from simulators.camera.scene import Illumination, Particle, paint_particles
 from vastcal.errors import CameraError
 
 log = logging.getLogger(__name__)
@@ -94,21 +102,30 @@ class RayGeometry:
     coverage: np.ndarray
     tau_body: np.ndarray
     tau_features: np.ndarray
+    tau_extra: np.ndarray | None = None
+    """Optical depth of the fins outside the body (not measured), or ``None`` without fins."""
 
 
 class BrightfieldRenderer:
     """Renders a :class:`Phantom` in a :class:`Capillary` for a camera (K, R, t).
 
     Args:
-        phantom: the specimen.
+        phantom: the specimen's body.
         capillary: the glass tube around it.
         sensor: photometric and noise model.
+        fin_fold: the median fin fold (not measured), or ``None``.
+        fins: thin ellipsoids outside the body (pectoral fins; not measured).
     """
 
-    def __init__(self, phantom: Phantom, capillary: Capillary | None = None, sensor: Sensor | None = None) -> None:
+    def __init__(self, phantom: Phantom, capillary: Capillary | None = None, sensor: Sensor | None = None, *,
+                 fin_fold: FinFold | None = None, fins: tuple[EllipsoidFeature, ...] = ()) -> None:
         self.phantom = phantom
         self.capillary = capillary or Capillary()
         self.sensor = sensor or Sensor()
+        self.fin_fold = fin_fold
+        self.fins = tuple(fins)
+        self.last_geometry: RayGeometry | None = None
+        """The ray geometry of the last rendered frame (coverage of the body, for the truth record)."""
         self._r_max = phantom.profile.max_radius_um()
         if self._r_max >= self.capillary.inner_radius_um:
             raise CameraError(f"phantom radius {self._r_max:.0f} µm does not fit in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)")
@@ -130,7 +147,9 @@ class BrightfieldRenderer:
         f, cx, cy = float(K[0, 0]), float(K[0, 2]), float(K[1, 2])
         if abs(K[0, 1]) > 0 or abs(K[1, 1] - f) > 1e-9 * f:
             raise CameraError("the renderer supports square pixels without skew")
-        if self._r_max + math.hypot(*body_offset_um) >= self.capillary.inner_radius_um:
+        off = math.hypot(*body_offset_um)
+        support = self._r_max * (math.hypot(body_offset_um[0], self.phantom.lateral_scale * body_offset_um[1]) / off if off > 0 else 1.0)
+        if support + off >= self.capillary.inner_radius_um:
             raise CameraError(f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis does not fit "
                               f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)")
         C_world = -R.T @ t
@@ -203,14 +222,68 @@ class BrightfieldRenderer:
                 disc = B * B - 4.0 * A * (p @ p - 1.0)
                 tf[inside] += feat.attenuation_per_um * np.sqrt(np.maximum(disc, 0.0)) / A * dnorm[inside]
             tau_feat[iy, ix] = tf
-        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat)
+        tau_extra = None
+        if self.fin_fold is not None or self.fins:
+            tau_extra = self._extra_depth(C_phantom, R, du, dv, dy_w, dz_w, body_offset_um, footprint_um)
+        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra)
+
+    def _extra_depth(self, Cp: np.ndarray, R: np.ndarray, du: np.ndarray, dv: np.ndarray, dy_w: np.ndarray, dz_w: np.ndarray,
+                     body_offset_um: tuple[float, float], footprint_um: float) -> np.ndarray:
+        """Optical depth of the fin fold and fins (phantom frame, unscaled), H × W float32."""
+        height, width = dy_w.shape
+        out = np.zeros((height, width), np.float32)
+        a2 = dy_w * dy_w + dz_w * dz_w
+        rho0 = np.abs(Cp[1] * dz_w - Cp[2] * dy_w) / np.sqrt(a2)
+        reach = self._r_max
+        lo, hi = self.phantom.profile.x_range
+        if self.fin_fold is not None:
+            reach = max(reach, self.fin_fold.reach_um)
+            lo, hi = min(lo, self.fin_fold.x_range[0]), max(hi, self.fin_fold.x_range[1])
+        for f in self.fins:
+            reach = max(reach, math.hypot(abs(f.centre_um[1]) + f.semi_axes_um[1], abs(f.centre_um[2]) + f.semi_axes_um[2]))
+            lo, hi = min(lo, f.centre_um[0] - f.semi_axes_um[0]), max(hi, f.centre_um[0] + f.semi_axes_um[0])
+        margin = 3.0 * footprint_um
+        iy, ix = np.nonzero(rho0 < reach + margin)
+        if not iy.size:
+            return out
+        dxf = (R[0, 0] * du)[None, :] + (R[1, 0] * dv + R[2, 0])[:, None]
+        d = np.stack([dxf[iy, ix], dy_w[iy, ix], dz_w[iy, ix]], -1)
+        a2c = a2[iy, ix]
+        s0 = -(Cp[1] * d[:, 1] + Cp[2] * d[:, 2]) / a2c
+        x0 = Cp[0] + s0 * d[:, 0]
+        keep = (x0 > lo - margin) & (x0 < hi + margin)
+        iy, ix, d, a2c, s0 = iy[keep], ix[keep], d[keep], a2c[keep], s0[keep]
+        tau = np.zeros(iy.size)
+        if self.fin_fold is not None:
+            half = (self.capillary.inner_radius_um + math.hypot(*body_offset_um)) / np.sqrt(a2c)
+            tau += self.fin_fold.optical_depth(Cp, d, s0 - half, s0 + half, body_offset_um, self.capillary.inner_radius_um)
+        for f in self.fins:
+            tau += ellipsoid_depth(Cp, d, f)
+        out[iy, ix] = tau
+        return out
 
     def transmission(self, geom: RayGeometry, channel_scale: float = 1.0) -> np.ndarray:
         """Noise-free transmission 0–1 of each pixel (background = capillary lumen)."""
         ph = self.phantom
         body = np.float32(ph.edge_transmission) * np.exp(-(channel_scale * geom.tau_body + geom.tau_features))
         T = 1.0 - geom.coverage * (1.0 - body)
+        if geom.tau_extra is not None:
+            T = T * np.exp(-channel_scale * geom.tau_extra)
         return (T * self.capillary.transmission(geom.rho0)).astype(np.float32)
+
+    @staticmethod
+    def _scene(T: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray, particles: list[Particle],
+               illumination: Illumination | None) -> np.ndarray:
+        """Particles, defocus blur and lamp field applied to a transmission image (float32)."""
+        if particles:
+            T = T.copy()
+            paint_particles(T, particles, K, R, t)
+        if illumination is not None:
+            if illumination.defocus_sigma_px > 0:
+                T = gaussian_filter(T, illumination.defocus_sigma_px, mode="nearest")
+            if not illumination.is_flat:
+                T = T * illumination.field(K, T.shape[1], T.shape[0])
+        return T.astype(np.float32)
 
     # -- photometry --------------------------------------------------------------------------
 
@@ -227,6 +300,8 @@ class BrightfieldRenderer:
         exposure_scale: float = 1.0,
         gain_db: float = 0.0,
         body_offset_um: tuple[float, float] = (0.0, 0.0),
+        particles: list[Particle] | None = None,
+        illumination: Illumination | None = None,
     ) -> np.ndarray:
         """One frame.
 
@@ -239,16 +314,20 @@ class BrightfieldRenderer:
             exposure_scale: exposure relative to the reference (brightness ∝ exposure).
             gain_db: analogue gain, dB (amplifies signal and noise).
             body_offset_um: (y, z) of the phantom's axis off the rotation axis, µm (see :meth:`ray_geometry`).
+            particles: debris and bubbles at this view (world frame), :mod:`simulators.camera.scene`.
+            illumination: lamp field and defocus blur, or ``None`` (flat, sharp).
         """
         if pixel_format not in OUTPUT_FORMATS:
             raise CameraError(f"simulated camera cannot deliver {pixel_format!r}; use one of {', '.join(OUTPUT_FORMATS)}")
         rng = rng if rng is not None else np.random.default_rng()
         geom = self.ray_geometry(K, R, t, width, height, body_offset_um)
+        self.last_geometry = geom
+        parts = list(particles or [])
         if pixel_format == "RGB8":
-            chans = [self._to_dn(self.transmission(geom, s) * tint, noise, rng, exposure_scale, gain_db)
+            chans = [self._to_dn(self._scene(self.transmission(geom, s), K, R, t, parts, illumination) * tint, noise, rng, exposure_scale, gain_db)
                      for s, tint in zip(self.phantom.colour_scale, self.sensor.tint_rgb)]
             return np.stack([np.rint(c / 16.0).astype(np.uint8) for c in chans], -1)
-        dn = self._to_dn(self.transmission(geom), noise, rng, exposure_scale, gain_db)
+        dn = self._to_dn(self._scene(self.transmission(geom), K, R, t, parts, illumination), noise, rng, exposure_scale, gain_db)
         if pixel_format == "Mono8":
             return np.rint(dn / 16.0).astype(np.uint8)
         out = np.rint(dn).astype(np.uint16)

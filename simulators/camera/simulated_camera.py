@@ -9,6 +9,7 @@ What happened — truth pose, phantom truth, the actual angle of every snap — 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -16,8 +17,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from simulators.camera.phantom import Phantom, zebrafish_phantom
+from simulators.camera.larva import Specimen, draw_specimen
+from simulators.camera.phantom import Phantom
 from simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, Sensor
+from simulators.camera.scene import draw_illumination, draw_particles
 from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 from vastcal.devices import Camera, CameraSettings, Frame
@@ -40,8 +43,11 @@ class SimulatedCamera(Camera):
         simulation: seed, tilt/offset limits of the hidden truth, noise scale.
         angle_source: returns the stage's actual angle in degrees when called (e.g. the stage
             simulator's ``actual_angle_deg``).
-        phantom: the specimen (default :func:`zebrafish_phantom`).
-        truth: the hidden axis pose (default drawn from ``simulation``).
+        phantom: the specimen's body; default: :func:`simulators.camera.larva.draw_specimen` of
+            ``simulation`` (the fixed 3 mm phantom with every feature off; with features, the drawn
+            larva, its fins, melanophores and pose). A given phantom comes without fins.
+        truth: the hidden axis pose (default drawn from ``simulation``; a larva drawn against the
+            capillary wall replaces its specimen offset).
         capillary, sensor: rendering models (defaults of :mod:`simulators.camera.render`).
     """
 
@@ -61,9 +67,18 @@ class SimulatedCamera(Camera):
         self._optics = optics
         self._sim = simulation
         self._angle_source = angle_source
-        self.phantom = phantom or zebrafish_phantom()
+        capillary = capillary or Capillary()
+        self.specimen = Specimen(phantom) if phantom is not None else draw_specimen(simulation, optics, camera, capillary.inner_radius_um)
+        self.phantom = self.specimen.phantom
         self._truth = truth or RigTruth.draw(simulation, optics)
-        self._renderer = BrightfieldRenderer(self.phantom, capillary, sensor)
+        if truth is None and self.specimen.wall_offset_um is not None:
+            self._truth = dataclasses.replace(self._truth, specimen_offset_um=self.specimen.wall_offset_um)
+        self._renderer = BrightfieldRenderer(self.phantom, capillary, sensor, fin_fold=self.specimen.fin_fold, fins=self.specimen.pectoral_fins)
+        self._particles = draw_particles(simulation, self.specimen, self._truth.specimen_offset_um, optics, camera, capillary.inner_radius_um)
+        illumination = draw_illumination(simulation, optics)
+        self._illumination = None if illumination.is_flat and illumination.defocus_sigma_px == 0 else illumination
+        self._illumination_record = illumination.describe()
+        self._camera_cfg = camera
         self._reference_exposure_us = float(camera.exposure_us)
         roi = camera.roi
         self._settings = CameraSettings(camera.pixel_format, camera.exposure_us, camera.gain_db, (roi.x, roi.y, roi.width, roi.height), camera.packet_size)
@@ -164,10 +179,16 @@ class SimulatedCamera(Camera):
             s = self._settings
             pixels = self._renderer.render(K, R, t, w, h, s.pixel_format, noise=self._sim.noise, rng=rng,
                                            exposure_scale=s.exposure_us / self._reference_exposure_us, gain_db=s.gain_db,
-                                           body_offset_um=self._truth.specimen_offset_um)
+                                           body_offset_um=self._truth.specimen_offset_um,
+                                           particles=self._particles.at_view(self._frame_id - 1) if len(self._particles) else None,
+                                           illumination=self._illumination)
+            geom = self._renderer.last_geometry
+            assert geom is not None
+            cov = geom.coverage
+            cut = bool(cov[:, 0].any() or cov[:, -1].any() or cov[0].any() or cov[-1].any())
             host = time.time()
             device = time.monotonic() - self._t_open
-            self._snaps.append({"frame_id": self._frame_id, "actual_angle_deg": angle, "host_time_s": host})
+            self._snaps.append({"frame_id": self._frame_id, "actual_angle_deg": angle, "host_time_s": host, "body_cut_by_frame": cut})
             return Frame(pixels=pixels, frame_id=self._frame_id, host_time_s=host, device_time_s=round(device * DEVICE_TICK_HZ) / DEVICE_TICK_HZ,
                          exposure_us=s.exposure_us, gain_db=s.gain_db, pixel_format=s.pixel_format)
 
@@ -205,12 +226,26 @@ class SimulatedCamera(Camera):
         (x, y, w, h px); ``K`` (3×3 of the ROI frame); ``snaps`` — one
         ``{"frame_id", "actual_angle_deg", "host_time_s"}`` per frame delivered; and
         ``hull_volume_mm3`` / ``hull_area_mm2`` — the exact orthographic visual hull of the
-        phantom from the actual angles (``None`` with fewer than two distinct directions).
+        phantom's BODY (fins, fin fold, debris, bubbles excluded; melanophores, eyes and yolk lie
+        inside it) from the actual angles (``None`` with fewer than two distinct directions);
+        ``specimen`` — what was drawn (:func:`~simulators.camera.larva.draw_specimen` features,
+        particle counts, lamp field, defocus); ``frame_cut_views`` — indices of the views whose
+        frame edge cuts the body; when there are any, ``frame_x_range_um`` (the axis interval every
+        frame sees) and ``hull_in_frame_volume_mm3`` / ``hull_in_frame_area_mm2`` — the body's hull
+        cut to it (cut faces included): what a hull carved by every frame can at most measure.
         """
         angles = [s["actual_angle_deg"] for s in self._snaps]
         hv = self.phantom.hull_volume_mm3(angles) if angles else float("inf")
         ha = self.phantom.hull_area_mm2(angles) if angles else float("inf")
         x, y, w, h = self._roi()
+        cut_views = [i for i, s in enumerate(self._snaps) if s.get("body_cut_by_frame")]
+        extra: dict[str, Any] = {"specimen": {**self.specimen.features, **self._particles.describe(), **self._illumination_record},
+                                 "frame_cut_views": cut_views}
+        if cut_views and np.isfinite(hv):
+            xr = self.frame_x_range_um(angles)
+            extra["frame_x_range_um"] = list(xr)
+            extra["hull_in_frame_volume_mm3"] = self.phantom.hull_volume_mm3(angles, xr)
+            extra["hull_in_frame_area_mm2"] = self.phantom.hull_area_mm2(angles, xr)
         return {
             "schema": TRUTH_SCHEMA,
             **self.phantom.truth(),
@@ -221,4 +256,21 @@ class SimulatedCamera(Camera):
             "snaps": [dict(s) for s in self._snaps],
             "hull_volume_mm3": hv if np.isfinite(hv) else None,
             "hull_area_mm2": ha if np.isfinite(ha) else None,
+            **extra,
         }
+
+    def frame_x_range_um(self, angles_deg: list[float]) -> tuple[float, float]:
+        """The interval of the specimen's axis (world x, µm) that every view's frame sees: where the
+        axis line (y, z) = specimen offset projects between the frame's outer pixel edges, the
+        tightest over the views (the projection of a line is solved exactly, u = (a x + b)/(c x + d))."""
+        _, _, w, _ = self._roi()
+        oy, oz = self._truth.specimen_offset_um
+        lo, hi = -np.inf, np.inf
+        for ang in angles_deg:
+            P = self.projection_matrix(ang)
+            a, c = P[0, 0], P[2, 0]
+            b = P[0, 1] * oy + P[0, 2] * oz + P[0, 3]
+            d = P[2, 1] * oy + P[2, 2] * oz + P[2, 3]
+            xs = sorted((u * d - b) / (a - u * c) for u in (-0.5, w - 0.5))
+            lo, hi = max(lo, xs[0]), min(hi, xs[1])
+        return float(lo), float(hi)
