@@ -196,7 +196,7 @@ def import_folder(
     plan = {"views": n, "source": "import", "folder": str(folder.resolve())}
     with SessionWriter.create(out, frame_shape=first.shape, dtype=first.dtype, rig_yaml=dump_config(cfg), plan=plan,
                               pixel_size_um=(pixel_um, pixel_um), roi_offset_px=roi_offset, title=f"import of {folder.name}",
-                              start_info={"source": "import", "files": [f.name for f in files]}, force=force) as writer:
+                              start_info={"source": "import", "files": [f.name for f in files]}, force=force, live=False) as writer:
         for i, f in enumerate(files):
             img = first if i == 0 else read_image(f)
             writer.append_view(img, float(angle_values[i]))

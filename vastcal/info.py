@@ -45,7 +45,7 @@ def session_summary(path: str | Path) -> dict[str, Any]:
         for stage, runs in s.stages_run().items():
             entries = []
             for name in runs:
-                a = read_attrs(s.h5[f"/entry/vastcal/{stage}/{name}"])
+                a = read_attrs(s.result(stage, name))
                 keep = {k: a[k] for k in ("time", "method", "seed", "wall_time_s", "volume_mm3", "surface_area_mm2", "n_evaluations") if k in a}
                 entries.append({"run": name, **keep})
             summary["stages"][stage] = entries

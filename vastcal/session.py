@@ -1,6 +1,6 @@
 """The session file: one HDF5 file per revolution, NeXus NXtomo core plus vastcal groups.
 
-Layout (``SCHEMA_VERSION`` 1)::
+Layout (``SCHEMA_VERSION`` 2)::
 
     /                                 attrs: creator="vastcal", vastcal_session_version
     /entry                 NXentry    definition="NXtomo", title, start_time, end_time
@@ -18,18 +18,35 @@ Layout (``SCHEMA_VERSION`` 1)::
       vastcal/             NXcollection attrs: schema_version
         rig                string: the resolved rig YAML
         plan               attrs: views, usteps_per_revolution, …
-        views/             per-view table, one growable column per quantity, each with units
+        views/             per-view table, one growable column per quantity, each with units,
+                           including frame_crc32 (CRC-32 of the frame bytes)
+        committed_views    (1,) int: views 0 .. n-1 are complete (the commit record)
         start              attrs: uid, time, host, versions, …
-        stop               attrs: exit_status (success|abort|fail), reason, views_written, time
+        stop_record        JSON: exit_status (success|abort|fail), reason, views_written, time;
+                           empty while the writer is at work (or after it was killed)
+        resumed/stop_NNN   earlier endings of a resumed acquisition
         masks              optional (N, H, W) uint8 silhouettes (0/255), imported
         cameras/           optional known cameras: P (N, 3, 4), 0-based pixels of the stored frames
         geometry           attrs: roi_x, roi_y (offset of the stored frames on the sensor, px)
         calibration/run_NNN, reconstruction/run_NNN, measurement/run_NNN   later stages
 
-Writing is incremental: :meth:`SessionWriter.append_view` grows every dataset by one view,
-writes it and flushes, so a process killed between two views leaves a file that opens and
-holds every completed view; the missing ``stop`` record marks it incomplete.
-Nothing here overwrites an existing file unless ``force=True``.
+Crash consistency — what a kill at any instant can and cannot lose:
+
+* Acquisition grows ``S.h5`` in HDF5 SWMR mode: every object exists before the first view, and
+  HDF5 orders its metadata writes so that the file is readable after any prefix of them. A view
+  is *committed* by one write of ``committed_views`` after its frame, its record and its CRC-32
+  are written, flushed and fsync-ed. A kill loses at most the view in flight; committed views
+  are never touched again. Readers (``vastcal info`` while acquiring, or after a kill) open the
+  file in SWMR mode and see exactly the committed views.
+* ``--resume`` verifies every committed frame against its CRC-32 and copies them, bit for bit,
+  into a new file that replaces the old one in one rename.
+* Import writes a hidden temporary file and renames it into place when complete.
+* Later stages never write ``S.h5`` in place: a run is added to a copy of the file that then
+  replaces it in one rename (copy-on-write), so a kill while a run is stored loses that run only;
+  the images are copied bit for bit.
+* One writer per path: a lock (``flock`` on ``.NAME.lock``) makes a second writer fail at once.
+
+Schema-1 sessions (no commit record, stop record as group attributes) are read as before.
 """
 
 from __future__ import annotations
@@ -39,8 +56,10 @@ import json
 import logging
 import os
 import platform
+import shutil
 import socket
 import uuid
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -49,16 +68,19 @@ import h5py
 import numpy as np
 
 from vastcal import __version__
-from vastcal.errors import NotASessionError, OutputExistsError, SessionError, SessionIncompleteError
+from vastcal.errors import NotASessionError, OutputExistsError, SessionCorruptError, SessionError, SessionIncompleteError
+from vastcal.session_files import PathLock, check_output_path, place_atomically
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 CREATOR = "vastcal"
 ENTRY = "/entry"
 DETECTOR = "/entry/instrument/detector"
 VASTCAL = "/entry/vastcal"
 STAGE_GROUPS = ("calibration", "reconstruction", "measurement")
+STOP_RECORD_BYTES = 8192
+RESULTS_LOCK_TIMEOUT_S = 60.0
 
 
 def _now() -> str:
@@ -99,6 +121,7 @@ VIEW_COLUMNS: tuple[ViewColumn, ...] = (
     ViewColumn("gain_db", "f8", "dB", np.nan),
     ViewColumn("move_s", "f8", "s", np.nan),
     ViewColumn("stage_warnings", "S32", "", b""),
+    ViewColumn("frame_crc32", "u4", "CRC-32 of the frame bytes as stored", 0),
 )
 
 
@@ -116,29 +139,59 @@ def _attr_str(v: Any) -> Any:
 
 
 def check_writable_output(path: str | Path, force: bool) -> Path:
-    """Refuse to replace an existing file unless ``force``; return the path.
+    """Refuse to replace an existing file unless ``force``, or anything that is not a regular file.
 
     Raises:
         OutputExistsError: the file exists and ``force`` is false.
+        UserInputError: the path is a directory, a device or another non-regular file.
     """
-    p = Path(path)
-    if p.exists() and not force:
-        raise OutputExistsError(f"{p}: file exists; pass --force to overwrite it")
-    return p
+    return check_output_path(path, force)
+
+
+def _frame_crc(frame: np.ndarray) -> int:
+    return zlib.crc32(np.ascontiguousarray(frame).data) & 0xFFFFFFFF
+
+
+def _scalar_string(group: h5py.Group, name: str, size: int) -> h5py.Dataset:
+    """A fixed-length string dataset whose storage exists before SWMR starts (rewritten in place)."""
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    tid = h5py.h5t.C_S1.copy()
+    tid.set_size(size)
+    sid = h5py.h5s.create(h5py.h5s.SCALAR)
+    dsid = h5py.h5d.create(group.id, name.encode(), tid, sid, dcpl=dcpl)
+    ds = h5py.Dataset(dsid)
+    ds[()] = b""
+    return ds
 
 
 class SessionWriter:
     """Creates a session and appends views one at a time (acquisition and import).
+
+    Two ways of writing (chosen at :meth:`create`):
+
+    * **live** (acquisition): the file appears at its name with zero views and then grows in HDF5
+      SWMR mode, so readers (``vastcal info``) can follow it, and a kill at *any* write leaves a
+      file whose committed views are intact. A view is committed by one write of
+      ``/entry/vastcal/committed_views`` that happens only after its frame, its per-view record and
+      its CRC-32 are written, flushed and ``fsync``-ed; readers see exactly the committed views.
+    * **staged** (import): everything is written to a hidden temporary file that replaces the
+      name in one atomic rename at :meth:`finish` with ``success``; a failure leaves no output.
 
     Use as a context manager; :meth:`finish` writes the stop record. If the context exits
     with an exception and no stop record was written, the stop record says ``fail`` (or
     ``abort`` for KeyboardInterrupt) with the exception text as reason.
     """
 
-    def __init__(self, h5: h5py.File, path: Path) -> None:
+    def __init__(self, h5: h5py.File, path: Path, *, lock: PathLock, staged_from: Path | None = None,
+                 replace: bool = False, durable: bool = True) -> None:
         self._h5 = h5
         self.path = path
-        self._finished = "stop" in h5[VASTCAL]
+        self._lock = lock
+        self._staged_from = staged_from  # the temporary file of a staged write
+        self._replace = replace
+        self._durable = durable
+        self._finished = False
         det, views = h5[DETECTOR], h5[VASTCAL]["views"]
         # Growable 1-D datasets written once per view, looked up once (hot path of acquisition).
         self._data = det["data"]
@@ -146,6 +199,8 @@ class SessionWriter:
         self._keys = (det["image_key"], det["image_key_control"])
         self._count_time = det["count_time"]
         self._angle = h5[ENTRY]["sample"]["rotation_angle"]
+        self._committed = h5[VASTCAL]["committed_views"]
+        self._n = int(self._committed[0])
 
     # -- creation -------------------------------------------------------------------------
     @classmethod
@@ -162,6 +217,8 @@ class SessionWriter:
         title: str = "",
         start_info: dict[str, Any] | None = None,
         force: bool = False,
+        live: bool = True,
+        durable: bool = True,
     ) -> "SessionWriter":
         """Create a new session file with zero views.
 
@@ -173,29 +230,51 @@ class SessionWriter:
             pixel_size_um: (x, y) pixel pitch on the specimen, µm.
             roi_offset_px: (x, y) offset of the stored frames on the sensor, px.
             start_info: extra start-record attributes (device descriptions …).
-            force: replace an existing file.
+            force: replace an existing (regular) file.
+            live: grow the file in place in SWMR mode (acquisition); otherwise stage it and
+                rename it into place at a successful :meth:`finish` (import).
+            durable: ``fsync`` each view before committing it (power cuts, not only kills).
 
         Raises:
             OutputExistsError: the file exists and ``force`` is false.
+            SessionBusyError: another process is writing the same path.
         """
         p = check_writable_output(path, force)
         p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(p.name + ".partial")
-        h5 = h5py.File(tmp, "w")
+        lock = PathLock(p).acquire()
         try:
-            cls._layout(h5, tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {})
-            h5.flush()
+            tmp = p.with_name(f".{p.name}.partial")
+            h5 = h5py.File(tmp, "w", libver="latest")
+            try:
+                cls._layout(h5, tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {})
+                if not live:
+                    return cls(h5, p, lock=lock, staged_from=tmp, replace=force, durable=False)
+                h5.close()
+            except BaseException:
+                h5.close()
+                tmp.unlink(missing_ok=True)
+                raise
+            place_atomically(tmp, p, replace=force)  # the empty skeleton appears in one step
+            return cls._open_live(p, lock, durable)
+        except BaseException:
+            lock.release()
+            raise
+
+    @classmethod
+    def _open_live(cls, p: Path, lock: PathLock, durable: bool) -> "SessionWriter":
+        h5 = h5py.File(p, "r+", libver="latest")
+        try:
+            h5.swmr_mode = True
         except BaseException:
             h5.close()
-            tmp.unlink(missing_ok=True)
             raise
-        h5.close()
-        os.replace(tmp, p)  # the empty skeleton appears atomically
-        return cls(h5py.File(p, "r+"), p)
+        return cls(h5, p, lock=lock, durable=durable)
 
     @staticmethod
     def _layout(h5: h5py.File, frame_shape: tuple[int, ...], dtype: np.dtype, rig_yaml: str, plan: dict[str, Any],
-                pixel_size_um: tuple[float, float], roi_offset_px: tuple[int, int], title: str, start_info: dict[str, Any]) -> None:
+                pixel_size_um: tuple[float, float], roi_offset_px: tuple[int, int], title: str, start_info: dict[str, Any],
+                start_record: dict[str, Any] | None = None) -> None:
+        """Every object the file will ever hold, so that SWMR appends create nothing new."""
         h5.attrs["creator"] = CREATOR
         h5.attrs["vastcal_session_version"] = SCHEMA_VERSION
         h5.attrs["default"] = "entry"
@@ -206,6 +285,7 @@ class SessionWriter:
         entry["definition"] = "NXtomo"
         entry["title"] = title or "vastcal session"
         entry["start_time"] = _now()
+        _scalar_string(entry, "end_time", 40)
         inst = entry.create_group("instrument")
         inst.attrs["NX_class"] = "NXinstrument"
         det = inst.create_group("detector")
@@ -245,53 +325,98 @@ class SessionWriter:
         for col in VIEW_COLUMNS:
             ds = views.create_dataset(col.name, shape=(0,), maxshape=(None,), dtype=col.dtype, chunks=(1024,))
             ds.attrs["units"] = col.units
+        committed = vc.create_dataset("committed_views", shape=(1,), maxshape=(1,), dtype="i8", chunks=(1,), fillvalue=0)
+        committed[0] = 0
+        committed.attrs["units"] = "views"
+        committed.attrs["meaning"] = "views 0 .. n-1 are complete; rows beyond belong to a view cut short"
+        stop = _scalar_string(vc, "stop_record", STOP_RECORD_BYTES)
+        stop.attrs["meaning"] = "JSON stop record (exit_status success|abort|fail, reason, views_written, time); empty while writing"
         start = vc.create_group("start")
-        _set_attrs(start, {"uid": str(uuid.uuid4()), "time": _now(), "host": socket.gethostname(),
-                           "versions": software_versions(), **start_info})
+        _set_attrs(start, start_record or {"uid": str(uuid.uuid4()), "time": _now(), "host": socket.gethostname(),
+                                           "versions": software_versions(), **start_info})
 
     # -- resume ---------------------------------------------------------------------------
     @classmethod
-    def resume(cls, path: str | Path) -> "SessionWriter":
+    def resume(cls, path: str | Path, durable: bool = True) -> "SessionWriter":
         """Reopen an incomplete session to append more views.
+
+        The committed views are checked against their CRC-32 and copied, bit for bit, into a new
+        file that replaces the old one in one rename; the old ending (its stop record, or
+        "killed" when it had none) is kept under ``/entry/vastcal/resumed``. Rows of a view cut
+        short by a kill are dropped. Nothing of the original is touched before the rename.
 
         Raises:
             NotASessionError: not a vastcal session.
-            SessionIncompleteError: never raised; a *complete* session raises ``OutputExistsError``.
+            OutputExistsError: the session is complete (exit status success).
+            SessionCorruptError: a committed frame fails its checksum.
+            SessionBusyError: another process is writing it.
         """
-        s = Session.open(path)  # validates
-        s.close()
-        h5 = h5py.File(path, "r+")
-        if "stop" in h5[VASTCAL]:
-            status = _attr_str(h5[VASTCAL]["stop"].attrs.get("exit_status", ""))
-            if status == "success":
-                h5.close()
-                raise OutputExistsError(f"{path}: the session is complete (exit_status success); nothing to resume")
-            resumes = h5[VASTCAL].require_group("resumed")  # keep the history of earlier endings
-            old = h5[VASTCAL]["stop"]
-            rec = resumes.create_group(f"stop_{len(resumes):03d}")
-            _set_attrs(rec, {k: _attr_str(v) for k, v in old.attrs.items()})
-            del h5[VASTCAL]["stop"]
-            h5.flush()
-        writer = cls(h5, Path(path))
-        writer._drop_unfinished_view()
-        return writer
+        p = Path(path)
+        lock = PathLock(p).acquire()
+        try:
+            with Session.open(p) as src:
+                if src.exit_status == "success":
+                    raise OutputExistsError(f"{p}: the session is complete (exit_status success); nothing to resume")
+                n = src.n_views
+                tmp = p.with_name(f".{p.name}.partial")
+                cls.rebuild(src, tmp, ending=src.stop_record or {"exit_status": "incomplete", "reason": "the writer was killed",
+                                                                 "views_written": n})
+            place_atomically(tmp, p, replace=True)
+            log.info("%s: resuming after %d committed views", p, n)
+            return cls._open_live(p, lock, durable)
+        except BaseException:
+            lock.release()
+            raise
 
-    def _drop_unfinished_view(self) -> None:
-        """Cut per-view records beyond the last complete frame (an append cut short by a kill)."""
-        n = self.n_views
-        for ds in (*self._columns.values(), *self._keys, self._count_time, self._angle):
-            if ds.shape[0] > n:
-                ds.resize((n,))
-        self._h5.flush()
+    @classmethod
+    def rebuild(cls, src: "Session", tmp: Path, ending: dict[str, Any] | None = None) -> None:
+        """Write a closed copy of ``src`` at ``tmp``: its committed views (CRC-checked, bit for bit),
+        masks, cameras, stage runs and history, plus ``ending`` appended to the resume history.
+
+        Raises:
+            SessionCorruptError: a committed frame fails its checksum.
+        """
+        src.verify()
+        h5, n = src.h5, src.n_views
+        det = h5[DETECTOR]
+        history = src.resume_history() + ([ending] if ending else [])
+        out = h5py.File(tmp, "w", libver="latest")
+        try:
+            cls._layout(out, src.frame_shape, src.dtype, src.rig_yaml, src.plan_raw(), src.pixel_size_um, src.roi_offset_px,
+                        _attr_str(h5[ENTRY]["title"][()]), {}, start_record=src.start_record_raw())
+            if history:
+                res = out[VASTCAL].create_group("resumed")
+                for k, rec in enumerate(history):
+                    _set_attrs(res.create_group(f"stop_{k:03d}"), rec)
+            for name in ("masks", "cameras", *STAGE_GROUPS):
+                if name in h5[VASTCAL]:
+                    h5.copy(h5[VASTCAL][name], out[VASTCAL], name=name)
+            writer = cls(out, Path(tmp), lock=PathLock(Path(tmp)), durable=False)
+            table = src.view_table()
+            keys = det["image_key"][:n]
+            origin = (0,) * (det["data"].ndim - 1)
+            for i in range(n):
+                raw = det["data"].id.read_direct_chunk((i,) + origin)[1]
+                frame = np.frombuffer(raw, dtype=src.dtype).reshape(src.frame_shape)
+                cols = {c.name: table[c.name][i] for c in VIEW_COLUMNS if c.name in table and c.name != "frame_crc32"}
+                writer._write_view(frame, float(cols.pop("commanded_angle_deg")), int(keys[i]), cols)
+            writer._set_committed(n)
+            if src.stop_record and not ending:
+                out[VASTCAL]["stop_record"][()] = np.bytes_(json.dumps(src.stop_record, default=_json_default).encode())
+            out.close()
+        except BaseException:
+            out.close()
+            tmp.unlink(missing_ok=True)
+            raise
 
     # -- appending ------------------------------------------------------------------------
     @property
     def n_views(self) -> int:
-        """Frames written so far."""
-        return int(self._h5[DETECTOR]["data"].shape[0])
+        """Views committed so far."""
+        return self._n
 
     def append_view(self, frame: np.ndarray, angle_deg: float, image_key: int = 0, **columns: Any) -> int:
-        """Append one frame and its per-view record, then flush; returns its index.
+        """Append one frame and its per-view record, make them durable, then commit; returns its index.
 
         ``columns`` fill the per-view table (see :data:`VIEW_COLUMNS`; missing ones get their
         fill value, e.g. ``readback_usteps=-1`` for imported images). Unknown names raise.
@@ -300,65 +425,99 @@ class SessionWriter:
         if frame.shape != data.shape[1:] or frame.dtype != data.dtype:
             raise SessionError(f"{self.path}: a {frame.shape} {frame.dtype} frame does not fit this session's {data.shape[1:]} {data.dtype} "
                                "frames (was the rig's ROI or pixel format changed?)")
-        unknown = set(columns) - set(self._columns)
+        unknown = set(columns) - set(self._columns) | ({"frame_crc32"} & set(columns))
         if unknown:
             raise ValueError(f"unknown per-view columns: {sorted(unknown)}")
-        i = data.shape[0]
-        values = {c.name: columns.get(c.name, c.fill) for c in VIEW_COLUMNS}
-        values["commanded_angle_deg"] = angle_deg
-        for col in VIEW_COLUMNS:
-            v = values[col.name]
-            _append(self._columns[col.name], i, v.encode() if isinstance(v, str) else v)
-        for ds in self._keys:
-            _append(ds, i, image_key)
-        _append(self._count_time, i, values["exposure_us"] * 1e-6)
-        _append(self._angle, i, angle_deg)
-        # The frame last: a view counts once its frame is in place. One frame = one chunk,
-        # written directly (no selection machinery, no conversion).
-        data.resize((i + 1,) + data.shape[1:])
-        data.id.write_direct_chunk((i,) + (0,) * frame.ndim, np.ascontiguousarray(frame).tobytes())
+        i = self._n
+        self._write_view(frame, angle_deg, image_key, columns)
         self._h5.flush()
+        if self._durable:
+            os.fsync(self._h5.id.get_vfd_handle())  # the view is on disk before the commit names it
+        self._set_committed(i + 1)
         return i
 
+    def _write_view(self, frame: np.ndarray, angle_deg: float, image_key: int, columns: dict[str, Any]) -> None:
+        """Rows ``n`` of every per-view dataset (rows beyond ``n`` left by a kill are overwritten)."""
+        i = self._n
+        values = {c.name: columns.get(c.name, c.fill) for c in VIEW_COLUMNS}
+        values["commanded_angle_deg"] = angle_deg
+        values["frame_crc32"] = _frame_crc(frame)
+        for col in VIEW_COLUMNS:
+            v = values[col.name]
+            _put(self._columns[col.name], i, v.encode() if isinstance(v, str) else v)
+        for ds in self._keys:
+            _put(ds, i, image_key)
+        _put(self._count_time, i, values["exposure_us"] * 1e-6)
+        _put(self._angle, i, angle_deg)
+        # One frame = one chunk, written directly (no selection machinery, no conversion).
+        if self._data.shape[0] < i + 1:
+            self._data.resize((i + 1,) + self._data.shape[1:])
+        self._data.id.write_direct_chunk((i,) + (0,) * frame.ndim, np.ascontiguousarray(frame).tobytes())
+        self._n = i + 1
+
+    def _set_committed(self, n: int) -> None:
+        self._committed[0] = n
+        self._h5.flush()
+        self._n = n
+
+    def _require_staged(self, what: str) -> None:
+        if self._staged_from is None:
+            raise SessionError(f"{self.path}: {what} can only be written while importing (a staged session)")
+
     def write_masks(self, masks: np.ndarray) -> None:
-        """Store silhouettes (N, H, W), nonzero = specimen, as uint8 0/255."""
+        """Store silhouettes (N, H, W), nonzero = specimen, as uint8 0/255 (staged sessions)."""
+        self._require_staged("masks")
         m = (np.asarray(masks) > 0).astype(np.uint8) * 255
         self._h5[VASTCAL].create_dataset("masks", data=m, chunks=(1,) + m.shape[1:], compression="gzip", compression_opts=1)
-        self._h5.flush()
 
     def write_cameras(self, P: np.ndarray, source: str, attrs: dict[str, Any] | None = None, P_given: np.ndarray | None = None) -> None:
-        """Store known cameras P (N, 3, 4) in 0-based pixels of the stored frames.
+        """Store known cameras P (N, 3, 4) in 0-based pixels of the stored frames (staged sessions).
 
         ``P_given`` keeps the matrices exactly as the source gave them (its own pixel convention).
         """
+        self._require_staged("cameras")
         g = self._h5[VASTCAL].create_group("cameras")
         g.create_dataset("P", data=np.asarray(P, float))
         if P_given is not None:
             g.create_dataset("P_given", data=np.asarray(P_given, float))
         g["P"].attrs["convention"] = "world (specimen units) -> 0-based pixels of the stored frames"
         _set_attrs(g, {"source": source, **(attrs or {})})
-        self._h5.flush()
 
     def finish(self, exit_status: str, reason: str = "", **extra: Any) -> None:
-        """Write the stop record (``success``, ``abort`` or ``fail``) and the end time."""
+        """Write the stop record (``success``, ``abort`` or ``fail``) and the end time.
+
+        A staged session is renamed into place when the status is ``success`` and discarded
+        otherwise (its source can be imported again).
+        """
         if exit_status not in ("success", "abort", "fail"):
             raise ValueError(f"exit_status must be success, abort or fail, got {exit_status!r}")
-        vc = self._h5[VASTCAL]
-        if "stop" in vc:
-            del vc["stop"]
-        stop = vc.create_group("stop")
-        _set_attrs(stop, {"exit_status": exit_status, "reason": reason, "views_written": self.n_views, "time": _now(), **extra})
-        entry = self._h5[ENTRY]
-        if "end_time" in entry:
-            del entry["end_time"]
-        entry["end_time"] = _now()
+        record = {"exit_status": exit_status, "reason": reason, "views_written": self.n_views, "time": _now(), **extra}
+        text = json.dumps(record, default=_json_default)
+        if len(text.encode()) > STOP_RECORD_BYTES:  # a very long reason is cut, never the record
+            record["reason"] = reason[: STOP_RECORD_BYTES // 2] + " …"
+            text = json.dumps(record, default=_json_default)[:STOP_RECORD_BYTES]
+        self._h5[ENTRY]["end_time"][()] = np.bytes_(_now()[:40])
+        self._h5[VASTCAL]["stop_record"][()] = np.bytes_(text.encode())
         self._h5.flush()
         self._finished = True
+        if self._staged_from is not None:
+            self._h5.close()
+            if exit_status == "success":
+                place_atomically(self._staged_from, self.path, replace=self._replace)
+            else:
+                self._staged_from.unlink(missing_ok=True)
+            self._staged_from = None
 
     def close(self) -> None:
-        """Close the file (idempotent)."""
-        if self._h5.id.valid:
-            self._h5.close()
+        """Close the file and release the path (idempotent). An unfinished staged file is discarded."""
+        try:
+            if self._h5.id.valid:
+                self._h5.close()
+            if self._staged_from is not None:
+                self._staged_from.unlink(missing_ok=True)
+                self._staged_from = None
+        finally:
+            self._lock.release()
 
     def __enter__(self) -> "SessionWriter":
         return self
@@ -376,23 +535,60 @@ class SessionWriter:
             self.close()
 
 
+def _json_default(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return str(v)
+
+
+def _open_h5_for_reading(p: Path) -> tuple[h5py.File, bool]:
+    """Open read-only; a file being written (or left by a killed writer) is read in SWMR mode.
+
+    Returns the file and whether it was opened in SWMR mode.
+    """
+    try:
+        return h5py.File(p, "r"), False
+    except OSError as exc:
+        msg = str(exc)
+        if "already open for write" in msg or "consistency flags" in msg or "SWMR" in msg:
+            return h5py.File(p, "r", swmr=True), True
+        raise
+
+
 class Session:
     """A session opened for reading, and for adding the results of later stages.
 
     Opening checks that the file is HDF5, is not truncated and was written by vastcal;
     it never modifies the images. Use :meth:`open` and close it (or use ``with``).
+
+    Results of later stages are added copy-on-write: with ``mode="a"``, :meth:`new_result_group`
+    writes into a copy of the file, and :meth:`close` (or the end of a ``with`` block without an
+    exception) renames that copy over the session, so a kill while a run is being stored leaves
+    the images and the earlier runs exactly as they were.
     """
 
-    def __init__(self, h5: h5py.File, path: Path) -> None:
+    def __init__(self, h5: h5py.File, path: Path, writable: bool = False, live: bool = False) -> None:
         self._h5 = h5
         self.path = path
+        self.live = live  # opened in SWMR mode: a writer is at work, or was killed
+        self._writable = writable
+        vc = h5[VASTCAL]
+        if "committed_views" in vc:
+            self._n = int(vc["committed_views"][0])
+        else:  # schema 1: every frame counts
+            self._n = int(h5[DETECTOR]["data"].shape[0])
+        self._staging: h5py.File | None = None
+        self._staging_path: Path | None = None
+        self._lock: PathLock | None = None
 
     @classmethod
     def open(cls, path: str | Path, mode: str = "r") -> "Session":
         """Open and validate a session (``mode`` ``"r"`` or ``"a"`` to add results).
 
         Raises:
-            NotASessionError: missing file, not HDF5, truncated, or not written by vastcal.
+            NotASessionError: missing file, not HDF5, truncated, damaged, or not written by vastcal.
         """
         p = Path(path)
         if not p.is_file():
@@ -404,7 +600,7 @@ class Session:
         if not is_h5:
             raise NotASessionError(f"{p}: not an HDF5 file (expected a vastcal session .h5)")
         try:
-            h5 = h5py.File(p, "r+" if mode == "a" else "r")
+            h5, live = _open_h5_for_reading(p)
         except OSError as exc:
             msg = str(exc).splitlines()[0]
             hint = "truncated or damaged" if "truncat" in msg or "signature" in msg or "eof" in msg.lower() else "cannot open"
@@ -415,40 +611,104 @@ class Session:
             version = int(h5.attrs.get("vastcal_session_version", 0))
             if version > SCHEMA_VERSION:
                 raise NotASessionError(f"{p}: session schema version {version} is newer than this vastcal understands ({SCHEMA_VERSION})")
-            n = h5[DETECTOR]["data"].shape[0]
-            n_angles = h5[ENTRY]["sample"]["rotation_angle"].shape[0]
-            if n_angles < n or (n_angles > n + 1) or (n_angles == n + 1 and "stop" in h5[VASTCAL]):
-                # One extra record without its frame is an append cut short (kill mid-view): tolerated.
-                raise NotASessionError(f"{p}: damaged session: {n} frames but {n_angles} rotation angles")
+            s = cls(h5, p, writable=(mode == "a"), live=live)
+            s._validate()
         except NotASessionError:
             h5.close()
             raise
-        except (KeyError, OSError, ValueError) as exc:
+        except (KeyError, OSError, ValueError, TypeError, IndexError) as exc:
             h5.close()
-            raise NotASessionError(f"{p}: damaged session ({exc})") from None
-        return cls(h5, p)
+            raise NotASessionError(f"{p}: damaged session ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+        return s
+
+    def _validate(self) -> None:
+        """Structure of the committed part: ranks, types and lengths every reader relies on."""
+        p, h5, n = self.path, self._h5, self._n
+        data = h5[DETECTOR]["data"]
+        if data.ndim not in (3, 4) or (data.ndim == 4 and data.shape[3] != 3) or data.dtype not in (np.uint8, np.uint16):
+            raise NotASessionError(f"{p}: damaged session: frames are {data.shape} {data.dtype}; expected N x H x W[x 3] uint8 or uint16")
+        if n < 0 or data.shape[0] < n:
+            raise NotASessionError(f"{p}: damaged session: {n} committed views but {data.shape[0]} frames")
+        angles = h5[ENTRY]["sample"]["rotation_angle"]
+        if angles.ndim != 1 or angles.dtype.kind != "f":
+            raise NotASessionError(f"{p}: damaged session: /entry/sample/rotation_angle is {angles.dtype} {angles.shape}; expected float degrees")
+        n_angles = angles.shape[0]
+        if "committed_views" in h5[VASTCAL]:
+            if n_angles < n:
+                raise NotASessionError(f"{p}: damaged session: {n} committed views but {n_angles} rotation angles")
+        elif n_angles < n or n_angles > n + 1 or (n_angles == n + 1 and "stop" in h5[VASTCAL]):
+            # Schema 1: one extra record without its frame is an append cut short (kill mid-view): tolerated.
+            raise NotASessionError(f"{p}: damaged session: {n} frames but {n_angles} rotation angles")
+        if not np.all(np.isfinite(angles[:n])):
+            raise NotASessionError(f"{p}: damaged session: non-finite rotation angles")
+        keys = h5[DETECTOR]["image_key"]
+        if keys.shape[0] < n:
+            raise NotASessionError(f"{p}: damaged session: {n} views but {keys.shape[0]} image keys")
+        self.pixel_size_um  # noqa: B018 — raises KeyError/ValueError when absent or malformed
+        self.roi_offset_px  # noqa: B018
+        ps = self.pixel_size_um
+        if not all(np.isfinite(v) and v > 0 for v in ps):
+            raise NotASessionError(f"{p}: damaged session: pixel size {ps} µm; expected positive numbers")
+        self.plan  # noqa: B018
+        self.start_record  # noqa: B018
+
+    def verify(self) -> None:
+        """Check every committed frame against its CRC-32 (schema 2 sessions).
+
+        Raises:
+            SessionCorruptError: naming the first view that fails.
+        """
+        views = self._h5[VASTCAL]["views"]
+        if "frame_crc32" not in views:
+            return
+        crc = views["frame_crc32"][: self._n]
+        data = self._h5[DETECTOR]["data"]
+        for i in range(self._n):
+            if _frame_crc(data[i]) != int(crc[i]):
+                raise SessionCorruptError(f"{self.path}: view {i}: the frame does not match the CRC-32 written with it")
 
     def close(self) -> None:
-        """Close the file (idempotent)."""
+        """Commit staged results (if any), then close (idempotent)."""
+        try:
+            self._commit_results()
+        finally:
+            self._close_files()
+
+    def _close_files(self) -> None:
+        self.discard_results()
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
         if self._h5.id.valid:
             self._h5.close()
+
+    def discard_results(self) -> None:
+        """Forget the results staged since opening; the session file stays as it was."""
+        if self._staging is not None:
+            self._staging.close()
+            self._staging = None
+        if self._staging_path is not None:
+            self._staging_path.unlink(missing_ok=True)
+            self._staging_path = None
 
     def __enter__(self) -> "Session":
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
+        if exc_type is not None:
+            self.discard_results()
         self.close()
 
     # -- images and angles ------------------------------------------------------------------
     @property
     def h5(self) -> h5py.File:
-        """The underlying h5py file (for stages that add groups)."""
+        """The underlying h5py file of the images (read-only)."""
         return self._h5
 
     @property
     def n_views(self) -> int:
-        """Number of frames stored (all image keys)."""
-        return int(self._h5[DETECTOR]["data"].shape[0])
+        """Number of committed frames (all image keys)."""
+        return self._n
 
     @property
     def frame_shape(self) -> tuple[int, ...]:
@@ -463,7 +723,7 @@ class Session:
     @property
     def image_key(self) -> np.ndarray:
         """(N,) 0 projection, 1 flat, 2 dark."""
-        return self._h5[DETECTOR]["image_key"][: self.n_views]
+        return self._h5[DETECTOR]["image_key"][: self._n]
 
     @property
     def projection_indices(self) -> np.ndarray:
@@ -472,26 +732,28 @@ class Session:
 
     def frame(self, i: int) -> np.ndarray:
         """Frame ``i`` as stored."""
+        if not 0 <= i < self._n:
+            raise IndexError(f"{self.path}: view {i} out of range (0..{self._n - 1})")
         return self._h5[DETECTOR]["data"][i]
 
     def projections(self) -> np.ndarray:
         """All projection frames (image_key 0), (N, H, W[, 3])."""
         idx = self.projection_indices
         data = self._h5[DETECTOR]["data"]
-        if len(idx) == data.shape[0]:
-            return data[...]
+        if len(idx) == self._n:
+            return data[: self._n]
         return np.stack([data[i] for i in idx]) if len(idx) else np.empty((0,) + data.shape[1:], data.dtype)
 
     def iter_frames(self) -> Iterator[np.ndarray]:
-        """Frames one at a time (for memory-light readers)."""
+        """Committed frames one at a time (for memory-light readers)."""
         data = self._h5[DETECTOR]["data"]
-        for i in range(data.shape[0]):
+        for i in range(self._n):
             yield data[i]
 
     @property
     def angles_deg(self) -> np.ndarray:
         """Commanded rotation angle of every projection, degrees."""
-        return self._h5[ENTRY]["sample"]["rotation_angle"][: self.n_views][self.projection_indices]
+        return self._h5[ENTRY]["sample"]["rotation_angle"][: self._n][self.projection_indices]
 
     @property
     def pixel_size_um(self) -> tuple[float, float]:
@@ -523,10 +785,14 @@ class Session:
         """The plan attributes."""
         return {k: _decode_json(v) for k, v in self._h5[VASTCAL]["plan"].attrs.items()}
 
+    def plan_raw(self) -> dict[str, Any]:
+        """The plan attributes as stored (for copying)."""
+        return {k: _attr_str(v) for k, v in self._h5[VASTCAL]["plan"].attrs.items()}
+
     def view_table(self) -> dict[str, np.ndarray]:
-        """The per-view table, one array per column."""
+        """The per-view table of the committed views, one array per column."""
         views = self._h5[VASTCAL]["views"]
-        return {k: views[k][: self.n_views] for k in views}
+        return {k: views[k][: self._n] for k in views}
 
     @property
     def masks(self) -> np.ndarray | None:
@@ -548,18 +814,37 @@ class Session:
         """Attributes of the start record."""
         return {k: _decode_json(v) for k, v in self._h5[VASTCAL]["start"].attrs.items()}
 
+    def start_record_raw(self) -> dict[str, Any]:
+        """The start record's attributes as stored (for copying)."""
+        return {k: _attr_str(v) for k, v in self._h5[VASTCAL]["start"].attrs.items()}
+
     @property
     def stop_record(self) -> dict[str, Any] | None:
-        """Attributes of the stop record, or None if the writer never finished."""
-        if "stop" not in self._h5[VASTCAL]:
-            return None
-        return {k: _decode_json(v) for k, v in self._h5[VASTCAL]["stop"].attrs.items()}
+        """The stop record, or None while the writer is at work (or after it was killed)."""
+        vc = self._h5[VASTCAL]
+        if "stop_record" in vc:
+            text = _attr_str(vc["stop_record"][()])
+            if not text:
+                return None
+            try:
+                rec = json.loads(text)
+            except ValueError:
+                raise NotASessionError(f"{self.path}: damaged session: unreadable stop record") from None
+            return rec if isinstance(rec, dict) else None
+        if "stop" in vc:  # schema 1
+            return {k: _decode_json(v) for k, v in vc["stop"].attrs.items()}
+        return None
+
+    def resume_history(self) -> list[dict[str, Any]]:
+        """Earlier endings of a resumed acquisition, oldest first."""
+        res = self._h5[VASTCAL].get("resumed")
+        return [read_attrs(res[k]) for k in sorted(res)] if res is not None else []
 
     @property
     def exit_status(self) -> str:
         """``success``, ``abort``, ``fail``, or ``incomplete`` when no stop record exists."""
         rec = self.stop_record
-        return str(rec["exit_status"]) if rec else "incomplete"
+        return str(rec.get("exit_status", "incomplete")) if rec else "incomplete"
 
     @property
     def is_complete(self) -> bool:
@@ -582,45 +867,90 @@ class Session:
             raise SessionIncompleteError(f"{self.path}: {n} projection views; at least {min_views} needed")
 
     # -- results of later stages -------------------------------------------------------------
+    def _results_for_reading(self) -> h5py.File:
+        return self._staging if self._staging is not None else self._h5
+
     def stages_run(self) -> dict[str, list[str]]:
         """Names of the stored runs of each later stage, oldest first."""
-        vc = self._h5[VASTCAL]
+        vc = self._results_for_reading()[VASTCAL]
         return {k: sorted(vc[k].keys()) for k in STAGE_GROUPS if k in vc}
 
+    def _staged(self) -> h5py.File:
+        """The writable copy of the session that :meth:`close` renames over it (copy-on-write)."""
+        if self._staging is not None:
+            return self._staging
+        if not self._writable:
+            raise ValueError("session opened read-only; open with mode='a' to add results")
+        lock = PathLock(self.path, timeout_s=RESULTS_LOCK_TIMEOUT_S).acquire()
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
+        try:
+            if self.live:  # not closed cleanly (SWMR flags set): rebuild rather than copy
+                SessionWriter.rebuild(self, tmp)
+            else:
+                shutil.copyfile(self.path, tmp)
+            staging = h5py.File(tmp, "r+")
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            lock.release()
+            raise
+        self._lock, self._staging, self._staging_path = lock, staging, tmp
+        return staging
+
     def new_result_group(self, stage: str) -> h5py.Group:
-        """Create ``/entry/vastcal/<stage>/run_NNN`` (next free number) for a stage's result."""
+        """Create ``/entry/vastcal/<stage>/run_NNN`` (next free number) for a stage's result.
+
+        The group is written into a copy of the session that replaces it at :meth:`close`.
+        """
         if stage not in STAGE_GROUPS:
             raise ValueError(f"unknown stage {stage!r}")
-        if self._h5.mode != "r+":
-            raise ValueError("session opened read-only; open with mode='a' to add results")
-        g = self._h5[VASTCAL].require_group(stage)
+        f = self._staged()
+        g = f[VASTCAL].require_group(stage)
         g.attrs["schema_version"] = SCHEMA_VERSION
         name = f"run_{len(g):03d}"
+        while name in g:
+            name = f"run_{int(name[4:]) + 1:03d}"
         run = g.create_group(name)
         run.attrs["time"] = _now()
         run.attrs["versions"] = json.dumps(software_versions())
         return run
 
+    def remove_result_group(self, group: h5py.Group) -> None:
+        """Drop a staged run that could not be completed."""
+        if self._staging is not None and group.file == self._staging:
+            del self._staging[group.name]
+
     def latest_result(self, stage: str) -> h5py.Group | None:
         """The newest run of ``stage``, or None."""
         runs = self.stages_run().get(stage)
-        return self._h5[VASTCAL][stage][runs[-1]] if runs else None
+        return self._results_for_reading()[VASTCAL][stage][runs[-1]] if runs else None
 
     def result(self, stage: str, name: str | None = None) -> h5py.Group | None:
         """Run ``name`` of ``stage`` (the latest when ``name`` is None), or None."""
         if name is None:
             return self.latest_result(stage)
-        g = self._h5[VASTCAL].get(stage)
+        g = self._results_for_reading()[VASTCAL].get(stage)
         return g[name] if g is not None and name in g else None
 
     def flush(self) -> None:
-        """Flush pending writes of later stages."""
-        self._h5.flush()
+        """Flush pending writes of later stages (they replace the session file at :meth:`close`)."""
+        if self._staging is not None:
+            self._staging.flush()
+
+    def _commit_results(self) -> None:
+        """Rename the staged copy over the session (fsync-ed): the new runs appear in one step."""
+        if self._staging is None or self._staging_path is None:
+            return
+        self._staging.close()
+        self._staging = None
+        place_atomically(self._staging_path, self.path, replace=True)
+        self._staging_path = None
+        log.debug("stored results in %s", self.path)
 
 
-def _append(ds: h5py.Dataset, i: int, value: Any) -> None:
-    """Grow a 1-D dataset to ``i + 1`` elements and set element ``i``."""
-    ds.resize((i + 1,))
+def _put(ds: h5py.Dataset, i: int, value: Any) -> None:
+    """Set element ``i`` of a 1-D dataset, growing it to ``i + 1`` elements if needed."""
+    if ds.shape[0] < i + 1:
+        ds.resize((i + 1,))
     ds[i] = value
 
 

@@ -140,9 +140,8 @@ def test_resume_without_config_uses_the_rig_stored_in_the_session(tmp_path: Path
     assert first.returncode == 0, first.stderr
     import h5py
 
-    with h5py.File(session, "r+") as f:  # pretend the run stopped after 2 views
-        for path in ("/entry/vastcal/stop",):
-            del f[path]
+    with h5py.File(session, "r+") as f:  # pretend the run was killed after its last view: no stop record
+        f["/entry/vastcal/stop_record"][()] = b""
     proc = subprocess.run([*env_cmd, "acquire", "--resume", str(session)], capture_output=True, text=True, timeout=120)
     assert "complete" in proc.stderr or proc.returncode == 0, proc.stderr
     with Session.open(session) as s:

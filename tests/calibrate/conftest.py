@@ -30,7 +30,7 @@ def rig_yaml(bounds: CalibrationBounds | None = None) -> str:
 
 def write_session(path: Path, images: np.ndarray, angles: np.ndarray, masks: np.ndarray | None = None) -> Path:
     """A complete session holding ``images`` at commanded ``angles``."""
-    with SessionWriter.create(path, frame_shape=images.shape[1:], dtype=images.dtype, rig_yaml=rig_yaml(), plan={"views": len(images)},
+    with SessionWriter.create(path, frame_shape=images.shape[1:], dtype=images.dtype, rig_yaml=rig_yaml(), plan={"views": len(images)}, live=False,
                               pixel_size_um=(5.5, 5.5)) as w:
         for im, a in zip(images, angles):
             w.append_view(im, float(a))

@@ -42,7 +42,7 @@ def test_round_trip_frames_angles_table(tmp_path: Path) -> None:
         assert s.h5["/entry/vastcal/views/readback_usteps"].attrs["units"] == "microstep"
         assert s.h5["/entry/sample/rotation_angle"].attrs["units"] == "degree"
         assert s.h5["/entry/instrument/detector/data"].chunks == (1, 16, 24)
-        assert s.h5["/entry/vastcal"].attrs["schema_version"] == 1
+        assert s.h5["/entry/vastcal"].attrs["schema_version"] == 2
         assert s.roi_offset_px == (0, 10)
 
 
@@ -141,7 +141,7 @@ def test_missing_frames(tmp_path: Path) -> None:
     make_session(tmp_path / "s.h5")
     with h5py.File(tmp_path / "s.h5", "r+") as f:
         f["/entry/instrument/detector/data"].resize((3, 16, 24))
-    with pytest.raises(NotASessionError, match="3 frames but 5 rotation angles"):
+    with pytest.raises(NotASessionError, match="5 committed views but 3 frames"):
         Session.open(tmp_path / "s.h5")
 
 

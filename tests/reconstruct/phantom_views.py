@@ -74,7 +74,7 @@ def make_session(path: Path, views: PhantomViews, *, masks: bool = True, cameras
     n = len(views.angles_deg)
     frames = (230 - 150 * views.coverage).astype(np.uint8)
     commanded = np.arange(n) * 360.0 / n
-    with SessionWriter.create(path, frame_shape=frames.shape[1:], dtype=np.uint8, rig_yaml=dump_config(RigConfig()), plan={"views": n},
+    with SessionWriter.create(path, frame_shape=frames.shape[1:], dtype=np.uint8, rig_yaml=dump_config(RigConfig()), plan={"views": n}, live=False,
                               pixel_size_um=(5.5, 5.5), title=f"phantom {views.phantom.name}") as w:
         for i in range(n):
             w.append_view(frames[i], float(commanded[i]))

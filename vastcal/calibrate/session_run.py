@@ -113,8 +113,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         try:
             store_result(group, result, notes, silhouettes="imported masks" if sil is not None else "p_f > threshold")
         except BaseException:
-            name = group.name
-            del target.h5[name]
+            target.remove_result_group(group)
             raise
         target.flush()
         result.run_name = group.name.rsplit("/", 1)[-1]

@@ -192,7 +192,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         runs = s.stages_run()
         run_log = {}
         for stage, names in runs.items():
-            run_log[stage] = [{"run": n, "time": read_attrs(s.h5[f"/entry/vastcal/{stage}/{n}"]).get("time", "")} for n in names]
+            run_log[stage] = [{"run": n, "time": read_attrs(s.result(stage, n)).get("time", "")} for n in names]
         mesh = load_mesh(meas)
     boundary = hull_boundary(hull.occupancy)
     points = np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
