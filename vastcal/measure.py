@@ -261,6 +261,8 @@ class Measurement:
         mesh: the smoothed mesh (µm).
         timings_s: marching cubes, smoothing, hull (s).
         provenance: which runs and inputs (reconstruction/calibration run, sources).
+        uncertainty: the uncertainty budget (:meth:`vastcal.uncertainty.Budget.as_dict`), or None.
+        qc: per-view quality control and verdict (:meth:`vastcal.qc.QCResult.as_dict`), or None.
     """
 
     volume_mm3: float
@@ -275,6 +277,12 @@ class Measurement:
     mesh: Mesh = field(repr=False)
     timings_s: dict[str, float] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
+    uncertainty: dict[str, Any] | None = None
+    qc: dict[str, Any] | None = None
+
+    def with_assessment(self, uncertainty: dict[str, Any] | None, qc: dict[str, Any] | None) -> "Measurement":
+        """A copy carrying its uncertainty budget and QC (plain dicts)."""
+        return replace(self, uncertainty=uncertainty, qc=qc)
 
     def with_provenance(self, **kw: Any) -> "Measurement":
         """A copy with more provenance entries."""
@@ -296,14 +304,29 @@ class Measurement:
             "settings": asdict(self.settings),
             "timings_s": dict(self.timings_s),
             **({"provenance": dict(self.provenance)} if self.provenance else {}),
+            **({"uncertainty": self.uncertainty} if self.uncertainty else {}),
+            **({"qc": self.qc} if self.qc else {}),
         }
 
     def summary(self) -> str:
-        """Human lines with units."""
-        return (f"volume        {self.volume_mm3:.4f} mm^3 (voxels inside all {self.n_views} silhouettes; "
-                f"smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3)\n"
-                f"surface area  {self.surface_area_mm2:.3f} mm^2 (smoothed mesh, {self.mesh.n_faces} triangles)\n"
-                f"voxel size    {self.voxel_size_um:.2f} um, {self.n_inside_voxels} voxels inside")
+        """Human lines with units: the values to cite with their k = 2 intervals, the verdict."""
+        u = self.uncertainty or {}
+        lower = bool((self.qc or {}).get("lower_bound"))
+        vol_u = f" ± {u['U_volume_mm3']:.4f}" if u.get("U_volume_mm3") is not None else ""
+        area_u = f" ± {u['U_area_mm2']:.3f}" if u.get("U_area_mm2") is not None else ""
+        k = f" (k = {u.get('k', 2):g})" if u else ""
+        lb = " - a LOWER BOUND (specimen cut by the frame)" if lower else ""
+        lines = [f"volume        {self.volume_mm3:.4f}{vol_u} mm^3{k}{lb} (voxels inside all {self.n_views} silhouettes: the value to cite; "
+                 f"the smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3, a diagnostic)",
+                 f"surface area  {self.surface_area_mm2:.3f}{area_u} mm^2{k}{lb} (smoothed mesh, {self.mesh.n_faces} triangles)",
+                 f"voxel size    {self.voxel_size_um:.2f} um, {self.n_inside_voxels} voxels inside"]
+        if u.get("not_evaluated"):
+            lines.append(f"uncertainty   not evaluated: {', '.join(u['not_evaluated'])} (the interval leaves them out)")
+        if self.qc:
+            from vastcal.qc import QCResult
+
+            lines.append(f"verdict       {QCResult.from_dict(self.qc).verdict_line()}")
+        return "\n".join(lines)
 
 
 def measure_hull(hull: "HullResult", settings: MeasureSettings | None = None) -> Measurement:
@@ -361,8 +384,13 @@ def store_measurement(group: "h5py.Group", m: Measurement) -> None:
 
     d = m.as_dict()
     write_attrs(group, {k: v for k, v in d.items()})
+    if m.uncertainty:
+        write_attrs(group, {"volume_U_mm3": float(m.uncertainty["U_volume_mm3"]), "surface_area_U_mm2": float(m.uncertainty["U_area_mm2"]),
+                            "coverage_factor_k": float(m.uncertainty.get("k", 2.0))})
+    if m.qc:
+        write_attrs(group, {"verdict": str(m.qc.get("verdict", "")), "lower_bound": bool(m.qc.get("lower_bound", False))})
     write_attrs(group, {"volume_mm3_units": "mm^3", "mesh_volume_mm3_units": "mm^3", "surface_area_mm2_units": "mm^2",
-                        "volume_method": "voxels inside all silhouettes x voxel volume",
+                        "volume_method": "voxels inside all silhouettes x voxel volume (the value to cite; mesh_volume_mm3 is a diagnostic)",
                         "surface_method": f"marching cubes of silhouette counts at level {m.iso_level:g}, "
                                           f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), volume preserved"})
     for name, value, units in (("volume_mm3", m.volume_mm3, "mm^3"), ("mesh_volume_mm3", m.mesh_volume_mm3, "mm^3"),

@@ -31,6 +31,8 @@ class RunSummary:
     report_dir: Path | None = None
     volume_mm3: float | None = None
     surface_area_mm2: float | None = None
+    uncertainty: dict[str, Any] = field(default_factory=dict)
+    verdict: str = ""
     calibration: dict[str, Any] = field(default_factory=dict)
     timings_s: dict[str, float] = field(default_factory=dict)
     truth: dict[str, Any] = field(default_factory=dict)
@@ -38,10 +40,16 @@ class RunSummary:
     def summary(self) -> str:
         """Human lines: measurements with units, calibration, timings, truth comparison."""
         lines = [f"session          {self.session}"]
+        u = self.uncertainty
+        k = f" (k = {u.get('k', 2):g})" if u else ""
         if self.volume_mm3 is not None:
-            lines.append(f"volume           {self.volume_mm3:.4f} mm^3")
+            lines.append(f"volume           {self.volume_mm3:.4f}" + (f" ± {u['U_volume_mm3']:.4f}" if u.get("U_volume_mm3") is not None else "")
+                         + f" mm^3{k}")
         if self.surface_area_mm2 is not None:
-            lines.append(f"surface area     {self.surface_area_mm2:.3f} mm^2")
+            lines.append(f"surface area     {self.surface_area_mm2:.3f}" + (f" ± {u['U_area_mm2']:.3f}" if u.get("U_area_mm2") is not None else "")
+                         + f" mm^2{k}")
+        if self.verdict:
+            lines.append(f"verdict          {self.verdict}")
         if self.calibration:
             c = self.calibration
             lines.append("calibration      " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items()))
@@ -85,6 +93,11 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     m = reconstruct_session(path)
     res.timings_s["reconstruct"] = time.monotonic() - t
     res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)
+    res.uncertainty = dict(getattr(m, "uncertainty", None) or {})
+    if getattr(m, "qc", None):
+        from vastcal.qc import QCResult
+
+        res.verdict = QCResult.from_dict(m.qc).verdict_line()
     t = time.monotonic()
     write_report(path, out)
     res.timings_s["report"] = time.monotonic() - t
@@ -99,7 +112,12 @@ def _calibration_digest(cal: Any) -> dict[str, Any]:
             out[name] = getattr(cal, name)
     delta = getattr(cal, "delta_angle_deg", None)
     if delta is not None:
-        out["drift_rms_deg"] = float(np.sqrt(np.mean(np.square(np.asarray(delta)))))
+        from vastcal.uncertainty import drift_rms_deg
+
+        # one definition everywhere (views 1..N-1; view 0 defines 0 deg); the report says whether the data determine it
+        out["drift_rms_deg"] = drift_rms_deg(np.asarray(delta))[0]
+        if {"rolls", "all"} & set(getattr(cal, "free", ()) or ()):
+            out["drift"] = "undetermined by the images (the rolls follow the prior)"
     return out
 
 

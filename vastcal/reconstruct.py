@@ -691,6 +691,9 @@ def reconstruct_session(
                                                   "foreground_threshold": FOREGROUND_THRESHOLD, "use_masks": use_masks})
         meas = meas.with_provenance(reconstruction_run=rec.name.rsplit("/", 1)[-1], calibration_run=inputs.calibration_run,
                                     camera_source=inputs.camera_source, silhouette_source=inputs.silhouette_source)
+        from vastcal.uncertainty import assess_session_measurement  # uncertainty budget and per-view QC (helper H3)
+
+        meas = assess_session_measurement(s, inputs, hull, meas)
         store_measurement(s.new_result_group("measurement"), meas)
         s.flush()
     if mesh_path is not None:

@@ -1,0 +1,511 @@
+"""Per-view quality control and the session verdict (ok / check / fail).
+
+Pure functions over arrays (frames, silhouettes, cameras, the measured mesh) and stored results;
+no file or device I/O. Frames: the stored frames, 0-based pixels; world µm (x = rotation axis).
+
+What is checked, per view, and why each threshold is what it is
+---------------------------------------------------------------
+* **Image statistics** (:func:`frame_stats`): background level and noise σ_n (grey levels, from
+  differences of neighbouring background pixels: a difference of two independent pixels has
+  variance 2σ_n²), the specimen's edge contrast C (background − specimen just inside the edge),
+  the edge blur σ_b (px, from the steepest grey-level slope at the silhouette's boundary: a
+  Gaussian-blurred step of height C has slope C / (√(2π) σ_b)), and the grey level at which the
+  silhouette's boundary sits as a fraction f of the step (0.5 = the step's midpoint).
+* **Blank** — the frame holds no image: its 0.1–99.9 % grey range is below 10 σ_n + 1 grey level
+  (pure noise spans about ±3.3 σ_n over that range) or the silhouette is empty. → *fail*.
+* **Saturated / clipped** — more than 0.5 % of the pixels sit at the top code of the frame's bit
+  depth (or at 0): clipped pixels carry no edge position. → *check*.
+* **Low contrast** — one pixel's edge position has noise σ_n / slope = σ_n √(2π) σ_b / C px; above
+  0.5 px a single row cannot place the edge within half a pixel. → *check*.
+* **Cut by the frame edge** — silhouette pixels on the frame's outer row/column (over more than
+  2 px): the specimen leaves the field of view, so the hull misses that part and volume and area
+  are **lower bounds**. → *check*.
+* **Disagreement with the hull** (:func:`hull_agreement`): the reprojected hull (the smoothed mesh
+  rasterised through the view's camera) against the view's silhouette — IoU and the symmetric
+  mean boundary distance (px). For consistent silhouettes and cameras the visual hull reprojects
+  onto every silhouette exactly; the distance expected from measurement error alone is the edge
+  localisation σ_edge (:mod:`vastcal.uncertainty`) plus half a pixel of rasterisation. A view is
+  flagged when its distance exceeds 3 (σ_edge + 0.5 px) (→ *check*) or its IoU is below 0.5 (the
+  silhouette and the hull overlap less than they differ → *fail*).
+* **Calibration at its bounds** — a free parameter within 1 % of the box width of a bound of the
+  search box: the optimum may lie outside it. → *check*.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+BLANK_RANGE_SIGMAS = 10.0
+"""A frame whose 0.1–99.9 % grey range is below this many noise σ (+1 grey level) is blank."""
+SATURATED_FRACTION = 0.005
+"""Fraction of pixels at the top code (or 0) above which a frame is flagged saturated/clipped."""
+LOW_CONTRAST_PX = 0.5
+"""Single-pixel edge noise (px) above which a view is flagged low contrast."""
+CUT_MIN_PX = 3
+"""Silhouette pixels on the frame border (per view) from which the specimen counts as cut."""
+DISAGREE_SIGMAS = 3.0
+"""A view disagrees with the hull when its mean boundary distance exceeds this × (σ_edge + 0.5 px)."""
+FAIL_IOU = 0.5
+"""IoU below which a view's silhouette and the hull are not the same object."""
+BOUND_FRACTION = 0.01
+"""A calibrated parameter within this fraction of its box width of a bound is 'at the bound'."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Image statistics
+# ---------------------------------------------------------------------------------------------
+
+
+def gray(frame: np.ndarray) -> np.ndarray:
+    """float32 grey levels of a stored frame (RGB: mean of the channels)."""
+    f = np.asarray(frame)
+    if f.ndim == 3:
+        f = f[..., :3].mean(axis=2)
+    return f.astype(np.float32)
+
+
+def top_code(frame: np.ndarray) -> float:
+    """The largest code value of the frame's bit depth: 255 for uint8; for wider integers the
+    smallest of 2^b − 1 (b = 10, 12, 14, 16) not below the frame's maximum; +inf for floats."""
+    f = np.asarray(frame)
+    if f.dtype == np.uint8:
+        return 255.0
+    if np.issubdtype(f.dtype, np.integer):
+        mx = float(f.max()) if f.size else 0.0
+        for b in (10, 12, 14, 16, 32):
+            if mx <= 2**b - 1:
+                return float(2**b - 1)
+    return math.inf
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    """Image statistics of one view (grey levels of the stored frame, pixels).
+
+    Attributes:
+        background: median grey level just outside the silhouette.
+        specimen: median grey level just inside the silhouette.
+        contrast: |background − specimen|, grey levels.
+        noise: σ_n of one pixel, grey levels.
+        blur_px: σ_b of the edge (Gaussian-equivalent), px.
+        edge_noise_px: σ_n √(2π) σ_b / C, one pixel's edge-position noise, px.
+        boundary_level: grey level at the silhouette boundary as a fraction of the step (0 = background, 1 = specimen).
+        boundary_offset_px: outward offset of the silhouette's boundary from the true edge by the area method
+            (:func:`edge_offsets_px`, 10 % trimmed mean), px (negative: the silhouette is too small).
+        contour_px: length of the silhouette's boundary, px.
+        grey_range: 0.1–99.9 % range, grey levels.
+        saturated_fraction: fraction of pixels at the top code or at 0.
+        border_px: silhouette pixels on the frame's outer row/column.
+        silhouette_px: pixels in the silhouette.
+    """
+
+    background: float
+    specimen: float
+    contrast: float
+    noise: float
+    blur_px: float
+    edge_noise_px: float
+    boundary_level: float
+    boundary_offset_px: float
+    contour_px: int
+    grey_range: float
+    saturated_fraction: float
+    border_px: int
+    silhouette_px: int
+
+    def as_dict(self) -> dict[str, float]:
+        """Plain numbers."""
+        return {k: float(v) for k, v in self.__dict__.items()}
+
+
+def _trimmed_mean(x: np.ndarray, cut: float = 0.1) -> float:
+    """Mean of the values between the ``cut`` and 1 − ``cut`` quantiles."""
+    lo, hi = np.quantile(x, [cut, 1.0 - cut])
+    sel = x[(x >= lo) & (x <= hi)]
+    return float(sel.mean()) if sel.size else float(np.mean(x))
+
+
+def _ring(mask: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Pixels at a distance in [lo, hi] px from the region ``mask`` (outside it)."""
+    d = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
+    return (d >= lo) & (d <= hi)
+
+
+def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
+    """Image statistics of one view (see the module docstring and :class:`FrameStats`).
+
+    Args:
+        frame: (H, W[, 3]) stored frame.
+        silhouette: (H, W) bool specimen mask (or soft map, thresholded at 0.5).
+    """
+    g = gray(frame)
+    sil = np.asarray(silhouette)
+    sil = sil >= 0.5 if np.issubdtype(sil.dtype, np.floating) else sil != 0
+    h, w = g.shape
+    lo_hi = np.percentile(g, [0.1, 99.9]) if g.size else np.zeros(2)
+    top = top_code(frame)
+    f = np.asarray(frame)
+    sat = float(np.mean((f >= top) | (f <= 0))) if f.size else 0.0
+    if f.ndim == 3:
+        sat = float(np.mean(((f >= top) | (f <= 0)).any(axis=2)))
+    border = int(sil[0].sum() + sil[-1].sum() + sil[1:-1, 0].sum() + sil[1:-1, -1].sum())
+    # noise: neighbour differences away from the specimen (a difference has variance 2 σ_n²)
+    far = _ring(sil, 8.0, 1e9) if sil.any() else np.ones_like(sil)
+    dx = np.abs(np.diff(g, axis=1))[far[:, 1:] & far[:, :-1]]
+    noise = float(1.4826 * np.median(dx) / math.sqrt(2.0)) if dx.size else 0.0
+    if noise == 0.0 and dx.size:  # quantised, nearly noise-free frames: use the RMS difference instead
+        noise = float(np.sqrt(np.mean(dx.astype(np.float64) ** 2) / 2.0))
+    n_sil = int(sil.sum())
+    if n_sil == 0 or n_sil == sil.size:
+        return FrameStats(float(np.median(g)), float(np.median(g)), 0.0, noise, 0.0, math.inf, math.nan, math.nan, 0,
+                          float(lo_hi[1] - lo_hi[0]), sat, border, n_sil)
+    outside = _ring(sil, 3.0, 6.0)
+    inside = _ring(~sil, 3.0, 6.0)
+    bg = float(np.median(g[outside])) if outside.any() else float(np.median(g[~sil]))
+    fg = float(np.median(g[inside])) if inside.any() else float(np.median(g[sil]))
+    contrast = abs(bg - fg)
+    # steepest slope at the boundary: Gaussian derivative (σ 0.7 px) magnitude, max within ±1 px
+    sm = cv2.GaussianBlur(g, (0, 0), 0.7)
+    gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    mag = cv2.dilate(np.hypot(gx, gy), np.ones((3, 3), np.uint8))
+    edge = sil & ~cv2.erode(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    edge[0, :] = edge[-1, :] = False
+    edge[:, 0] = edge[:, -1] = False  # the frame's border is not the specimen's edge
+    contour = int(edge.sum())
+    slope = float(np.median(mag[edge])) if contour else 0.0
+    if contrast > 0 and slope > 0:
+        blur_meas = contrast / (math.sqrt(2.0 * math.pi) * slope)
+        blur = math.sqrt(max(blur_meas**2 - 0.7**2, 0.25**2))  # the 0.7 px derivative filter removed; ≥ a quarter pixel
+        edge_noise = noise * math.sqrt(2.0 * math.pi) * blur / contrast
+    else:
+        blur, edge_noise = math.nan, math.inf
+    # grey level at the boundary: mean of the pixels on both sides of it
+    outer = cv2.dilate(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~sil
+    both = (edge | outer)
+    both[0, :] = both[-1, :] = False
+    both[:, 0] = both[:, -1] = False
+    level = math.nan
+    if contrast > 0 and both.any():
+        level = float((np.median(g[both]) - bg) / (fg - bg))
+    offsets = edge_offsets_px(frame, sil)
+    offset = float(_trimmed_mean(offsets)) if offsets.size else math.nan
+    return FrameStats(bg, fg, contrast, noise, blur, edge_noise, level, offset, contour, float(lo_hi[1] - lo_hi[0]), sat, border, n_sil)
+
+
+# ---------------------------------------------------------------------------------------------
+# Hull against silhouettes
+# ---------------------------------------------------------------------------------------------
+
+
+def mesh_mask_in_view(P: np.ndarray, vertices: np.ndarray, faces: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """bool (H, W): pixels whose centre the mesh covers, seen through camera P (world µm → 0-based px).
+
+    Every triangle is filled (OpenCV, 1/16-pixel vertex precision); the union is the hull's
+    silhouette in that view.
+    """
+    h, w = shape
+    X = np.concatenate([np.asarray(vertices, float), np.ones((len(vertices), 1))], 1)
+    hom = X @ np.asarray(P, float).T
+    uv = hom[:, :2] / hom[:, 2:3]
+    pts = np.rint(uv * 16.0).astype(np.int64)
+    tri = pts[np.asarray(faces)]
+    # a closed mesh's outline is the union of the triangles facing one way (either way): half the filling
+    a = tri[:, 1] - tri[:, 0]
+    b = tri[:, 2] - tri[:, 0]
+    tri = tri[a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0] > 0]
+    # drop triangles wholly outside the frame (and keep coordinates in OpenCV's int32 range)
+    lo = tri.min(axis=1)
+    hi = tri.max(axis=1)
+    ok = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < w * 16) & (lo[:, 1] < h * 16)
+    tri = np.clip(tri[ok], -(2**20), 2**20).astype(np.int32)
+    mask = np.zeros((h, w), np.uint8)
+    if len(tri):
+        cv2.fillPoly(mask, np.ascontiguousarray(tri), 1, lineType=cv2.LINE_8, shift=4)
+    return mask.astype(bool)
+
+
+def specimen_part(silhouette: np.ndarray, hull_mask: np.ndarray) -> np.ndarray:
+    """bool (H, W): the connected parts (8-connected) of a silhouette that overlap the reprojected hull.
+
+    Parts no hull voxel projects into — capillary walls spanning the frame, debris, bubbles seen in
+    one view — are not the specimen the hull measures; they are left out of the agreement and of
+    the frame-edge test.
+    """
+    s = np.asarray(silhouette)
+    s = s >= 0.5 if np.issubdtype(s.dtype, np.floating) else s != 0
+    n, lab = cv2.connectedComponents(s.astype(np.uint8), connectivity=8)
+    if n <= 2:
+        return s
+    keep = np.zeros(n, bool)
+    keep[np.unique(lab[np.asarray(hull_mask, bool) & s])] = True
+    keep[0] = False
+    return keep[lab]
+
+
+def _boundary(mask: np.ndarray) -> np.ndarray:
+    m = mask.astype(np.uint8)
+    return mask & ~cv2.erode(m, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).astype(bool)
+
+
+def hull_agreement(silhouette: np.ndarray, hull_mask: np.ndarray) -> tuple[float, float]:
+    """(IoU, symmetric mean boundary distance in px) between a silhouette and the reprojected hull.
+
+    The distance is the mean, over the boundary pixels of each mask, of the distance to the other
+    mask's boundary, averaged over both directions. The frame's border is not a boundary (a
+    specimen cut by the frame edge is its own flag).
+    """
+    s = np.asarray(silhouette)
+    s = s >= 0.5 if np.issubdtype(s.dtype, np.floating) else s != 0
+    hm = np.asarray(hull_mask, bool)
+    union = np.count_nonzero(s | hm)
+    iou = float(np.count_nonzero(s & hm) / union) if union else 0.0
+    bs, bh = _boundary(s), _boundary(hm)
+    if not bs.any() or not bh.any():
+        return iou, math.inf
+    ds = cv2.distanceTransform((~bs).astype(np.uint8), cv2.DIST_L2, 5)
+    dh = cv2.distanceTransform((~bh).astype(np.uint8), cv2.DIST_L2, 5)
+    return iou, float(0.5 * (ds[bh].mean() + dh[bs].mean()))
+
+
+# ---------------------------------------------------------------------------------------------
+# Flags and verdict
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Flag:
+    """One QC finding.
+
+    Attributes:
+        code: short name (``blank``, ``saturated``, ``low_contrast``, ``cut_by_frame``,
+            ``view_disagrees``, ``calibration_at_bound``, ``drift_undetermined`` …).
+        severity: ``check`` or ``fail``.
+        message: one line for a human.
+        views: the views concerned (empty = the whole session).
+    """
+
+    code: str
+    severity: str
+    message: str
+    views: tuple[int, ...] = ()
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able."""
+        return {"code": self.code, "severity": self.severity, "message": self.message, "views": list(self.views)}
+
+
+@dataclass(frozen=True)
+class QCResult:
+    """Per-view QC and the session verdict.
+
+    Attributes:
+        verdict: ``ok``, ``check`` or ``fail``.
+        flags: the findings (:class:`Flag`), most severe first.
+        per_view: column → one value per view (iou, boundary_distance_px, contrast, noise, blur_px,
+            edge_noise_px, saturated_fraction, border_px, disagrees (bool)).
+        thresholds: the numbers the flags were tested against.
+        lower_bound: volume and area are lower bounds (specimen cut by the frame).
+    """
+
+    verdict: str
+    flags: tuple[Flag, ...]
+    per_view: dict[str, list[Any]] = field(default_factory=dict)
+    thresholds: dict[str, float] = field(default_factory=dict)
+    lower_bound: bool = False
+
+    def reasons(self) -> list[str]:
+        """One line per flag."""
+        return [f.message for f in self.flags]
+
+    def verdict_line(self) -> str:
+        """``ok`` or ``check: reason; reason`` (one line)."""
+        return self.verdict + ("" if not self.flags else ": " + "; ".join(self.reasons()))
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able."""
+        return {"verdict": self.verdict, "flags": [f.as_dict() for f in self.flags], "per_view": self.per_view,
+                "thresholds": self.thresholds, "lower_bound": self.lower_bound}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "QCResult":
+        """Inverse of :meth:`as_dict` (for stored results)."""
+        flags = tuple(Flag(str(f.get("code", "")), str(f.get("severity", "check")), str(f.get("message", "")),
+                           tuple(int(v) for v in f.get("views", []))) for f in d.get("flags", []))
+        return cls(str(d.get("verdict", "check")), flags, dict(d.get("per_view", {})), dict(d.get("thresholds", {})),
+                   bool(d.get("lower_bound", False)))
+
+
+def _views(idx: Sequence[int]) -> str:
+    idx = list(idx)
+    return ", ".join(str(i) for i in idx[:8]) + (f" … ({len(idx)} views)" if len(idx) > 8 else "")
+
+
+def verdict_of(flags: Sequence[Flag]) -> str:
+    """``fail`` if any flag fails, else ``check`` if any flag, else ``ok``."""
+    if any(f.severity == "fail" for f in flags):
+        return "fail"
+    return "check" if flags else "ok"
+
+
+def calibration_bound_flags(theta_deg: np.ndarray | None, bounds: dict[str, Any] | None, free_mask: np.ndarray | None = None,
+                            names: Sequence[str] | None = None) -> list[Flag]:
+    """Flags for calibrated parameters at (within 1 % of the box width of) a bound of the search box.
+
+    Args:
+        theta_deg: calibrated θ (degrees).
+        bounds: ``{"lower_deg": [...], "upper_deg": [...]}`` as stored with the run.
+        free_mask: which parameters were free (fixed ones have lower == upper and are skipped anyway).
+        names: parameter names for the message (default yaw, pitch, γ, roll i).
+    """
+    if theta_deg is None or not bounds or "lower_deg" not in bounds or "upper_deg" not in bounds:
+        return []
+    th = np.asarray(theta_deg, float)
+    lo = np.asarray(bounds["lower_deg"], float)
+    hi = np.asarray(bounds["upper_deg"], float)
+    if lo.shape != th.shape or hi.shape != th.shape:
+        return []
+    width = hi - lo
+    free = width > 1e-9 if free_mask is None else (np.asarray(free_mask, bool) & (width > 1e-9))
+    tol = BOUND_FRACTION * np.where(width > 0, width, 1.0)
+    at = free & ((th - lo <= tol) | (hi - th <= tol))
+    if not at.any():
+        return []
+    names = list(names) if names is not None else ["yaw", "pitch", "gamma"] + [f"roll of view {i}" for i in range(th.size - 3)]
+    hit = [names[i] for i in np.flatnonzero(at)]
+    views = tuple(int(i) - 3 for i in np.flatnonzero(at) if i >= 3)
+    return [Flag("calibration_at_bound", "check", f"calibration at the bound of its search box: {', '.join(hit[:6])}"
+                 + (f" (+{len(hit) - 6} more)" if len(hit) > 6 else "") + " - the optimum may lie outside it", views)]
+
+
+def view_measures(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vertices: np.ndarray,
+                  faces: np.ndarray) -> tuple[list[FrameStats], list[float], list[float]]:
+    """Per view: image statistics of the specimen part of the silhouette, IoU and mean boundary distance (px)
+    against the reprojected mesh."""
+    shape = tuple(np.asarray(frames).shape[1:3])
+    stats, ious, dists = [], [], []
+    for i in range(len(frames)):
+        hm = mesh_mask_in_view(P[i], vertices, faces, shape)  # type: ignore[arg-type]
+        part = specimen_part(silhouettes[i], hm)
+        stats.append(frame_stats(frames[i], part))
+        iou, d = hull_agreement(part, hm)
+        ious.append(iou)
+        dists.append(d)
+    return stats, ious, dists
+
+
+def evaluate_qc(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *,
+                edge_sigma_px: float | None = None, extra_flags: Sequence[Flag] = (),
+                measures: tuple[list[FrameStats], list[float], list[float]] | None = None) -> QCResult:
+    """Per-view QC of a measured session and its verdict (module docstring).
+
+    Args:
+        frames: (N, H, W[, 3]) stored frames.
+        silhouettes: (N, H, W) bool masks or soft maps in [0, 1] (thresholded at 0.5).
+        P: (N, 3, 4) cameras, world µm → 0-based pixels.
+        vertices, faces: the measured (smoothed) mesh, µm.
+        edge_sigma_px: the edge-localisation σ (px) from :mod:`vastcal.uncertainty`; default the
+            median over views of the per-view single-pixel edge noise (at least 0.25 px).
+        extra_flags: findings made elsewhere (calibration at its bounds, undetermined drift …).
+        measures: the result of :func:`view_measures` when already computed.
+    """
+    n = len(frames)
+    stats, ious, dists = measures if measures is not None else view_measures(frames, silhouettes, P, vertices, faces)
+    if edge_sigma_px is None:
+        en = [s.edge_noise_px for s in stats if np.isfinite(s.edge_noise_px)]
+        edge_sigma_px = max(float(np.median(en)) if en else 0.25, 0.25)
+    disagree_px = DISAGREE_SIGMAS * (float(edge_sigma_px) + 0.5)
+    flags: list[Flag] = []
+    blank = [i for i, s in enumerate(stats) if s.silhouette_px == 0 or s.grey_range < BLANK_RANGE_SIGMAS * s.noise + 1.0]
+    if blank:
+        flags.append(Flag("blank", "fail", f"blank frame or empty silhouette in view(s) {_views(blank)}", tuple(blank)))
+    sat = [i for i, s in enumerate(stats) if s.saturated_fraction > SATURATED_FRACTION]
+    if sat:
+        worst = max(stats[i].saturated_fraction for i in sat)
+        flags.append(Flag("saturated", "check", f"saturated or clipped pixels (up to {100 * worst:.1f} % of the frame) in view(s) "
+                          f"{_views(sat)}", tuple(sat)))
+    low = [i for i, s in enumerate(stats) if i not in blank and s.edge_noise_px > LOW_CONTRAST_PX]
+    if low:
+        flags.append(Flag("low_contrast", "check", f"low contrast: one pixel places the edge only to > {LOW_CONTRAST_PX} px in view(s) "
+                          f"{_views(low)}", tuple(low)))
+    cut = [i for i, s in enumerate(stats) if s.border_px >= CUT_MIN_PX]
+    if cut:
+        flags.append(Flag("cut_by_frame", "check", f"specimen cut by the frame edge in view(s) {_views(cut)}: volume and area are "
+                          "lower bounds", tuple(cut)))
+    bad = [i for i in range(n) if i not in blank and ious[i] < FAIL_IOU]
+    if bad:
+        flags.append(Flag("view_disagrees", "fail", f"silhouette and reprojected hull overlap less than they differ (IoU < {FAIL_IOU}) "
+                          f"in view(s) {_views(bad)}", tuple(bad)))
+    dis = [i for i in range(n) if i not in blank and i not in bad and dists[i] > disagree_px]
+    if dis:
+        flags.append(Flag("view_disagrees", "check", f"silhouette off the reprojected hull by more than {disagree_px:.1f} px "
+                          f"(mean boundary distance, up to {max(dists[i] for i in dis):.1f} px) in view(s) {_views(dis)}", tuple(dis)))
+    flags += list(extra_flags)
+    flags.sort(key=lambda f: 0 if f.severity == "fail" else 1)
+    disagreeing = set(bad) | set(dis)
+    per_view = {
+        "iou": ious, "boundary_distance_px": dists, "disagrees": [i in disagreeing for i in range(n)],
+        "contrast": [s.contrast for s in stats], "noise": [s.noise for s in stats], "blur_px": [s.blur_px for s in stats],
+        "edge_noise_px": [s.edge_noise_px for s in stats], "boundary_offset_px": [s.boundary_offset_px for s in stats],
+        "saturated_fraction": [s.saturated_fraction for s in stats], "border_px": [s.border_px for s in stats],
+    }
+    thresholds = {"blank_range_sigmas": BLANK_RANGE_SIGMAS, "saturated_fraction": SATURATED_FRACTION, "low_contrast_px": LOW_CONTRAST_PX,
+                  "cut_min_px": float(CUT_MIN_PX), "disagree_px": disagree_px, "fail_iou": FAIL_IOU, "edge_sigma_px": float(edge_sigma_px)}
+    res = QCResult(verdict_of(flags), tuple(flags), per_view, thresholds, lower_bound=bool(cut))
+    log.info("QC: %s", res.verdict_line())
+    return res
+
+
+def edge_offsets_px(frame: np.ndarray, silhouette: np.ndarray, *, min_cnr: float = 5.0) -> np.ndarray:
+    """Outward offsets (px) of a silhouette's boundary from the true edge, measured on the grey levels.
+
+    Along every row and column, at each clean outside → inside transition of the silhouette (5
+    pixels outside, 3 inside), the **area method** places the edge: blur conserves the integral of
+    the grey levels, so the fraction of the step summed over the 3 pixels outside and the first
+    pixel inside, s = Σ (I − I_bg)/(I_fg − I_bg), is the length of true specimen in that window
+    (I_bg: the 2 pixels 4–5 px outside; I_fg: the 2 pixels 1–2 px inside). The silhouette puts
+    1 px of specimen there, so its boundary lies 1 − s px outward of the true edge (negative: the
+    silhouette is too small). Transitions whose step is below ``min_cnr`` noise σ are skipped.
+    Profiles along a row or column cross an oblique edge obliquely, which stretches both the
+    silhouette's and the true length alike, so the offset along the profile over-states the normal
+    offset by 1/cos — a conservative error.
+
+    Returns:
+        (M,) offsets, px (empty when no transition is clean).
+    """
+    g = gray(frame).astype(np.float64)
+    s = np.asarray(silhouette)
+    s = s >= 0.5 if np.issubdtype(s.dtype, np.floating) else s != 0
+    diffs = np.abs(np.diff(g, axis=1))
+    noise = float(1.4826 * np.median(diffs) / math.sqrt(2.0)) if diffs.size else 0.0
+    out = []
+    for img, m in ((g, s), (g[::-1], s[::-1]), (g.T, s.T), (g.T[::-1], s.T[::-1])):
+        h = img.shape[0]
+        if h < 9:
+            continue
+        r = np.arange(5, h - 2)
+        ok = m[r] & m[r + 1] & m[r + 2]
+        for k in range(1, 6):
+            ok &= ~m[r - k]
+        rr, cc = np.nonzero(ok)
+        if rr.size == 0:
+            continue
+        rr = rr + 5
+        bg = 0.5 * (img[rr - 5, cc] + img[rr - 4, cc])
+        fg = 0.5 * (img[rr + 1, cc] + img[rr + 2, cc])
+        step = fg - bg
+        good = np.abs(step) > max(min_cnr * noise, 1e-9)
+        if not good.any():
+            continue
+        rr, cc, bg, step = rr[good], cc[good], bg[good], step[good]
+        ssum = sum((img[rr - k, cc] - bg) / step for k in range(0, 4))
+        out.append(1.0 - ssum)
+    return np.concatenate(out) if out else np.zeros(0)

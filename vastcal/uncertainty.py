@@ -1,0 +1,609 @@
+"""Uncertainty of the reported volume and area: the budget, its components, and the drift's status.
+
+Pure functions over arrays and stored results (no file or device I/O). World µm, results in mm³
+and mm²; pixels 0-based in the stored frames; angles in degrees.
+
+The budget (standard uncertainties u, combined in quadrature, expanded U = k·u with k = 2)
+---------------------------------------------------------------------------------------------
+1. **Silhouette edge localisation.** Every hull face is a patch of one view's silhouette cone, so
+   moving every silhouette boundary outward by δ px moves the hull's surface outward by δ × s µm
+   (s = µm per px on the specimen, from the cameras at the hull's centre): the volume changes by
+   ≈ area × δs and the area by ≈ (∫ 2H dA) × δs. Both derivatives are measured on the smoothed
+   mesh itself (vertices moved ±1 µm along their normals, volume and area re-measured). δ is the
+   edge-localisation σ from the images (:func:`edge_sigma_px`): how far the silhouette's boundary
+   sits from the edge the grey levels place by the area method (blur conserves the integral of
+   the step; a thresholding bias common to the whole boundary), the noise of that position averaged along the contour, and the mean disagreement
+   between silhouettes and the reprojected hull beyond what the rasteriser explains
+   (:mod:`vastcal.qc`). A common shift is fully correlated over views, so it is not divided by √N.
+2. **Calibration** — what the data cannot pin down. (a) When the calibration run kept several
+   starts (datasets ``starts/theta`` (S × P, degrees) and ``starts/cost`` (S,)), the hulls of the
+   starts whose cost lies within :data:`START_COST_TOLERANCE` of the best are re-measured and
+   their RMS deviation from the reported value is a component. (b) The directions the images leave
+   open (docs/calibration.md: per-view rolls of nearly orthographic views; the yaw without the
+   photometric refinement) are sampled: :data:`CAL_SAMPLES` poses θ̂ + N(0, σ²) with σ the
+   prior's width for those parameters (``roll_prior_deg``, ``yaw_prior_deg``; the photometric
+   yaw's measured error :data:`PHOTOMETRIC_YAW_SIGMA_DEG` when it ran) and the RMS change of
+   volume and area is the component. Both run on a grid of twice the voxel edge (the comparisons
+   are between hulls on one grid, so the grid's own error cancels). Imported cameras: not
+   evaluated (stated, never 0).
+3. **Grid discretisation.** Re-measured on a grid of twice the voxel edge: u = |value(h) −
+   value(2h)| (for an error ∝ h^p this over-estimates the error at h for p ≥ 1).
+
+Not in the interval, stated beside it: the **visual hull's bias against the solid body** — the
+hull contains the body and equals it only where every surface point is seen on an outline; a
+concavity (a groove between yolk and trunk) is filled. A specimen cut by the frame edge makes
+volume and area lower bounds (:mod:`vastcal.qc`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from vastcal.measure import Mesh
+    from vastcal.qc import FrameStats
+
+log = logging.getLogger(__name__)
+
+K_COVERAGE = 2.0
+"""Coverage factor of the expanded uncertainty (≈ 95 % for a normal distribution)."""
+CAL_SAMPLES = 6
+"""Poses sampled in the directions the images leave open."""
+START_COST_TOLERANCE = 0.01
+"""Relative cost above the best start within which a start counts as 'of equal cost'."""
+PHOTOMETRIC_YAW_SIGMA_DEG = 0.05
+"""σ of the photometric yaw: its measured error over 8 simulated rigs, mean |error| 0.037°, max 0.074° (docs/calibration.md)."""
+GRID_FACTOR = 2.0
+"""The second grid's voxel edge, in voxel edges of the measurement grid."""
+UM3_PER_MM3 = 1e9
+UM2_PER_MM2 = 1e6
+
+
+# ---------------------------------------------------------------------------------------------
+# The budget
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Component:
+    """One line of the budget.
+
+    Attributes:
+        name: what it is (``edge``, ``calibration (starts)``, ``calibration (open directions)``, ``grid``).
+        u_volume_mm3: standard uncertainty of the volume, mm³ (None = not evaluated).
+        u_area_mm2: standard uncertainty of the area, mm² (None = not evaluated).
+        method: how it was evaluated (one line).
+        note: why it is not evaluated, or what it rests on.
+    """
+
+    name: str
+    u_volume_mm3: float | None
+    u_area_mm2: float | None
+    method: str
+    note: str = ""
+
+    @property
+    def evaluated(self) -> bool:
+        """Whether it holds numbers."""
+        return self.u_volume_mm3 is not None and self.u_area_mm2 is not None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able."""
+        return {"name": self.name, "u_volume_mm3": self.u_volume_mm3, "u_area_mm2": self.u_area_mm2, "evaluated": self.evaluated,
+                "method": self.method, "note": self.note}
+
+
+@dataclass(frozen=True)
+class Budget:
+    """Volume and area with their uncertainty budget.
+
+    Attributes:
+        volume_mm3, area_mm2: the reported values.
+        components: the budget lines.
+        k: coverage factor.
+        details: numbers the components were made from (σ_edge px, µm per px, sensitivities …).
+    """
+
+    volume_mm3: float
+    area_mm2: float
+    components: tuple[Component, ...]
+    k: float = K_COVERAGE
+    details: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def u_volume_mm3(self) -> float:
+        """Combined standard uncertainty of the volume (evaluated components), mm³."""
+        return float(math.sqrt(sum(c.u_volume_mm3**2 for c in self.components if c.u_volume_mm3 is not None)))
+
+    @property
+    def u_area_mm2(self) -> float:
+        """Combined standard uncertainty of the area (evaluated components), mm²."""
+        return float(math.sqrt(sum(c.u_area_mm2**2 for c in self.components if c.u_area_mm2 is not None)))
+
+    @property
+    def U_volume_mm3(self) -> float:
+        """Expanded uncertainty k·u of the volume, mm³."""
+        return self.k * self.u_volume_mm3
+
+    @property
+    def U_area_mm2(self) -> float:
+        """Expanded uncertainty k·u of the area, mm²."""
+        return self.k * self.u_area_mm2
+
+    @property
+    def not_evaluated(self) -> list[str]:
+        """Names of the components that could not be evaluated."""
+        return [c.name for c in self.components if not c.evaluated]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able (also what is stored with the measurement)."""
+        return {"k": self.k, "volume_mm3": self.volume_mm3, "area_mm2": self.area_mm2,
+                "u_volume_mm3": self.u_volume_mm3, "u_area_mm2": self.u_area_mm2,
+                "U_volume_mm3": self.U_volume_mm3, "U_area_mm2": self.U_area_mm2,
+                "components": [c.as_dict() for c in self.components], "not_evaluated": self.not_evaluated,
+                "details": self.details, "hull_bias": HULL_BIAS_NOTE}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Budget":
+        """Inverse of :meth:`as_dict`."""
+        comps = tuple(Component(str(c["name"]), c.get("u_volume_mm3"), c.get("u_area_mm2"), str(c.get("method", "")), str(c.get("note", "")))
+                      for c in d.get("components", []))
+        return cls(float(d["volume_mm3"]), float(d["area_mm2"]), comps, float(d.get("k", K_COVERAGE)), dict(d.get("details", {})))
+
+    def volume_text(self, digits: int = 4) -> str:
+        """``0.1550 ± 0.0012 mm^3 (k = 2)``."""
+        return f"{self.volume_mm3:.{digits}f} ± {self.U_volume_mm3:.{digits}f} mm^3 (k = {self.k:g})"
+
+    def area_text(self, digits: int = 3) -> str:
+        """``2.088 ± 0.031 mm^2 (k = 2)``."""
+        return f"{self.area_mm2:.{digits}f} ± {self.U_area_mm2:.{digits}f} mm^2 (k = {self.k:g})"
+
+
+HULL_BIAS_NOTE = ("not in the interval: the visual hull contains the solid body and fills its concavities, so it over-estimates "
+                  "the body's volume and area where a surface is concave in every viewing direction")
+
+
+# ---------------------------------------------------------------------------------------------
+# Geometry helpers
+# ---------------------------------------------------------------------------------------------
+
+
+def um_per_px(P: np.ndarray, point_um: np.ndarray) -> np.ndarray:
+    """µm on the specimen per pixel (N,) at a world point, for every camera P (N, 3, 4).
+
+    The inverse square root of the area magnification of the projection's Jacobian at the point
+    (the geometric mean of the two image directions' scales).
+    """
+    P = np.asarray(P, float)
+    X = np.r_[np.asarray(point_um, float), 1.0]
+    out = []
+    for Pi in P:
+        h = Pi @ X
+        J = (Pi[:2, :3] * h[2] - np.outer(h[:2], Pi[2, :3])) / h[2] ** 2  # d(u, v)/dX, px per µm
+        s = np.linalg.svd(J, compute_uv=False)
+        out.append(1.0 / math.sqrt(max(float(s[0] * s[1]), 1e-300)))
+    return np.asarray(out)
+
+
+def vertex_normals(mesh: "Mesh") -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3), outward."""
+    n = mesh.face_normals(unit=False)
+    vn = np.zeros_like(mesh.vertices)
+    for j in range(3):
+        np.add.at(vn, mesh.faces[:, j], n)
+    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+
+
+def normal_shift_sensitivity(mesh: "Mesh", step_um: float = 1.0) -> tuple[float, float]:
+    """(dV/dn in mm³ per µm, dA/dn in mm² per µm): volume and area change per µm of outward normal shift.
+
+    Central differences of the mesh moved ±``step_um`` along its vertex normals.
+    """
+    from vastcal.measure import Mesh
+
+    vn = vertex_normals(mesh)
+    plus = Mesh(mesh.vertices + step_um * vn, mesh.faces)
+    minus = Mesh(mesh.vertices - step_um * vn, mesh.faces)
+    dv = (plus.volume_um3() - minus.volume_um3()) / (2 * step_um) / UM3_PER_MM3
+    da = (plus.area_um2() - minus.area_um2()) / (2 * step_um) / UM2_PER_MM2
+    return float(dv), float(da)
+
+
+# ---------------------------------------------------------------------------------------------
+# Edge localisation
+# ---------------------------------------------------------------------------------------------
+
+
+def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[float] | None = None,
+                  raster_px: float = 0.5) -> tuple[float, dict[str, Any]]:
+    """The edge-localisation σ (px) of the silhouettes, from the images (module docstring, item 1).
+
+    Per view the squared terms are: the boundary's mean outward offset from the true edge located
+    on the grey levels by the area method (``boundary_offset_px``, :func:`vastcal.qc.edge_offsets_px`:
+    a thresholding bias common to the boundary); the noise of the mean edge position along the
+    contour (one pixel's edge noise / √(contour length / max(1, 2 σ_b)) — neighbouring pixels
+    within the blur are correlated); and, when given, the squared excess of the mean boundary
+    distance to the reprojected hull over ``raster_px`` (what the comparison itself resolves).
+    σ is the root mean square over the usable views (finite statistics).
+
+    Returns:
+        (σ px, details per term).
+    """
+    offs, noise, excess = [], [], []
+    for i, s in enumerate(stats):
+        if not (np.isfinite(s.edge_noise_px) and np.isfinite(s.blur_px) and s.contour_px > 0):
+            continue
+        offs.append(s.boundary_offset_px if np.isfinite(s.boundary_offset_px) else 0.0)
+        n_eff = s.contour_px / max(1.0, 2.0 * s.blur_px)
+        noise.append(s.edge_noise_px / math.sqrt(max(n_eff, 1.0)))
+        if boundary_distance_px is not None and np.isfinite(boundary_distance_px[i]):
+            excess.append(max(float(boundary_distance_px[i]) - raster_px, 0.0))
+    if not offs:
+        return math.nan, {"usable_views": 0}
+    o = np.asarray(offs)
+    nz = np.asarray(noise)
+    ex = np.asarray(excess) if excess else np.zeros_like(o)
+    total = np.sqrt(np.mean(o**2) + np.mean(nz**2) + np.mean(ex**2))
+    return float(total), {"usable_views": len(offs), "threshold_offset_rms_px": float(np.sqrt(np.mean(o**2))),
+                          "threshold_offset_mean_px": float(np.mean(o)), "position_noise_rms_px": float(np.sqrt(np.mean(nz**2))),
+                          "hull_disagreement_excess_rms_px": float(np.sqrt(np.mean(ex**2)))}
+
+
+def edge_component(mesh: "Mesh", P: np.ndarray, sigma_px: float) -> tuple[Component, dict[str, float]]:
+    """The edge-localisation line of the budget: sensitivities × σ_edge (px → µm at the hull's centre)."""
+    if not np.isfinite(sigma_px):
+        return Component("edge", None, None, "silhouette edge localisation", "no view with a measurable edge (blank or uniform frames)"), {}
+    centre = mesh.vertices.mean(axis=0)
+    scale = float(np.mean(um_per_px(P, centre)))
+    dv, da = normal_shift_sensitivity(mesh)
+    shift = sigma_px * scale
+    comp = Component("edge", abs(dv) * shift, abs(da) * shift,
+                     f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
+                     "volume and area re-measured",
+                     "sigma_edge from the images: offset of the silhouette from the edge the grey levels place (area method), edge noise along the contour, "
+                     "disagreement with the reprojected hull")
+    return comp, {"um_per_px": scale, "dV_dn_mm3_per_um": dv, "dA_dn_mm2_per_um": da, "edge_shift_um": shift}
+
+
+# ---------------------------------------------------------------------------------------------
+# Calibration
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CalibrationSpread:
+    """What is known about a calibration run's uncertainty (read from its stored group).
+
+    Attributes:
+        theta_deg: calibrated θ = [yaw, pitch, γ, ω_0 … ω_{N−1}], degrees.
+        K: 3 × 3 intrinsics (px).
+        distance_um: axis distance, µm.
+        sigma_deg: per-parameter σ (degrees) of the directions the images leave open (0 = determined).
+        sigma_source: one line: where σ comes from.
+        starts_theta: (S, P) starts kept by the calibration, or None.
+        starts_cost: (S,) their costs, or None.
+    """
+
+    theta_deg: np.ndarray
+    K: np.ndarray
+    distance_um: float
+    sigma_deg: np.ndarray
+    sigma_source: str
+    starts_theta: np.ndarray | None = None
+    starts_cost: np.ndarray | None = None
+
+    def cameras(self, theta_deg: np.ndarray) -> np.ndarray:
+        """P (N, 3, 4) of a θ."""
+        from vastcal.geometry import projection_matrices
+
+        return projection_matrices(self.K, self.distance_um, np.asarray(theta_deg, float)[None])[0]
+
+
+def _settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
+    import json
+
+    s = attrs.get("settings", {})
+    if isinstance(s, (str, bytes)):
+        try:
+            s = json.loads(s)
+        except ValueError:
+            s = {}
+    return s if isinstance(s, dict) else {}
+
+
+def open_directions_sigma(n_params: int, free: Sequence[str], settings: dict[str, Any]) -> tuple[np.ndarray, str]:
+    """σ (degrees, per θ entry) of the directions the images leave open, and a line saying why.
+
+    Rolls (views 1 … N−1): the roll prior's width ``roll_prior_deg`` (default 1°) — the rig file's
+    statement of how far the stage may drift, which is what decides them (docs/calibration.md);
+    when the rolls were fixed the same width (they sit at the commanded angles, the stage's drift
+    unknown). Yaw: the photometric yaw's measured error when it ran, else ``yaw_prior_deg``
+    (default 0.5°). Pitch and γ are pinned by the silhouettes (a few hundredths of a degree) and
+    are not sampled.
+    """
+    sig = np.zeros(n_params)
+    roll = float(settings.get("roll_prior_deg", 1.0) or 1.0)
+    sig[4:] = roll
+    free = set(free or [])
+    photometric = bool(settings.get("photometric_yaw", False)) and ("yaw" in free or "all" in free)
+    yaw = PHOTOMETRIC_YAW_SIGMA_DEG if photometric else float(settings.get("yaw_prior_deg", 0.5) or 0.5)
+    sig[0] = yaw
+    src = (f"rolls of views 1..N-1: sigma {roll:g} deg (the roll prior: the images do not determine them); yaw: sigma {yaw:g} deg ("
+           + ("photometric yaw, its measured error" if photometric else "the yaw prior") + "); pitch, gamma: determined, not sampled")
+    return sig, src
+
+
+def calibration_spread_from_group(group: Any) -> CalibrationSpread | None:
+    """A :class:`CalibrationSpread` from a stored calibration run group (None when it lacks θ, K or the distance)."""
+    from vastcal.session import read_attrs
+
+    if group is None or "theta_deg" not in group or "K" not in group:
+        return None
+    a = read_attrs(group)
+    if "distance" not in a:
+        return None
+    theta = np.asarray(group["theta_deg"][...], float)
+    free = a.get("free", []) or []
+    if isinstance(free, str):
+        free = [free]
+    sig, src = open_directions_sigma(theta.size, list(free), _settings_of(a))
+    st = sc = None
+    if "starts" in group and "theta" in group["starts"] and "cost" in group["starts"]:
+        st = np.asarray(group["starts"]["theta"][...], float)
+        sc = np.asarray(group["starts"]["cost"][...], float)
+        if st.ndim != 2 or st.shape[1] != theta.size or sc.shape != (st.shape[0],):
+            st = sc = None
+    return CalibrationSpread(theta, np.asarray(group["K"][...], float), float(a["distance"]), sig, src, st, sc)
+
+
+MeasureFn = Callable[[np.ndarray], "tuple[float, float] | None"]
+"""P (N, 3, 4) → (volume mm³, area mm²) on the comparison grid, or None when the hull is empty."""
+
+
+def calibration_components(spread: CalibrationSpread | None, measure_at: MeasureFn, nominal: tuple[float, float], *,
+                           samples: int = CAL_SAMPLES, seed: int = 0) -> tuple[list[Component], dict[str, Any]]:
+    """The calibration lines of the budget (module docstring, item 2).
+
+    Args:
+        spread: the calibration run's θ and σ (None: imported cameras — not evaluated).
+        measure_at: measures the hull of a set of cameras on the comparison grid.
+        nominal: (volume, area) of the calibrated cameras on that grid.
+        samples: poses sampled in the open directions.
+        seed: of the sampling (fixed: a report is reproducible).
+    """
+    if spread is None:
+        return [Component("calibration", None, None, "not evaluated",
+                          "cameras imported as given: their uncertainty is not known to vastcal")], {}
+    comps: list[Component] = []
+    details: dict[str, Any] = {}
+    v0, a0 = nominal
+    if spread.starts_theta is not None and spread.starts_cost is not None and len(spread.starts_cost) > 1:
+        best = float(np.min(spread.starts_cost))
+        tol = START_COST_TOLERANCE * abs(best) if best != 0 else START_COST_TOLERANCE
+        keep = np.flatnonzero(spread.starts_cost <= best + tol)
+        dv, da = [], []
+        for j in keep:
+            r = measure_at(spread.cameras(spread.starts_theta[j]))
+            if r is not None:
+                dv.append(r[0] - v0)
+                da.append(r[1] - a0)
+        details["starts_within_tolerance"] = int(len(keep))
+        if len(dv) > 1:
+            comps.append(Component("calibration (starts)", float(np.sqrt(np.mean(np.square(dv)))), float(np.sqrt(np.mean(np.square(da)))),
+                                   f"RMS change over the {len(dv)} starts within {100 * START_COST_TOLERANCE:g} % of the best cost, "
+                                   "each hull re-measured"))
+        else:
+            comps.append(Component("calibration (starts)", 0.0, 0.0, "one start within the cost tolerance",
+                                   f"{len(spread.starts_cost)} starts kept; only the best lies within {100 * START_COST_TOLERANCE:g} % of its cost"))
+    if np.any(spread.sigma_deg > 0):
+        rng = np.random.default_rng(seed)
+        dv, da = [], []
+        empty = 0
+        for _ in range(samples):
+            th = spread.theta_deg + rng.standard_normal(spread.theta_deg.size) * spread.sigma_deg
+            r = measure_at(spread.cameras(th))
+            if r is None:
+                empty += 1
+                continue
+            dv.append(r[0] - v0)
+            da.append(r[1] - a0)
+        details["open_direction_samples"] = len(dv)
+        details["open_direction_dv_mm3"] = [float(x) for x in dv]
+        details["open_direction_da_mm2"] = [float(x) for x in da]
+        if dv:
+            comps.append(Component("calibration (open directions)", float(np.sqrt(np.mean(np.square(dv)))),
+                                   float(np.sqrt(np.mean(np.square(da)))),
+                                   f"RMS change over {len(dv)} poses drawn around the calibrated one in the directions the images leave "
+                                   "open, each hull re-measured on the comparison grid", spread.sigma_source
+                                   + (f"; {empty} sampled pose(s) gave an empty hull" if empty else "")))
+        else:
+            comps.append(Component("calibration (open directions)", None, None, "not evaluated", "every sampled pose gave an empty hull"))
+    if not comps:
+        comps.append(Component("calibration", None, None, "not evaluated", "no free direction and no kept starts"))
+    return comps, details
+
+
+# ---------------------------------------------------------------------------------------------
+# Drift
+# ---------------------------------------------------------------------------------------------
+
+
+def drift_rms_deg(delta_deg: np.ndarray) -> tuple[float, float]:
+    """(RMS, max |·|) of calibrated − commanded roll over views 1 … N−1 (view 0 defines 0°, degrees).
+
+    The one definition used by the console, report.json, report.csv and report.html.
+    """
+    d = np.asarray(delta_deg, float).ravel()
+    d = d[1:] if d.size > 1 else d
+    if d.size == 0:
+        return math.nan, math.nan
+    return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))
+
+
+def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[str] = (), settings: dict[str, Any] | None = None,
+                 starts_theta: np.ndarray | None = None) -> dict[str, Any]:
+    """What can be said about the stage drift (calibrated − commanded angle per view).
+
+    ``status`` is ``measured`` (imported cameras: the given cameras' own rolls — as good as those
+    cameras), ``undetermined`` (a calibration run with the rolls decided by the roll prior, which is
+    the case on near-orthographic optics, docs/calibration.md — the values are shown with the
+    prior's width as their uncertainty, never as a measurement) or ``not estimated`` (rolls fixed
+    at the commanded angles).
+    """
+    out: dict[str, Any] = {}
+    if delta_deg is None or np.size(delta_deg) == 0:
+        return {"status": "not available", "reason": "no per-view angles"}
+    rms, mx = drift_rms_deg(np.asarray(delta_deg))
+    out.update({"rms_deg": rms, "max_abs_deg": mx})
+    settings = settings or {}
+    free = set(free or [])
+    if source == "imported":
+        out.update({"status": "measured", "reason": "rolls of the imported cameras (as accurate as those cameras)"})
+        return out
+    if not ({"rolls", "all"} & free):
+        out.update({"status": "not estimated", "reason": "the rolls were held at the commanded angles"})
+        return out
+    sigma = float(settings.get("roll_prior_deg", 1.0) or 1.0)
+    out.update({"status": "undetermined", "u_per_view_deg": sigma,
+                "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: they follow the roll "
+                          f"prior (sigma {sigma:g} deg about the commanded angles); the true drift may be anywhere within about "
+                          f"+-{sigma:g} deg per view"})
+    if starts_theta is not None and np.ndim(starts_theta) == 2 and len(starts_theta) > 1:
+        spread = np.std(np.asarray(starts_theta, float)[:, 4:], axis=0)
+        out["starts_spread_rms_deg"] = float(np.sqrt(np.mean(spread**2))) if spread.size else 0.0
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Everything
+# ---------------------------------------------------------------------------------------------
+
+
+def grid_component(nominal: tuple[float, float], coarse: tuple[float, float] | None, voxel_size_um: float) -> Component:
+    """The grid line: |value(h) − value(2h)|."""
+    if coarse is None:
+        return Component("grid", None, None, "not evaluated", f"the hull is empty on a grid of {GRID_FACTOR:g} x {voxel_size_um:.2f} um voxels")
+    return Component("grid", abs(nominal[0] - coarse[0]), abs(nominal[1] - coarse[1]),
+                     f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): |value(h) - value(2h)|")
+
+
+def combine(volume_mm3: float, area_mm2: float, components: Sequence[Component], details: dict[str, Any] | None = None) -> Budget:
+    """A :class:`Budget` of the components (k = 2)."""
+    b = Budget(float(volume_mm3), float(area_mm2), tuple(components), K_COVERAGE, dict(details or {}))
+    log.info("uncertainty: volume %s, area %s%s", b.volume_text(), b.area_text(),
+             f" (not evaluated: {', '.join(b.not_evaluated)})" if b.not_evaluated else "")
+    return b
+
+
+def comparison_measurer(silhouettes: np.ndarray, grid: Any, settings: Any, *, smooth: bool = True) -> tuple[MeasureFn, Any]:
+    """A :data:`MeasureFn` on the comparison grid (the measurement grid's box, :data:`GRID_FACTOR` × its voxel edge).
+
+    ``smooth=False`` measures the area on the unsmoothed marching-cubes mesh: enough for the
+    *differences* between poses on one grid (the smoothing's own effect cancels to first order)
+    at a fraction of the time.
+
+    Returns the function and the comparison grid.
+    """
+    from vastcal.errors import VastcalError
+    from vastcal.measure import measure_hull
+    from vastcal.reconstruct import visual_hull
+    from vastcal.voxels import VoxelGrid
+
+    coarse = VoxelGrid.from_bounds(np.asarray(grid.lower, float), np.asarray(grid.upper, float), float(grid.size) * GRID_FACTOR)
+    n = int(np.shape(silhouettes)[0])
+
+    def measure_at(P: np.ndarray) -> tuple[float, float] | None:
+        try:
+            h = visual_hull(P, silhouettes, coarse, min_count=settings.min_count(n), warn_border=False)
+            m = measure_hull(h, settings if smooth else replace(settings, smoothing_steps=0))
+        except VastcalError as exc:  # an empty or degenerate hull at a sampled pose
+            log.info("comparison hull not measurable: %s", exc)
+            return None
+        return float(m.volume_mm3), float(m.surface_area_mm2)
+
+    return measure_at, coarse
+
+
+def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any, measurement: Any, spread: CalibrationSpread | None, *,
+           extra_flags: Sequence[Any] = (), samples: int = CAL_SAMPLES) -> tuple[Budget, Any]:
+    """The uncertainty budget and the per-view QC of one measurement.
+
+    Args:
+        frames: (N, H, W[, 3]) stored frames.
+        silhouettes: (N, H, W) the silhouettes the hull was carved from (bool or soft maps).
+        P: (N, 3, 4) the cameras used.
+        hull: the :class:`~vastcal.reconstruct.HullResult` measured.
+        measurement: its :class:`~vastcal.measure.Measurement`.
+        spread: the calibration's :class:`CalibrationSpread` (None for imported cameras).
+        extra_flags: QC findings made elsewhere (:class:`vastcal.qc.Flag`).
+        samples: poses sampled in the open directions.
+
+    Returns:
+        (:class:`Budget`, :class:`vastcal.qc.QCResult`).
+    """
+    import time
+
+    from vastcal import qc
+
+    t0 = time.perf_counter()
+    mesh = measurement.mesh
+    measures = qc.view_measures(frames, silhouettes, P, mesh.vertices, mesh.faces)
+    sigma, edge_details = edge_sigma_px(measures[0], measures[2])
+    t1 = time.perf_counter()
+    edge, edge_num = edge_component(mesh, P, sigma)
+    measure_smooth, coarse = comparison_measurer(silhouettes, hull.grid, measurement.settings)
+    grid = grid_component((measurement.volume_mm3, measurement.surface_area_mm2), measure_smooth(P), float(hull.grid.size))
+    measure_raw, _ = comparison_measurer(silhouettes, hull.grid, measurement.settings, smooth=False)
+    nominal_coarse = measure_raw(P)
+    if nominal_coarse is None:
+        cal = [Component("calibration", None, None, "not evaluated", "the hull is empty on the comparison grid")]
+        cal_details: dict[str, Any] = {}
+    else:
+        cal, cal_details = calibration_components(spread, measure_raw, nominal_coarse, samples=samples)
+    t2 = time.perf_counter()
+    details = {"edge_sigma_px": sigma, **edge_details, **edge_num, **cal_details,
+               "comparison_grid_voxel_um": float(coarse.size), "comparison_grid_shape": [int(s) for s in coarse.shape],
+               "comparison_nominal": list(nominal_coarse) if nominal_coarse else None, "timings_s": {"qc": t1 - t0, "budget": t2 - t1}}
+    budget = combine(measurement.volume_mm3, measurement.surface_area_mm2, [edge] + cal + [grid], details)
+    result = qc.evaluate_qc(frames, silhouettes, P, mesh.vertices, mesh.faces, edge_sigma_px=sigma if np.isfinite(sigma) else None,
+                            extra_flags=extra_flags, measures=measures)
+    return budget, result
+
+
+def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement: Any, *, samples: int = CAL_SAMPLES) -> Any:
+    """:func:`assess` for a measurement of an open session; returns the measurement carrying both results.
+
+    Reads the frames and the calibration run the cameras came from (θ, K, distance, bounds,
+    settings, kept starts). A failure of the assessment never loses the measurement: it is logged
+    and the budget is marked not evaluated.
+
+    Args:
+        session: an open :class:`~vastcal.session.Session`.
+        inputs: the :class:`~vastcal.reconstruct.ReconstructionInputs` used.
+        hull: the :class:`~vastcal.reconstruct.HullResult` measured.
+        measurement: its :class:`~vastcal.measure.Measurement`.
+    """
+    from vastcal import qc
+    from vastcal.errors import VastcalError
+    from vastcal.session import read_attrs
+
+    cal = session.result("calibration", inputs.calibration_run) if inputs.calibration_run else None
+    spread = calibration_spread_from_group(cal) if cal is not None else None
+    flags: list[Any] = []
+    if cal is not None and "theta_deg" in cal:
+        a = read_attrs(cal)
+        flags += qc.calibration_bound_flags(np.asarray(cal["theta_deg"][...], float), a.get("bounds"))
+    try:
+        budget, result = assess(session.projections(), inputs.silhouettes, inputs.P, hull, measurement, spread, extra_flags=flags,
+                                samples=samples)
+    except (VastcalError, ValueError, np.linalg.LinAlgError) as exc:
+        log.warning("%s: uncertainty and QC not evaluated (%s)", session.path, exc)
+        b = combine(measurement.volume_mm3, measurement.surface_area_mm2,
+                    [Component("all", None, None, "not evaluated", f"the assessment failed: {exc}")])
+        return measurement.with_assessment(b.as_dict(), None)
+    return measurement.with_assessment(budget.as_dict(), result.as_dict())
