@@ -2,14 +2,22 @@
 
 Every command maps to one function a Python user can call directly. Errors that are the
 user's or the device's (any :class:`~vastcal.errors.VastcalError`) end in one line on stderr and
-a non-zero exit code (2 for bad input); only bugs show a traceback.
+a non-zero exit code (2 for bad input); so do resources running out (memory: exit 1; disk
+space: exit 1). Only bugs show a traceback.
+
+SIGINT (Ctrl-C), SIGTERM and SIGHUP all take the Ctrl-C path: ``acquire`` stops the motor and
+closes the session with status ``abort``; other commands stop at once. The exit code is
+128 + the signal number (130, 143, 129).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
+import os
+import re
 import signal
 import sys
 import threading
@@ -19,7 +27,11 @@ from typing import Any, Callable, Sequence
 from vastcal import __version__
 from vastcal.allocator import keep_large_blocks
 from vastcal.errors import UserInputError, VastcalError
+from vastcal.outputs import check_output_file, check_output_folder
 from vastcal.progress import ProgressLine, evaluations_callback
+
+#: calibration methods (vastcal.calibrate.run.METHODS; not imported here to keep the CLI start-up light)
+METHOD_CHOICES = ("coherence", "pi", "vr")
 
 log = logging.getLogger("vastcal")
 
@@ -33,12 +45,13 @@ def cmd_import(args: argparse.Namespace) -> int:
     from vastcal.config import load_config
     from vastcal.importer import import_folder
 
+    check_output_file(args.output, force=args.force)
     cfg = load_config(args.config) if args.config else None
     bar = _progress(args, "import", "views")
     try:
         out = import_folder(args.folder, args.output, masks=args.masks, angles=args.angles, cameras=args.cameras,
                             pixel_origin=args.pixel_origin, roi_offset=tuple(args.roi_offset) if args.roi_offset else None,
-                            config=cfg, force=args.force, progress=lambda d, t: bar.update(d, t))
+                            config=cfg, force=args.force, progress=lambda d, t: bar.update(d, t), length_unit=args.length_unit)
     finally:
         bar.close()
     print(f"wrote {out}")
@@ -54,20 +67,47 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0 if summary["exit_status"] == "success" else 3
 
 
-def _cancel_on_sigint() -> threading.Event:
-    """An event set by the first Ctrl-C (the second one interrupts as usual)."""
+STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+"""Signals that end a command the way Ctrl-C does."""
+
+MAX_ERROR_CHARS = 500
+"""Longest error line printed (a message quoting a huge value is cut)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal arrived (a KeyboardInterrupt, so every Ctrl-C path handles it); ``signum`` says which."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+RECEIVED: list[int] = []
+"""Stop signals received while the current command runs (cleared by :func:`main`): a command that
+ends with an error after one (e.g. ``demo``'s acquisition aborted) exits with 128 + its number."""
+
+
+def _raise_interrupted(signum: int, frame: Any) -> None:
+    RECEIVED.append(signum)
+    raise Interrupted(signum)
+
+
+def _cancel_on_signals() -> threading.Event:
+    """An event set by the first stop signal (SIGINT, SIGTERM, SIGHUP; recorded in :data:`RECEIVED`);
+    a second signal interrupts at once (:class:`Interrupted`)."""
     cancel = threading.Event()
-    previous = signal.getsignal(signal.SIGINT)
 
     def handler(signum: int, frame: Any) -> None:
+        RECEIVED.append(signum)
         if cancel.is_set():
-            signal.signal(signal.SIGINT, previous)
-            raise KeyboardInterrupt
-        log.warning("Ctrl-C: stopping the motor and closing the session (press again to force)")
+            raise Interrupted(signum)
+        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+        log.warning("%s: stopping the motor and closing the session (press Ctrl-C again to force)", name)
         cancel.set()
 
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, handler)
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, handler)
     return cancel
 
 
@@ -92,9 +132,10 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         raise UserInputError("give --config RIG.yaml for the real rig, or --simulate for the simulated one")
     if args.simulate and cfg.camera.driver != "simulated":
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
+    check_output_file(out, force=args.force, option="--resume" if args.resume else "-o", existing=bool(args.resume))  # before the stage moves
     from vastcal.rig import connect_rig
 
-    cancel = _cancel_on_sigint()
+    cancel = _cancel_on_signals()
     bar = _progress(args, "acquire", "views")
     try:
         with connect_rig(cfg, truth_path=_truth_path(Path(out))) as rig:
@@ -105,7 +146,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         bar.close()
     if result.exit_status != "success":
         print(f"vastcal: acquisition {result.exit_status}: {result.reason}; {result.views_written} views kept in {out}", file=sys.stderr)
-        return 130 if result.exit_status == "abort" else 1
+        return 128 + (RECEIVED[0] if RECEIVED else signal.SIGINT) if result.exit_status == "abort" else 1
     print(f"wrote {out}: {result.views_written} views")
     return 0
 
@@ -116,14 +157,15 @@ def _truth_path(session: Path) -> Path:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    """vastcal calibrate S.h5 [--method pi|vr] [--seed N] [--free …]"""
+    """vastcal calibrate S.h5 [--method coherence|pi|vr] [--seed N] [--free …] [--fixed-views 10-35] [--starts S]"""
     from vastcal.calibrate import calibrate_session
 
     if args.mask and args.scribbles:
         raise UserInputError("give either --mask or --scribbles for the colour models, not both")
-    bar = _progress(args, f"calibrate ({args.method})", "evaluations")
+    bar = _progress(args, f"calibrate ({args.method or 'rig config method'})", "evaluations")
     try:
         res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
+                                fixed_views=args.fixed_views, starts=args.starts,
                                 mask=_view_image_arg("--mask", args.mask), scribbles=_view_image_arg("--scribbles", args.scribbles), progress=evaluations_callback(bar))
     finally:
         bar.close()
@@ -147,6 +189,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     """vastcal reconstruct S.h5 [--voxel-size UM] [--masks] [--mesh OUT.ply|.stl]"""
     from vastcal.reconstruct import reconstruct_session
 
+    if args.mesh:
+        check_output_file(args.mesh, force=True, option="--mesh")
     m = reconstruct_session(args.session, voxel_size_um=args.voxel_size, use_masks=args.masks, mesh_path=args.mesh)
     print(m.summary() if hasattr(m, "summary") else m)
     return 0
@@ -156,6 +200,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     """vastcal report S.h5 -o DIR"""
     from vastcal.report import write_report
 
+    check_output_folder(args.output)
     path = write_report(args.session, args.output)
     print(f"wrote {path}")
     return 0
@@ -165,7 +210,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     """vastcal run S.h5 [-o DIR]: calibrate → reconstruct → report on a recorded session."""
     from vastcal.pipeline import run_session
 
-    out = run_session(args.session, args.output, method=args.method, seed=args.seed, quiet=args.quiet)
+    if args.output:
+        check_output_folder(args.output)
+    out = run_session(args.session, args.output, method=args.method, seed=args.seed, quiet=args.quiet, starts=args.starts)
     print(out.summary())
     return 0
 
@@ -174,6 +221,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     """vastcal demo [-o DIR]: acquire from the simulated rig, then run."""
     from vastcal.pipeline import demo
 
+    check_output_folder(args.output)
     out = demo(args.output, views=args.views, force=args.force, quiet=args.quiet)
     print(out.summary())
     return 0
@@ -207,7 +255,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="session file to create (.h5)")
     s.add_argument("--masks", help="folder of silhouettes, one per image")
     s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: uniform over 360)")
-    s.add_argument("--cameras", help="known cameras: a 'name + 12 numbers' file, or a folder of .pa files")
+    s.add_argument("--cameras", help="known cameras: a 'name + 12 numbers (P)' or 'name + K(9) R(9) t(3)' file, or a folder of .pa files")
+    s.add_argument("--length-unit", choices=("nm", "um", "mm", "cm", "m"), default=None,
+                   help="world unit of --cameras (default: um when their distance to the axis matches --config's working distance, "
+                        "else unknown: measurements in units of the cameras)")
     s.add_argument("--pixel-origin", type=float, default=0.0,
                    help="coordinate --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at integers), 1 (1-based, MATLAB); default 0")
     s.add_argument("--roi-offset", type=int, nargs=2, metavar=("X", "Y"), help="offset of the images on the sensor, px (default from --config, else 0 0)")
@@ -222,7 +273,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("calibrate", help="calibrate the camera of every view; stores a run in the session")
     s.add_argument("session")
-    s.add_argument("--method", choices=("pi", "vr"), default="pi", help="pi: probabilistic inference (default); vr: voxel residual")
+    s.add_argument("--method", choices=METHOD_CHOICES, default=None,
+                   help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's objective as "
+                        "published; vr: voxel residual baseline")
     s.add_argument("--seed", type=int, default=None, help="random seed of CMA-ES (default from the rig config)")
     s.add_argument("--free", nargs="+", default=None, help="parameters to optimise: yaw pitch gamma rolls | all (default from the rig config)")
     s.add_argument("--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)")
@@ -230,6 +283,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--offset-scan", type=float, default=None, metavar="DEG",
                    help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
                         "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)")
+    s.add_argument("--fixed-views", default=None, metavar="VIEWS",
+                   help="views whose roll stays at its commanded angle, 0-based: e.g. 10-35 or 0,3,5-7 (default: none)")
+    s.add_argument("--starts", type=int, default=1, metavar="S",
+                   help="independent CMA-ES starts (seeds seed, seed+10, ...); the one of lowest cost is kept (default 1)")
     s.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("reconstruct", help="visual hull, volume (mm3) and surface area (mm2)")
@@ -247,8 +304,10 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("run", help="replay a recorded session: calibrate, reconstruct, report")
     s.add_argument("session")
     s.add_argument("-o", "--output", help="report folder (default: beside the session)")
-    s.add_argument("--method", choices=("pi", "vr"), default="pi")
+    s.add_argument("--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr")
     s.add_argument("--seed", type=int, default=None)
+    s.add_argument("--starts", type=int, default=3, metavar="S",
+                   help="independent calibration starts; the one of lowest cost is kept (default 3)")
     s.set_defaults(func=cmd_run)
     for sp in sub.choices.values():  # the global flags are accepted after the command too
         sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
@@ -256,22 +315,97 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _resource_exhausted(exc: BaseException) -> str | None:
+    """What ran out, if ``exc`` (or an exception it was raised from) is memory or disk exhaustion.
+
+    h5py reports a full disk as RuntimeError/OSError whose text holds HDF5's ``errno = 28``.
+    """
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, MemoryError):
+            detail = str(e).strip()
+            return "out of memory" + (f" ({detail})" if detail else "") + "; free memory or raise the limit (ulimit -v)"
+        code = getattr(e, "errno", None)
+        text = str(e)
+        where = getattr(e, "filename", None) or (re.findall(r"filename = '([^']*)'", text) or [None])[0]  # HDF5's text
+        if code in (errno.ENOSPC, errno.EDQUOT) or "No space left on device" in text or "errno = 28," in text or "Disk quota exceeded" in text:
+            return "no space left on the device" + (f" writing {where}" if where else "") + "; free disk space and run the command again"
+        if code == errno.EFBIG or "File too large" in text:
+            return "file too large for this file system" + (f" ({where})" if where else "")
+        if code == errno.ENOMEM:
+            return "out of memory (the system refused an allocation); free memory or raise the limit (ulimit -v)"
+        e = e.__cause__ or e.__context__
+    return None
+
+
+_POISONED: list[BaseException] = []
+"""Errors whose frames hold h5py objects of a file that failed to close (disk full): never freed,
+since freeing them crashes HDF5 (segmentation fault); the program then ends with ``os._exit``."""
+
+
+def _quiet_unraisable(unraisable: Any) -> None:
+    """``sys.unraisablehook`` while a command runs: h5py's failures to release objects of a file
+    that could not be written (disk full) go to the debug log, not to stderr as tracebacks."""
+    log.debug("ignored while releasing %r: %s", unraisable.object, unraisable.exc_value)
+
+
+def _say(line: str) -> None:
+    """Print one line to stderr; a terminal that went away (SIGHUP, closed pipe) is ignored."""
+    line = " ".join(line.split("\n"))
+    if len(line) > MAX_ERROR_CHARS:
+        line = line[: MAX_ERROR_CHARS - 1] + "…"
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``vastcal`` console script; returns the exit code."""
+    """Entry point of the ``vastcal`` console script; returns the exit code.
+
+    Stop signals (:data:`STOP_SIGNALS`) raise :class:`Interrupted` while a command runs (acquire
+    installs its own, gentler handlers); the previous handlers are restored on return.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     level = max(logging.WARNING - 10 * args.verbose, logging.DEBUG)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     func: Callable[[argparse.Namespace], int] = args.func
     keep_large_blocks()  # reuse the calibration's large temporaries instead of page-faulting them anew
+    previous: dict[int, Any] = {}
+    hook, sys.unraisablehook = sys.unraisablehook, _quiet_unraisable
+    if threading.current_thread() is threading.main_thread():
+        for sig in STOP_SIGNALS:
+            previous[sig] = signal.signal(sig, _raise_interrupted)
+    RECEIVED.clear()
     try:
-        return func(args)
+        code = func(args)
+        return 128 + RECEIVED[0] if RECEIVED and code != 0 else code
     except VastcalError as exc:
-        print(f"vastcal: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except KeyboardInterrupt:
-        print("vastcal: interrupted", file=sys.stderr)
-        return 130
+        _say(f"vastcal: error: {exc}")
+        return 128 + RECEIVED[0] if RECEIVED else exc.exit_code
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        _say("vastcal: interrupted" + (f" by {signal.Signals(signum).name}" if signum != signal.SIGINT else ""))
+        return 128 + signum
+    except (MemoryError, OSError, RuntimeError) as exc:
+        what = _resource_exhausted(exc)
+        if what is None:
+            raise
+        _say(f"vastcal: error: {what}")
+        if "no space" in what or "too large" in what:
+            _POISONED.append(exc)
+            if argv is None:  # the program (not a library caller): end without freeing them
+                logging.shutdown()
+                sys.stdout.flush()
+                os._exit(1)
+        return 1
+    finally:
+        sys.unraisablehook = hook
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,142 @@
+"""The command line under hostile conditions: stop signals, memory and disk exhaustion, outputs
+that are not regular files or cannot be written. Each ends in ONE line on stderr, a non-zero
+exit code and no traceback; nothing is written and nothing is replaced."""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import stat
+from pathlib import Path
+
+import pytest
+
+from vastcal import cli, outputs
+from vastcal.errors import OutputExistsError, UserInputError
+
+
+def _one_line(err: str) -> str:
+    assert "Traceback" not in err and err.count("\n") == 1, err
+    return err.strip()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT], ids=lambda s: s.name)
+def test_stop_signals_end_any_command_with_128_plus_signum(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+                                                           sig: signal.Signals) -> None:
+    before = {s: signal.getsignal(s) for s in cli.STOP_SIGNALS}
+
+    def slow_command(args: object) -> int:
+        os.kill(os.getpid(), sig)
+        raise AssertionError("the signal did not interrupt the command")
+
+    monkeypatch.setattr(cli, "cmd_info", slow_command)
+    assert cli.main(["info", "S.h5"]) == 128 + sig
+    line = _one_line(capsys.readouterr().err)
+    assert line == "vastcal: interrupted" + ("" if sig == signal.SIGINT else f" by {sig.name}")
+    assert {s: signal.getsignal(s) for s in cli.STOP_SIGNALS} == before, "main restores the handlers it replaced"
+
+
+@pytest.mark.parametrize(
+    ("exc", "expected"),
+    [
+        (MemoryError("Unable to allocate 61.5 MiB for an array with shape (21, 250, 1024, 3)"), "vastcal: error: out of memory (Unable to allocate 61.5 MiB"),
+        (OSError(errno.ENOSPC, "No space left on device", "S.h5"), "vastcal: error: no space left on the device writing S.h5"),
+        (RuntimeError("Can't flush cache (file write failed: time = Wed Nov 25 2026\n, filename = 'out/S.h5', file descriptor = 3, "
+                      "errno = 28, error message = 'No space left on device', buf = 0x5, total write size = 4616)"),
+         "vastcal: error: no space left on the device writing out/S.h5"),
+        (OSError(errno.EDQUOT, "Disk quota exceeded"), "vastcal: error: no space left on the device"),
+    ],
+    ids=["memory", "enospc", "h5py-enospc", "quota"],
+)
+def test_resource_exhaustion_is_one_line_naming_what_ran_out(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+                                                            exc: BaseException, expected: str) -> None:
+    def failing(args: object) -> int:
+        raise exc
+
+    monkeypatch.setattr(cli, "cmd_info", failing)
+    assert cli.main(["info", "S.h5"]) == 1
+    assert _one_line(capsys.readouterr().err).startswith(expected)
+
+
+def test_other_os_errors_are_still_bugs_with_a_traceback(monkeypatch: pytest.MonkeyPatch) -> None:
+    def failing(args: object) -> int:
+        raise OSError(errno.EBADF, "Bad file descriptor")
+
+    monkeypatch.setattr(cli, "cmd_info", failing)
+    with pytest.raises(OSError):
+        cli.main(["info", "S.h5"])
+
+
+def test_a_huge_error_message_is_cut_to_one_short_line(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    def failing(args: object) -> int:
+        raise UserInputError("x" * 1_000_000 + "\nsecond line")
+
+    monkeypatch.setattr(cli, "cmd_info", failing)
+    assert cli.main(["info", "S.h5"]) == 2
+    assert len(_one_line(capsys.readouterr().err)) <= cli.MAX_ERROR_CHARS
+
+
+# -- outputs that must not be written ---------------------------------------------------------------
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[int, int]]:
+    return {str(p.relative_to(folder)): (p.lstat().st_mode, p.lstat().st_size) for p in folder.rglob("*")}
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["plain", "force"])
+def test_acquire_and_import_refuse_a_directory_as_output_before_anything_moves(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                                               force: bool) -> None:
+    (tmp_path / "S.h5").mkdir()
+    (tmp_path / "S.h5" / "keep.txt").write_text("mine")
+    (tmp_path / "imgs").mkdir()
+    before = _snapshot(tmp_path)
+    extra = ["--force"] if force else []
+    assert cli.main(["-q", "acquire", "--simulate", "-o", str(tmp_path / "S.h5"), *extra]) == 2
+    assert "S.h5: -o: is a directory, not a file" in _one_line(capsys.readouterr().err)
+    assert cli.main(["-q", "import", str(tmp_path / "imgs"), "-o", str(tmp_path / "S.h5"), *extra]) == 2
+    assert "S.h5: -o: is a directory, not a file" in _one_line(capsys.readouterr().err)
+    assert _snapshot(tmp_path) == before
+
+
+@pytest.mark.skipif(not Path("/dev/null").exists(), reason="needs /dev/null")
+def test_force_never_replaces_a_device_or_a_symlink_to_one(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    mode = os.stat("/dev/null").st_mode
+    assert cli.main(["-q", "acquire", "--simulate", "-o", "/dev/null", "--force"]) == 2
+    assert "/dev/null: -o: is a device, not a file" in _one_line(capsys.readouterr().err)
+    (tmp_path / "link.h5").symlink_to("/dev/null")
+    assert cli.main(["-q", "acquire", "--simulate", "-o", str(tmp_path / "link.h5"), "--force"]) == 2
+    assert "is a symbolic link (to a device)" in _one_line(capsys.readouterr().err)
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode) and os.stat("/dev/null").st_mode == mode
+    assert (tmp_path / "link.h5").is_symlink()
+
+
+def test_a_read_only_location_is_refused_before_writing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = os.statvfs
+
+    class ReadOnly:
+        def __init__(self, path: str) -> None:
+            self.f_flag = real(path).f_flag | os.ST_RDONLY
+
+    monkeypatch.setattr(outputs.os, "statvfs", ReadOnly)
+    with pytest.raises(UserInputError, match="read-only file system"):
+        outputs.check_output_file(tmp_path / "sub" / "S.h5", force=False)
+    with pytest.raises(UserInputError, match="read-only file system"):
+        outputs.check_output_folder(tmp_path / "report")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_output_checks_accept_what_may_be_written(tmp_path: Path) -> None:
+    assert outputs.check_output_file(tmp_path / "new" / "S.h5", force=False) == tmp_path / "new" / "S.h5"
+    (tmp_path / "S.h5").write_bytes(b"old")
+    with pytest.raises(OutputExistsError):
+        outputs.check_output_file(tmp_path / "S.h5", force=False)
+    outputs.check_output_file(tmp_path / "S.h5", force=True)
+    outputs.check_output_file(tmp_path / "S.h5", force=False, existing=True)
+    with pytest.raises(UserInputError, match="no such file"):
+        outputs.check_output_file(tmp_path / "T.h5", force=False, existing=True)
+    with pytest.raises(UserInputError, match="is not a folder"):
+        outputs.check_output_file(tmp_path / "S.h5" / "x.h5", force=False)
+    with pytest.raises(UserInputError, match="is a file, not a folder"):
+        outputs.check_output_folder(tmp_path / "S.h5")
+    assert (tmp_path / "S.h5").read_bytes() == b"old"
