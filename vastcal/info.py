@@ -46,10 +46,27 @@ def session_summary(path: str | Path) -> dict[str, Any]:
             entries = []
             for name in runs:
                 a = read_attrs(s.result(stage, name))
-                keep = {k: a[k] for k in ("time", "method", "seed", "wall_time_s", "volume_mm3", "surface_area_mm2", "n_evaluations") if k in a}
+                keep = {k: a[k] for k in ("time", "method", "seed", "wall_time_s", "volume_mm3", "volume_U_mm3", "surface_area_mm2",
+                                          "surface_area_U_mm2", "verdict", "n_evaluations") if k in a}
                 entries.append({"run": name, **keep})
             summary["stages"][stage] = entries
+        summary["verdict"] = _verdict(s)
     return summary
+
+
+def _verdict(s: Session) -> dict[str, Any]:
+    """The QC verdict of the latest measurement: ``{"verdict", "reasons", "run"}`` (``not measured`` / ``not evaluated`` when absent)."""
+    meas = s.latest_result("measurement")
+    if meas is None:
+        return {"verdict": "not measured", "reasons": [], "run": None}
+    a = read_attrs(meas)
+    qc = a.get("qc") if isinstance(a.get("qc"), dict) else None
+    run = meas.name.rsplit("/", 1)[-1]
+    if not qc:
+        return {"verdict": "not evaluated", "reasons": ["measured without quality control (older vastcal): run 'vastcal reconstruct' again"],
+                "run": run}
+    return {"verdict": str(qc.get("verdict", "check")), "reasons": [str(f.get("message", "")) for f in qc.get("flags", [])], "run": run,
+            "lower_bound": bool(qc.get("lower_bound", False))}
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -70,6 +87,10 @@ def format_summary(summary: dict[str, Any]) -> str:
     ]
     if "readback_max_error_usteps" in summary:
         lines.append(f"stage        {summary['usteps_per_revolution']} usteps/rev, max read-back error {summary['readback_max_error_usteps']} usteps")
+    v = summary.get("verdict") or {}
+    if v:
+        lines.append(f"verdict      {v.get('verdict')}" + (f" ({v['run']})" if v.get("run") else "")
+                     + (": " + "; ".join(v.get("reasons", [])) if v.get("reasons") else ""))
     if not summary["stages"]:
         lines.append("stages run   none (next: vastcal calibrate)")
     for stage, runs in summary["stages"].items():

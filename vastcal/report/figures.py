@@ -88,8 +88,12 @@ def hull_mask_in_view(P: np.ndarray, points: np.ndarray, voxel_size_um: float, s
     return mask
 
 
+FLAG_BGR = (0, 0, 220)
+"""Colour of the frame drawn around a view that QC flagged (red)."""
+
+
 def hull_outline_sheet(frames: np.ndarray, P: np.ndarray, points: np.ndarray, voxel_size_um: float, labels: Sequence[str],
-                       *, columns: int = 3, tile_width: int = 480) -> np.ndarray:
+                       *, columns: int = 3, tile_width: int = 480, flagged: Sequence[bool] | None = None) -> np.ndarray:
     """Contact sheet (BGR uint8): every view's frame with the reprojected hull outline.
 
     Args:
@@ -98,6 +102,7 @@ def hull_outline_sheet(frames: np.ndarray, P: np.ndarray, points: np.ndarray, vo
         points: (M, 3) world centres of hull voxels (boundary voxels suffice), µm.
         voxel_size_um: voxel edge, µm.
         labels: one caption per view.
+        flagged: per view, whether QC flagged it (a red frame and a red caption).
     """
     n = len(frames)
     h, w = frames.shape[1:3]
@@ -111,8 +116,11 @@ def hull_outline_sheet(frames: np.ndarray, P: np.ndarray, points: np.ndarray, vo
         small = cv2.resize(img, (tile_width, th), interpolation=cv2.INTER_AREA)
         scaled = [np.rint(c.astype(np.float64) * scale).astype(np.int32) for c in contours]
         cv2.polylines(small, scaled, True, OUTLINE_BGR, 1, cv2.LINE_AA)
+        bad = bool(flagged[i]) if flagged is not None and i < len(flagged) else False
+        if bad:
+            cv2.rectangle(small, (0, 0), (tile_width - 1, th - 1), FLAG_BGR, 3)
         caption = np.full((18, tile_width, 3), 255, np.uint8)
-        cv2.putText(caption, str(labels[i]), (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (40, 40, 40), 1, cv2.LINE_AA)
+        cv2.putText(caption, str(labels[i]), (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, FLAG_BGR if bad else (40, 40, 40), 1, cv2.LINE_AA)
         tiles.append(np.vstack([caption, small]))
     rows = []
     blank = np.full_like(tiles[0], 255)
