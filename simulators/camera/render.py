@@ -256,7 +256,8 @@ class BrightfieldRenderer:
         tau = np.zeros(iy.size)
         if self.fin_fold is not None:
             half = (self.capillary.inner_radius_um + math.hypot(*body_offset_um)) / np.sqrt(a2c)
-            tau += self.fin_fold.optical_depth(Cp, d, s0 - half, s0 + half, body_offset_um, self.capillary.inner_radius_um)
+            tau += self.fin_fold.optical_depth(Cp, d, s0 - half, s0 + half, body_offset_um, self.capillary.inner_radius_um,
+                                               footprint_um=footprint_um)
         for f in self.fins:
             tau += ellipsoid_depth(Cp, d, f)
         out[iy, ix] = tau
