@@ -75,7 +75,7 @@ class HullResult:
 
     Attributes:
         grid: the voxel grid (world µm).
-        counts: (nx, ny, nz) uint8, number of silhouettes containing each voxel; exact for the
+        counts: (nx, ny, nz) uint8 (uint16 beyond 255 views, :func:`count_dtype`), number of silhouettes containing each voxel; exact for the
             hull (= ``n_views``), for every voxel with count ≥ ``min_count`` connected to it and
             for their 6-neighbours; 0 elsewhere (module docstring).
         n_views: N, the number of silhouettes.
@@ -226,8 +226,13 @@ def _prepare_silhouettes(silhouettes: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return binary.reshape(s.shape[0], -1), binary, False
 
 
+def count_dtype(n_views: int) -> type:
+    """Smallest unsigned integer type that holds silhouette counts of ``n_views`` views (uint8 up to 255)."""
+    return np.uint8 if n_views <= 255 else np.uint16
+
+
 def silhouette_counts(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Number of silhouettes (uint8, (M,)) that contain each world point (M, 3) µm.
+    """Number of silhouettes (:func:`count_dtype`, (M,)) that contain each world point (M, 3) µm.
 
     Brute force over all views (same inside test as :func:`visual_hull`: nearest pixel for binary
     masks, bilinear ≥ 0.5 for soft maps); meant for small point sets and checks.
@@ -235,7 +240,7 @@ def silhouette_counts(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray
     maps, binary, _ = _prepare_silhouettes(silhouettes)
     n, height, width = binary.shape
     X = np.concatenate([np.asarray(points, float), np.ones((len(points), 1))], 1)
-    counts = np.zeros(len(points), np.uint8)
+    counts = np.zeros(len(points), count_dtype(n))
     for i in range(n):
         h = X @ np.asarray(P[i], float).T
         counts += _inside_view(maps[i], h, width, height)
@@ -365,7 +370,7 @@ def _grow_counts(P: np.ndarray, maps: np.ndarray, shape2d: tuple[int, int], grid
     n = maps.shape[0]
     height, width = shape2d
     shape = grid.shape
-    counts = np.zeros(shape, np.uint8)
+    counts = np.zeros(shape, count_dtype(n))
     counts[occ] = n
     evaluated = occ.ravel().copy()
     counts_flat = counts.ravel()
@@ -388,7 +393,7 @@ def _grow_counts(P: np.ndarray, maps: np.ndarray, shape2d: tuple[int, int], grid
             break
         evaluated[c] = True
         ci, cj, ck = np.unravel_index(c, shape)
-        cnt = np.zeros(c.size, np.uint8)
+        cnt = np.zeros(c.size, counts.dtype)
         for i in range(n):
             h = tx[i, ci] + ty[i, cj] + tz[i, ck]
             cnt += _inside_view(maps[i], h, width, height)
@@ -445,8 +450,8 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
     n = sil.shape[0]
     if np.shape(P)[0] != n:
         raise AnalysisError(f"{np.shape(P)[0]} cameras for {n} silhouettes")
-    if n > 255:
-        raise AnalysisError(f"at most 255 views fit the uint8 counts, got {n}")
+    if n > 65535:
+        raise AnalysisError(f"at most 65535 views fit the uint16 counts, got {n}")
     if min_count is None:
         min_count = max(n - 1, 1)
     if not 1 <= min_count <= n:
@@ -570,9 +575,10 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
         from vastcal.calibrate.silhouettes import specimen_maps
 
         model = ColourModel.from_group(cal["colour_model"])
-        prob = specimen_maps(model, session.projections())
-        # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)
-        sil = np.clip(np.nan_to_num(np.asarray(prob, np.float32)), 0.0, 1.0)
+        prob = np.asarray(specimen_maps(model, session.projections()), np.float32)
+        # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges);
+        # cleaned in place (N full-frame float32 maps: no second and third copy)
+        sil = np.clip(np.nan_to_num(prob, copy=False), 0.0, 1.0, out=prob)
         sil_src = f"colour_model of {cam_src} (bilinear p >= {FOREGROUND_THRESHOLD})"
     elif masks is not None:
         sil = np.asarray(masks) > 0
@@ -597,7 +603,7 @@ def store_reconstruction(group: "h5py.Group", hull: HullResult, inputs: Reconstr
                          settings: dict[str, Any] | None = None) -> None:
     """Write a hull into a result group (``/entry/vastcal/reconstruction/run_NNN``).
 
-    Stores the grid (origin µm, voxel size µm, shape), the counts volume (uint8, gzip; see
+    Stores the grid (origin µm, voxel size µm, shape), the counts volume (uint8 or uint16, gzip; see
     :class:`HullResult`), a summary and the settings; images are not touched.
     """
     from vastcal.session import write_attrs

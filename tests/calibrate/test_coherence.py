@@ -210,3 +210,113 @@ def test_the_parabola_never_extrapolates_past_the_window(scene: tuple[np.ndarray
     theta, _, obj = scene
     r = _residuals_without_slides(obj, theta, _ray_maxima(obj, theta) + np.float32(10 * obj.window_um))
     assert np.all(r[obj.edges.weight > 0] <= 6.0 + 1e-3)
+
+
+# --- Scaling with the number of views (issue 20) ---------------------------------------------------------
+
+
+def test_partner_views_are_every_other_view_up_to_the_bound() -> None:
+    from vastcal.calibrate.objective_coherence import partner_views
+
+    J = partner_views(np.arange(12) * 30.0, 20)
+    assert J.shape == (12, 11)
+    assert all(sorted(J[i]) == [j for j in range(12) if j != i] for i in range(12))
+
+
+def test_partner_views_spread_evenly_around_each_view() -> None:
+    """With more views than partners, each view's partners are a regular revolution of K + 1 views
+    (itself included), whatever the order of the angles; the count stays K however many views there are."""
+    from vastcal.calibrate.objective_coherence import partner_views
+
+    rng = np.random.default_rng(0)
+    n, k = 360, 20
+    angles = np.arange(n) * 360.0 / n + rng.uniform(-0.3, 0.3, n)
+    perm = rng.permutation(n)
+    J = partner_views(angles[perm], k)
+    assert J.shape == (n, k)
+    for i in range(0, n, 37):
+        assert i not in J[i] and len(set(J[i])) == k
+        rel = np.sort(np.mod(angles[perm][J[i]] - angles[perm][i], 360.0))
+        assert np.all(np.abs(rel - np.arange(1, k + 1) * 360.0 / (k + 1)) < 1.0)
+
+
+def test_a_bounded_set_of_partners_keeps_the_truth_lowest() -> None:
+    """36 views, each edge ray checked against 8 partners only: the rays are coherent at the truth and
+    the cost is still lowest at the true pitch and γ."""
+    theta = synthetic.truth_theta(n=36, seed=5)
+    K, d = synthetic.camera()
+    pf = np.stack([s.astype(np.float32) for s in synthetic.silhouettes(theta)])
+    P = projection_matrices(K, d, theta[None])[0]
+    edges = silhouette_edges(pf, axis_crossings(P, pf.shape[1:]), max_lines=16)
+    sd = signed_distance_maps(pf)
+    few = CoherenceObjective(sd, edges, K, d, radius_um=400.0, max_partners=8, angles_deg=theta[3:])
+    assert few.partners is not None and few.partners.shape == (36, 8)
+    for index, delta in ((1, 0.4), (2, 0.08)):
+        th = np.repeat(theta[None], 3, 0)
+        th[1, index] -= delta
+        th[2, index] += delta
+        c = np.array([few(t[None])[0] for t in th])  # one at a time: each searches its own rays
+        assert c[0] < c[1] and c[0] < c[2]
+    r = few.residuals(theta[None])[0]
+    assert np.median(r[edges.weight > 0]) > -0.5  # coherent at the truth with 8 partners per ray
+
+
+def test_atlas_tiles_many_maps_in_columns() -> None:
+    """More maps than one column of the remap size limit holds are tiled in columns; every map is
+    sampled as itself, including at its right edge (no bleeding into the neighbouring tile)."""
+    import cv2
+
+    from vastcal.calibrate.sampling import Atlas
+
+    rng = np.random.default_rng(1)
+    maps = rng.normal(size=(150, 260, 40)).astype(np.float32)  # 150 × 260 rows > 32767
+    atlas = Atlas.from_stack(maps)
+    assert atlas.image.shape[0] < 32767 and atlas.image.shape[1] > 40
+    views = np.array([0, 125, 126, 149])
+    u = np.array([0.0, 39.0, 17.25, 38.5], np.float32)
+    v = np.array([3.5, 259.0, 0.0, 100.75], np.float32)
+    ox, oy = atlas.origin(views)
+    got = cv2.remap(atlas.image, (u + ox)[None], (v + oy)[None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
+    for g, j, uu, vv in zip(got, views, u, v):
+        ref = cv2.remap(maps[j], np.array([[uu]]), np.array([[vv]]), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0, 0]
+        assert abs(g - ref) < 1e-4
+
+
+def test_displacement_bound_moves_each_roll_alone() -> None:
+    """The region's displacement bound moves all rolls at once; it must equal the bound of moving each
+    coordinate of the box on its own (view i's camera depends on its own roll only)."""
+    from vastcal.calibrate.region import displacement_bound
+    from vastcal.geometry import project
+
+    theta = synthetic.truth_theta(n=8, seed=2)
+    K, d = synthetic.camera()
+    hw = np.r_[3.0, 3.0, 0.5, np.full(8, 4.0)]
+    free = np.ones(11, bool)
+    free[3] = False
+    pts = np.random.default_rng(0).uniform(-300, 300, (40, 3))
+    P0 = projection_matrices(K, d, theta[None])[0]
+    # brute force: one coordinate at a time, the larger move of each point, summed, maximised over points
+    per = []
+    for k in np.flatnonzero(free):
+        moves = []
+        for sgn in (-1.0, 1.0):
+            t = theta.copy()
+            t[k] += sgn * hw[k]
+            moves.append(np.linalg.norm(project(projection_matrices(K, d, t[None])[0], pts) - project(P0, pts), axis=-1))
+        per.append(np.maximum(*moves))
+    brute = np.sum(per, axis=0).max(axis=1)
+    assert np.allclose(displacement_bound(K, d, theta, hw, free, pts), brute, rtol=1e-9, atol=1e-9)
+
+
+def test_photometric_views_fit_the_budget() -> None:
+    from vastcal.calibrate.view_budget import evenly_spread_views, photometric_views
+
+    angles = np.arange(360) * 1.0
+    sub = evenly_spread_views(angles, 40)
+    assert len(sub) == 40 and sub[0] == 0 and np.all(np.diff(sub) == 9)
+    assert np.array_equal(evenly_spread_views(angles[:21], 40), np.arange(21))
+    # 1024 × 320 frames, 130 000 voxels: ~30 MB a view; 1 GB free holds ~33 of them, never fewer than 21
+    k = len(photometric_views(angles, (320, 1024), 130_000, memory_mb=1500, used_mb=500))
+    assert 25 <= k <= 40
+    assert len(photometric_views(angles, (320, 1024), 130_000, memory_mb=600, used_mb=500)) == 21
+    assert len(photometric_views(angles[:60], (320, 1024), 130_000, memory_mb=16000, used_mb=500)) == 60

@@ -128,3 +128,16 @@ def test_a_grid_that_crops_the_tail_is_grown_until_the_hull_fits() -> None:
     assert grown.grid.shape[1:] == cropped_grid.shape[1:]  # only the touched face moved
     assert grown.volume_mm3 == pytest.approx(views.hull_volume_mm3, rel=0.005)
     assert cropped.volume_mm3 < grown.volume_mm3
+
+
+def test_more_than_255_views_count_in_16_bits(spheroid_views: PhantomViews) -> None:
+    """A 273-view revolution (each of 21 views 13 times) carves the same hull; counts no longer fit uint8."""
+    reps = 13
+    P = np.concatenate([spheroid_views.P] * reps)
+    sil = np.concatenate([spheroid_views.coverage] * reps)
+    grid = VoxelGrid.from_bounds(SMALL_GRID.lower, SMALL_GRID.upper, 40.0)
+    ref = visual_hull(spheroid_views.P, spheroid_views.coverage, grid)
+    hull = visual_hull(P, sil, grid)
+    assert hull.counts.dtype == np.uint16 and hull.n_views == 21 * reps
+    assert np.array_equal(hull.occupancy, ref.occupancy)
+    assert silhouette_counts(P[:256], sil[:256], grid.centres()[:10]).dtype == np.uint16

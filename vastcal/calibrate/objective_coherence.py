@@ -113,7 +113,7 @@ def _crossing(profile: np.ndarray, a: int, b: int, level: float) -> float:
 
 
 def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, level: float = 0.5, min_run_px: int = 3,
-                     all_runs: bool = False, max_axis_gap: float = 0.08) -> EdgeSamples:
+                     all_runs: bool = False, max_axis_gap: float = 0.08, full_views: int = 41, min_lines: int = 8) -> EdgeSamples:
     """Boundary samples of the specimen in every view, on scan lines across the rotation axis.
 
     Scan lines run perpendicular to the image of the axis (image columns when the axis is closer to
@@ -129,8 +129,14 @@ def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, l
         all_runs: take the edges of every run, not only the one around the axis (for internal
             features such as the eyes, which appear as one or two runs depending on the angle).
         max_axis_gap: a specimen run must reach within this fraction of the scan line's length of the axis.
+        full_views, min_lines: up to ``full_views`` views every view gets ``max_lines`` scan lines; more
+            views share the edge samples of ``full_views`` views (``max_lines`` × ``full_views`` / N lines
+            each, at least ``min_lines``), so that an evaluation's cost stops growing with the views while
+            the samples spread over more directions.
     """
     n, h, w = pf.shape
+    if n > full_views > 0:
+        max_lines = max(min(max_lines, int(min_lines)), int(round(max_lines * full_views / n)))
     horizontal = axis_uv.shape[1] == w
     per_view: list[list[tuple[float, float]]] = []
     for i in range(n):
@@ -251,6 +257,34 @@ def dark_feature_probability(images: np.ndarray, pf: np.ndarray, min_fraction: f
     return (p * pf).astype(np.float32)
 
 
+def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
+    """(N, K) the views against which each view's edge rays are checked, K = min(N − 1, ``max_partners``).
+
+    The residual of an edge ray of view i needs the visual hull of *other* views, not of all of them:
+    the hull of a revolution of K + 1 evenly spread views already pins the ray down to a fraction of a
+    pixel (a view at φ from i sees the ray as a line ∝ |sin φ| long; views near 0° or 180° see it
+    nearly end-on). With all N − 1 others the cost would grow as N² (every ray against every view);
+    with K fixed it grows as N, and more views add more edge rays (more information) instead of a
+    tighter hull for each. With N − 1 ≤ K every other view is used (in index order). Otherwise the
+    other views are sorted by their angle from view i, (ω_j − ω_i) mod 360°, and K of them are taken
+    evenly spread in that order (a regular revolution: evenly spread in angle, as a K + 1-view one).
+
+    Args:
+        angles_deg: (N,) roll angles of the views, degrees (commanded or current).
+        max_partners: K, at least 1.
+    """
+    a = np.asarray(angles_deg, float)
+    n = a.size
+    k = int(min(n - 1, max(1, int(max_partners))))
+    if n - 1 <= k:
+        return np.array([[j for j in range(n) if j != i] for i in range(n)], dtype=np.intp).reshape(n, n - 1)
+    rel = np.mod(a[None, :] - a[:, None], 360.0)  # (N, N): angle of view j seen from view i
+    rel[np.arange(n), np.arange(n)] = np.inf  # own view last
+    order = np.argsort(rel, axis=1, kind="stable")[:, : n - 1]
+    pos = np.clip(np.rint(np.arange(1, k + 1) * n / (k + 1) - 1), 0, n - 2).astype(np.intp)  # the m-th of K + 1 even steps
+    return np.ascontiguousarray(order[:, pos])
+
+
 class SumObjective:
     """Sum of objectives over the same θ (e.g. body silhouettes + dark internal features)."""
 
@@ -286,6 +320,10 @@ class CoherenceObjective:
         sigma_px: softness σ of the one-sided penalty, pixels.
         research_deg: repeat the full search along the rays when the population mean has moved more
             than this (degrees, any entry) since the last one.
+        max_points: bound of the ray samples × partner views held at once (memory ~40 bytes each).
+        max_partners: each edge ray is checked against at most this many other views
+            (:func:`partner_views`); time and memory then grow linearly with the number of views.
+        angles_deg: (N,) roll angles that choose the partners (default: the first θ evaluated).
     """
 
     name = "pi-coherence"
@@ -294,7 +332,8 @@ class CoherenceObjective:
                  stages: tuple[int, ...] = (7, 7, 7), window: int = 7, window_px: float = 1.5, max_slides: int = 3,
                  sigma_px: float = 0.33,
                  trim: int = 1, cap_px: float = 1.5, max_first_stage: int = 256, research_deg: float = 0.1,
-                 per_candidate: bool = False, max_points: int = 1_000_000) -> None:
+                 per_candidate: bool = False, max_points: int = 1_000_000, max_partners: int = 20,
+                 angles_deg: np.ndarray | None = None) -> None:
         self.atlas = Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
@@ -315,6 +354,8 @@ class CoherenceObjective:
         self.cap_px = float(cap_px)
         self.sigma = float(sigma_px)
         self.max_points = int(max_points)
+        self.max_partners = int(max_partners)
+        self.partners: np.ndarray | None = None if angles_deg is None else partner_views(angles_deg, self.max_partners)
         n, r, _ = edges.uv.shape
         homog = np.concatenate([edges.uv, np.ones((n, r, 1), np.float32)], -1)
         self.rays_cam = np.einsum("ij,nrj->nri", self.Kinv, homog).astype(np.float32)  # (N, R, 3) camera-frame directions, z = 1
@@ -343,8 +384,11 @@ class CoherenceObjective:
         th = np.atleast_2d(np.asarray(theta_deg, float))
         out = np.empty((th.shape[0],) + self.edges.weight.shape, np.float32)
         n, r = self.edges.weight.shape
+        if self.partners is None:
+            self.partners = partner_views(th[:, 3:].mean(axis=0), self.max_partners)
+        k = self.partners.shape[1]
         if self.per_candidate:  # every candidate searches its own rays: its cost does not depend on the batch
-            chunk = max(1, self.max_points // max(1, n * r * self.first_stage * n))
+            chunk = max(1, self.max_points // max(1, n * r * self.first_stage * k))
             for s in range(0, th.shape[0], chunk):
                 z = self._search_peaks(th[s:s + chunk])
                 out[s:s + chunk] = self._local_max(th[s:s + chunk], z)
@@ -355,41 +399,57 @@ class CoherenceObjective:
             self._searched_at = mean
         else:  # the mean moved little since the last full search: zoom in around the known peaks
             self.z_peak = self._search_peaks(mean[None], around=self.z_peak[None])[0]
-        chunk = max(1, self.max_points // max(1, n * r * self.window * n))
+        chunk = max(1, self.max_points // max(1, n * r * self.window * k))
         for s in range(0, th.shape[0], chunk):
             out[s:s + chunk] = self._local_max(th[s:s + chunk], np.broadcast_to(self.z_peak, (len(th[s:s + chunk]),) + self.z_peak.shape))
         return out
 
     def _sample_min_others(self, X: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """(Robust) min over j ≠ i of sd_j at the projections of X (B, N, R, S, 3); returns (B, N, R, S)."""
-        b, n, r, s, _ = X.shape
-        vals = self._sample_views(P, X.reshape(b, n * r * s, 3).transpose(0, 2, 1)).reshape(b, n, n, r, s)  # (B, view j, ray view i, R, S)
-        idx = np.arange(n)
-        vals[:, idx, idx] = np.inf  # a ray is always on its own view's boundary: skip j = i
-        return self._robust_min(vals)
+        """(Robust) min over the partner views j of sd_j at the projections of X (B, N, R, S, 3); returns (B, N, R, S).
 
-    def _sample_views(self, P: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        """Signed distances (K, N, M) of every view j at its projection of points ``pts`` (K, 3, M) µm,
-        through cameras P (K, N, 3, 4): one BLAS product per group, one remap for all."""
+        The points of view i's rays are projected into its partners (:func:`partner_views`) only, a
+        few ray views at a time so that at most ``max_points`` samples are held at once.
+        """
+        b, n, r, s, _ = X.shape
+        J = self.partners if self.partners is not None else partner_views(np.zeros(n), self.max_partners)
+        k = J.shape[1]
+        out = np.empty((b, n, r, s), np.float32)
+        step = max(1, self.max_points // max(1, b * r * s * k))
+        for a in range(0, n, step):
+            e = min(n, a + step)
+            Jc = J[a:e]  # (n_c, K)
+            Pc = P[:, Jc]  # (B, n_c, K, 3, 4)
+            pts = X[:, a:e].reshape(b, e - a, r * s, 3).transpose(0, 1, 3, 2)  # (B, n_c, 3, R·S)
+            vals = self._project_sample(Pc, pts, Jc[None])  # (B, n_c, K, R·S)
+            out[:, a:e] = self._robust_min(vals.transpose(0, 2, 1, 3)).reshape(b, e - a, r, s)
+        return out
+
+    def _project_sample(self, P: np.ndarray, pts: np.ndarray, views: np.ndarray) -> np.ndarray:
+        """Signed distances (..., K, M) of views ``views`` (broadcastable to (..., K)) through their cameras
+        P (..., K, 3, 4) at points ``pts`` (..., 3, M) µm: one batched product, one remap for all."""
         a = self.atlas
-        k, n = P.shape[:2]
-        proj = P[..., :3].reshape(k, n * 3, 3) @ pts  # (K, 3N, M)
-        proj += P[..., 3].reshape(k, n * 3, 1)
-        proj = proj.reshape(k, n, 3, -1)
-        den = np.reciprocal(proj[:, :, 2])
-        u = proj[:, :, 0] * den
-        v = proj[:, :, 1] * den
+        k = P.shape[-3]
+        lead = P.shape[:-3]
+        proj = P[..., :3].reshape(lead + (k * 3, 3)) @ pts  # (..., 3K, M)
+        proj += P[..., 3].reshape(lead + (k * 3, 1))
+        proj = proj.reshape(lead + (k, 3, -1))
+        den = np.reciprocal(proj[..., 2, :])
+        u = proj[..., 0, :] * den
+        v = proj[..., 1, :] * den
         np.clip(u, 0.0, a.w - 1.0, out=u)
         np.clip(v, 0.0, a.h - 1.001, out=v)
-        v += (np.arange(n, dtype=np.float32) * a.h)[None, :, None]
-        return self._remap(u.reshape(k * n, -1), v.reshape(k * n, -1)).reshape(k, n, -1)
+        ox, oy = a.origin(np.broadcast_to(views, lead + (k,)))
+        u += ox[..., None]
+        v += oy[..., None]
+        m = u.shape[-1]
+        return self._remap(u.reshape(-1, m), v.reshape(-1, m)).reshape(u.shape)
 
     def _robust_min(self, vals: np.ndarray) -> np.ndarray:
-        """The (trim + 1)-th smallest of ``vals`` over axis 1 (the other views), so that one
+        """The (trim + 1)-th smallest of ``vals`` over axis 1 (the partner views), so that one
         mis-segmented view cannot veto a point (trim 0: the plain minimum)."""
-        if self.trim == 0:
+        if self.trim == 0 or vals.shape[1] <= self.trim:
             return vals.min(axis=1)
-        if self.trim == 1:  # second smallest, as a running pair over the contiguous view slices (no partition)
+        if self.trim == 1:  # second smallest, as a running pair over the view slices (no partition)
             lo, second = vals[:, 0].copy(), np.full(vals.shape[:1] + vals.shape[2:], np.inf, np.float32)
             for j in range(1, vals.shape[1]):
                 x = vals[:, j]
@@ -401,8 +461,10 @@ class CoherenceObjective:
     def _min_others_of_rays(self, X: np.ndarray, P: np.ndarray, own: np.ndarray) -> np.ndarray:
         """Like :meth:`_sample_min_others` for an irregular set of M rays: points X (M, S, 3) µm,
         the cameras P (M, N, 3, 4) of each ray's candidate and its own view ``own`` (M,); returns (M, S)."""
-        vals = self._sample_views(P, X.transpose(0, 2, 1))  # (M, N, S)
-        vals[np.arange(len(own)), own] = np.inf
+        assert self.partners is not None
+        J = self.partners[own]  # (M, K)
+        Pj = np.take_along_axis(P, J[:, :, None, None], axis=1)  # (M, K, 3, 4)
+        vals = self._project_sample(Pj, X.transpose(0, 2, 1), J)  # (M, K, S)
         return self._robust_min(vals)
 
     def _remap(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -517,7 +579,8 @@ class CoherenceObjective:
             zr = np.maximum(zr, np.float32(1e-3 * self.distance))
             cam = self.rays_cam[i, r][:, None, :] * zr[..., None] - t[b][:, None, :]  # (M, S, 3) camera frame
             X = np.matmul(cam, R[b, i])  # (M, S, 3) world: Rᵀ c, as rows cᵀ R
-            step = max(1, self.max_points // (Pm.shape[1] * count))  # rays per chunk: memory as in the batched path
+            assert self.partners is not None
+            step = max(1, self.max_points // (self.partners.shape[1] * count))  # rays per chunk: memory as in the batched path
             v = np.concatenate([self._min_others_of_rays(X[c:c + step], Pm[b[c:c + step]], i[c:c + step])
                                 for c in range(0, len(b), step)])
             Z[b, i, r], vals[b, i, r] = zr, v

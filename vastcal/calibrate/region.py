@@ -43,19 +43,30 @@ class Region:
 
 def displacement_bound(K: np.ndarray, distance: float, theta0: np.ndarray, half_width: np.ndarray, free_mask: np.ndarray,
                        points: np.ndarray) -> np.ndarray:
-    """Per-view bound (N,) in pixels of how far ``points`` (M, 3) can move over the search box."""
+    """Per-view bound (N,) in pixels of how far ``points`` (M, 3) can move over the search box.
+
+    View i's camera depends on the axis angles (yaw, pitch, γ) and on its own roll only, so the
+    free rolls are moved all at once (to −h and to +h): view i then moves exactly as if its roll
+    alone had moved. That keeps the work linear in the number of views (1 + 2·(axis + 1) camera
+    sets instead of 1 + 2·(axis + N)).
+    """
     th0 = np.asarray(theta0, float)
-    idx = np.flatnonzero(free_mask)
+    free = np.asarray(free_mask, bool)
+    hw = np.asarray(half_width, float)
+    groups = [np.array([k]) for k in np.flatnonzero(free[:3])]
+    rolls = np.flatnonzero(free[3:]) + 3
+    if rolls.size:
+        groups.append(rolls)
     thetas = [th0]
-    for k in idx:
+    for g in groups:
         for sgn in (-1.0, 1.0):
             t = th0.copy()
-            t[k] += sgn * half_width[k]
+            t[g] += sgn * hw[g]
             thetas.append(t)
-    P = projection_matrices(K, distance, np.array(thetas))  # (1 + 2F, N, 3, 4)
-    uv = project(P, points)  # (1 + 2F, N, M, 2)
-    d = np.linalg.norm(uv[1:] - uv[:1], axis=-1)  # (2F, N, M)
-    d = np.maximum(d[0::2], d[1::2])  # (F, N, M)
+    P = projection_matrices(K, distance, np.array(thetas))  # (1 + 2G, N, 3, 4)
+    uv = project(P, points)  # (1 + 2G, N, M, 2)
+    d = np.linalg.norm(uv[1:] - uv[:1], axis=-1)  # (2G, N, M)
+    d = np.maximum(d[0::2], d[1::2])  # (G, N, M)
     return d.sum(axis=0).max(axis=1)
 
 

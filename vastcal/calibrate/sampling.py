@@ -45,22 +45,54 @@ def resize_stack(maps: np.ndarray, factor: float) -> tuple[np.ndarray, np.ndarra
     return out, downsample_matrix(w / ws, h / hs)
 
 
+REMAP_LIMIT = 32767
+"""``cv2.remap`` takes source images (and maps) of fewer than this many rows and columns."""
+
+
 @dataclass(frozen=True)
 class Atlas:
-    """N maps of H × W stacked into one (N·H, W) float32 image for a single remap."""
+    """N maps of H × W tiled into one float32 image for a single remap.
+
+    The maps are stacked vertically (map j at rows j·H … j·H + H − 1) while they fit the remap size
+    limit; more maps (a 360-view session at ½ width, or full frames) continue in further columns of
+    tiles, each tile followed by one replicated column so that a bilinear sample at a tile's right
+    edge (u clamped to W − 1) never reads its neighbour. ``offsets`` (N, 2) float32 give each map's
+    (column, row) origin in the atlas.
+    """
 
     image: np.ndarray
     n: int
     h: int
     w: int
+    offsets: np.ndarray | None = None
 
     @classmethod
     def from_stack(cls, maps: np.ndarray) -> "Atlas":
         """Atlas of an (N, H, W) stack."""
         n, h, w = maps.shape
-        if n * h >= 32767 or w >= 32767:
+        per_col = (REMAP_LIMIT - 1) // h if h < REMAP_LIMIT else 0
+        if per_col == 0 or w + 1 >= REMAP_LIMIT:
+            raise ValueError(f"atlas of maps of {h}x{w} exceeds the remap size limit; downsample the maps")
+        if n * h < REMAP_LIMIT:  # one column of tiles (the common case, no gutter)
+            offsets = np.stack([np.zeros(n), np.arange(n) * h], 1).astype(np.float32)
+            return cls(np.ascontiguousarray(maps.reshape(n * h, w), np.float32), n, h, w, offsets)
+        cols = -(-n // per_col)
+        if cols * (w + 1) >= REMAP_LIMIT:
             raise ValueError(f"atlas of {n} maps of {h}x{w} exceeds the remap size limit; downsample the maps")
-        return cls(np.ascontiguousarray(maps.reshape(n * h, w), np.float32), n, h, w)
+        image = np.zeros((per_col * h, cols * (w + 1)), np.float32)
+        offsets = np.empty((n, 2), np.float32)
+        for j in range(n):
+            c, r = divmod(j, per_col)
+            x0, y0 = c * (w + 1), r * h
+            image[y0:y0 + h, x0:x0 + w] = maps[j]
+            image[y0:y0 + h, x0 + w] = maps[j][:, -1]
+            offsets[j] = (x0, y0)
+        return cls(image, n, h, w, offsets)
+
+    def origin(self, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Column and row offsets (float32, shaped like ``views``) of the tiles of map indices ``views``."""
+        off = self.offsets if self.offsets is not None else np.stack([np.zeros(self.n), np.arange(self.n) * self.h], 1).astype(np.float32)
+        return off[views, 0], off[views, 1]
 
 
 class Projector:
@@ -115,7 +147,9 @@ class Projector:
         v *= den
         np.clip(u, 0.0, atlas.w - 1.0, out=u)
         np.clip(v, 0.0, atlas.h - 1.001, out=v)
-        v += (np.arange(b * n, dtype=np.float32) % n * atlas.h)[:, None]
+        ox, oy = atlas.origin(np.arange(b * n) % n)
+        u += ox[:, None]
+        v += oy[:, None]
         m = X.shape[1]
         total = u.size
         cols = 4096 if total % 4096 == 0 else (1024 if total % 1024 == 0 else m)

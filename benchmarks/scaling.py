@@ -1,0 +1,160 @@
+"""How calibration and reconstruction grow with the number of views and the frame size (issue 20).
+
+Acquires simulated sessions (the rig file config/simulated.yaml, rig seed ``--seed``) of 21, 41, 81, 161
+and 360 views on the rig's 1024 × 320 ROI, and one full 1024 × 1024 frame case, then calibrates them
+(``calibrate_session``, the rig file's settings: silhouette coherence + photometric yaw) and
+reconstructs them (``reconstruct_session``), each step in a fresh process so that its peak memory is
+its own. Prints wall time, evaluations, time per evaluation, peak memory (ru_maxrss of the process) and
+yaw / pitch errors against the simulator's truth (S.truth.json), then the growth exponent b of
+time ≈ a·N^b fitted over the ROI cases (b = 1: linear).
+
+Sessions are cached in ``--workdir`` (default /tmp/vastcal_scaling) and reused; the full run is long
+(360 views: acquisition a few minutes, calibration a few minutes), so run subsets:
+
+    python benchmarks/scaling.py --views 21 81            # the acceptance ratio time(81) / time(21)
+    python benchmarks/scaling.py --views 21 41 81 161 360 --full-frame 21
+    python benchmarks/scaling.py --views 360 --no-reconstruct
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _session(workdir: Path, views: int, full: bool, seed: int) -> tuple[Path, Path]:
+    tag = f"sim_s{seed}_v{views}_{'full' if full else 'roi'}"
+    return workdir / f"{tag}.h5", workdir / f"{tag}.truth.json"
+
+
+def _config(views: int, full: bool, seed: int):  # type: ignore[no-untyped-def]
+    from vastcal.config import RoiConfig, load_config
+
+    cfg = load_config(None)
+    assert cfg.simulation is not None
+    cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(cfg.simulation, seed=seed),
+                              acquisition=dataclasses.replace(cfg.acquisition, views=views))
+    if full:
+        cam = dataclasses.replace(cfg.camera, roi=RoiConfig(0, 0, cfg.optics.sensor_width_px, cfg.optics.sensor_height_px))
+        cfg = dataclasses.replace(cfg, camera=cam)
+    return cfg
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[str, float]:
+    """One step in this (fresh) process; returns its figures."""
+    session, truth = _session(workdir, views, full, seed)
+    if step == "acquire":
+        from vastcal.acquire import acquire
+        from vastcal.rig import connect_rig
+
+        if session.exists() and truth.exists():
+            return {}
+        cfg = _config(views, full, seed)
+        tmp = session.with_suffix(".part.h5")
+        tmp.unlink(missing_ok=True)
+        t = time.perf_counter()
+        with connect_rig(cfg, truth_path=truth) as rig:
+            res = acquire(rig.stage, rig.camera, cfg, tmp, start_info=rig.start_info, on_view=rig.on_view)
+        if res.exit_status != "success":
+            raise SystemExit(f"acquisition of {views} views failed: {res.reason}")
+        tmp.rename(session)
+        return {"acquire_s": time.perf_counter() - t}
+    if step == "calibrate":
+        from vastcal.calibrate import calibrate_session
+        from vastcal.pipeline import score_against_truth
+
+        t = time.perf_counter()
+        cal = calibrate_session(session)
+        wall = time.perf_counter() - t
+        s = score_against_truth(session, truth)
+        return {"cal_s": wall, "evals": cal.n_evaluations, "ms_per_eval": 1e3 * cal.time_per_evaluation_s, "cal_mb": _peak_mb(),
+                "yaw_err": s["yaw_error_deg"], "pitch_err": s["pitch_error_deg"], "roll_rms": s["angle_rms_error_deg"]}
+    if step == "reconstruct":
+        from vastcal.pipeline import score_against_truth
+        from vastcal.reconstruct import reconstruct_session
+
+        t = time.perf_counter()
+        reconstruct_session(session)
+        wall = time.perf_counter() - t
+        s = score_against_truth(session, truth)
+        return {"rec_s": wall, "rec_mb": _peak_mb(), "vol_pct": s.get("volume_vs_true_hull_pct", float("nan"))}
+    raise SystemExit(f"unknown step {step}")
+
+
+def _run_step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[str, float]:
+    cmd = [sys.executable, __file__, "--_step", step, "--_case", str(views), "--seed", str(seed), "--workdir", str(workdir)]
+    if full:
+        cmd.append("--_full")
+    out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    if out.returncode != 0:
+        raise SystemExit(f"{step} of {views} views failed:\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _exponent(n: list[int], t: list[float]) -> float:
+    if len(n) < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(n), np.log(t), 1)[0])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--views", type=int, nargs="*", default=[21, 41, 81, 161, 360], help="views of the ROI cases")
+    ap.add_argument("--full-frame", type=int, nargs="*", default=[], help="views of full 1024 x 1024 frame cases")
+    ap.add_argument("--seed", type=int, default=1, help="simulated rig seed (simulation.seed)")
+    ap.add_argument("--workdir", type=Path, default=Path("/tmp/vastcal_scaling"))
+    ap.add_argument("--no-reconstruct", action="store_true")
+    ap.add_argument("--_step")
+    ap.add_argument("--_case", type=int)
+    ap.add_argument("--_full", action="store_true")
+    a = ap.parse_args()
+    a.workdir.mkdir(parents=True, exist_ok=True)
+    if a._step:
+        print(json.dumps(_step(a._step, a._case, a._full, a.seed, a.workdir)))
+        return
+    cases = [(v, False) for v in a.views] + [(v, True) for v in a.full_frame]
+    load = os.getloadavg()[0]
+    print(f"rig seed {a.seed}, {os.cpu_count()} CPUs, load average {load:.1f} at start", flush=True)
+    hdr = (f"{'views':>5} {'frame':>9} | {'cal s':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} {'pitch err':>9} "
+           f"{'roll rms':>8} | {'rec s':>6} {'rec MB':>6} {'vol %':>6}")
+    rows = []
+    for views, full in cases:
+        _run_step("acquire", views, full, a.seed, a.workdir)
+        r = {"views": views, "full": full, **_run_step("calibrate", views, full, a.seed, a.workdir)}
+        if not a.no_reconstruct:
+            r.update(_run_step("reconstruct", views, full, a.seed, a.workdir))
+        rows.append(r)
+        print(json.dumps(r), flush=True)
+    print(hdr)
+    for r in rows:
+        frame = "1024x1024" if r["full"] else "1024x320"
+        rec = (f"{r['rec_s']:6.1f} {r['rec_mb']:6.0f} {r['vol_pct']:+6.2f}" if "rec_s" in r else f"{'-':>6} {'-':>6} {'-':>6}")
+        print(f"{r['views']:5d} {frame:>9} | {r['cal_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} "
+              f"{r['yaw_err']:+8.3f} {r['pitch_err']:+9.3f} {r['roll_rms']:8.3f} | {rec}")
+    roi = [r for r in rows if not r["full"]]
+    n = [r["views"] for r in roi]
+    print(f"growth exponent (time ~ N^b over {n} views): calibration b = {_exponent(n, [r['cal_s'] for r in roi]):.2f}, "
+          f"per evaluation b = {_exponent(n, [r['ms_per_eval'] for r in roi]):.2f}"
+          + (f", reconstruction b = {_exponent(n, [r['rec_s'] for r in roi]):.2f}" if roi and "rec_s" in roi[0] else ""))
+    by_n = {r["views"]: r for r in roi}
+    if 21 in by_n and 81 in by_n:
+        print(f"time(81) / time(21): calibration {by_n[81]['cal_s'] / by_n[21]['cal_s']:.2f}"
+              + (f", reconstruction {by_n[81]['rec_s'] / by_n[21]['rec_s']:.2f}" if "rec_s" in by_n[21] else ""))
+    print(f"load average at end {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()

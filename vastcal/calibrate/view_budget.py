@@ -1,0 +1,74 @@
+"""Which views a calibration stage holds at once: evenly spread subsets that fit a memory budget.
+
+The silhouette cost streams its ray samples in bounded chunks and checks each edge ray against a
+bounded set of partner views (:func:`.objective_coherence.partner_views`), so its memory and time grow
+linearly with the number of views. The photometric yaw (:mod:`.photometric_yaw`) holds full-frame
+absorption maps and a sparse projection matrix of every view it uses (~4 entries per voxel and view);
+at 360 views that is several GB. It therefore uses an evenly spread subset of the views — as many as
+``calibration.memory_mb`` leaves room for, all of them when they fit — which still spans the whole
+revolution (the yaw is a property of the axis, seen by every view alike).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import resource
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Bytes per full-frame pixel the photometric yaw holds per view (posterior, its static-free copy,
+#: absorption, masks and the posterior's computation), measured as about 30 on the simulated rig.
+PHOTOMETRIC_BYTES_PER_PIXEL = 32.0
+#: Bytes per voxel and view of its projection system (4 splat entries as 32-bit triplets, the CSR
+#: matrix, its active rows and its transpose), ~40 bytes per entry.
+PHOTOMETRIC_BYTES_PER_VOXEL_VIEW = 160.0
+#: The photometric yaw never uses fewer views than this (when the session has them).
+MIN_PHOTOMETRIC_VIEWS = 21
+
+
+def evenly_spread_views(angles_deg: np.ndarray, max_views: int) -> np.ndarray:
+    """Sorted indices of at most ``max_views`` views spread evenly over the revolution (all when they fit).
+
+    The views are ordered by their angle from view 0, (ω_j − ω_0) mod 360°, and every (N / max_views)-th
+    is taken, view 0 first: on a regular revolution the subset is itself a regular revolution.
+    """
+    a = np.asarray(angles_deg, float)
+    n = a.size
+    k = int(max(1, max_views))
+    if n <= k:
+        return np.arange(n)
+    order = np.argsort(np.mod(a - a[0], 360.0), kind="stable")
+    return np.sort(order[np.floor(np.arange(k) * n / k).astype(np.intp)])
+
+
+def resident_mb() -> float:
+    """Resident memory of this process now, MB (the peak so far where /proc is not available)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxels: int, memory_mb: float,
+                      used_mb: float | None = None) -> np.ndarray:
+    """The views the photometric yaw uses within ``memory_mb`` (see the module docstring).
+
+    Args:
+        angles_deg: (N,) roll angles, degrees.
+        frame_shape: (H, W[, C]) of the stored frames.
+        voxels: about how many voxels its finest reconstruction holds (one map pixel at the axis).
+        memory_mb: the process's memory budget, MB.
+        used_mb: memory already in use, MB (default: the resident memory now).
+    """
+    n = int(np.asarray(angles_deg).size)
+    per_view = (PHOTOMETRIC_BYTES_PER_PIXEL * float(np.prod(frame_shape[:2])) + PHOTOMETRIC_BYTES_PER_VOXEL_VIEW * max(int(voxels), 0)) / 2**20
+    free = float(memory_mb) - (resident_mb() if used_mb is None else float(used_mb))
+    k = int(np.clip(free // max(per_view, 1e-9), min(n, MIN_PHOTOMETRIC_VIEWS), n))
+    if k < n:
+        log.info("photometric yaw: %d of %d views (evenly spread) fit %.0f MB (%.1f MB per view, %.0f MB in use)", k, n, memory_mb, per_view,
+                 float(memory_mb) - free)
+    return evenly_spread_views(angles_deg, k)
