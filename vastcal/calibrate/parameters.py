@@ -128,9 +128,19 @@ class ParameterSpace:
         """
         x = np.clip(np.asarray(x, float), -1.0 + step, 1.0 - step)  # both differences inside the box
         n = self.n_free
-        X = np.repeat(x[None], 2 * n, axis=0)
-        X[np.arange(n), np.arange(n)] += step
-        X[n + np.arange(n), np.arange(n)] -= step
-        uv = project(projection_matrices(K, distance, self.theta(X)), np.asarray(points, float))  # (2n, N, M, 2)
-        d = (uv[:n] - uv[n:]) / (2 * step)
-        return np.sqrt(np.mean(np.sum(d * d, axis=-1), axis=(1, 2)))
+        # A roll moves its own view only: all free rolls are stepped at once (linear in the views).
+        idx = np.flatnonzero(self.free_mask)
+        axis, rolls = np.flatnonzero(idx < 3), np.flatnonzero(idx >= 3)
+        groups = [np.array([k]) for k in axis] + ([rolls] if rolls.size else [])
+        g = len(groups)
+        X = np.repeat(x[None], 2 * g, axis=0)
+        for c, k in enumerate(groups):
+            X[c, k] += step
+            X[g + c, k] -= step
+        uv = project(projection_matrices(K, distance, self.theta(X)), np.asarray(points, float))  # (2g, N, M, 2)
+        d2 = np.sum(((uv[:g] - uv[g:]) / (2 * step)) ** 2, axis=-1)  # (g, N, M)
+        out = np.empty(n)
+        out[axis] = np.mean(d2[: axis.size], axis=(1, 2))
+        if rolls.size:  # view v's motion under all rolls is its own roll's; the mean is over every view
+            out[rolls] = np.mean(d2[-1], axis=1)[idx[rolls] - 3] / d2.shape[1]
+        return np.sqrt(out)
