@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import re
+import warnings
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -30,6 +32,7 @@ import numpy as np
 from vastcal.config import CameraConfig, RigConfig, RoiConfig, dump_config
 from vastcal.errors import ImportDataError
 from vastcal.geometry import shift_pixels
+from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter, check_writable_output
 
 log = logging.getLogger(__name__)
@@ -59,12 +62,46 @@ def list_images(folder: Path) -> list[Path]:
     return files
 
 
+MAX_IMAGE_PIXELS = 1 << 28
+"""Most pixels one imported image may have: 268 M (16384 x 16384), beyond any camera sensor; a
+header that claims more is refused before the pixels are decoded."""
+
+MAX_TEXT_BYTES = 16 << 20
+"""Largest angle file read, bytes (one line per view)."""
+
+
+def image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) that the file's header claims, read without decoding the pixels; ``None``
+    when the header cannot be read (the decoder then says why)."""
+    from PIL import Image  # a dependency of scikit-image; reads headers lazily
+
+    limit = Image.MAX_IMAGE_PIXELS
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            Image.MAX_IMAGE_PIXELS = None  # we apply our own budget to what the header claims
+            with Image.open(path) as im:
+                w, h = im.size
+        return int(w), int(h)
+    except (OSError, SyntaxError, ValueError, EOFError):
+        return None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+
+
 def read_image(path: Path) -> np.ndarray:
     """One image as stored (uint8/uint16; colour as RGB H×W×3, alpha dropped).
 
+    The header is checked first: an image claiming more than :data:`MAX_IMAGE_PIXELS` pixels
+    (or none) is refused before decoding.
+
     Raises:
-        ImportDataError: unreadable or empty file.
+        ImportDataError: unreadable, empty or implausibly large file.
     """
+    size = image_size(path)
+    if size is not None and (size[0] * size[1] > MAX_IMAGE_PIXELS or min(size) < 1):
+        raise ImportDataError(f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
+                              f"(16384 x 16384); not decoded")
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise ImportDataError(f"{path}: cannot read this image (corrupt or unsupported format)")
@@ -84,16 +121,33 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     """Commanded angles (degrees) from a text file: one number per line, or ``name angle``.
 
     Raises:
-        ImportDataError: unreadable, not numbers, or a count different from ``n``.
+        ImportDataError: unreadable, not numbers, not finite, two views at one angle (modulo
+            360°), or a count different from ``n``.
     """
     try:
-        rows = [ln.split() for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-        values = [float(r[-1]) for r in rows]
-    except (OSError, ValueError) as exc:
-        raise ImportDataError(f"{path}: expected one angle in degrees per line ({exc})") from None
+        if not path.is_file():
+            raise ImportDataError(f"{path}: expected a text file of angles, got {'nothing' if not path.exists() else 'not a regular file'}")
+        if path.stat().st_size > MAX_TEXT_BYTES:
+            raise ImportDataError(f"{path}: larger than {MAX_TEXT_BYTES} bytes; expected one angle in degrees per line")
+        lines = [(k, ln.split()) for k, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+                 if ln.strip() and not ln.lstrip().startswith("#")]
+        values = [float(r[-1]) for _, r in lines]
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
+        raise ImportDataError(f"{path}: expected one angle in degrees per line ({str(exc)[:120]})") from None
     if len(values) != n:
         raise ImportDataError(f"{path}: {len(values)} angles for {n} images")
-    return np.asarray(values, float)
+    angles = np.asarray(values, float)
+    for (lineno, _), a in zip(lines, angles):
+        if not np.isfinite(a):
+            raise ImportDataError(f"{path}: line {lineno}: angle {a} is not a finite number of degrees")
+    wrapped = np.round(np.mod(angles, 360.0), 9) % 360.0
+    seen: dict[float, int] = {}
+    for i, a in enumerate(wrapped):
+        if a in seen:
+            raise ImportDataError(f"{path}: lines {lines[seen[a]][0]} and {lines[i][0]}: views {seen[a]} and {i} have the same angle "
+                                  f"({angles[seen[a]]:g} and {angles[i]:g} degrees, modulo 360)")
+        seen[a] = i
+    return angles
 
 
 def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
@@ -168,6 +222,7 @@ def import_folder(
         OutputExistsError: ``output`` exists and ``force`` is false.
     """
     folder, out = Path(folder), Path(output)
+    check_output_file(out, force=force)  # directories, devices, symlinks, read-only folders: refused before reading
     check_writable_output(out, force)
     if pixel_origin not in PIXEL_ORIGINS:
         raise ImportDataError(f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
@@ -180,6 +235,7 @@ def import_folder(
         img = first if f == files[0] else read_image(f)
         if img.shape != first.shape or img.dtype != first.dtype:
             raise ImportDataError(f"{folder}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, {f.name} is {img.shape} {img.dtype}")
+    _check_fits_in_memory(folder, n, first)
     mask_stack = _read_masks(Path(masks), n, first.shape[:2]) if masks is not None else None
     angle_values = read_angles(Path(angles), n, [f.stem for f in files]) if angles is not None else np.arange(n) * 360.0 / n
     cfg = config or RigConfig(name=f"imported from {folder.name}", camera=CameraConfig(driver="genicam"))
@@ -191,7 +247,11 @@ def import_folder(
     cfg = dataclasses.replace(cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h)))
     P_given = names = None
     if cameras is not None:
-        P_given, names = read_cameras(Path(cameras), n)
+        try:
+            P_given, names = read_cameras(Path(cameras), n)
+        except UnicodeDecodeError:  # an image or other binary file given as --cameras
+            raise ImportDataError(f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)") from None
+        check_cameras(P_given, Path(cameras), names)
     pixel_um = cfg.optics.pixel_size_um / cfg.optics.magnification
     plan = {"views": n, "source": "import", "folder": str(folder.resolve())}
     with SessionWriter.create(out, frame_shape=first.shape, dtype=first.dtype, rig_yaml=dump_config(cfg), plan=plan,
@@ -211,6 +271,42 @@ def import_folder(
         writer.finish("success", views_planned=n)
     log.info("imported %d views %s %s into %s", n, first.shape, first.dtype, out)
     return out
+
+
+def _physical_memory_bytes() -> int | None:
+    """This machine's RAM, bytes (``None`` where the platform does not say)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _check_fits_in_memory(folder: Path, n: int, first: np.ndarray) -> None:
+    """Refuse a set of frames that could never be loaded: every later stage holds all frames in memory.
+
+    Raises:
+        ImportDataError: the frames as stored exceed this machine's physical memory.
+    """
+    total = n * first.nbytes
+    ram = _physical_memory_bytes()
+    if ram is not None and total > ram:
+        raise ImportDataError(f"{folder}: {n} frames of {first.shape} {first.dtype} need {total / 2**30:.1f} GiB, more than this "
+                              f"machine's {ram / 2**30:.1f} GiB of memory (calibration loads every frame)")
+
+
+def check_cameras(P: np.ndarray, source: Path, names: Sequence[str]) -> None:
+    """Refuse cameras that cannot be projection matrices: non-finite entries, or a left 3 × 3
+    that is singular (all-zero matrices included).
+
+    Raises:
+        ImportDataError: naming the view.
+    """
+    for name, m in zip(names, P):
+        if not np.all(np.isfinite(m)):
+            raise ImportDataError(f"{source}: camera {name}: not all 12 numbers are finite")
+        scale = float(np.abs(m[:, :3]).max())
+        if scale == 0.0 or abs(np.linalg.det(m[:, :3] / scale)) < 1e-12:
+            raise ImportDataError(f"{source}: camera {name}: not a projection matrix (its left 3 x 3 is singular or zero)")
 
 
 def _read_masks(folder: Path, n: int, shape: tuple[int, int]) -> np.ndarray:
