@@ -20,7 +20,7 @@ BATTERY_SIMULATION: dict[str, Any] = {
     "fin_fold": True,
     "fin_fold_height_um": (60.0, 140.0),
     "pectoral_fins": True,
-    "melanophores": 40.0,
+    "melanophores": 120.0,
     "wall_contact_probability": 0.4,
     "tail_out_of_frame_probability": 0.15,
     "debris": 3.0,

@@ -4,7 +4,8 @@ What is drawn (each switched by a key of ``simulation:``, see ``config/simulated
 
 * **the body** (``larva_varies``): age A uniform in ``age_dpf``; length L = 3.0 mm + 0.75 mm/day ·
   (A − 3) (±4 %), so 3.0 mm at 3 dpf and 4.5 mm at 5 dpf; dorso-ventral height 0.50–0.58 mm; the
-  yolk bump and the dark yolk shrink with age (absorbed by 5 dpf); flattening (lateral/dorso-ventral)
+  yolk bump and the dark yolk (μ 0.006–0.012 /µm: nearly opaque) shrink with age (mostly absorbed
+  by 5 dpf); flattening (lateral/dorso-ventral)
   0.68–0.82; tissue contrast — the edge transmission 0.62–0.85 and the tissue attenuation
   2.5–7·10⁻⁴ /µm — i.e. a dim to a clear larva. This is the **measured body**: the truth file's
   volume, area and visual hull are its own (:class:`~simulators.camera.phantom.Phantom`).
@@ -238,6 +239,7 @@ def _larva_body(sim: SimulationConfig, rng: np.random.Generator, x_centre: float
     edge_t = float(rng.uniform(0.62, 0.85))
     mu_body = float(rng.uniform(2.5e-4, 7e-4))
     yolk_left = float(np.clip(1.0 - 0.4 * (age - 3.0), 0.15, 1.0))  # fraction of the 3-dpf yolk
+    mu_yolk = float(rng.uniform(0.006, 0.012))  # a nearly opaque yolk, as in real brightfield frames
     bumps = ((0.7, 0.12, 0.10), (0.25 + 0.65 * yolk_left, 0.33, 0.11), (0.10, 0.5, 0.2))
     profile = LarvaProfile(length=length, max_diameter=height, bumps=bumps, x_centre=x_centre)
     k = length / 3000.0
@@ -249,14 +251,14 @@ def _larva_body(sim: SimulationConfig, rng: np.random.Generator, x_centre: float
     x_yolk = profile.x_head + 0.34 * length
     for shrink in (1.0, 0.85, 0.7, 0.55):
         s = shrink * yolk_left**0.5
-        yolk = EllipsoidFeature("yolk", (x_yolk, 30.0 * hk, 0.0), (190.0 * k * s, 130.0 * hk * s, 130.0 * hk * s * lateral / 0.75), 0.004)
+        yolk = EllipsoidFeature("yolk", (x_yolk, 30.0 * hk, 0.0), (190.0 * k * s, 130.0 * hk * s, 130.0 * hk * s * lateral / 0.75), mu_yolk)
         if _inside(profile, lateral, yolk):
             feats.append(yolk)
             break
     feats = [f for f in feats if _inside(profile, lateral, f)]
     ph = Phantom(profile, tuple(feats), body_attenuation_per_um=mu_body, edge_transmission=edge_t, lateral_scale=lateral, name="zebrafish-larva")
     info = {"age_dpf": age, "length_um": length, "height_um": height, "lateral_scale": lateral, "edge_transmission": edge_t,
-            "body_attenuation_per_um": mu_body, "yolk_fraction": yolk_left}
+            "body_attenuation_per_um": mu_body, "yolk_fraction": yolk_left, "yolk_attenuation_per_um": mu_yolk}
     return ph, info
 
 

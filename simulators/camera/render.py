@@ -213,14 +213,23 @@ class BrightfieldRenderer:
             chord = 2.0 * np.sqrt(np.maximum(-m, 0.0) / a2c) * dnorm
             tau_body[iy, ix] = self.phantom.body_attenuation_per_um * chord
             tf = np.zeros_like(chord)
+            sel = np.nonzero(inside)[0]
             for feat in self.phantom.features:
                 ax = np.asarray(feat.semi_axes_um, float)
-                p = (C_phantom - np.asarray(feat.centre_um, float)) / ax
-                qx, qy, qz = dx_[inside] / ax[0], dy_[inside] / ax[1], dz_[inside] / ax[2]
+                c = np.asarray(feat.centre_um, float)
+                # only rays passing the feature's x slab can meet it (rays are within a few degrees
+                # of perpendicular to x: a generous margin), then the exact ray–ellipsoid chord
+                s_f = ((c[0] - C_phantom[0]) * dx_[sel] + (c[1] - C_phantom[1]) * dy_[sel] + (c[2] - C_phantom[2]) * dz_[sel]) \
+                    / (dnorm[sel] ** 2)
+                near = sel[np.abs(C_phantom[0] + s_f * dx_[sel] - c[0]) < ax[0] + 0.2 * ax.max() + 2.0 * footprint_um]
+                if not near.size:
+                    continue
+                p = (C_phantom - c) / ax
+                qx, qy, qz = dx_[near] / ax[0], dy_[near] / ax[1], dz_[near] / ax[2]
                 A = qx * qx + qy * qy + qz * qz
                 B = 2.0 * (p[0] * qx + p[1] * qy + p[2] * qz)
                 disc = B * B - 4.0 * A * (p @ p - 1.0)
-                tf[inside] += feat.attenuation_per_um * np.sqrt(np.maximum(disc, 0.0)) / A * dnorm[inside]
+                tf[near] += feat.attenuation_per_um * np.sqrt(np.maximum(disc, 0.0)) / A * dnorm[near]
             tau_feat[iy, ix] = tf
         tau_extra = None
         if self.fin_fold is not None or self.fins:
