@@ -5,7 +5,7 @@ Acquires a revolution from the simulated rig (seeds from ``simulation.seed``), r
 with the rig file's settings (config/simulated.yaml: the photometric yaw search is on, ~23 s of each
 calibration) and prints per-view roll RMS error, yaw and pitch errors (degrees), evaluations and wall time.
 
-    python benchmarks/calibrate_simulated.py [n_rigs=3] [method=pi]
+    python benchmarks/calibrate_simulated.py [n_rigs=3] [method=coherence]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from vastcal.rig import connect_rig
 
 def main() -> None:
     n_rigs = int(sys.argv[1]) if len(sys.argv) > 1 else 3
-    method = sys.argv[2] if len(sys.argv) > 2 else "pi"
+    method = sys.argv[2] if len(sys.argv) > 2 else "coherence"
     base = load_config(None)
     rows = []
     with tempfile.TemporaryDirectory() as d:

@@ -2,7 +2,7 @@
 
 Prints, per seed, the wall time end to end (session file → stored run), evaluations, time per
 evaluation, peak memory; then the per-view angle spread between seeds (RMS about the mean) and the
-RMS difference to the authors' PI rolls. Usage: python benchmarks/calibrate_zebrafish.py [n_seeds] [pi|vr]
+RMS difference to the authors' PI rolls. Usage: python benchmarks/calibrate_zebrafish.py [n_seeds] [coherence|pi|vr]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ DATA = (ROOT / ".." / "shared" / "data" / "zf_3dpf_s001").resolve()
 def main() -> None:
     keep_large_blocks()  # as the vastcal command does at start-up
     n_seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 5
-    method = sys.argv[2] if len(sys.argv) > 2 else "pi"
+    method = sys.argv[2] if len(sys.argv) > 2 else "coherence"
     rows = [ln.split() for ln in (DATA / "authors_par_pi.txt").read_text().splitlines() if ln.strip()]
     P_auth = np.array([[float(v) for v in r[1:13]] for r in rows]).reshape(-1, 3, 4)
     auth = decompose_circular(shift_pixels(P_auth, 1, 1 + 387)).motion

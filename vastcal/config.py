@@ -168,7 +168,8 @@ class CalibrationBounds:
 class CalibrationConfig:
     """Settings of ``vastcal calibrate`` (command-line flags override them)."""
 
-    method: Literal["pi", "vr"] = "pi"
+    method: Literal["coherence", "pi", "vr"] = "coherence"
+    """coherence: vastcal's silhouette-coherence cost (default); pi: the paper's objective as published; vr: voxel residual."""
     free: tuple[str, ...] = ("yaw", "pitch", "gamma", "rolls")
     seed: int = field(default=0, metadata=_range(0, 2**31 - 1))
     bounds: CalibrationBounds = field(default_factory=CalibrationBounds)

@@ -155,9 +155,26 @@ def project(P: np.ndarray, points: np.ndarray) -> np.ndarray:
     return x[..., :2] / x[..., 2:3]
 
 
-def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Split P = λ·K·[R | t] into K (K[2,2] = 1, positive diagonal), rotation R, translation t."""
+def camera_centre(P: np.ndarray) -> np.ndarray:
+    """Centre (3,) of a finite camera P (3, 4): its right null vector, dehomogenised (world units)."""
+    _, _, vt = np.linalg.svd(np.asarray(P, float))
+    c = vt[-1]
+    return c[:3] / c[3]
+
+
+def decompose_projection(P: np.ndarray, front: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split P = λ·K·[R | t] into K (K[2,2] = 1), a proper rotation R (det +1) and translation t.
+
+    P is defined up to its overall sign, and so is the side of the camera the scene is on. With ``front``
+    (a world point known to be in front of the camera, e.g. the centre of a ring of cameras) the sign is
+    chosen so that ``front`` has positive depth; a camera whose image axes are left-handed with respect to
+    its viewing direction (det M < 0 for that sign, e.g. rows counted upwards, or a mirrored image) then
+    keeps a proper R and gets the mirror in K: K's second column is negated (f_y < 0). Without ``front``
+    K has a positive diagonal and the sign of P is chosen to make det R = +1 (right-handed cameras only).
+    """
     P = np.asarray(P, float)
+    if front is not None and float(P[2] @ np.r_[np.asarray(front, float), 1.0]) < 0:
+        P = -P
     M = P[:, :3]
     # RQ decomposition through QR of the flipped, transposed matrix.
     flip = np.eye(3)[::-1]
@@ -166,6 +183,14 @@ def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     R = flip @ q.T
     S = np.diag(np.sign(np.diag(K)))
     K, R = K @ S, S @ R
+    if front is not None:
+        if np.linalg.det(R) < 0:  # left-handed image axes: the mirror goes into K, R stays a rotation
+            F = np.diag([1.0, -1.0, 1.0])
+            K, R = K @ F, F @ R
+        scale = K[2, 2]
+        K = K / scale
+        t = np.linalg.solve(K, P[:, 3] / scale)
+        return K, R, t
     scale = K[2, 2]
     K = K / scale
     t = np.linalg.solve(K, P[:, 3] / scale)
@@ -214,7 +239,10 @@ def decompose_circular(P: np.ndarray, check_points: np.ndarray | None = None) ->
     n = P.shape[0]
     if n < 3:
         raise AnalysisError(f"need at least 3 cameras to fit circular motion, got {n}")
-    Ks, Rs, ts = zip(*(decompose_projection(p) for p in P))
+    # The specimen is inside the ring of cameras: their centroid is in front of every camera, which fixes
+    # the sign of each P (and with it the handedness of its image axes, see decompose_projection).
+    front = np.mean([camera_centre(p) for p in P], axis=0)
+    Ks, Rs, ts = zip(*(decompose_projection(p, front) for p in P))
     K = np.mean(Ks, axis=0)
     Rs = np.array(Rs)
     ts = np.array(ts)

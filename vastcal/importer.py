@@ -150,8 +150,18 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     return angles
 
 
+#: Length units an imported camera file's world may be in, and their size in micrometres.
+LENGTH_UNITS_UM: dict[str, float] = {"nm": 1e-3, "um": 1.0, "mm": 1e3, "cm": 1e4, "m": 1e6}
+
+
 def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
-    """Known cameras as given: (N, 3, 4) from a ``name + 12 numbers`` file or a folder of ``.pa``.
+    """Known cameras as given: (N, 3, 4) from a camera file or a folder of ``.pa`` files.
+
+    A camera file has one line per view: the view name, then either 12 numbers (row-major 3 × 4 P; the
+    zebrafish authors' format) or 21 numbers ``K(9) R(9) t(3)`` (row-major K and R, then t; P = K·[R | t];
+    Middlebury's format). A first line holding only the number of views (Middlebury's) is skipped, and so
+    are blank lines and ``#`` comments. Cameras may be right- or left-handed (det of P's left 3 × 3 of either
+    sign; see :func:`vastcal.geometry.decompose_projection`).
 
     Raises:
         ImportDataError: wrong format or a count different from ``n``.
@@ -170,23 +180,64 @@ def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
             mats.append(m)
             names.append(f.stem)
     elif path.is_file():
+        first = True
         for lineno, ln in enumerate(path.read_text().splitlines(), 1):
             tok = ln.split()
             if not tok or tok[0].startswith("#"):
                 continue
+            if first and len(tok) == 1 and tok[0].isdigit():  # Middlebury's count line
+                first = False
+                continue
+            first = False
             try:
                 nums = [float(t) for t in tok[1:]]
             except ValueError:
                 nums = []
-            if len(nums) != 12:
-                raise ImportDataError(f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P)")
-            mats.append(np.asarray(nums).reshape(3, 4))
+            if len(nums) == 12:
+                P = np.asarray(nums).reshape(3, 4)
+            elif len(nums) == 21:
+                Km, Rm, tv = np.asarray(nums[:9]).reshape(3, 3), np.asarray(nums[9:18]).reshape(3, 3), np.asarray(nums[18:])
+                P = Km @ np.c_[Rm, tv]
+            else:
+                raise ImportDataError(f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P) "
+                                      f"or 21 numbers (K(9) R(9) t(3)), got {len(tok) - 1} fields")
+            mats.append(P)
             names.append(tok[0])
     else:
         raise ImportDataError(f"{path}: no such camera file or folder")
     if len(mats) != n:
         raise ImportDataError(f"{path}: {len(mats)} cameras for {n} images")
     return np.asarray(mats), names
+
+
+def camera_length_unit(P: np.ndarray, given: str | None, working_distance_um: float | None) -> tuple[str, str]:
+    """(unit, how it was decided) of the world of imported cameras ``P`` (N, 3, 4).
+
+    ``given`` (one of :data:`LENGTH_UNITS_UM`) wins. Otherwise, with a rig description: when the
+    cameras' camera-to-axis distance is within a factor 2 of the rig's working distance in µm, the
+    world is in µm (the zebrafish authors' cameras: 65 000 against 65 000 µm); else it is unknown
+    ("units of the cameras": ETH's turntable is 10 units from its axis), and measurements are not
+    converted to mm.
+
+    Raises:
+        ImportDataError: an unknown unit name.
+    """
+    if given is not None:
+        unit = given.strip().lower().replace("µ", "u")
+        if unit not in LENGTH_UNITS_UM:
+            raise ImportDataError(f"length unit: expected one of {', '.join(LENGTH_UNITS_UM)}, got {given!r}")
+        return unit, "given"
+    if working_distance_um:
+        from vastcal.geometry import decompose_circular
+        from vastcal.errors import AnalysisError
+        try:
+            d = decompose_circular(P).motion.distance
+        except AnalysisError:
+            return "unknown", "the cameras do not form a circular motion"
+        if 0.5 <= d / working_distance_um <= 2.0:
+            return "um", f"camera-to-axis distance {d:.4g} matches the rig's working distance {working_distance_um:.4g} um"
+        return "unknown", f"camera-to-axis distance {d:.4g} is not the rig's working distance {working_distance_um:.4g} um; give --length-unit"
+    return "unknown", "no rig description; give --length-unit"
 
 
 def import_folder(
@@ -201,6 +252,7 @@ def import_folder(
     config: RigConfig | None = None,
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    length_unit: str | None = None,
 ) -> Path:
     """Import a folder of images (and optional masks, angles, cameras) into a new session.
 
@@ -216,6 +268,9 @@ def import_folder(
         config: rig description for the optics (pixel size, K); default: an "imported" rig.
         force: overwrite ``output`` if it exists.
         progress: called with (views done, views total).
+        length_unit: the cameras' world unit (nm, um, mm, cm, m); default: µm when their distance to the axis
+            matches ``config``'s working distance, else unknown (:func:`camera_length_unit`); stored as the
+            cameras' ``length_unit`` attribute for calibration and measurement.
 
     Raises:
         ImportDataError: any input that cannot be imported (nothing is written).
@@ -252,6 +307,10 @@ def import_folder(
         except UnicodeDecodeError:  # an image or other binary file given as --cameras
             raise ImportDataError(f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)") from None
         check_cameras(P_given, Path(cameras), names)
+        unit, unit_why = camera_length_unit(P_given, length_unit, cfg.optics.working_distance_um if config is not None else None)
+        log.info("imported cameras: length unit %s (%s)", unit, unit_why)
+    elif length_unit is not None:
+        raise ImportDataError("--length-unit describes imported cameras; give --cameras too (without them the world is in um)")
     pixel_um = cfg.optics.pixel_size_um / cfg.optics.magnification
     plan = {"views": n, "source": "import", "folder": str(folder.resolve())}
     with SessionWriter.create(out, frame_shape=first.shape, dtype=first.dtype, rig_yaml=dump_config(cfg), plan=plan,
@@ -267,7 +326,8 @@ def import_folder(
         if P_given is not None:
             P = shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])
             writer.write_cameras(P, source=str(Path(cameras).resolve()), P_given=P_given,
-                                 attrs={"pixel_origin": float(pixel_origin), "roi_offset": list(roi_offset), "names": names})
+                                 attrs={"pixel_origin": float(pixel_origin), "roi_offset": list(roi_offset), "names": names,
+                                        "length_unit": unit, "length_unit_source": unit_why})
         writer.finish("success", views_planned=n)
     log.info("imported %d views %s %s into %s", n, first.shape, first.dtype, out)
     return out

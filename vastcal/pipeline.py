@@ -62,15 +62,17 @@ class RunSummary:
         return "\n".join(lines)
 
 
-def run_session(session: str | Path, report_dir: str | Path | None = None, *, method: str = "pi", seed: int | None = None,
-                quiet: bool = False) -> RunSummary:
+def run_session(session: str | Path, report_dir: str | Path | None = None, *, method: str | None = None, seed: int | None = None,
+                quiet: bool = False, starts: int = 3) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
     Args:
         session: the session file (acquired or imported).
         report_dir: where the report goes (default: ``<session stem>-report`` beside the session).
-        method: ``pi`` or ``vr``.
-        seed: CMA-ES seed (default from the stored rig configuration).
+        method: ``coherence``, ``pi`` or ``vr`` (default: the stored rig configuration's, normally coherence).
+        seed: CMA-ES seed of the first start (default from the stored rig configuration).
+        starts: independent calibration starts (seeds seed, seed + 10, …); the one of lowest cost is kept,
+            never a pose costlier than the commanded angles (one seed once kept the worse of two optima on a larva).
         quiet: no progress lines.
     """
     from vastcal.calibrate import calibrate_session
@@ -80,10 +82,10 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     path = Path(session)
     out = Path(report_dir) if report_dir is not None else path.with_name(path.stem + "-report")
     res = RunSummary(path, out)
-    bar = ProgressLine(f"calibrate ({method})", "evaluations", enabled=not quiet)
+    bar = ProgressLine(f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})", "evaluations", enabled=not quiet)
     t = time.monotonic()
     try:
-        cal = calibrate_session(path, method=method, seed=seed,
+        cal = calibrate_session(path, method=method, seed=seed, starts=starts,
                                 progress=evaluations_callback(bar))
     finally:
         bar.close()
@@ -107,7 +109,7 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
 def _calibration_digest(cal: Any) -> dict[str, Any]:
     """A few numbers of a calibration result, whatever its exact type."""
     out: dict[str, Any] = {}
-    for name in ("method", "n_evaluations", "wall_time_s"):
+    for name in ("method", "n_evaluations", "wall_time_s", "final_cost", "converged"):
         if hasattr(cal, name):
             out[name] = getattr(cal, name)
     delta = getattr(cal, "delta_angle_deg", None)

@@ -93,11 +93,16 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             if progress is not None:
                 progress(res.n_evaluations, res.f_best)
         res.stop = dict(es.stop())
-    # The distribution mean is usually better than any single sample at convergence.
+    # The distribution mean is usually better than any single sample at convergence. The best sample's
+    # cost came from its generation's batch (a cost may depend on its population: the coherence cost's
+    # rays are searched around the batch mean), so it is scored again alone, like the mean, and the two
+    # are compared on the same footing.
     xm = np.clip(np.asarray(es.mean, float), -1.0, 1.0)
     fm = float(np.asarray(objective(xm[None]))[0])
-    res.n_evaluations += 1
-    if fm <= res.f_best:
+    fb = float(np.asarray(objective(np.asarray(res.x_best)[None]))[0])
+    res.n_evaluations += 2
+    res.f_best = fb
+    if fm <= fb:
         res.f_best, res.x_best = fm, xm
     log.debug("CMA-ES: %d evaluations, %d generations, f=%.6g, stop %s", res.n_evaluations, res.n_generations, res.f_best, res.stop)
     return res

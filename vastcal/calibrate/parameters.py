@@ -22,6 +22,36 @@ from vastcal.errors import UserInputError
 from vastcal.geometry import project, projection_matrices
 
 
+def parse_views(spec: str | Iterable[int] | None, n: int | None = None) -> tuple[int, ...]:
+    """View indices from ``"10-35"``, ``"0,3,5-7"`` (0-based, ranges inclusive) or an iterable of ints.
+
+    Raises:
+        UserInputError: malformed text, a reversed range, or (with ``n``) a view outside 0 … n − 1.
+    """
+    if spec is None:
+        return ()
+    out: list[int] = []
+    if isinstance(spec, str):
+        for part in spec.replace(" ", ",").split(","):
+            if not part:
+                continue
+            a, sep, b = part.partition("-")
+            try:
+                lo, hi = (int(a), int(b)) if sep else (int(a), int(a))
+            except ValueError:
+                raise UserInputError(f"views: expected indices or ranges like 10-35 or 0,3,5-7, got {spec!r}") from None
+            if hi < lo or lo < 0:
+                raise UserInputError(f"views: expected non-negative ranges low-high, got {part!r}")
+            out.extend(range(lo, hi + 1))
+    else:
+        out = [int(v) for v in spec]
+    if n is not None:
+        bad = [v for v in out if not 0 <= v < n]
+        if bad:
+            raise UserInputError(f"views {bad[:5]} do not exist (views 0–{n - 1})")
+    return tuple(sorted(set(out)))
+
+
 def normalise_free(free: Iterable[str] | str | None) -> tuple[str, ...]:
     """Validated, canonical tuple of free groups (``all`` expanded), in θ order.
 
@@ -60,8 +90,14 @@ class ParameterSpace:
     free: tuple[str, ...]
 
     @classmethod
-    def build(cls, theta0: np.ndarray, free: Iterable[str] | str | None, bounds: CalibrationBounds) -> "ParameterSpace":
-        """Free mask and half-widths for ``free`` groups with ``bounds`` around ``theta0``."""
+    def build(cls, theta0: np.ndarray, free: Iterable[str] | str | None, bounds: CalibrationBounds,
+              fixed_views: Iterable[int] = ()) -> "ParameterSpace":
+        """Free mask and half-widths for ``free`` groups with ``bounds`` around ``theta0``; the rolls of
+        ``fixed_views`` (0-based view indices) stay at θ0 (the paper's protocol keeps the unperturbed views fixed).
+
+        Raises:
+            UserInputError: a fixed view that does not exist, or nothing left to optimise.
+        """
         th = np.asarray(theta0, float)
         groups = normalise_free(free)
         n = th.size - 3
@@ -69,10 +105,15 @@ class ParameterSpace:
         mask[0], mask[1], mask[2] = "yaw" in groups, "pitch" in groups, "gamma" in groups
         if "rolls" in groups:
             mask[4:] = True
+        fixed = sorted({int(v) for v in fixed_views})
+        bad = [v for v in fixed if not 0 <= v < n]
+        if bad:
+            raise UserInputError(f"fixed views {bad} do not exist (views 0–{n - 1})")
+        mask[[3 + v for v in fixed]] = False
         hw = np.concatenate([[bounds.yaw_deg, bounds.pitch_deg, bounds.gamma_deg], np.full(n, bounds.roll_deg)])
         mask &= hw > 0
         if not mask.any():
-            raise UserInputError(f"nothing to optimise: free={list(groups)} with zero bounds or a single view")
+            raise UserInputError(f"nothing to optimise: free={list(groups)} with zero bounds, a single view or every view fixed")
         return cls(th, mask, hw, groups)
 
     @property

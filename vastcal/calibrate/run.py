@@ -50,7 +50,9 @@ from vastcal.geometry import projection_matrices
 
 log = logging.getLogger(__name__)
 
-Method = Literal["pi", "vr"]
+Method = Literal["coherence", "pi", "vr"]
+#: calibration methods: vastcal's silhouette coherence (default), the paper's PI objective as published, the VR baseline
+METHODS: tuple[str, ...] = ("coherence", "pi", "vr")
 
 
 @dataclass(frozen=True)
@@ -94,8 +96,8 @@ class CalibrationSettings:
         eps: clamp of the posteriors (p in [ε, 1 − ε]).
         threshold: p_f above which a pixel belongs to a rough silhouette (region, VR).
         vr_blur_px: Gaussian blur (σ, level pixels) of the VR silhouettes, so bilinear sampling is smooth.
-        pi_form: ``"coherence"`` (default: silhouette coherence of the posteriors, :mod:`.objective_coherence`),
-            or the voxel sums ``"count"`` / ``"loglik"`` of :mod:`.objective_pi` (kept for comparison).
+        pi_form: the form of ``method="pi"``'s voxel sum (:mod:`.objective_pi`): ``"loglik"`` (default,
+            Σ_j log P_f − log P_b as the paper writes it) or ``"count"`` (the authors' code's voxel count, smoothed).
         coherence_sigma_px: softness of the coherence penalty, pixels of the level.
         coherence_trim: the residual of a ray point is the (trim + 1)-th smallest signed distance over
             the other views (0: the strict minimum; 1: one inconsistent view is forgiven per point).
@@ -123,9 +125,13 @@ class CalibrationSettings:
         roll_offset_scan_deg: after the first level, scan a common offset of all free rolls over the
             box in steps of this many degrees and keep the best (0: off); see :func:`_common_roll_offset_scan`.
         photometric_yaw: after the silhouette levels, search the axis yaw by projection matching of
-            absorption images (:mod:`.photometric_yaw`): silhouettes hardly see it. PI with the yaw free
-            only (VR, the baseline, and a held yaw skip it); brightfield (absorption contrast) only,
-            skipped with a warning otherwise.
+            absorption images (:mod:`.photometric_yaw`): silhouettes hardly see it. The coherence method with
+            the yaw free only (PI and VR, the published objectives, and a held yaw skip it); brightfield
+            (absorption contrast) only, skipped with a warning otherwise.
+        starts: independent coarse-to-fine CMA-ES runs (seeds seed, seed + 10, …); the one of lowest
+            judged cost is kept. Each costs a full run.
+        polish: after the starts, a per-view compass search of every free roll on the judge cost
+            (:func:`polish_rolls`), steps ``polish_steps_deg`` (degrees, largest first).
     """
 
     levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 1200, 32, ("yaw", "pitch", "gamma"), max_initial_step_px=8.0),
@@ -136,7 +142,7 @@ class CalibrationSettings:
     eps: float = 1e-4
     threshold: float = 0.5
     vr_blur_px: float = 0.7
-    pi_form: str = "coherence"
+    pi_form: str = "loglik"
     coherence_sigma_px: float = 0.1
     coherence_trim: int = 1
     coherence_per_candidate: bool = False
@@ -148,6 +154,9 @@ class CalibrationSettings:
     refine_tolerance_px: float = 2.0
     roll_offset_scan_deg: float = 0.0
     photometric_yaw: bool = False
+    starts: int = 1
+    polish: bool = True
+    polish_steps_deg: tuple[float, ...] = (0.2, 0.1, 0.05, 0.025)
 
     def to_json(self) -> str:
         """JSON of every setting."""
@@ -181,6 +190,18 @@ class CalibrationResult:
     level_reports: list[dict[str, Any]] = field(default_factory=list)
     run_name: str | None = None
     session_path: Path | None = None
+    final_cost: float = float("nan")
+    """Cost (data + prior) of ``theta_deg`` on the judge: the finest level's batch-independent cost."""
+    converged: bool = False
+    stop_reason: str = ""
+    start_thetas: np.ndarray | None = field(default=None, repr=False)
+    """(S, 3 + N) θ (degrees) where each start ended, before the polish."""
+    start_costs: np.ndarray | None = field(default=None, repr=False)
+    """(S,) judge cost of each start."""
+    theta0_cost: float = float("nan")
+    scored_costs: list[float] = field(default_factory=list)
+    """Judge costs of the ``score_thetas`` given to :func:`calibrate_views`."""
+    fixed_views: tuple[int, ...] = ()
 
     @property
     def delta_angle_deg(self) -> np.ndarray:
@@ -276,20 +297,211 @@ def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scrib
     return fit_automatic(images, seed=seed)
 
 
-def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_deg: np.ndarray, *, method: Method = "pi",
+class _Problem:
+    """Everything a start shares (maps, colour model, region of the first level), and the objectives of each level."""
+
+    def __init__(self, images: np.ndarray, pf: np.ndarray, sil_src: np.ndarray, K_small: np.ndarray, distance: float, space: ParameterSpace,
+                 method: str, settings: "CalibrationSettings") -> None:
+        self.images, self.pf, self.sil_src, self.K_small = images, pf, sil_src, K_small
+        self.distance, self.space, self.method, self.settings = distance, space, method, settings
+        self._region0: tuple[Any, np.ndarray, Any] | None = None  # (region, K, coarse silhouettes) of level 0
+
+    def level_objective(self, li: int, x: np.ndarray, *, exact: bool = False) -> tuple[Any, Any, np.ndarray, tuple[int, ...]]:
+        """(objective, region, K of the level, map shape) of level ``li`` built around the free coordinates ``x``.
+
+        ``exact``: the coherence cost searches every candidate's own rays (its value does not depend on the
+        rest of the batch: the cost that judges starts and polishes the result).
+        """
+        st, space, distance = self.settings, self.space, self.distance
+        lv = st.levels[li]
+        theta0 = space.theta0
+        n = theta0.size - 3
+        factor = max(1.0, self.pf.shape[2] / lv.width_px)
+        maps_pf, S = resize_stack(self.pf, factor)
+        K_lv = S @ self.K_small
+        if self._region0 is None:  # the region is carved from the coarsest rough silhouettes (world µm), first under θ0 …
+            f0 = max(1.0, self.pf.shape[2] / st.levels[0].width_px)
+            sil0, S0 = resize_stack(self.sil_src, f0)
+            coarse_sil, K_region = sil0 > 0.5, S0 @ self.K_small
+            region = specimen_region(K_region, distance, theta0, space.half_width, space.free_mask, coarse_sil, st.levels[0].voxels,
+                                     max_tolerance_px=st.region_tolerance * coarse_sil.shape[1])
+            self._region0 = (region, K_region, coarse_sil)
+        if li == 0:
+            region = self._region0[0]
+        else:  # … then around the current solution, with a small tolerance
+            _, K_region, coarse_sil = self._region0
+            th_prev = space.theta(x)[0]
+            try:
+                region = specimen_region(K_region, distance, th_prev, space.half_width, np.zeros_like(space.free_mask),
+                                         coarse_sil, lv.voxels, extra_px=st.refine_tolerance_px)
+            except EmptyHullError:
+                raise EmptyHullError(f"the coarse search ended at a pose where the {n} views share no specimen (yaw {th_prev[0]:+.2f}°, "
+                                     f"pitch {th_prev[1]:+.2f}°, γ {th_prev[2]:+.3f}°): their silhouettes do not pin down the axis; "
+                                     f"take more views or hold more of θ fixed (--free)") from None
+        obj: PIObjective | VRObjective | CoherenceObjective | SumObjective
+        vox = region.voxels
+        pad = (-len(vox)) % 1024
+        weights = np.concatenate([np.ones(len(vox)), np.zeros(pad)])
+        vox = np.concatenate([vox, np.repeat(vox[:1], pad, axis=0)]) if pad else vox
+        if self.method == "coherence":
+            # Silhouette coherence of the posteriors (see .objective_coherence): edges found under the
+            # current θ (the axis image barely moves), rays searched within the region's radius.
+            per_candidate = exact or st.coherence_per_candidate
+            th_now = space.theta(x)[0]
+            P_now = projection_matrices(K_lv, distance, th_now[None])[0]
+            edges = silhouette_edges(maps_pf, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines)
+            radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
+            obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
+                                     trim=st.coherence_trim, per_candidate=per_candidate)
+            if st.dark_weight > 0:  # the images at the level's size are only needed for the dark features
+                level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in self.images])
+                pdark = dark_feature_probability(level_images, maps_pf)
+                if pdark is not None:
+                    dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2,
+                                                  all_runs=True)
+                    dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
+                                              trim=st.coherence_trim, per_candidate=per_candidate)
+                    obj = SumObjective([obj, dark], [1.0, st.dark_weight])
+        elif self.method == "pi":
+            lmap = np.clip(np.log(np.clip(maps_pf, st.eps, 1 - st.eps)), np.log(st.eps), np.log1p(-st.eps))
+            obj = PIObjective(lmap.astype(np.float32), Projector(K_lv, distance, vox), weights, st.pi_form)
+        else:
+            s_lv = resize_stack(self.sil_src, factor)[0]
+            s_lv = np.stack([cv2.GaussianBlur(s, (0, 0), st.vr_blur_px) for s in s_lv])
+            obj = VRObjective(s_lv, Projector(K_lv, distance, vox), weights, st.eps)
+        return obj, region, K_lv, tuple(maps_pf.shape[1:])
+
+    def cost_fn(self, obj: Any) -> Callable[[np.ndarray], np.ndarray]:
+        """θ (B, 3 + N) degrees → (B,) data cost of ``obj`` plus the prior."""
+        theta0, st = self.space.theta0, self.settings
+
+        def cost(th: np.ndarray) -> np.ndarray:
+            return np.asarray(obj(th), float) + prior_cost(th, theta0, st)
+        return cost
+
+
+@dataclass
+class _Start:
+    x: np.ndarray
+    reports: list[dict[str, Any]]
+    trace: list[tuple[int, float]]
+    evaluations: int
+    eval_time: float
+    n_voxels: int
+
+
+def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before: int) -> _Start:
+    """One coarse-to-fine CMA-ES run from θ0 with ``seed``."""
+    space, settings = problem.space, problem.settings
+    x = np.zeros(space.n_free)
+    trace: list[tuple[int, float]] = []
+    reports: list[dict[str, Any]] = []
+    evals_done, eval_time, n_vox = 0, 0.0, 0
+    for li, lv in enumerate(settings.levels):
+        obj, region, K_lv, shape = problem.level_objective(li, x)
+        t_lv = time.monotonic()
+        base = evals_before + evals_done
+        sel = space.level_selection(lv.groups)  # which free coordinates this level moves
+        cost = problem.cost_fn(obj)
+
+        def batch(xb: np.ndarray, _cost: Callable[[np.ndarray], np.ndarray] = cost, _sel: np.ndarray = sel,
+                  _x: np.ndarray = x.copy()) -> np.ndarray:
+            full = np.repeat(_x[None], len(xb), axis=0)
+            full[:, _sel] = xb
+            return _cost(space.theta(full))
+
+        stds = np.ones(int(sel.sum()))
+        if lv.scaled_steps or lv.max_initial_step_px:
+            motion = space.image_sensitivity(K_lv, problem.distance, x, region.voxels[:: max(1, len(region.voxels) // 2000)])[sel]
+            if lv.scaled_steps and motion.min() > 0:  # a coordinate that does not move the image at all keeps equal steps
+                stds = np.clip(motion.min() / motion, 1e-3, 1.0)
+            if lv.max_initial_step_px:
+                stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
+        res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
+                       tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize,
+                       progress=lambda e, f, _b=base: clock.update(_b + e, f))
+        x = x.copy()
+        x[sel] = res.x_best
+        dt = time.monotonic() - t_lv
+        eval_time += dt
+        evals_done += res.n_evaluations
+        trace += [(base + e, f) for e, f in zip(res.trace_evals, res.trace_best)]
+        if li == 0 and settings.roll_offset_scan_deg > 0:
+            x, n_scan = _common_roll_offset_scan(cost, space, x, settings.roll_offset_scan_deg)
+            evals_done += n_scan
+        n_vox = len(region.voxels)
+        reports.append({"seed": seed, "level": li, "map_shape": list(shape), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
+                        "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
+                        "n_evaluations": res.n_evaluations, "generations": res.n_generations, "best_cost": res.f_best,
+                        "time_s": dt, "stop": {k: str(v) for k, v in res.stop.items()}})
+        log.info("seed %d level %d: maps %s, %d voxels, %d evaluations in %.2f s (%.2f ms each), cost %.6g, stop %s", seed, li, shape,
+                 len(region.voxels), res.n_evaluations, dt, 1e3 * dt / max(res.n_evaluations, 1), res.f_best, list(res.stop))
+    return _Start(x, reports, trace, evals_done, eval_time, n_vox)
+
+
+def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray, *,
+                 steps_deg: Sequence[float] = (0.2, 0.1, 0.05, 0.025), max_sweeps: int = 3,
+                 rtol: float = 1e-4) -> tuple[np.ndarray, float, int, bool]:
+    """Per-view coordinate polish of every free roll (compass search, all views' trials in one batch).
+
+    For each step h (degrees, largest first) every free roll is tried at ω ± h with the others fixed, in one
+    batch together with x itself (the batch's mean is x: the coherence cost's rays are searched around the
+    batch mean, so the trials are scored on the same footing as x). The improving moves are applied
+    together when that lowers the cost, else only the best single one; sweeps repeat until no move lowers
+    the cost by more than ``rtol`` × cost, then h halves. ``cost`` maps θ (B, 3 + N) degrees to (B,).
+    Returns (x, cost of x, evaluations, converged): converged when the smallest step's sweep found no
+    improving move (a minimum along every roll to ± that step) before ``max_sweeps`` ran out.
+    """
+    rolls = np.flatnonzero(np.flatnonzero(space.free_mask) >= 4)  # positions of the free rolls in x
+    f = float(cost(space.theta(x))[0])
+    if rolls.size == 0:
+        return x, f, 1, True
+    hw = space.half_width[space.free_mask][rolls]
+    evals = 1
+    converged = False
+    k = np.arange(rolls.size)
+    for h in steps_deg:
+        converged = False
+        for _ in range(max_sweeps):
+            X = np.repeat(x[None], 2 * rolls.size + 1, axis=0)
+            X[1 + k, rolls] = np.clip(x[rolls] + h / hw, -1.0, 1.0)
+            X[1 + rolls.size + k, rolls] = np.clip(x[rolls] - h / hw, -1.0, 1.0)
+            fs = cost(space.theta(X))
+            evals += len(X)
+            f = float(fs[0])
+            plus, minus = fs[1: 1 + rolls.size], fs[1 + rolls.size:]
+            gain = f - np.minimum(plus, minus)
+            better = gain > rtol * max(abs(f), 1e-12)
+            if not better.any():
+                converged = True
+                break
+            pick = np.where(plus <= minus, 1 + k, 1 + rolls.size + k)
+            xc = x.copy()
+            xc[rolls[better]] = X[pick[better], rolls[better]]
+            j = int(np.argmax(gain))
+            fc, fj = cost(space.theta(np.stack([xc, X[pick[j]]])))
+            evals += 2
+            x = xc if fc <= fj else X[pick[j]].copy()
+    return x, float(cost(space.theta(x))[0]), evals + 1, converged
+
+
+def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_deg: np.ndarray, *, method: Method = "coherence",
                     seed: int = 0, free: Sequence[str] | str | None = None, bounds: CalibrationBounds | None = None,
                     mask: tuple[int, np.ndarray] | None = None, scribbles: tuple[int, np.ndarray] | None = None,
                     silhouettes: np.ndarray | None = None, colour_model: ColourModel | None = None,
-                    settings: CalibrationSettings | None = None, progress: ProgressCallback | None = None) -> CalibrationResult:
+                    settings: CalibrationSettings | None = None, progress: ProgressCallback | None = None,
+                    fixed_views: Sequence[int] = (), starts: int | None = None,
+                    reference_thetas: Sequence[np.ndarray] = (), score_thetas: Sequence[np.ndarray] = ()) -> CalibrationResult:
     """Calibrate θ from the views themselves (pure function of arrays).
 
     Args:
         images: (N, H, W[, 3]) views, as stored.
         K: 3×3 intrinsics, 0-based pixels of ``images``.
-        distance: camera-to-axis distance d, µm.
+        distance: camera-to-axis distance d, world units (µm on the rig).
         theta0_deg: (3 + N,) start [yaw, pitch, γ, commanded rolls], degrees.
-        method: ``"pi"`` (probabilistic inference) or ``"vr"`` (voxel residual on silhouettes).
-        seed: CMA-ES seed.
+        method: ``"coherence"`` (vastcal's silhouette coherence of the posteriors, the default), ``"pi"``
+            (the paper's probabilistic-inference objective as published) or ``"vr"`` (voxel residual).
+        seed: CMA-ES seed of the first start; start s uses seed + 10·s.
         free: groups to optimise (yaw, pitch, gamma, rolls, all); ω_0 stays fixed.
         bounds: half-widths of the box around θ0.
         mask, scribbles: (view, array) to learn the colour models from (default automatic).
@@ -297,6 +509,12 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         colour_model: a ready model (skips fitting).
         settings: numerical settings.
         progress: callback (evaluations, best cost, elapsed s, ETA s).
+        fixed_views: views whose roll stays at its commanded angle (0-based).
+        starts: independent coarse-to-fine starts (default ``settings.starts``); the one of lowest final
+            cost is kept, and never one costlier than θ0 (or any of ``reference_thetas``).
+        reference_thetas: extra full θ vectors the result must not be worse than (judged on the same cost).
+        score_thetas: full θ vectors only scored on the judge cost (``result.scored_costs``; e.g. a known
+            truth in a benchmark), never used as a result.
 
     Raises:
         AnalysisError: fewer than 3 views or a θ0 of the wrong length; ColourModelError and
@@ -313,12 +531,15 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     theta0 = np.asarray(theta0_deg, float)
     if theta0.shape != (3 + n,) or not np.all(np.isfinite(theta0)):
         raise AnalysisError(f"θ0 must hold 3 + {n} finite angles, got shape {theta0.shape}")
-    if method not in ("pi", "vr"):
-        raise UserInputError(f"unknown calibration method {method!r}; choose pi or vr")
+    if method not in METHODS:
+        raise UserInputError(f"unknown calibration method {method!r}; choose {', '.join(METHODS)}")
     seed = check_setting(CalibrationConfig, "seed", int(seed) if isinstance(seed, np.integer) else seed, "seed")  # cma needs ≥ 0
+    n_starts = int(settings.starts if starts is None else starts)
+    if n_starts < 1:
+        raise UserInputError(f"starts: expected at least 1, got {n_starts}")
     if silhouettes is not None and np.asarray(silhouettes).shape != images.shape[:3]:
         raise UserInputError(f"silhouettes are {np.asarray(silhouettes).shape}, the images {images.shape[:3]}")
-    space = ParameterSpace.build(theta0, normalise_free(free), bounds)
+    space = ParameterSpace.build(theta0, normalise_free(free), bounds, fixed_views)
     check_images(images)
     model = _colour_model(images, mask, scribbles, colour_model, seed)
 
@@ -335,113 +556,71 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     S_small = np.diag([pf.shape[2] / w_full, pf.shape[1] / images.shape[1], 1.0])
     S_small[:2, 2] = 0.5 * np.diag(S_small)[:2] - 0.5
     K_small = S_small @ np.asarray(K, float)
+    problem = _Problem(images, pf, sil_src, K_small, float(distance), space, method, settings)
 
-    clock = ProgressClock(progress, sum(lv.max_evaluations for lv in settings.levels))
-    x = np.zeros(space.n_free)
-    trace: list[tuple[int, float]] = []
-    reports: list[dict[str, Any]] = []
-    evals_done = 0
-    eval_time = 0.0
-    n_vox_final = 0
-    for li, lv in enumerate(settings.levels):
-        factor = max(1.0, pf.shape[2] / lv.width_px)
-        maps_pf, S = resize_stack(pf, factor)
-        K_lv = S @ K_small
-        if li == 0:  # the region is carved from the coarsest rough silhouettes (world µm), first under θ0 …
-            coarse_sil, K_region = resize_stack(sil_src, factor)[0] > 0.5, K_lv
-            region = specimen_region(K_region, distance, theta0, space.half_width, space.free_mask, coarse_sil, lv.voxels,
-                                     max_tolerance_px=settings.region_tolerance * coarse_sil.shape[1])
-        else:  # … then around the previous level's solution, with a small tolerance
-            th_prev = space.theta(x)[0]
-            try:
-                region = specimen_region(K_region, distance, th_prev, space.half_width, np.zeros_like(space.free_mask),
-                                         coarse_sil, lv.voxels, extra_px=settings.refine_tolerance_px)
-            except EmptyHullError:
-                raise EmptyHullError(f"the coarse search ended at a pose where the {n} views share no specimen (yaw {th_prev[0]:+.2f}°, "
-                                     f"pitch {th_prev[1]:+.2f}°, γ {th_prev[2]:+.3f}°): their silhouettes do not pin down the axis; "
-                                     f"take more views or hold more of θ fixed (--free)") from None
-        obj: PIObjective | VRObjective | CoherenceObjective | SumObjective
-        vox = region.voxels
-        pad = (-len(vox)) % 1024
-        weights = np.concatenate([np.ones(len(vox)), np.zeros(pad)])
-        vox = np.concatenate([vox, np.repeat(vox[:1], pad, axis=0)]) if pad else vox
-        proj = Projector(K_lv, distance, vox)
-        if method == "pi" and settings.pi_form == "coherence":
-            # Silhouette coherence of the posteriors (see .objective_coherence): edges found under the
-            # previous level's θ (the axis image barely moves), rays searched within the region's radius.
-            th_now = space.theta(x)[0]
-            P_now = projection_matrices(K_lv, distance, th_now[None])[0]
-            edges = silhouette_edges(maps_pf, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines)
-            radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
-            obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px,
-                                     trim=settings.coherence_trim, per_candidate=settings.coherence_per_candidate)
-            pdark = None
-            if settings.dark_weight > 0:  # the images at the level's size are only needed for the dark features
-                level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in images])
-                pdark = dark_feature_probability(level_images, maps_pf)
-            if pdark is not None:
-                dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2, all_runs=True)
-                dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=settings.coherence_sigma_px,
-                                          trim=settings.coherence_trim, per_candidate=settings.coherence_per_candidate)
-                obj = SumObjective([obj, dark], [1.0, settings.dark_weight])
-        elif method == "pi":
-            lmap = np.clip(np.log(np.clip(maps_pf, settings.eps, 1 - settings.eps)), np.log(settings.eps), np.log1p(-settings.eps))
-            obj = PIObjective(lmap.astype(np.float32), proj, weights, settings.pi_form)
+    clock = ProgressClock(progress, n_starts * sum(lv.max_evaluations for lv in settings.levels))
+    runs: list[_Start] = []
+    evals_done, eval_time = 0, 0.0
+    for s in range(n_starts):
+        r = _run_start(problem, seed + 10 * s, clock, evals_done)
+        runs.append(r)
+        evals_done += r.evaluations
+        eval_time += r.eval_time
+
+    # The judge: the finest level's cost, batch-independent, on a region around the first start's result.
+    t_j = time.monotonic()
+    last = len(settings.levels) - 1
+    judge_obj, judge_region, _, _ = problem.level_objective(last, runs[0].x, exact=True)
+    judge = problem.cost_fn(judge_obj)
+    X = np.stack([r.x for r in runs])
+    start_costs = judge(space.theta(X))
+    evals_done += len(X)
+    cands = [space.theta(np.zeros(space.n_free))[0]] + [np.asarray(t, float) for t in reference_thetas]
+    ref_costs = judge(np.stack(cands))
+    evals_done += len(cands)
+    best = int(np.argmin(start_costs))
+    x, f = X[best].copy(), float(start_costs[best])
+    polished = {"converged": True, "evaluations": 0}
+    if settings.polish and np.any(space.free_mask[4:]):
+        n_rolls = int(np.sum(space.free_mask[4:]))
+        clock.start_phase((2 * n_rolls + 3) * 2 * len(settings.polish_steps_deg))
+        fast, _, _, _ = problem.level_objective(last, x)
+        xp, _, n_pol, conv = polish_rolls(problem.cost_fn(fast), space, x, steps_deg=settings.polish_steps_deg)
+        fp = float(judge(space.theta(xp))[0])
+        evals_done += n_pol + 1
+        clock.update(evals_done, min(f, fp))
+        polished = {"converged": bool(conv), "evaluations": n_pol, "judged_before": f, "judged_after": fp}
+        if fp <= f:
+            x, f = xp, fp
         else:
-            s_lv = resize_stack(sil_src, factor)[0]
-            s_lv = np.stack([cv2.GaussianBlur(s, (0, 0), settings.vr_blur_px) for s in s_lv])
-            obj = VRObjective(s_lv, proj, weights, settings.eps)
-        t_lv = time.monotonic()
-        base = evals_done
-
-        sel = space.level_selection(lv.groups)  # which free coordinates this level moves
-
-        def cost(th: np.ndarray, _obj: Any = obj) -> np.ndarray:
-            """The level's cost (B,) of θ (B, 3 + N) degrees: data + prior."""
-            return _obj(th) + prior_cost(th, theta0, settings)
-
-        def batch(xb: np.ndarray, _cost: Callable[[np.ndarray], np.ndarray] = cost, _sel: np.ndarray = sel,
-                  _x: np.ndarray = x.copy()) -> np.ndarray:
-            full = np.repeat(_x[None], len(xb), axis=0)
-            full[:, _sel] = xb
-            return _cost(space.theta(full))
-
-        stds = np.ones(int(sel.sum()))
-        if lv.scaled_steps or lv.max_initial_step_px:
-            motion = space.image_sensitivity(K_lv, distance, x, region.voxels[:: max(1, len(region.voxels) // 2000)])[sel]
-            if lv.scaled_steps and motion.min() > 0:  # a coordinate that does not move the image at all keeps equal steps
-                stds = np.clip(motion.min() / motion, 1e-3, 1.0)
-            if lv.max_initial_step_px:
-                stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
-        res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
-                       tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize,
-                       progress=lambda e, f, _b=base: clock.update(_b + e, f))
-        x_best = x.copy()
-        x_best[sel] = res.x_best
-        res = dataclasses.replace(res, x_best=x_best) if dataclasses.is_dataclass(res) else res
-        dt = time.monotonic() - t_lv
-        eval_time += dt
-        evals_done += res.n_evaluations
-        trace += [(base + e, f) for e, f in zip(res.trace_evals, res.trace_best)]
-        x = res.x_best
-        if li == 0 and settings.roll_offset_scan_deg > 0:
-            x, n_scan = _common_roll_offset_scan(cost, space, x, settings.roll_offset_scan_deg)
-            evals_done += n_scan
-        n_vox_final = len(region.voxels)
-        reports.append({"level": li, "map_shape": list(maps_pf.shape[1:]), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
-                        "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
-                        "n_evaluations": res.n_evaluations, "generations": res.n_generations, "best_cost": res.f_best,
-                        "time_s": dt, "stop": {k: str(v) for k, v in res.stop.items()}})
-        log.info("level %d: maps %s, %d voxels, %d evaluations in %.2f s (%.2f ms each), cost %.6g, stop %s", li, maps_pf.shape[1:],
-                 len(region.voxels), res.n_evaluations, dt, 1e3 * dt / max(res.n_evaluations, 1), res.f_best, list(res.stop))
-
+            log.info("the per-view polish did not lower the judged cost (%.6g -> %.6g); kept the start's result", f, fp)
     theta = space.theta(x)[0]
-    if settings.photometric_yaw and method == "pi" and space.free_mask[0]:
+    kept = f"start {best} (seed {seed + 10 * best})"
+    r_best = int(np.argmin(ref_costs))
+    if ref_costs[r_best] < f:  # never store a pose costlier than the commanded angles or a given reference
+        kept = "the commanded angles (θ0)" if r_best == 0 else f"reference θ {r_best - 1}"
+        log.warning("calibration: every start ended costlier (%.6g) than %s (%.6g); keeping the latter", f, kept, ref_costs[r_best])
+        theta, f = cands[r_best].copy(), float(ref_costs[r_best])
+    scored = judge(np.stack([np.asarray(t, float) for t in score_thetas])).tolist() if len(score_thetas) else []
+    eval_time += time.monotonic() - t_j
+    cma_stops = [rep["stop"] for r in runs for rep in r.reports]
+    level_converged = all(not any(k in ("maxfevals", "maxiter") for k in st) for st in cma_stops)
+    converged = bool(polished["converged"])
+    why = ("per-view polish: no roll move of ± the smallest step lowers the cost by 1e-4 of it" if converged and settings.polish
+           else "per-view polish ran out of sweeps" if settings.polish else "no polish; CMA-ES stops " + "; ".join(",".join(s) for s in cma_stops))
+    reports = [rep for r in runs for rep in r.reports]
+    reports.append({"judge": "finest level, batch-independent cost + prior", "start_costs": start_costs.tolist(),
+                    "theta0_cost": float(ref_costs[0]), "reference_costs": ref_costs[1:].tolist(), "kept": kept, "final_cost": f,
+                    "polish": polished, "converged": converged, "stop_reason": why,
+                    "cma_levels_converged": level_converged, "scored_costs": scored})
+    trace = [t for r in runs for t in r.trace] + [(evals_done, f)]
+
+    if settings.photometric_yaw and method == "coherence" and space.free_mask[0]:
         base = evals_done
         clock.start_phase(expected_evaluations())
         pf_full = pf if pf.shape[1:] == images.shape[1:3] else specimen_maps(model, images)
         refined = refine_yaw(images, pf_full, K, distance, theta, (float(space.lower[0]), float(space.upper[0])),
-                             progress=lambda e, f: clock.update(base + e, f))
+                             progress=lambda e, fy: clock.update(base + e, fy))
         if refined is not None:
             theta[0] = refined.yaw_deg
             evals_done += refined.n_evaluations
@@ -449,6 +628,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             reports.append(refined.report())
     P = projection_matrices(K, distance, theta[None])[0]
     wall = time.monotonic() - t0
+    start_thetas = space.theta(X)
     return CalibrationResult(method, theta, theta0, np.asarray(K, float), float(distance), P, model, int(seed), space.free,
-                             space.bounds_dict(), settings, evals_done, wall, eval_time / max(evals_done, 1), n_vox_final,
-                             _peak_rss_mb(), np.array(trace, float).reshape(-1, 2), reports)
+                             space.bounds_dict(), settings, evals_done, wall, eval_time / max(evals_done, 1), len(judge_region.voxels),
+                             _peak_rss_mb(), np.array(trace, float).reshape(-1, 2), reports, final_cost=f, converged=converged,
+                             stop_reason=why, start_thetas=start_thetas, start_costs=np.asarray(start_costs, float),
+                             theta0_cost=float(ref_costs[0]), scored_costs=scored, fixed_views=tuple(sorted({int(v) for v in fixed_views})))

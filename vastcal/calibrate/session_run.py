@@ -17,6 +17,7 @@ import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel
 from vastcal.calibrate.optimise import ProgressCallback
+from vastcal.calibrate.parameters import parse_views
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method, calibrate_views
 from vastcal.config import CalibrationBounds, CalibrationConfig, RoiConfig, check_setting
 from vastcal.errors import SessionIncompleteError, UserInputError, VastcalError
@@ -27,7 +28,10 @@ log = logging.getLogger(__name__)
 
 
 def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarray, dict[str, Any]]:
-    """K (stored-frame pixels, 0-based), d (µm), θ0 (degrees) and notes for a session.
+    """K (stored-frame pixels, 0-based), d (world units), θ0 (degrees) and notes for a session.
+
+    ``notes["length_unit"]`` is the world's unit: ``um`` on a rig, the imported cameras' ``length_unit``
+    attribute otherwise (``unknown`` when the import could not tell; measurements are then in units of the cameras).
 
     Imported known cameras are decomposed (:func:`vastcal.geometry.decompose_circular`): K, d, yaw,
     pitch and γ come from them; otherwise K comes from the rig optics shifted by the stored ROI
@@ -44,26 +48,33 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
         fit = decompose_circular(known)
         m = fit.motion
         theta0 = np.concatenate([[m.yaw_deg, m.pitch_deg, m.gamma_deg], angles])
+        cams = session.h5["/entry/vastcal/cameras"]
+        unit = str(cams.attrs.get("length_unit", "um"))  # sessions imported before units were recorded: µm
         return np.asarray(m.K, float), float(m.distance), theta0, {"camera_source": "imported cameras (decompose_circular)",
                                                                       "decomposition_rms_px": fit.rms_px,
-                                                                      "world_from_data": fit.world_from_data.tolist()}
+                                                                      "world_from_data": fit.world_from_data.tolist(),
+                                                                      "length_unit": unit}
     cfg = session.rig_config()
     rx, ry = session.roi_offset_px
     h, w = session.frame_shape[:2]
     K = intrinsics_from_optics(cfg.optics, RoiConfig(rx, ry, w, h))
-    return K, float(cfg.optics.working_distance_um), np.concatenate([[0.0, 0.0, 0.0], angles]), {"camera_source": "rig optics + ROI offset"}
+    return K, float(cfg.optics.working_distance_um), np.concatenate([[0.0, 0.0, 0.0], angles]), {"camera_source": "rig optics + ROI offset",
+                                                                                                  "length_unit": "um"}
 
 
 def calibrate_session(path_or_session: str | Path | Session, *, method: Method | None = None, seed: int | None = None,
                       free: Sequence[str] | str | None = None, bounds: CalibrationBounds | None = None,
                       mask: tuple[int, np.ndarray] | None = None, scribbles: tuple[int, np.ndarray] | None = None,
                       use_masks: bool | None = None, settings: CalibrationSettings | None = None,
-                      offset_scan_deg: float | None = None, progress: ProgressCallback | None = None) -> CalibrationResult:
+                      offset_scan_deg: float | None = None, progress: ProgressCallback | None = None,
+                      fixed_views: str | Sequence[int] | None = None, starts: int | None = None,
+                      score_thetas: Sequence[np.ndarray] = ()) -> CalibrationResult:
     """Calibrate a session and store the run (see the module docstring).
 
     Args:
         path_or_session: a session file, or a :class:`Session` opened with ``mode="a"``.
-        method: ``"pi"`` or ``"vr"`` (default: the rig config's ``calibration.method``).
+        method: ``"coherence"`` (vastcal's own cost), ``"pi"`` (the paper's objective as published) or ``"vr"``
+            (default: the rig config's ``calibration.method``).
         seed, free, bounds: CMA-ES seed, free groups, half-widths (defaults from the rig config).
         mask: (view, array) rough mask (nonzero = specimen) for the colour models.
         scribbles: (view, labels) with 0 unknown, 1 specimen, 2 background.
@@ -72,6 +83,9 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
             ``calibration.offset_scan_deg``, ``prior_weight``, ``roll_prior_deg`` and ``yaw_prior_deg``).
         offset_scan_deg: overrides the settings' common roll-offset scan step (``--offset-scan``).
         progress: callback (evaluations, best cost, elapsed s, ETA s).
+        fixed_views: views whose roll stays at its commanded angle: ``"10-35"``, ``"0,3,5-7"`` or indices (0-based).
+        starts: independent starts, the best kept (default ``settings.starts``, 1).
+        score_thetas: θ vectors (degrees, the session's frame) only scored on the final cost (benchmarks: the truth).
 
     Raises:
         SessionIncompleteError: incomplete session, fewer than 3 views, no angles.
@@ -94,6 +108,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
             scan = check_setting(CalibrationConfig, "offset_scan_deg", offset_scan_deg, "offset scan (--offset-scan)")
             settings = dataclasses.replace(settings, roll_offset_scan_deg=float(scan))
         K, d, theta0, notes = session_camera_model(session)
+        fixed = parse_views(fixed_views, len(theta0) - 3)
         images = session.projections()
         masks = session.masks
         sil = masks if (method == "vr" and masks is not None and use_masks is not False) else None
@@ -104,7 +119,8 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
             session.close()
     try:
         result = calibrate_views(images, K, d, theta0, method=method, seed=seed, free=free, bounds=bounds, mask=mask, scribbles=scribbles,
-                                 silhouettes=sil, settings=settings, progress=progress)
+                                 silhouettes=sil, settings=settings, progress=progress, fixed_views=fixed, starts=starts,
+                                 score_thetas=score_thetas)
     except VastcalError as exc:  # name the session in errors found in its data
         raise exc.about(getattr(path_or_session, "path", path_or_session)) from None
     target = Session.open(path_or_session, "a") if own else session
@@ -138,10 +154,15 @@ def store_result(group: Any, r: CalibrationResult, notes: dict[str, Any], silhou
     ds("K", r.K, "pixel", "intrinsics, 0-based pixels of the stored frames")
     ds("delta_angle_deg", r.delta_angle_deg, "degree", "calibrated minus commanded roll per view")
     ds("cost_trace", r.cost_trace, "", "columns: evaluations so far, best cost (per generation, all levels)")
+    if r.start_thetas is not None and r.start_costs is not None:
+        ds("starts/theta", np.asarray(r.start_thetas, float), "degree", "S x (3 + N): theta where each start ended (before the polish)")
+        ds("starts/cost", np.asarray(r.start_costs, float), "", "S: judged cost (finest level, batch-independent, + prior) of each start")
     write_attrs(group, {"method": r.method, "seed": r.seed, "free": list(r.free), "bounds": r.bounds, "settings": r.settings.to_json(),
-                        "distance": r.distance, "distance_units": "um", "wall_time_s": r.wall_time_s, "n_evaluations": r.n_evaluations,
+                        "distance": r.distance, "distance_units": notes.get("length_unit", "um"), "wall_time_s": r.wall_time_s, "n_evaluations": r.n_evaluations,
                         "time_per_evaluation_s": r.time_per_evaluation_s, "n_voxels": r.n_voxels, "peak_rss_mb": r.peak_rss_mb,
-                        "levels": json.dumps(r.level_reports), "silhouettes": silhouettes, "versions": software_versions(), **notes})
+                        "levels": json.dumps(r.level_reports), "silhouettes": silhouettes, "versions": software_versions(),
+                        "final_cost": r.final_cost, "theta0_cost": r.theta0_cost, "converged": bool(r.converged), "stop_reason": r.stop_reason,
+                        "n_starts": 0 if r.start_costs is None else len(r.start_costs), "fixed_views": list(r.fixed_views), **notes})
     if r.colour_model is not None:
         r.colour_model.to_group(group.create_group("colour_model"))
 
