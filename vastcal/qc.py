@@ -11,12 +11,13 @@ What is checked, per view, and why each threshold is what it is
   the edge blur σ_b (px, from the steepest grey-level slope at the silhouette's boundary: a
   Gaussian-blurred step of height C has slope C / (√(2π) σ_b)), and the grey level at which the
   silhouette's boundary sits as a fraction f of the step (0.5 = the step's midpoint).
-* **Blank** — the frame holds no image: its 0.1–99.9 % grey range is below 10 σ_n + 1 grey level
-  (pure noise spans about ±3.3 σ_n over that range) or the silhouette is empty. → *fail*.
+* **Blank** — the frame holds no image: its 0.1–99.9 % grey range is below 8 σ_n + 1 grey level
+  (pure Gaussian noise spans 6.2 σ_n over that range) or the silhouette is empty. → *fail*.
 * **Saturated / clipped** — more than 0.5 % of the pixels sit at the top code of the frame's bit
   depth (or at 0): clipped pixels carry no edge position. → *check*.
-* **Low contrast** — one pixel's edge position has noise σ_n / slope = σ_n √(2π) σ_b / C px; above
-  0.5 px a single row cannot place the edge within half a pixel. → *check*.
+* **Low contrast** — one pixel's edge position has noise σ_n / slope = σ_n √(2π) σ_b / C px for a
+  blurred edge, σ_n / C (the noise of its partial coverage) for a sharp one (σ_b < 1/√(2π) px);
+  above 0.5 px a single row cannot place the edge within half a pixel (C < 2 σ_n for sharp edges). → *check*.
 * **Cut by the frame edge** — silhouette pixels on the frame's outer row/column (over more than
   2 px): the specimen leaves the field of view, so the hull misses that part and volume and area
   are **lower bounds**. → *check*.
@@ -24,8 +25,9 @@ What is checked, per view, and why each threshold is what it is
   rasterised through the view's camera) against the view's silhouette — IoU and the symmetric
   mean boundary distance (px). For consistent silhouettes and cameras the visual hull reprojects
   onto every silhouette exactly; the distance expected from measurement error alone is the edge
-  localisation σ_edge (:mod:`vastcal.uncertainty`) plus half a pixel of rasterisation. A view is
-  flagged when its distance exceeds 3 (σ_edge + 0.5 px) (→ *check*) or its IoU is below 0.5 (the
+  localisation σ_edge (:mod:`vastcal.uncertainty`) plus what the comparison resolves, r = half a
+  pixel of rasterisation + half a voxel's image. A view is flagged when its distance exceeds
+  3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
   silhouette and the hull overlap less than they differ → *fail*).
 * **Calibration at its bounds** — a free parameter within 1 % of the box width of a bound of the
   search box: the optimum may lie outside it. → *check*.
@@ -43,7 +45,7 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-BLANK_RANGE_SIGMAS = 10.0
+BLANK_RANGE_SIGMAS = 8.0
 """A frame whose 0.1–99.9 % grey range is below this many noise σ (+1 grey level) is blank."""
 SATURATED_FRACTION = 0.005
 """Fraction of pixels at the top code (or 0) above which a frame is flagged saturated/clipped."""
@@ -52,7 +54,7 @@ LOW_CONTRAST_PX = 0.5
 CUT_MIN_PX = 3
 """Silhouette pixels on the frame border (per view) from which the specimen counts as cut."""
 DISAGREE_SIGMAS = 3.0
-"""A view disagrees with the hull when its mean boundary distance exceeds this × (σ_edge + 0.5 px)."""
+"""A view disagrees with the hull when its mean boundary distance exceeds this × (σ_edge + r), r the comparison's resolution."""
 FAIL_IOU = 0.5
 """IoU below which a view's silhouette and the hull are not the same object."""
 BOUND_FRACTION = 0.01
@@ -96,10 +98,14 @@ class FrameStats:
         contrast: |background − specimen|, grey levels.
         noise: σ_n of one pixel, grey levels.
         blur_px: σ_b of the edge (Gaussian-equivalent), px.
-        edge_noise_px: σ_n √(2π) σ_b / C, one pixel's edge-position noise, px.
+        edge_noise_px: σ_n / C × max(1, √(2π) σ_b), one pixel's edge-position noise, px.
         boundary_level: grey level at the silhouette boundary as a fraction of the step (0 = background, 1 = specimen).
-        boundary_offset_px: outward offset of the silhouette's boundary from the true edge by the area method
-            (:func:`edge_offsets_px`, 10 % trimmed mean), px (negative: the silhouette is too small).
+        boundary_offset_px: mean outward offset of the silhouette's boundary from the half-level of the
+            edge step, px (negative: the silhouette is too small): (silhouette pixels − pixels darker than
+            half the step) within ±3 px of the boundary, over the boundary's length. Thin and faint
+            parts count. :func:`edge_offsets_px` measures the same on clean edges by the area method.
+        edge_scatter_px: per-point scatter of the boundary about the true edge (robust SD of
+            :func:`edge_offsets_px`, less the estimator's own noise), px; NaN without clean edges.
         contour_px: length of the silhouette's boundary, px.
         grey_range: 0.1–99.9 % range, grey levels.
         saturated_fraction: fraction of pixels at the top code or at 0.
@@ -115,6 +121,7 @@ class FrameStats:
     edge_noise_px: float
     boundary_level: float
     boundary_offset_px: float
+    edge_scatter_px: float
     contour_px: int
     grey_range: float
     saturated_fraction: float
@@ -165,7 +172,7 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
         noise = float(np.sqrt(np.mean(dx.astype(np.float64) ** 2) / 2.0))
     n_sil = int(sil.sum())
     if n_sil == 0 or n_sil == sil.size:
-        return FrameStats(float(np.median(g)), float(np.median(g)), 0.0, noise, 0.0, math.inf, math.nan, math.nan, 0,
+        return FrameStats(float(np.median(g)), float(np.median(g)), 0.0, noise, 0.0, math.inf, math.nan, math.nan, math.nan, 0,
                           float(lo_hi[1] - lo_hi[0]), sat, border, n_sil)
     outside = _ring(sil, 3.0, 6.0)
     inside = _ring(~sil, 3.0, 6.0)
@@ -185,7 +192,8 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
     if contrast > 0 and slope > 0:
         blur_meas = contrast / (math.sqrt(2.0 * math.pi) * slope)
         blur = math.sqrt(max(blur_meas**2 - 0.7**2, 0.25**2))  # the 0.7 px derivative filter removed; ≥ a quarter pixel
-        edge_noise = noise * math.sqrt(2.0 * math.pi) * blur / contrast
+        # one pixel's edge position: σ_n / slope for a blurred edge, σ_n / C (its partial coverage) for a sharp one
+        edge_noise = noise / contrast * max(1.0, math.sqrt(2.0 * math.pi) * blur)
     else:
         blur, edge_noise = math.nan, math.inf
     # grey level at the boundary: mean of the pixels on both sides of it
@@ -196,9 +204,23 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
     level = math.nan
     if contrast > 0 and both.any():
         level = float((np.median(g[both]) - bg) / (fg - bg))
-    offsets = edge_offsets_px(frame, sil)
-    offset = float(_trimmed_mean(offsets)) if offsets.size else math.nan
-    return FrameStats(bg, fg, contrast, noise, blur, edge_noise, level, offset, contour, float(lo_hi[1] - lo_hi[0]), sat, border, n_sil)
+    offset = math.nan
+    if contrast > 0 and contour:
+        # the half-level of the edge step (the true edge for a symmetric blur) against the silhouette, in a
+        # band of ±3 px around its boundary: thin and faint parts (a tail tip, fins) count too
+        k = np.ones((7, 7), np.uint8)
+        s8 = sil.astype(np.uint8)
+        band = cv2.dilate(s8, k).astype(bool) & ~cv2.erode(s8, k, borderType=cv2.BORDER_REPLICATE).astype(bool)
+        half = ((g - bg) / (fg - bg)) >= 0.5
+        offset = float((np.count_nonzero(sil & band) - np.count_nonzero(half & band)) / contour)
+    scatter = math.nan
+    offs = edge_offsets_px(frame, sil)
+    if offs.size >= 20 and contrast > 0:
+        q25, q75 = np.quantile(offs, [0.25, 0.75])
+        est = math.sqrt(2 * 3) * noise / contrast  # the area method's own noise: 6 pixels of σ_n / C
+        scatter = math.sqrt(max(((q75 - q25) / 1.349) ** 2 - est**2, 0.0))
+    return FrameStats(bg, fg, contrast, noise, blur, edge_noise, level, offset, scatter, contour, float(lo_hi[1] - lo_hi[0]), sat,
+                      border, n_sil)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -404,7 +426,7 @@ def view_measures(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, ve
 
 def evaluate_qc(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *,
                 edge_sigma_px: float | None = None, extra_flags: Sequence[Flag] = (),
-                measures: tuple[list[FrameStats], list[float], list[float]] | None = None) -> QCResult:
+                measures: tuple[list[FrameStats], list[float], list[float]] | None = None, raster_px: float = 0.5) -> QCResult:
     """Per-view QC of a measured session and its verdict (module docstring).
 
     Args:
@@ -416,13 +438,15 @@ def evaluate_qc(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vert
             median over views of the per-view single-pixel edge noise (at least 0.25 px).
         extra_flags: findings made elsewhere (calibration at its bounds, undetermined drift …).
         measures: the result of :func:`view_measures` when already computed.
+        raster_px: what the comparison itself resolves (px): half a pixel of rasterisation plus
+            half a voxel's image (the mesh lies a fraction of a voxel outside the hull's voxels).
     """
     n = len(frames)
     stats, ious, dists = measures if measures is not None else view_measures(frames, silhouettes, P, vertices, faces)
     if edge_sigma_px is None:
         en = [s.edge_noise_px for s in stats if np.isfinite(s.edge_noise_px)]
         edge_sigma_px = max(float(np.median(en)) if en else 0.25, 0.25)
-    disagree_px = DISAGREE_SIGMAS * (float(edge_sigma_px) + 0.5)
+    disagree_px = DISAGREE_SIGMAS * (float(edge_sigma_px) + float(raster_px))
     flags: list[Flag] = []
     blank = [i for i, s in enumerate(stats) if s.silhouette_px == 0 or s.grey_range < BLANK_RANGE_SIGMAS * s.noise + 1.0]
     if blank:
@@ -455,57 +479,67 @@ def evaluate_qc(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vert
         "iou": ious, "boundary_distance_px": dists, "disagrees": [i in disagreeing for i in range(n)],
         "contrast": [s.contrast for s in stats], "noise": [s.noise for s in stats], "blur_px": [s.blur_px for s in stats],
         "edge_noise_px": [s.edge_noise_px for s in stats], "boundary_offset_px": [s.boundary_offset_px for s in stats],
+        "edge_scatter_px": [s.edge_scatter_px for s in stats],
         "saturated_fraction": [s.saturated_fraction for s in stats], "border_px": [s.border_px for s in stats],
     }
     thresholds = {"blank_range_sigmas": BLANK_RANGE_SIGMAS, "saturated_fraction": SATURATED_FRACTION, "low_contrast_px": LOW_CONTRAST_PX,
-                  "cut_min_px": float(CUT_MIN_PX), "disagree_px": disagree_px, "fail_iou": FAIL_IOU, "edge_sigma_px": float(edge_sigma_px)}
+                  "cut_min_px": float(CUT_MIN_PX), "disagree_px": disagree_px, "fail_iou": FAIL_IOU, "edge_sigma_px": float(edge_sigma_px),
+                  "raster_px": float(raster_px)}
     res = QCResult(verdict_of(flags), tuple(flags), per_view, thresholds, lower_bound=bool(cut))
     log.info("QC: %s", res.verdict_line())
     return res
 
 
-def edge_offsets_px(frame: np.ndarray, silhouette: np.ndarray, *, min_cnr: float = 5.0) -> np.ndarray:
+def edge_offsets_px(frame: np.ndarray, silhouette: np.ndarray, *, half_window: int = 3, min_cnr: float = 5.0) -> np.ndarray:
     """Outward offsets (px) of a silhouette's boundary from the true edge, measured on the grey levels.
 
-    Along every row and column, at each clean outside → inside transition of the silhouette (5
-    pixels outside, 3 inside), the **area method** places the edge: blur conserves the integral of
-    the grey levels, so the fraction of the step summed over the 3 pixels outside and the first
-    pixel inside, s = Σ (I − I_bg)/(I_fg − I_bg), is the length of true specimen in that window
-    (I_bg: the 2 pixels 4–5 px outside; I_fg: the 2 pixels 1–2 px inside). The silhouette puts
-    1 px of specimen there, so its boundary lies 1 − s px outward of the true edge (negative: the
-    silhouette is too small). Transitions whose step is below ``min_cnr`` noise σ are skipped.
-    Profiles along a row or column cross an oblique edge obliquely, which stretches both the
-    silhouette's and the true length alike, so the offset along the profile over-states the normal
-    offset by 1/cos — a conservative error.
+    Along every row and column, at each clean outside → inside transition of the silhouette
+    (``half_window`` + 2 pixels outside and inside), the **area method** places the edge: blur
+    conserves the integral of the grey levels, so the fraction of the step summed over the
+    ``half_window`` pixels on each side, s = Σ (I − I_bg)/(I_fg − I_bg), is the length of true
+    specimen in that window (I_bg and I_fg: the 2 pixels just beyond the window outside and inside).
+    Their spread over the boundary is the per-point scatter of the silhouette's edge (for a hard
+    mask at least the quantisation 1/√12 px); their mean is biased where the specimen's own
+    shading continues inside the window (absorption grows with depth), so the budget takes the
+    mean offset from :func:`frame_stats` (half-level band) and only the spread from here. The silhouette puts ``half_window`` px of specimen there, so its boundary
+    lies ``half_window`` − s px outward of the true edge (negative: the silhouette is too small).
+    The window (3 px) spans ±3.75 σ of an edge blur up to σ_b = 0.8 px; transitions whose step is
+    below ``min_cnr`` noise σ are skipped. Profiles along a row or column cross an oblique edge
+    obliquely, which stretches the silhouette's and the true length alike: the offset along the
+    profile over-states the normal offset by 1/cos — a conservative error.
 
     Returns:
         (M,) offsets, px (empty when no transition is clean).
     """
+    w = int(half_window)
     g = gray(frame).astype(np.float64)
     s = np.asarray(silhouette)
     s = s >= 0.5 if np.issubdtype(s.dtype, np.floating) else s != 0
     diffs = np.abs(np.diff(g, axis=1))
     noise = float(1.4826 * np.median(diffs) / math.sqrt(2.0)) if diffs.size else 0.0
     out = []
+    lo, hi = w + 2, w + 2  # clean pixels needed outside / inside the boundary
     for img, m in ((g, s), (g[::-1], s[::-1]), (g.T, s.T), (g.T[::-1], s.T[::-1])):
         h = img.shape[0]
-        if h < 9:
+        if h < lo + hi + 1:
             continue
-        r = np.arange(5, h - 2)
-        ok = m[r] & m[r + 1] & m[r + 2]
-        for k in range(1, 6):
+        r = np.arange(lo, h - hi + 1)
+        ok = np.ones((r.size, img.shape[1]), bool)
+        for k in range(0, hi):
+            ok &= m[r + k]
+        for k in range(1, lo + 1):
             ok &= ~m[r - k]
         rr, cc = np.nonzero(ok)
         if rr.size == 0:
             continue
-        rr = rr + 5
-        bg = 0.5 * (img[rr - 5, cc] + img[rr - 4, cc])
-        fg = 0.5 * (img[rr + 1, cc] + img[rr + 2, cc])
+        rr = rr + lo
+        bg = 0.5 * (img[rr - w - 1, cc] + img[rr - w - 2, cc])
+        fg = 0.5 * (img[rr + w, cc] + img[rr + w + 1, cc])
         step = fg - bg
         good = np.abs(step) > max(min_cnr * noise, 1e-9)
         if not good.any():
             continue
         rr, cc, bg, step = rr[good], cc[good], bg[good], step[good]
-        ssum = sum((img[rr - k, cc] - bg) / step for k in range(0, 4))
-        out.append(1.0 - ssum)
+        ssum = sum((img[rr + k, cc] - bg) / step for k in range(-w, w))
+        out.append(w - ssum)
     return np.concatenate(out) if out else np.zeros(0)

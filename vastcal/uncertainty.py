@@ -11,8 +11,9 @@ The budget (standard uncertainties u, combined in quadrature, expanded U = k·u 
    ≈ area × δs and the area by ≈ (∫ 2H dA) × δs. Both derivatives are measured on the smoothed
    mesh itself (vertices moved ±1 µm along their normals, volume and area re-measured). δ is the
    edge-localisation σ from the images (:func:`edge_sigma_px`): how far the silhouette's boundary
-   sits from the edge the grey levels place by the area method (blur conserves the integral of
-   the step; a thresholding bias common to the whole boundary), the noise of that position averaged along the contour, and the mean disagreement
+   sits from the half-level of the grey-level step (a thresholding bias common to the whole
+   boundary), half its per-point scatter about the edge the area method places (the hull is the
+   intersection of the silhouettes and follows the innermost where several views bound it), the noise of that position averaged along the contour, and the mean disagreement
    between silhouettes and the reprojected hull beyond what the rasteriser explains
    (:mod:`vastcal.qc`). A common shift is fully correlated over views, so it is not divided by √N.
 2. **Calibration** — what the data cannot pin down. (a) When the calibration run kept several
@@ -223,22 +224,33 @@ def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[
                   raster_px: float = 0.5) -> tuple[float, dict[str, Any]]:
     """The edge-localisation σ (px) of the silhouettes, from the images (module docstring, item 1).
 
-    Per view the squared terms are: the boundary's mean outward offset from the true edge located
-    on the grey levels by the area method (``boundary_offset_px``, :func:`vastcal.qc.edge_offsets_px`:
-    a thresholding bias common to the boundary); the noise of the mean edge position along the
-    contour (one pixel's edge noise / √(contour length / max(1, 2 σ_b)) — neighbouring pixels
-    within the blur are correlated); and, when given, the squared excess of the mean boundary
-    distance to the reprojected hull over ``raster_px`` (what the comparison itself resolves).
+    Per view the squared terms are:
+
+    * the boundary's mean outward offset from the half-level of the grey-level step
+      (``boundary_offset_px``, :func:`vastcal.qc.frame_stats`: a thresholding bias common to the
+      boundary, thin and faint parts included);
+    * half the per-point scatter of the boundary about the true edge (``edge_scatter_px``, area
+      method): the hull is the *intersection* of the silhouettes, so where two views bound it, it
+      follows the inner one — E[min of two] = −σ/√π ≈ −0.56 σ; a patch bounded by one view has no
+      such bias; σ/2 stands for this inward bias (its sign is always inward, which the symmetric
+      interval does not express);
+    * the noise of the mean edge position along the contour (one pixel's edge noise /
+      √(contour length / max(1, 2 σ_b)) — neighbouring pixels within the blur are correlated);
+    * when given, the squared excess of the mean boundary distance to the reprojected hull over
+      ``raster_px`` (what the comparison itself resolves: half a pixel of rasterisation and half a
+      voxel's image — the grid's own share is the grid line).
+
     σ is the root mean square over the usable views (finite statistics).
 
     Returns:
         (σ px, details per term).
     """
-    offs, noise, excess = [], [], []
+    offs, scat, noise, excess = [], [], [], []
     for i, s in enumerate(stats):
         if not (np.isfinite(s.edge_noise_px) and np.isfinite(s.blur_px) and s.contour_px > 0):
             continue
         offs.append(s.boundary_offset_px if np.isfinite(s.boundary_offset_px) else 0.0)
+        scat.append(0.5 * s.edge_scatter_px if np.isfinite(s.edge_scatter_px) else 0.5 / math.sqrt(12.0))
         n_eff = s.contour_px / max(1.0, 2.0 * s.blur_px)
         noise.append(s.edge_noise_px / math.sqrt(max(n_eff, 1.0)))
         if boundary_distance_px is not None and np.isfinite(boundary_distance_px[i]):
@@ -246,11 +258,13 @@ def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[
     if not offs:
         return math.nan, {"usable_views": 0}
     o = np.asarray(offs)
+    sc = np.asarray(scat)
     nz = np.asarray(noise)
     ex = np.asarray(excess) if excess else np.zeros_like(o)
-    total = np.sqrt(np.mean(o**2) + np.mean(nz**2) + np.mean(ex**2))
+    total = np.sqrt(np.mean(o**2) + np.mean(sc**2) + np.mean(nz**2) + np.mean(ex**2))
     return float(total), {"usable_views": len(offs), "threshold_offset_rms_px": float(np.sqrt(np.mean(o**2))),
-                          "threshold_offset_mean_px": float(np.mean(o)), "position_noise_rms_px": float(np.sqrt(np.mean(nz**2))),
+                          "threshold_offset_mean_px": float(np.mean(o)), "half_point_scatter_rms_px": float(np.sqrt(np.mean(sc**2))),
+                          "position_noise_rms_px": float(np.sqrt(np.mean(nz**2))),
                           "hull_disagreement_excess_rms_px": float(np.sqrt(np.mean(ex**2)))}
 
 
@@ -265,7 +279,7 @@ def edge_component(mesh: "Mesh", P: np.ndarray, sigma_px: float) -> tuple[Compon
     comp = Component("edge", abs(dv) * shift, abs(da) * shift,
                      f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
                      "volume and area re-measured",
-                     "sigma_edge from the images: offset of the silhouette from the edge the grey levels place (area method), edge noise along the contour, "
+                     "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the per-point edge scatter (area method), edge noise along the contour, "
                      "disagreement with the reprojected hull")
     return comp, {"um_per_px": scale, "dV_dn_mm3_per_um": dv, "dA_dn_mm2_per_um": da, "edge_shift_um": shift}
 
@@ -553,7 +567,11 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
     t0 = time.perf_counter()
     mesh = measurement.mesh
     measures = qc.view_measures(frames, silhouettes, P, mesh.vertices, mesh.faces)
-    sigma, edge_details = edge_sigma_px(measures[0], measures[2])
+    # what the silhouette-vs-mesh comparison resolves: half a pixel of rasterisation, half a voxel's image
+    voxel_px = float(hull.grid.size) / float(np.mean(um_per_px(P, mesh.vertices.mean(axis=0))))
+    raster = 0.5 + 0.5 * voxel_px
+    sigma, edge_details = edge_sigma_px(measures[0], measures[2], raster_px=raster)
+    edge_details["comparison_resolution_px"] = raster
     t1 = time.perf_counter()
     edge, edge_num = edge_component(mesh, P, sigma)
     measure_smooth, coarse = comparison_measurer(silhouettes, hull.grid, measurement.settings)
@@ -571,7 +589,7 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
                "comparison_nominal": list(nominal_coarse) if nominal_coarse else None, "timings_s": {"qc": t1 - t0, "budget": t2 - t1}}
     budget = combine(measurement.volume_mm3, measurement.surface_area_mm2, [edge] + cal + [grid], details)
     result = qc.evaluate_qc(frames, silhouettes, P, mesh.vertices, mesh.faces, edge_sigma_px=sigma if np.isfinite(sigma) else None,
-                            extra_flags=extra_flags, measures=measures)
+                            extra_flags=extra_flags, measures=measures, raster_px=raster)
     return budget, result
 
 

@@ -1,0 +1,125 @@
+"""The uncertainty budget: its parts on known geometry, and the interval against the truth of simulated sessions."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vastcal import uncertainty as U
+
+from phantom_views import PhantomViews, make_session  # type: ignore[import-not-found]
+
+
+def test_um_per_px_of_a_pinhole() -> None:
+    K = np.array([[1000.0, 0, 320], [0, 1000.0, 240], [0, 0, 1]])
+    P = K @ np.c_[np.eye(3), [0.0, 0.0, 65000.0]]
+    assert U.um_per_px(P[None], np.zeros(3))[0] == pytest.approx(65.0, rel=1e-9)
+
+
+def test_normal_shift_sensitivity_of_a_sphere() -> None:
+    """dV/dn = area, dA/dn = 2 × area / r (= 8πr) for a sphere of radius r."""
+    from vastcal.measure import marching_cubes_mesh
+
+    r, h = 200.0, 4.0
+    ax = np.arange(-60, 61) * h
+    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
+    field = (r - np.sqrt(X**2 + Y**2 + Z**2)).astype(np.float32)
+    mesh = marching_cubes_mesh(field, 0.0, np.array([ax[0]] * 3), h)
+    dv, da = U.normal_shift_sensitivity(mesh)
+    assert dv * 1e9 == pytest.approx(mesh.area_um2(), rel=1e-3)
+    assert da * 1e6 == pytest.approx(8 * np.pi * r, rel=0.02)
+
+
+def test_drift_has_one_definition_and_a_status() -> None:
+    delta = np.array([0.0, 0.3, -0.4, 0.0])
+    rms, mx = U.drift_rms_deg(delta)
+    assert rms == pytest.approx(np.sqrt((0.09 + 0.16) / 3)) and mx == pytest.approx(0.4)  # view 0 defines 0 deg: not counted
+    st = U.drift_status(delta, source="calibration", free=["yaw", "pitch", "gamma", "rolls"], settings={"roll_prior_deg": 1.0})
+    assert st["status"] == "undetermined" and st["u_per_view_deg"] == 1.0 and "prior" in st["reason"]
+    assert U.drift_status(delta, source="calibration", free=["yaw"])["status"] == "not estimated"
+    assert U.drift_status(delta, source="imported")["status"] == "measured"
+
+
+def _with_calibration_run(path: Path, views: PhantomViews) -> Path:
+    """Add a calibration run in the calibration's own layout (θ, K, distance, settings, bounds), at the true pose."""
+    from vastcal.geometry import decompose_circular
+    from vastcal.session import Session, write_attrs
+
+    mo = decompose_circular(views.P).motion
+    theta = mo.theta()
+    with Session.open(path, mode="a") as s:
+        g = s.new_result_group("calibration")
+        g.create_dataset("P", data=views.P)
+        g.create_dataset("theta_deg", data=theta)
+        g.create_dataset("theta0_deg", data=np.r_[0.0, 0.0, 0.0, np.arange(theta.size - 3) * 360.0 / (theta.size - 3)])
+        g.create_dataset("K", data=mo.K)
+        g.create_dataset("delta_angle_deg", data=theta[3:] - np.arange(theta.size - 3) * 360.0 / (theta.size - 3))
+        g.create_dataset("cost_trace", data=np.c_[np.arange(1, 41) * 50.0, np.geomspace(2.0, 0.5, 40)])
+        half = np.r_[1.0, 1.0, 1.0, 0.0, np.full(theta.size - 4, 5.0)]
+        write_attrs(g, {"method": "coherence", "seed": 0, "free": ["yaw", "pitch", "gamma", "rolls"], "distance": float(mo.distance),
+                        "settings": json.dumps({"roll_prior_deg": 1.0, "yaw_prior_deg": 0.5, "photometric_yaw": False}),
+                        "bounds": {"lower_deg": (theta - half).tolist(), "upper_deg": (theta + half).tolist()},
+                        "n_evaluations": 2000, "wall_time_s": 3.0})
+    return path
+
+
+@pytest.fixture(scope="module")
+def assessed(tmp_path_factory: pytest.TempPathFactory, qc_views: PhantomViews) -> tuple[Path, object]:
+    from vastcal.reconstruct import reconstruct_session
+
+    path = make_session(tmp_path_factory.mktemp("unc") / "fish.h5", qc_views, masks=True, cameras=False)
+    _with_calibration_run(path, qc_views)
+    return path, reconstruct_session(path, target_voxels=300_000)
+
+
+def test_budget_has_every_component_and_covers_the_true_hull(assessed: tuple[Path, object], qc_views: PhantomViews) -> None:
+    _, m = assessed
+    u = m.uncertainty  # type: ignore[attr-defined]
+    names = [c["name"] for c in u["components"]]
+    assert names == ["edge", "calibration (open directions)", "grid"] and u["not_evaluated"] == []
+    assert all(c["u_volume_mm3"] > 0 and c["u_area_mm2"] > 0 for c in u["components"])
+    assert u["k"] == 2 and u["U_volume_mm3"] == pytest.approx(2 * u["u_volume_mm3"])
+    # the true visual hull of the simulated views lies inside the k = 2 intervals
+    assert abs(m.volume_mm3 - qc_views.hull_volume_mm3) <= u["U_volume_mm3"]  # type: ignore[attr-defined]
+    assert abs(m.surface_area_mm2 - qc_views.hull_area_mm2) <= u["U_area_mm2"]  # type: ignore[attr-defined]
+    # not an absurdly wide interval either (hard 11 um-pixel masks on a coarse 300 k-voxel grid here)
+    assert u["U_volume_mm3"] < 0.08 * m.volume_mm3 and u["U_area_mm2"] < 0.12 * m.surface_area_mm2  # type: ignore[attr-defined]
+    assert m.qc["verdict"] == "ok"  # type: ignore[attr-defined]
+    assert "±" in m.summary() and "verdict       ok" in m.summary()  # type: ignore[attr-defined]
+
+
+def test_report_carries_the_interval_budget_verdict_and_drift_status(assessed: tuple[Path, object], tmp_path: Path) -> None:
+    import csv
+
+    from vastcal.report import write_report
+
+    path, m = assessed
+    out = tmp_path / "r"
+    write_report(path, out)
+    doc = json.loads((out / "report.json").read_text())
+    mm, c = doc["measurement"], doc["calibration"]
+    assert mm["volume_U_mm3"] == pytest.approx(m.uncertainty["U_volume_mm3"]) and mm["verdict"] == "ok"  # type: ignore[attr-defined]
+    assert mm["volume_to_cite"] == "volume_mm3" and "diagnostic" in mm["volume_note"]
+    assert c["drift"]["status"] == "undetermined" and c["drift_rms_deg"] == pytest.approx(c["drift"]["rms_deg"])
+    assert c["initial_cost"] == pytest.approx(2.0) and c["final_cost"] == pytest.approx(0.5)  # costs, not evaluation counts
+    row = next(csv.DictReader((out / "report.csv").read_text().splitlines()))
+    assert float(row["volume_U_mm3"]) == pytest.approx(mm["volume_U_mm3"], rel=1e-5) and row["verdict"] == "ok"
+    assert row["drift_status"] == "undetermined" and row["coverage_factor_k"] == "2"
+    page = (out / "report.html").read_text()
+    assert "calibration (open directions)" in page and "expanded U (k = 2)" in page and "undetermined" in page
+    assert "verdict: ok" in page
+
+
+def test_imported_cameras_leave_the_calibration_term_not_evaluated(tmp_path: Path, qc_views: PhantomViews) -> None:
+    from vastcal.reconstruct import reconstruct_session
+
+    path = make_session(tmp_path / "imp.h5", qc_views, masks=True, cameras=True)
+    m = reconstruct_session(path, target_voxels=200_000, use_masks=True)
+    u = m.uncertainty
+    assert u["not_evaluated"] == ["calibration"]
+    cal = next(c for c in u["components"] if c["name"] == "calibration")
+    assert cal["u_volume_mm3"] is None and "imported" in cal["note"]
+    assert "not evaluated: calibration" in m.summary()
