@@ -387,6 +387,10 @@ class CoherenceObjective:
         if self.partners is None:
             self.partners = partner_views(th[:, 3:].mean(axis=0), self.max_partners)
         k = self.partners.shape[1]
+        if self.per_candidate and th.shape[0] > 2:
+            single = self._single_roll_moves(th)
+            if single is not None:
+                return self._residuals_of_roll_moves(th, single)
         if self.per_candidate:  # every candidate searches its own rays: its cost does not depend on the batch
             chunk = max(1, self.max_points // max(1, n * r * self.first_stage * k))
             for s in range(0, th.shape[0], chunk):
@@ -404,14 +408,52 @@ class CoherenceObjective:
             out[s:s + chunk] = self._local_max(th[s:s + chunk], np.broadcast_to(self.z_peak, (len(th[s:s + chunk]),) + self.z_peak.shape))
         return out
 
-    def _sample_min_others(self, X: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """(Robust) min over the partner views j of sd_j at the projections of X (B, N, R, S, 3); returns (B, N, R, S).
+    def _single_roll_moves(self, th: np.ndarray) -> np.ndarray | None:
+        """For a batch whose candidates each differ from the first in one roll at most (a per-view polish),
+        the view whose roll each moved (−1: none); None for any other batch."""
+        diff = th[1:] != th[:1]
+        counts = diff.sum(axis=1)
+        if np.any(counts > 1) or np.any(diff[:, :3]):
+            return None
+        return np.concatenate([[-1], np.where(counts == 1, np.argmax(diff, axis=1) - 3, -1)])
 
-        The points of view i's rays are projected into its partners (:func:`partner_views`) only, a
-        few ray views at a time so that at most ``max_points`` samples are held at once.
+    def _residuals_of_roll_moves(self, th: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """Per-candidate residuals (B, N, R) of a batch of single-roll moves (:meth:`_single_roll_moves`).
+
+        A ray's residual depends on its own view's camera and its partners' only. Moving view v's roll
+        changes the rays of v and of the views that have v as a partner (about K + 1 views): only those
+        are searched again, the rest are the first candidate's. Equal to searching every ray of every
+        candidate, in time linear in the number of views instead of quadratic for a sweep over all rolls.
+        """
+        assert self.partners is not None
+        n, r = self.edges.weight.shape
+        out = np.empty((th.shape[0], n, r), np.float32)
+        out[0] = self._local_max(th[:1], self._search_peaks(th[:1]))[0]
+        users: list[list[int]] = [[] for _ in range(n)]
+        for i, row in enumerate(self.partners):
+            for j in row:
+                users[int(j)].append(i)
+        for b in range(1, th.shape[0]):
+            out[b] = out[0]
+            v = int(moved[b])
+            if v < 0:
+                continue
+            views = np.array(sorted({v, *users[v]}), dtype=np.intp)
+            z = self._search_peaks(th[b:b + 1], views=views)
+            out[b, views] = self._local_max(th[b:b + 1], z, views)[0]
+        return out
+
+    def _sample_min_others(self, X: np.ndarray, P: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
+        """(Robust) min over the partner views j of sd_j at the projections of X (B, n, R, S, 3); returns (B, n, R, S).
+
+        X holds the rays of every view, or of the views ``views`` only (n of them); P (B, N, 3, 4) are
+        all cameras. The points of view i's rays are projected into its partners (:func:`partner_views`)
+        only, a few ray views at a time so that at most ``max_points`` samples are held at once.
         """
         b, n, r, s, _ = X.shape
-        J = self.partners if self.partners is not None else partner_views(np.zeros(n), self.max_partners)
+        J = self.partners if self.partners is not None else partner_views(np.zeros(P.shape[1]), self.max_partners)
+        if views is not None:
+            J = J[views]
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
         step = max(1, self.max_points // max(1, b * r * s * k))
@@ -484,15 +526,17 @@ class CoherenceObjective:
                                         borderMode=cv2.BORDER_REPLICATE) for k in range(0, uf.shape[0], block)])
         return out.ravel()[:m].reshape(rows, cols)
 
-    def _search_peaks(self, th: np.ndarray, around: np.ndarray | None = None) -> np.ndarray:
-        """Depth (B, N, R) of each ray's maximum: a dense pass over the ray's chord through the cylinder
+    def _search_peaks(self, th: np.ndarray, around: np.ndarray | None = None, views: np.ndarray | None = None) -> np.ndarray:
+        """Depth (B, n, R) of each ray's maximum: a dense pass over the ray's chord through the cylinder
         of radius ``radius_um`` about the axis (or, given ``around``, a pass of ±4 windows about those
-        depths), then successive zooms around the best sample."""
+        depths), then successive zooms around the best sample. The rays of every view, or of ``views``."""
         R, t = self._poses(th)
         R, t = R.astype(np.float32), t.astype(np.float32)
         Pm = self._cameras(R, t)
+        if views is not None:
+            R = R[:, views]
         if around is None:
-            zc, half = self._axis_chords(R, t)
+            zc, half = self._axis_chords(R, t, views)
             count = self.first_stage
         else:
             zc, half = around.astype(np.float32), np.full(around.shape, 4.0 * self.window_um, np.float32)
@@ -500,14 +544,14 @@ class CoherenceObjective:
         for stage in range(len(self.stages) + 1):
             offs = np.linspace(-1.0, 1.0, count, dtype=np.float32)
             Z = zc[..., None] + half[..., None] * offs
-            vals = self._sample_min_others(self._ray_points(R, t, Z), Pm)
+            vals = self._sample_min_others(self._ray_points(R, t, Z, views), Pm, views)
             zc = np.take_along_axis(Z, np.argmax(vals, axis=-1)[..., None], -1)[..., 0]
             half = (2.0 * half / (count - 1)).astype(np.float32)
             if stage < len(self.stages):
                 count = self.stages[stage]
         return zc
 
-    def _axis_chords(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _axis_chords(self, R: np.ndarray, t: np.ndarray, views: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Centre and half-length (B, N, R), camera depths, of each ray's chord through the cylinder.
 
         A ray X(z) = Rᵀ(z·ray − t) comes closest to the axis (world x) at the depth minimising the
@@ -515,7 +559,8 @@ class CoherenceObjective:
         ±ρ/|D_yz| around it (D the ray's world direction per unit depth), an upper bound of the
         exact chord. Depths stay in front of the camera.
         """
-        D = self.rays_cam[None] @ R  # (B, N, R, 3): rows (Rᵀ ray)ᵀ
+        rays = self.rays_cam if views is None else self.rays_cam[views]
+        D = rays[None] @ R  # (B, N, R, 3): rows (Rᵀ ray)ᵀ
         C = -(t[:, None, None, :] @ R)[:, :, 0]  # (B, N, 3) camera centres in the world: −Rᵀ t
         dyz = D[..., 1:]
         cyz = C[:, :, None, 1:]
@@ -526,7 +571,7 @@ class CoherenceObjective:
         half = np.minimum(half, 0.999 * zc)
         return zc.astype(np.float32), half.astype(np.float32)
 
-    def _local_max(self, th: np.ndarray, z_peak: np.ndarray) -> np.ndarray:
+    def _local_max(self, th: np.ndarray, z_peak: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
         """Residuals (B, N, R): each ray's maximum near ``z_peak`` (B, N, R), parabola-refined.
 
         A window of ``window`` samples over ±``window_um`` around the given depths, slid along the ray
@@ -539,11 +584,13 @@ class CoherenceObjective:
         R, t = self._poses(th)
         R, t = R.astype(np.float32), t.astype(np.float32)
         Pm = self._cameras(R, t)
+        if views is not None:
+            R = R[:, views]
         offs = np.linspace(-self.window_um, self.window_um, self.window, dtype=np.float32)
         Z = z_peak[..., None] + offs
-        vals = self._sample_min_others(self._ray_points(R, t, Z), Pm)  # (B, N, R, S)
+        vals = self._sample_min_others(self._ray_points(R, t, Z, views), Pm, views)  # (B, N, R, S)
         best = np.argmax(vals, axis=-1)
-        self._follow_rising_ends(R, t, Pm, Z, vals, best)
+        self._follow_rising_ends(R, t, Pm, Z, vals, best, views)
         k = np.clip(best, 1, self.window - 2)[..., None]
         y0 = np.take_along_axis(vals, k - 1, -1)[..., 0]
         y1 = np.take_along_axis(vals, k, -1)[..., 0]
@@ -558,7 +605,7 @@ class CoherenceObjective:
         return np.maximum(peak, vals.max(-1))
 
     def _follow_rising_ends(self, R: np.ndarray, t: np.ndarray, Pm: np.ndarray, Z: np.ndarray, vals: np.ndarray,
-                            best: np.ndarray) -> None:
+                            best: np.ndarray, views: np.ndarray | None = None) -> None:
         """Slide the window of every ray whose profile rises to an end of it, until its maximum is bracketed.
 
         The window sits at the population's peaks; a candidate far from the population mean may have
@@ -577,11 +624,12 @@ class CoherenceObjective:
             direction = np.where(best[b, i, r] == 0, -1.0, 1.0).astype(np.float32)
             zr = Z[b, i, r] + (direction * 0.5 * (Z[b, i, r, -1] - Z[b, i, r, 0]))[:, None]  # (M, S): centred on the old best
             zr = np.maximum(zr, np.float32(1e-3 * self.distance))
-            cam = self.rays_cam[i, r][:, None, :] * zr[..., None] - t[b][:, None, :]  # (M, S, 3) camera frame
+            own = i if views is None else views[i]
+            cam = self.rays_cam[own, r][:, None, :] * zr[..., None] - t[b][:, None, :]  # (M, S, 3) camera frame
             X = np.matmul(cam, R[b, i])  # (M, S, 3) world: Rᵀ c, as rows cᵀ R
             assert self.partners is not None
             step = max(1, self.max_points // (self.partners.shape[1] * count))  # rays per chunk: memory as in the batched path
-            v = np.concatenate([self._min_others_of_rays(X[c:c + step], Pm[b[c:c + step]], i[c:c + step])
+            v = np.concatenate([self._min_others_of_rays(X[c:c + step], Pm[b[c:c + step]], own[c:c + step])
                                 for c in range(0, len(b), step)])
             Z[b, i, r], vals[b, i, r] = zr, v
             best[b, i, r] = np.argmax(v, axis=-1)
@@ -591,9 +639,10 @@ class CoherenceObjective:
         Rt = np.concatenate([R, np.broadcast_to(t[:, None, :, None], R.shape[:-1] + (1,))], -1)
         return np.einsum("ij,bnjk->bnik", self.K.astype(np.float32), Rt).astype(np.float32)
 
-    def _ray_points(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    def _ray_points(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
         """Points (B, N, R, S, 3) on the edge rays at camera depths Z (B, N, R, S), µm: X = Rᵀ(z·ray − t)."""
-        cam = self.rays_cam[None, :, :, None, :] * Z[..., None] - t[:, None, None, None, :]
+        rays = self.rays_cam if views is None else self.rays_cam[views]
+        cam = rays[None, :, :, None, :] * Z[..., None] - t[:, None, None, None, :]
         b, n, r, s, _ = cam.shape
         return (cam.reshape(b, n, r * s, 3) @ R).reshape(b, n, r, s, 3)  # rows: (Rᵀ c)ᵀ = cᵀ R
 
