@@ -380,7 +380,9 @@ MeasureFn = Callable[[np.ndarray], "tuple[float, float] | None"]
 
 
 def calibration_components(spread: CalibrationSpread | None, measure_at: MeasureFn, nominal: tuple[float, float], *,
-                           samples: int = CAL_SAMPLES, seed: int = 0) -> tuple[list[Component], dict[str, Any]]:
+                           samples: int = CAL_SAMPLES, seed: int = 0,
+                           missing_note: str = "cameras imported as given: their uncertainty is not known to vastcal",
+                           ) -> tuple[list[Component], dict[str, Any]]:
     """The calibration lines of the budget (module docstring, item 2).
 
     Args:
@@ -389,10 +391,10 @@ def calibration_components(spread: CalibrationSpread | None, measure_at: Measure
         nominal: (volume, area) of the calibrated cameras on that grid.
         samples: poses sampled in the open directions.
         seed: of the sampling (fixed: a report is reproducible).
+        missing_note: why there is no spread (when ``spread`` is None).
     """
     if spread is None:
-        return [Component("calibration", None, None, "not evaluated",
-                          "cameras imported as given: their uncertainty is not known to vastcal")], {}
+        return [Component("calibration", None, None, "not evaluated", missing_note)], {}
     comps: list[Component] = []
     details: dict[str, Any] = {}
     v0, a0 = nominal
@@ -544,7 +546,8 @@ def comparison_measurer(silhouettes: np.ndarray, grid: Any, settings: Any, *, sm
 
 
 def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any, measurement: Any, spread: CalibrationSpread | None, *,
-           extra_flags: Sequence[Any] = (), samples: int = CAL_SAMPLES) -> tuple[Budget, Any]:
+           extra_flags: Sequence[Any] = (), samples: int = CAL_SAMPLES,
+           missing_note: str = "cameras imported as given: their uncertainty is not known to vastcal") -> tuple[Budget, Any]:
     """The uncertainty budget and the per-view QC of one measurement.
 
     Args:
@@ -582,7 +585,7 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
         cal = [Component("calibration", None, None, "not evaluated", "the hull is empty on the comparison grid")]
         cal_details: dict[str, Any] = {}
     else:
-        cal, cal_details = calibration_components(spread, measure_raw, nominal_coarse, samples=samples)
+        cal, cal_details = calibration_components(spread, measure_raw, nominal_coarse, samples=samples, missing_note=missing_note)
     t2 = time.perf_counter()
     details = {"edge_sigma_px": sigma, **edge_details, **edge_num, **cal_details,
                "comparison_grid_voxel_um": float(coarse.size), "comparison_grid_shape": [int(s) for s in coarse.shape],
@@ -612,13 +615,15 @@ def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement
 
     cal = session.result("calibration", inputs.calibration_run) if inputs.calibration_run else None
     spread = calibration_spread_from_group(cal) if cal is not None else None
+    note = ("cameras imported as given: their uncertainty is not known to vastcal" if cal is None else
+            f"calibration/{inputs.calibration_run} stores no theta_deg, K and distance to re-pose its cameras")
     flags: list[Any] = []
     if cal is not None and "theta_deg" in cal:
         a = read_attrs(cal)
         flags += qc.calibration_bound_flags(np.asarray(cal["theta_deg"][...], float), a.get("bounds"))
     try:
         budget, result = assess(session.projections(), inputs.silhouettes, inputs.P, hull, measurement, spread, extra_flags=flags,
-                                samples=samples)
+                                samples=samples, missing_note=note)
     except (VastcalError, ValueError, np.linalg.LinAlgError) as exc:
         log.warning("%s: uncertainty and QC not evaluated (%s)", session.path, exc)
         b = combine(measurement.volume_mm3, measurement.surface_area_mm2,

@@ -43,7 +43,7 @@ def test_drift_has_one_definition_and_a_status() -> None:
     assert U.drift_status(delta, source="imported")["status"] == "measured"
 
 
-def _with_calibration_run(path: Path, views: PhantomViews) -> Path:
+def _with_calibration_run(path: Path, views: PhantomViews, starts: tuple[np.ndarray, list[float]] | None = None) -> Path:
     """Add a calibration run in the calibration's own layout (θ, K, distance, settings, bounds), at the true pose."""
     from vastcal.geometry import decompose_circular
     from vastcal.session import Session, write_attrs
@@ -63,6 +63,9 @@ def _with_calibration_run(path: Path, views: PhantomViews) -> Path:
                         "settings": json.dumps({"roll_prior_deg": 1.0, "yaw_prior_deg": 0.5, "photometric_yaw": False}),
                         "bounds": {"lower_deg": (theta - half).tolist(), "upper_deg": (theta + half).tolist()},
                         "n_evaluations": 2000, "wall_time_s": 3.0})
+        if starts is not None:
+            g.create_dataset("starts/theta", data=np.vstack([theta, theta[None] + starts[0]]))
+            g.create_dataset("starts/cost", data=starts[1])
     return path
 
 
@@ -124,3 +127,18 @@ def test_imported_cameras_leave_the_calibration_term_not_evaluated(tmp_path: Pat
     cal = next(c for c in u["components"] if c["name"] == "calibration")
     assert cal["u_volume_mm3"] is None and "imported" in cal["note"]
     assert "not evaluated: calibration" in m.summary()
+
+
+def test_kept_starts_of_equal_cost_make_their_own_line(tmp_path: Path, qc_views: PhantomViews) -> None:
+    """A calibration that kept several starts: the hulls of those within the cost tolerance are re-measured."""
+    from vastcal.reconstruct import reconstruct_session
+
+    rng = np.random.default_rng(1)
+    n = len(qc_views.angles_deg)
+    dtheta = np.c_[np.zeros((3, 4)), rng.normal(0, 0.5, (3, n - 1))]  # three more starts, rolls 0.5 deg apart
+    path = _with_calibration_run(make_session(tmp_path / "starts.h5", qc_views, masks=True, cameras=False), qc_views,
+                                 starts=(dtheta, [1.0, 1.002, 1.004, 1.5]))  # the last start is not of equal cost
+    m = reconstruct_session(path, target_voxels=200_000)
+    line = next(c for c in m.uncertainty["components"] if c["name"] == "calibration (starts)")
+    assert line["u_volume_mm3"] > 0 and "3 starts" in line["method"]
+    assert m.uncertainty["details"]["starts_within_tolerance"] == 3
