@@ -133,6 +133,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     if args.simulate and cfg.camera.driver != "simulated":
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
     check_output_file(out, force=args.force, option="--resume" if args.resume else "-o", existing=bool(args.resume))  # before the stage moves
+    _check_views(args.views)
     from vastcal.rig import connect_rig
 
     cancel = _cancel_on_signals()
@@ -149,6 +150,18 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         return 128 + (RECEIVED[0] if RECEIVED else signal.SIGINT) if result.exit_status == "abort" else 1
     print(f"wrote {out}: {result.views_written} views")
     return 0
+
+
+def _check_views(views: int | None) -> None:
+    """``--views`` within the rig file's range for ``acquisition.views`` (3 to 100 000; 0 is not "default").
+
+    Raises:
+        ConfigError: naming --views.
+    """
+    if views is not None:
+        from vastcal.config import AcquisitionConfig, check_setting
+
+        check_setting(AcquisitionConfig, "views", views, "--views")
 
 
 def _truth_path(session: Path) -> Path:
@@ -222,6 +235,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from vastcal.pipeline import demo
 
     check_output_folder(args.output)
+    _check_views(args.views)
     out = demo(args.output, views=args.views, force=args.force, quiet=args.quiet)
     print(out.summary())
     return 0

@@ -29,7 +29,7 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
-from vastcal.config import CameraConfig, RigConfig, RoiConfig, dump_config
+from vastcal.config import CameraConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError
 from vastcal.geometry import shift_pixels
 from vastcal.outputs import check_output_file
@@ -98,6 +98,8 @@ def read_image(path: Path) -> np.ndarray:
     Raises:
         ImportDataError: unreadable, empty or implausibly large file.
     """
+    if not path.is_file():
+        raise ImportDataError(f"{path}: cannot read this image: {'no such file' if not path.exists() else 'not a regular file'}")
     size = image_size(path)
     if size is not None and (size[0] * size[1] > MAX_IMAGE_PIXELS or min(size) < 1):
         raise ImportDataError(f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
@@ -297,6 +299,8 @@ def import_folder(
     h, w = first.shape[:2]
     if roi_offset is None:
         roi_offset = (cfg.camera.roi.x, cfg.camera.roi.y) if config is not None else (0, 0)
+    for axis, value in zip("xy", roi_offset):  # same range as camera.roi.x/y in a rig file
+        check_setting(RoiConfig, axis, value, f"roi offset {axis} (--roi-offset)")
     optics = dataclasses.replace(cfg.optics, sensor_width_px=max(cfg.optics.sensor_width_px, roi_offset[0] + w),
                                  sensor_height_px=max(cfg.optics.sensor_height_px, roi_offset[1] + h))
     cfg = dataclasses.replace(cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h)))
