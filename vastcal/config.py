@@ -186,6 +186,9 @@ class CalibrationConfig:
     """After the silhouettes, search the axis yaw by projection matching of absorption images
     (PI with the yaw free; brightfield only; about 25 s more on the simulated rig). See
     :mod:`vastcal.calibrate.photometric_yaw`."""
+    memory_mb: float = field(default=1536.0, metadata=_range(256.0, 1e7))
+    """Memory budget of a calibration, MB: the photometric yaw uses as many views (evenly spread) as fit
+    in it; the silhouette cost grows linearly with the views (:mod:`vastcal.calibrate.view_budget`)."""
 
 
 @dataclass(frozen=True)

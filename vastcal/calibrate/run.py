@@ -40,9 +40,11 @@ from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
+from vastcal.calibrate.photometric_yaw import SCHEDULE as PHOTOMETRIC_SCHEDULE
 from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.silhouettes import specimen_maps
+from vastcal.calibrate.view_budget import photometric_views
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
@@ -132,6 +134,8 @@ class CalibrationSettings:
             judged cost is kept. Each costs a full run.
         polish: after the starts, a per-view compass search of every free roll on the judge cost
             (:func:`polish_rolls`), steps ``polish_steps_deg`` (degrees, largest first).
+        memory_mb: memory budget, MB: the photometric yaw uses as many views (evenly spread) as fit in it
+            (:mod:`.view_budget`); the silhouette cost's time and memory grow linearly with the views.
     """
 
     levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 1200, 32, ("yaw", "pitch", "gamma"), max_initial_step_px=8.0),
@@ -157,6 +161,7 @@ class CalibrationSettings:
     starts: int = 1
     polish: bool = True
     polish_steps_deg: tuple[float, ...] = (0.2, 0.1, 0.05, 0.025)
+    memory_mb: float = 1536.0
 
     def to_json(self) -> str:
         """JSON of every setting."""
@@ -618,8 +623,12 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     if settings.photometric_yaw and method == "coherence" and space.free_mask[0]:
         base = evals_done
         clock.start_phase(expected_evaluations())
-        pf_full = pf if pf.shape[1:] == images.shape[1:3] else specimen_maps(model, images)
-        refined = refine_yaw(images, pf_full, K, distance, theta, (float(space.lower[0]), float(space.upper[0])),
+        voxel_um = distance * w_full / (float(K[0, 0]) * min(w_full, PHOTOMETRIC_SCHEDULE[-1][0]))  # its finest voxel
+        m_est = int(len(judge_region.voxels) * (judge_region.voxel_size / voxel_um) ** 3)
+        sub = photometric_views(theta[3:], images.shape[1:], m_est, settings.memory_mb)
+        pf_full = pf[sub] if pf.shape[1:] == images.shape[1:3] else specimen_maps(model, images[sub])
+        th_sub = np.concatenate([theta[:3], theta[3:][sub]])
+        refined = refine_yaw(images[sub], pf_full, K, distance, th_sub, (float(space.lower[0]), float(space.upper[0])),
                              progress=lambda e, fy: clock.update(base + e, fy))
         if refined is not None:
             theta[0] = refined.yaw_deg

@@ -103,7 +103,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         if settings is None:
             settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg, roll_prior_weight=cfg.prior_weight,
                                            roll_prior_deg=cfg.roll_prior_deg, yaw_prior_deg=cfg.yaw_prior_deg,
-                                           photometric_yaw=cfg.photometric_yaw)
+                                           photometric_yaw=cfg.photometric_yaw, memory_mb=cfg.memory_mb)
         if offset_scan_deg is not None:  # the rig file's range applies to the override too
             scan = check_setting(CalibrationConfig, "offset_scan_deg", offset_scan_deg, "offset scan (--offset-scan)")
             settings = dataclasses.replace(settings, roll_offset_scan_deg=float(scan))
