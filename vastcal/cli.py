@@ -60,6 +60,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 def cmd_info(args: argparse.Namespace) -> int:
     """vastcal info S.h5 [--json]"""
+    _check_session_arg(args.session)
     from vastcal.info import format_summary, session_summary
 
     summary = session_summary(args.session)
@@ -164,6 +165,31 @@ def _check_views(views: int | None) -> None:
         check_setting(AcquisitionConfig, "views", views, "--views")
 
 
+def _check_session_arg(path: str) -> None:
+    """The SESSION argument names something that can be a session file (checked before any output is made).
+
+    Raises:
+        UserInputError: an empty name, or a directory, device or other non-regular file.
+    """
+    if not path:
+        raise UserInputError("expected a session file (.h5), got an empty name")
+    p = Path(path)
+    if p.exists() and not p.is_file():
+        raise UserInputError(f"{p}: is {'a directory' if p.is_dir() else 'not a regular file'}, not a session file (.h5)")
+
+
+def _check_session_opens(path: str) -> None:
+    """Open and close the session once, so that a command refuses it before creating its output folder.
+
+    Raises:
+        SessionError: not a session (the reason in one line).
+    """
+    from vastcal.session import Session
+
+    with Session.open(path):
+        pass
+
+
 def _truth_path(session: Path) -> Path:
     """Where a simulated run keeps its hidden truth: beside the session, never inside it."""
     return session.with_name(session.stem + ".truth.json")
@@ -171,6 +197,7 @@ def _truth_path(session: Path) -> Path:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method coherence|pi|vr] [--seed N] [--free …] [--fixed-views 10-35] [--starts S]"""
+    _check_session_arg(args.session)
     from vastcal.calibrate import calibrate_session
 
     if args.mask and args.scribbles:
@@ -200,6 +227,7 @@ def _view_image_arg(option: str, spec: str | None) -> Any:
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     """vastcal reconstruct S.h5 [--voxel-size UM] [--masks] [--mesh OUT.ply|.stl]"""
+    _check_session_arg(args.session)
     from vastcal.reconstruct import reconstruct_session
 
     if args.mesh:
@@ -211,9 +239,11 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     """vastcal report S.h5 -o DIR"""
+    _check_session_arg(args.session)
     from vastcal.report import write_report
 
     check_output_folder(args.output)
+    _check_session_opens(args.session)
     path = write_report(args.session, args.output)
     print(f"wrote {path}")
     return 0
@@ -221,10 +251,12 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """vastcal run S.h5 [-o DIR]: calibrate → reconstruct → report on a recorded session."""
+    _check_session_arg(args.session)
     from vastcal.pipeline import run_session
 
     if args.output:
         check_output_folder(args.output)
+        _check_session_opens(args.session)
     out = run_session(args.session, args.output, method=args.method, seed=args.seed, quiet=args.quiet, starts=args.starts)
     print(out.summary())
     return 0
