@@ -13,8 +13,10 @@ What is checked, per view, and why each threshold is what it is
   silhouette's boundary sits as a fraction f of the step (0.5 = the step's midpoint).
 * **Blank** — the frame holds no image: its 0.1–99.9 % grey range is below 8 σ_n + 1 grey level
   (pure Gaussian noise spans 6.2 σ_n over that range) or the silhouette is empty. → *fail*.
-* **Saturated / clipped** — more than 0.5 % of the pixels sit at the top code of the frame's bit
-  depth (or at 0): clipped pixels carry no edge position. → *check*.
+* **Saturated / clipped** — more than 5 % of the pixels just outside the outline (where the edge's
+  transition begins) sit at the top code of the frame's bit depth (or at 0): a clipped transition
+  no longer places the edge, and a clipped faint outer part is lost. A clipped background far from
+  the specimen does not matter. → *check*.
 * **Low contrast** — one pixel's edge position has noise σ_n / slope = σ_n √(2π) σ_b / C px for a
   blurred edge, σ_n / C (the noise of its partial coverage) for a sharp one (σ_b < 1/√(2π) px);
   above 0.5 px a single row cannot place the edge within half a pixel (C < 2 σ_n for sharp edges). → *check*.
@@ -47,8 +49,8 @@ log = logging.getLogger(__name__)
 
 BLANK_RANGE_SIGMAS = 8.0
 """A frame whose 0.1–99.9 % grey range is below this many noise σ (+1 grey level) is blank."""
-SATURATED_FRACTION = 0.005
-"""Fraction of pixels at the top code (or 0) above which a frame is flagged saturated/clipped."""
+SATURATED_FRACTION = 0.05
+"""Fraction of the pixels just outside the outline at the top code (or 0) above which a view is flagged saturated/clipped."""
 LOW_CONTRAST_PX = 0.5
 """Single-pixel edge noise (px) above which a view is flagged low contrast."""
 CUT_MIN_PX = 3
@@ -108,7 +110,8 @@ class FrameStats:
             :func:`edge_offsets_px`, less the estimator's own noise), px; NaN without clean edges.
         contour_px: length of the silhouette's boundary, px.
         grey_range: 0.1–99.9 % range, grey levels.
-        saturated_fraction: fraction of pixels at the top code or at 0.
+        saturated_fraction: fraction of the pixels just outside the outline (the frame's, without a
+            silhouette) at the top code or at 0.
         border_px: silhouette pixels on the frame's outer row/column.
         silhouette_px: pixels in the silhouette.
     """
@@ -160,9 +163,12 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
     lo_hi = np.percentile(g, [0.1, 99.9]) if g.size else np.zeros(2)
     top = top_code(frame)
     f = np.asarray(frame)
-    sat = float(np.mean((f >= top) | (f <= 0))) if f.size else 0.0
-    if f.ndim == 3:
-        sat = float(np.mean(((f >= top) | (f <= 0)).any(axis=2)))
+    clipped = ((f >= top) | (f <= 0)).any(axis=2) if f.ndim == 3 else (f >= top) | (f <= 0)
+    sat = float(np.mean(clipped)) if f.size else 0.0
+    if sil.any() and not sil.all():
+        # what matters is the edge: the pixels just outside the outline hold the transition's outer part
+        ring = cv2.dilate(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~sil
+        sat = float(np.mean(clipped[ring]))
     border = int(sil[0].sum() + sil[-1].sum() + sil[1:-1, 0].sum() + sil[1:-1, -1].sum())
     # noise: neighbour differences away from the specimen (a difference has variance 2 σ_n²)
     far = _ring(sil, 8.0, 1e9) if sil.any() else np.ones_like(sil)
@@ -454,7 +460,7 @@ def evaluate_qc(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vert
     sat = [i for i, s in enumerate(stats) if s.saturated_fraction > SATURATED_FRACTION]
     if sat:
         worst = max(stats[i].saturated_fraction for i in sat)
-        flags.append(Flag("saturated", "check", f"saturated or clipped pixels (up to {100 * worst:.1f} % of the frame) in view(s) "
+        flags.append(Flag("saturated", "check", f"saturated or clipped pixels at the outline (up to {100 * worst:.1f} % of it) in view(s) "
                           f"{_views(sat)}", tuple(sat)))
     low = [i for i, s in enumerate(stats) if i not in blank and s.edge_noise_px > LOW_CONTRAST_PX]
     if low:

@@ -11,9 +11,10 @@ The budget (standard uncertainties u, combined in quadrature, expanded U = k·u 
    ≈ area × δs and the area by ≈ (∫ 2H dA) × δs. Both derivatives are measured on the smoothed
    mesh itself (vertices moved ±1 µm along their normals, volume and area re-measured). δ is the
    edge-localisation σ from the images (:func:`edge_sigma_px`): how far the silhouette's boundary
-   sits from the half-level of the grey-level step (a thresholding bias common to the whole
-   boundary), half its per-point scatter about the edge the area method places (the hull is the
-   intersection of the silhouettes and follows the innermost where several views bound it), the noise of that position averaged along the contour, and the mean disagreement
+   sits from the half-level of the grey-level step (its common part, and its view-to-view part
+   over √N: each view carves about 1/N of the surface), half its per-point scatter (the
+   quantisation 1/√12 px of a hard mask: the hull is the intersection of the silhouettes and
+   follows the innermost where several views bound it), the noise of that position averaged along the contour, and the mean disagreement
    between silhouettes and the reprojected hull beyond what the rasteriser explains
    (:mod:`vastcal.qc`). A common shift is fully correlated over views, so it is not divided by √N.
 2. **Calibration** — what the data cannot pin down. (a) When the calibration run kept several
@@ -27,8 +28,10 @@ The budget (standard uncertainties u, combined in quadrature, expanded U = k·u 
    volume and area is the component. Both run on a grid of twice the voxel edge (the comparisons
    are between hulls on one grid, so the grid's own error cancels). Imported cameras: not
    evaluated (stated, never 0).
-3. **Grid discretisation.** Re-measured on a grid of twice the voxel edge: u = |value(h) −
-   value(2h)| (for an error ∝ h^p this over-estimates the error at h for p ≥ 1).
+3. **Grid discretisation.** Re-measured on a grid of twice the voxel edge. For an error ∝ h^p the
+   error at h is |value(h) − value(2h)| / (2^p − 1): the volume (a count of voxel centres: a
+   lattice-point error, p ≥ 1) takes p = 1, u = |V(h) − V(2h)|; the area of the smoothed mesh (the
+   chord error of a piecewise-linear surface, p = 2) takes u = |A(h) − A(2h)| / 3.
 
 Not in the interval, stated beside it: the **visual hull's bias against the solid body** — the
 hull contains the body and equals it only where every surface point is seen on an outline; a
@@ -220,27 +223,32 @@ def normal_shift_sensitivity(mesh: "Mesh", step_um: float = 1.0) -> tuple[float,
 # ---------------------------------------------------------------------------------------------
 
 
+QUANTISATION_PX = 1.0 / math.sqrt(12.0)
+"""Per-point scatter of a hard pixel mask's boundary about the true edge: a uniform error over one pixel."""
+
+
 def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[float] | None = None,
-                  raster_px: float = 0.5) -> tuple[float, dict[str, Any]]:
+                  raster_px: float = 0.5, hard: bool = True) -> tuple[float, dict[str, Any]]:
     """The edge-localisation σ (px) of the silhouettes, from the images (module docstring, item 1).
 
-    Per view the squared terms are:
+    The terms (squared and added):
 
-    * the boundary's mean outward offset from the half-level of the grey-level step
-      (``boundary_offset_px``, :func:`vastcal.qc.frame_stats`: a thresholding bias common to the
-      boundary, thin and faint parts included);
-    * half the per-point scatter of the boundary about the true edge (``edge_scatter_px``, area
-      method): the hull is the *intersection* of the silhouettes, so where two views bound it, it
-      follows the inner one — E[min of two] = −σ/√π ≈ −0.56 σ; a patch bounded by one view has no
-      such bias; σ/2 stands for this inward bias (its sign is always inward, which the symmetric
-      interval does not express);
-    * the noise of the mean edge position along the contour (one pixel's edge noise /
-      √(contour length / max(1, 2 σ_b)) — neighbouring pixels within the blur are correlated);
-    * when given, the squared excess of the mean boundary distance to the reprojected hull over
-      ``raster_px`` (what the comparison itself resolves: half a pixel of rasterisation and half a
-      voxel's image — the grid's own share is the grid line).
-
-    σ is the root mean square over the usable views (finite statistics).
+    * **threshold offset** — each view's mean outward offset o_i of its silhouette from the
+      half-level of the grey-level step (``boundary_offset_px``, :func:`vastcal.qc.frame_stats`;
+      thin and faint parts included). Each view carves its own patches of the hull (about 1/N of
+      the surface), so the common part mean(o) moves the whole surface and the view-to-view part
+      averages: mean(o)² + var(o)/N;
+    * **half the per-point scatter** of the boundary: the hull is the *intersection* of the
+      silhouettes, so where two views bound it, it follows the inner one — E[min of two] =
+      −σ/√π ≈ −0.56 σ; a patch bounded by one view has no such bias; σ/2 stands for this inward
+      bias (always inward, which the symmetric interval does not express). σ = the quantisation
+      1/√12 px for hard masks (``hard``: binary, or probability maps that jump from 0 to 1);
+      for graded soft maps the scatter the area method measures (``edge_scatter_px``);
+    * the **noise** of the mean edge position along the contour (one pixel's edge noise /
+      √(contour length / max(1, 2 σ_b)) — pixels within the blur are correlated);
+    * when given, the **disagreement** with the reprojected hull: the excess of the mean boundary
+      distance over ``raster_px`` (what the comparison resolves: half a pixel of rasterisation and
+      half a voxel's image — the grid's own share is the grid line), RMS over views.
 
     Returns:
         (σ px, details per term).
@@ -250,7 +258,7 @@ def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[
         if not (np.isfinite(s.edge_noise_px) and np.isfinite(s.blur_px) and s.contour_px > 0):
             continue
         offs.append(s.boundary_offset_px if np.isfinite(s.boundary_offset_px) else 0.0)
-        scat.append(0.5 * s.edge_scatter_px if np.isfinite(s.edge_scatter_px) else 0.5 / math.sqrt(12.0))
+        scat.append(QUANTISATION_PX if hard or not np.isfinite(s.edge_scatter_px) else s.edge_scatter_px)
         n_eff = s.contour_px / max(1.0, 2.0 * s.blur_px)
         noise.append(s.edge_noise_px / math.sqrt(max(n_eff, 1.0)))
         if boundary_distance_px is not None and np.isfinite(boundary_distance_px[i]):
@@ -258,14 +266,33 @@ def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[
     if not offs:
         return math.nan, {"usable_views": 0}
     o = np.asarray(offs)
-    sc = np.asarray(scat)
+    offset_term = float(np.mean(o) ** 2 + np.var(o) / len(o))
+    sc = 0.5 * np.asarray(scat)
     nz = np.asarray(noise)
     ex = np.asarray(excess) if excess else np.zeros_like(o)
-    total = np.sqrt(np.mean(o**2) + np.mean(sc**2) + np.mean(nz**2) + np.mean(ex**2))
-    return float(total), {"usable_views": len(offs), "threshold_offset_rms_px": float(np.sqrt(np.mean(o**2))),
-                          "threshold_offset_mean_px": float(np.mean(o)), "half_point_scatter_rms_px": float(np.sqrt(np.mean(sc**2))),
+    total = np.sqrt(offset_term + np.mean(sc**2) + np.mean(nz**2) + np.mean(ex**2))
+    return float(total), {"usable_views": len(offs), "threshold_offset_px": math.sqrt(offset_term),
+                          "threshold_offset_mean_px": float(np.mean(o)), "threshold_offset_sd_px": float(np.std(o)),
+                          "half_point_scatter_rms_px": float(np.sqrt(np.mean(sc**2))), "hard_masks": bool(hard),
                           "position_noise_rms_px": float(np.sqrt(np.mean(nz**2))),
                           "hull_disagreement_excess_rms_px": float(np.sqrt(np.mean(ex**2)))}
+
+
+def is_hard(silhouettes: np.ndarray) -> bool:
+    """Whether silhouettes are hard masks: binary, or maps with < 20 % of their boundary band graded (0.05 < p < 0.95)."""
+    s = np.asarray(silhouettes)
+    if not np.issubdtype(s.dtype, np.floating):
+        return True
+    import cv2
+
+    graded = band = 0
+    for m in s[:: max(1, len(s) // 5)]:
+        b = m >= 0.5
+        ring = cv2.dilate(b.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) ^ cv2.erode(
+            b.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        band += int(ring.sum())
+        graded += int(((m > 0.05) & (m < 0.95) & ring).sum())
+    return band == 0 or graded < 0.2 * band
 
 
 def edge_component(mesh: "Mesh", P: np.ndarray, sigma_px: float) -> tuple[Component, dict[str, float]]:
@@ -279,7 +306,7 @@ def edge_component(mesh: "Mesh", P: np.ndarray, sigma_px: float) -> tuple[Compon
     comp = Component("edge", abs(dv) * shift, abs(da) * shift,
                      f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
                      "volume and area re-measured",
-                     "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the per-point edge scatter (area method), edge noise along the contour, "
+                     "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the per-point edge scatter, edge noise along the contour, "
                      "disagreement with the reprojected hull")
     return comp, {"um_per_px": scale, "dV_dn_mm3_per_um": dv, "dA_dn_mm2_per_um": da, "edge_shift_um": shift}
 
@@ -501,11 +528,12 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
 
 
 def grid_component(nominal: tuple[float, float], coarse: tuple[float, float] | None, voxel_size_um: float) -> Component:
-    """The grid line: |value(h) − value(2h)|."""
+    """The grid line: |V(h) − V(2h)| and |A(h) − A(2h)| / 3 (module docstring, item 3)."""
     if coarse is None:
         return Component("grid", None, None, "not evaluated", f"the hull is empty on a grid of {GRID_FACTOR:g} x {voxel_size_um:.2f} um voxels")
-    return Component("grid", abs(nominal[0] - coarse[0]), abs(nominal[1] - coarse[1]),
-                     f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): |value(h) - value(2h)|")
+    return Component("grid", abs(nominal[0] - coarse[0]), abs(nominal[1] - coarse[1]) / (GRID_FACTOR**2 - 1.0),
+                     f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): volume |V(h) - V(2h)| "
+                     f"(error ~ h^p, p >= 1), area |A(h) - A(2h)| / {GRID_FACTOR**2 - 1:g} (chord error of the mesh ~ h^2)")
 
 
 def combine(volume_mm3: float, area_mm2: float, components: Sequence[Component], details: dict[str, Any] | None = None) -> Budget:
@@ -573,7 +601,7 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
     # what the silhouette-vs-mesh comparison resolves: half a pixel of rasterisation, half a voxel's image
     voxel_px = float(hull.grid.size) / float(np.mean(um_per_px(P, mesh.vertices.mean(axis=0))))
     raster = 0.5 + 0.5 * voxel_px
-    sigma, edge_details = edge_sigma_px(measures[0], measures[2], raster_px=raster)
+    sigma, edge_details = edge_sigma_px(measures[0], measures[2], raster_px=raster, hard=is_hard(silhouettes))
     edge_details["comparison_resolution_px"] = raster
     t1 = time.perf_counter()
     edge, edge_num = edge_component(mesh, P, sigma)
