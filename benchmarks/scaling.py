@@ -8,7 +8,8 @@ its own. Prints wall time, evaluations, time per evaluation, peak memory (ru_max
 yaw / pitch errors against the simulator's truth (S.truth.json), then the growth exponent b of
 time ≈ a·N^b fitted over the ROI cases (b = 1: linear).
 
-Sessions are cached in ``--workdir`` (default /tmp/vastcal_scaling) and reused; the full run is long
+Sessions are cached in ``--workdir`` (default /tmp/vastcal_scaling) and reused, each step's log is
+written next to its session (``*.calibrate.log``); the full run is long
 (360 views: acquisition a few minutes, calibration a few minutes), so run subsets:
 
     python benchmarks/scaling.py --views 21 81            # the acceptance ratio time(81) / time(21)
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import os
 import resource
@@ -32,7 +34,12 @@ import numpy as np
 
 
 def _session(workdir: Path, views: int, full: bool, seed: int) -> tuple[Path, Path]:
-    tag = f"sim_s{seed}_v{views}_{'full' if full else 'roi'}"
+    """Session and truth paths; the name carries a hash of the rig configuration, so that a cached
+    session acquired under another config/simulated.yaml is not reused."""
+    from vastcal.config import dump_config
+
+    digest = hashlib.sha1(dump_config(_config(views, full, seed)).encode()).hexdigest()[:8]
+    tag = f"sim_s{seed}_v{views}_{'full' if full else 'roi'}_{digest}"
     return workdir / f"{tag}.h5", workdir / f"{tag}.truth.json"
 
 
@@ -99,6 +106,8 @@ def _run_step(step: str, views: int, full: bool, seed: int, workdir: Path) -> di
     if full:
         cmd.append("--_full")
     out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    session, _ = _session(workdir, views, full, seed)
+    session.with_name(f"{session.stem}.{step}.log").write_text(out.stderr)  # the step's INFO log
     if out.returncode != 0:
         raise SystemExit(f"{step} of {views} views failed:\n{out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -123,6 +132,9 @@ def main() -> None:
     a = ap.parse_args()
     a.workdir.mkdir(parents=True, exist_ok=True)
     if a._step:
+        import logging
+
+        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
         print(json.dumps(_step(a._step, a._case, a._full, a.seed, a.workdir)))
         return
     cases = [(v, False) for v in a.views] + [(v, True) for v in a.full_frame]
