@@ -215,11 +215,14 @@ class CalibrationResult:
 
     def summary(self) -> str:
         """A few human lines."""
+        from vastcal.uncertainty import drift_rms_deg  # one definition of the drift RMS everywhere (helper H3)
+
         d = self.delta_angle_deg
         where = f" → {self.session_path}:{self.run_name}" if self.run_name else ""
         return (f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
                 f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
-                f"roll − commanded: RMS {np.sqrt(np.mean(d ** 2)):.3f}°, max {np.max(np.abs(d)):.3f}°\n"
+                f"roll − commanded (views 1..N-1): RMS {drift_rms_deg(d)[0]:.3f}°, max {drift_rms_deg(d)[1]:.3f}°"
+                f"{' - undetermined by the images: the rolls follow the prior' if {'rolls', 'all'} & set(self.free) else ''}\n"
                 f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
                 f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB")
 
