@@ -208,3 +208,16 @@ def test_a_tail_out_of_frame_is_recorded_per_view_with_the_in_frame_hull() -> No
     assert all(f[:, -1].min() < 0.95 * np.median(f[:, 0]) for f in frames)  # the body is dark at the right edge
     _, t_in = _snap_all(3, [0.0], debris=0.0, bubbles=0.0)
     assert not t_in["specimen"]["tail_out_of_frame"] and t_in["frame_cut_views"] == [] and "hull_in_frame_volume_mm3" not in t_in
+
+
+def test_battery_overrides_and_colour_frames() -> None:
+    cfg = battery_config(8, fin_fold=False, debris=0.0)
+    assert cfg.simulation is not None and cfg.simulation.seed == 8 and not cfg.simulation.fin_fold and cfg.simulation.pectoral_fins
+    with pytest.raises(TypeError, match="fin_fold_heigth"):
+        battery_config(8, fin_fold_heigth=(1.0, 2.0))
+    src = _Angle()
+    cam = SimulatedCamera(cfg.optics, dataclasses.replace(cfg.camera, pixel_format="RGB8"), cfg.simulation, src)
+    with cam:
+        cam.start()
+        px = cam.snap(2.0).pixels
+    assert px.shape == (320, 1024, 3) and px.dtype == np.uint8 and px.min() < 100 < px.max()
