@@ -404,17 +404,17 @@ def html_text(data: ReportData, arrays: dict[str, Any]) -> str:
              + ("<ul>" + "".join(f"<li>{_e(r)}</li>" for r in reasons) + "</ul>" if reasons else
                 (" — every per-view check passed" if verdict == "ok" else "")) + "</div>",
              "<div class='big'>",
-             f"<div class='card'><div class='v'>{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}</div><div class='l'>volume, k = {_e(k)} "
+             f"<div class='card'><div class='v'>{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}</div><div class='l'>volume, k = {_num(k, 'g')} "
              f"(voxels inside all {_e(m.get('n_views'))} silhouettes × voxel volume: the value to cite)</div></div>",
              f"<div class='card'><div class='v'>{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}</div><div class='l'>surface area, "
-             f"k = {_e(k)} (smoothed marching-cubes mesh, {_e(m.get('n_mesh_faces'))} triangles)</div></div>",
+             f"k = {_num(k, 'g')} (smoothed marching-cubes mesh, {_e(m.get('n_mesh_faces'))} triangles)</div></div>",
              f"<div class='card'><div class='v'>{drift_value}</div><div class='l'>RMS calibrated − commanded angle (views 1…N−1): "
              f"<b>{_e(drift_state)}</b>{(' — ' + _e(drift.get('reason'))) if drift.get('reason') else ''}</div></div>",
              "</div>",
              "<h2>Uncertainty</h2>",
              (_budget_table(u) if u.get("components") else "<p class='note'>No uncertainty budget was stored with this measurement "
               "(measured by an older vastcal): the values carry no interval.</p>"),
-             f"<p class='note'>± is the expanded uncertainty U = k·u with k = {_e(k)} (about 95 % coverage for a normal distribution) of "
+             f"<p class='note'>± is the expanded uncertainty U = k·u with k = {_num(k, 'g')} (about 95 % coverage for a normal distribution) of "
              "the visual hull's volume and area. "
              + (f"Not evaluated, hence not in the interval: {_e(', '.join(u.get('not_evaluated', [])))}. " if u.get("not_evaluated") else "")
              + f"{_e(u.get('hull_bias', ''))}. {_e(m.get('volume_note', ''))}</p>",
