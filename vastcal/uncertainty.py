@@ -637,6 +637,8 @@ def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement
         hull: the :class:`~vastcal.reconstruct.HullResult` measured.
         measurement: its :class:`~vastcal.measure.Measurement`.
     """
+    import cv2
+
     from vastcal import qc
     from vastcal.errors import VastcalError
     from vastcal.session import read_attrs
@@ -652,7 +654,7 @@ def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement
     try:
         budget, result = assess(session.projections(), inputs.silhouettes, inputs.P, hull, measurement, spread, extra_flags=flags,
                                 samples=samples, missing_note=note)
-    except (VastcalError, ValueError, np.linalg.LinAlgError) as exc:
+    except (VastcalError, ValueError, np.linalg.LinAlgError, cv2.error) as exc:
         log.warning("%s: uncertainty and QC not evaluated (%s)", session.path, exc)
         b = combine(measurement.volume_mm3, measurement.surface_area_mm2,
                     [Component("all", None, None, "not evaluated", f"the assessment failed: {exc}")])
