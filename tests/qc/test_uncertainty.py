@@ -142,3 +142,27 @@ def test_kept_starts_of_equal_cost_make_their_own_line(tmp_path: Path, qc_views:
     line = next(c for c in m.uncertainty["components"] if c["name"] == "calibration (starts)")
     assert line["u_volume_mm3"] > 0 and "3 starts" in line["method"]
     assert m.uncertainty["details"]["starts_within_tolerance"] == 3
+
+
+def test_vastcal_info_shows_the_verdict(assessed: tuple[Path, object]) -> None:
+    from vastcal.info import format_summary, session_summary
+
+    path, _ = assessed
+    summary = session_summary(path)
+    assert summary["verdict"]["verdict"] == "ok" and summary["verdict"]["run"] == "run_000"
+    assert "\nverdict      ok (run_000)" in format_summary(summary)
+
+
+def test_a_failing_assessment_never_loses_the_measurement(tmp_path: Path, qc_views: PhantomViews,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    from vastcal.errors import AnalysisError
+    from vastcal.reconstruct import reconstruct_session
+
+    def boom(*a: object, **k: object) -> None:
+        raise AnalysisError("synthetic failure")
+
+    monkeypatch.setattr(U, "assess", boom)
+    path = make_session(tmp_path / "f.h5", qc_views, masks=True, cameras=True)
+    m = reconstruct_session(path, target_voxels=100_000, use_masks=True)
+    assert m.volume_mm3 > 0 and m.qc is None and m.uncertainty["not_evaluated"] == ["all"]
+    assert "not evaluated: all" in m.summary()
