@@ -379,7 +379,23 @@ def draw_specimen(sim: SimulationConfig, optics: OpticsConfig | None = None, cam
         dist = lumen_radius_um - support - wall_gap
         wall_offset = (dist * math.cos(wall_phi), dist * math.sin(wall_phi))
         features.update(wall_gap_um=wall_gap, wall_direction_deg=math.degrees(wall_phi))
+        pecs = tuple(_fold_against_wall(f, wall_offset, lumen_radius_um) for f in pecs)
     return Specimen(phantom, fold, pecs, wall_offset, features)
+
+
+def _fold_against_wall(fin: EllipsoidFeature, offset: tuple[float, float], lumen_radius_um: float) -> EllipsoidFeature:
+    """A pectoral fin shortened (its inner end kept) so that its outer end stays 2 µm inside the lumen."""
+    cy, cz = fin.centre_um[1], fin.centre_um[2]
+    ax, ay, az = fin.semi_axes_um
+    sign = 1.0 if cz > 0 else -1.0
+    inner = cz - sign * az
+    for _ in range(40):
+        tip = cz + sign * az
+        if math.hypot(offset[0] + cy, offset[1] + tip) + ay < lumen_radius_um - 2.0 or az < 3.0:
+            break
+        az *= 0.9
+        cz = inner + sign * az
+    return EllipsoidFeature(fin.name, (fin.centre_um[0], cy, cz), (ax, ay, az), fin.attenuation_per_um)
 
 
 def _shift(ph: Phantom, x_centre: float) -> Phantom:
