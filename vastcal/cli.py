@@ -436,6 +436,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         signum = getattr(exc, "signum", signal.SIGINT)
         _say("vastcal: interrupted" + (f" by {signal.Signals(signum).name}" if signum != signal.SIGINT else ""))
         return 128 + signum
+    except BrokenPipeError:  # the reader of stdout went away (`vastcal info S.h5 | head -3`): not an error of ours
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        except (OSError, ValueError):
+            pass
+        return 128 + getattr(signal, "SIGPIPE", 13)
     except (MemoryError, OSError, RuntimeError) as exc:
         what = _resource_exhausted(exc)
         if what is None:

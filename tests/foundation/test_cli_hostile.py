@@ -140,3 +140,12 @@ def test_output_checks_accept_what_may_be_written(tmp_path: Path) -> None:
     with pytest.raises(UserInputError, match="is a file, not a folder"):
         outputs.check_output_folder(tmp_path / "S.h5")
     assert (tmp_path / "S.h5").read_bytes() == b"old"
+
+
+def test_a_closed_stdout_pipe_ends_quietly_with_141(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    def reader_gone(args: object) -> int:
+        raise BrokenPipeError(errno.EPIPE, "Broken pipe")  # as print() raises under `vastcal info S.h5 | head -1`
+
+    monkeypatch.setattr(cli, "cmd_info", reader_gone)
+    assert cli.main(["info", "S.h5"]) == 128 + 13
+    assert "Traceback" not in capsys.readouterr().err
