@@ -379,7 +379,8 @@ def _resource_exhausted(exc: BaseException) -> str | None:
         if code in (errno.ENOSPC, errno.EDQUOT) or "No space left on device" in text or "errno = 28," in text or "Disk quota exceeded" in text:
             return "no space left on the device" + (f" writing {where}" if where else "") + "; free disk space and run the command again"
         if code == errno.EFBIG or "File too large" in text:
-            return "file too large for this file system" + (f" ({where})" if where else "")
+            return ("file size limit reached (ulimit -f, or the file system's largest file)" + (f" writing {where}" if where else "")
+                    + "; raise the limit or write elsewhere")
         if code == errno.ENOMEM:
             return "out of memory (the system refused an allocation); free memory or raise the limit (ulimit -v)"
         e = e.__cause__ or e.__context__
@@ -447,7 +448,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if what is None:
             raise
         _say(f"vastcal: error: {what}")
-        if "no space" in what or "too large" in what:
+        if "no space" in what or "file size limit" in what:
             _POISONED.append(exc)
             if argv is None:  # the program (not a library caller): end without freeing them
                 logging.shutdown()

@@ -8,8 +8,12 @@ import errno
 import os
 import signal
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from vastcal import cli, outputs
@@ -149,3 +153,24 @@ def test_a_closed_stdout_pipe_ends_quietly_with_141(monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr(cli, "cmd_info", reader_gone)
     assert cli.main(["info", "S.h5"]) == 128 + 13
     assert "Traceback" not in capsys.readouterr().err
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX resource limits")
+def test_a_real_write_limit_during_import_is_one_line_without_a_crash(tmp_path: Path) -> None:
+    """RLIMIT_FSIZE makes every write past 64 kB fail (EFBIG), as a full disk does (ENOSPC): a real
+    subprocess, so that h5py's failure to close the file (which segfaulted) is exercised too."""
+    import resource
+
+    (tmp_path / "imgs").mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(6):
+        cv2.imwrite(str(tmp_path / "imgs" / f"v{i}.png"), rng.integers(0, 4096, (128, 128)).astype(np.uint16))
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+
+    proc = subprocess.run([sys.executable, "-m", "vastcal.cli", "-q", "import", "imgs", "-o", "S.h5"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120, preexec_fn=limit)
+    assert proc.returncode == 1, (proc.returncode, proc.stderr)
+    assert _one_line(proc.stderr).startswith("vastcal: error: file size limit reached"), proc.stderr
+    assert not (tmp_path / "S.h5").exists()
