@@ -14,12 +14,17 @@ Outside [x_min, x_max] q is negative (the body is empty there).
 from __future__ import annotations
 
 import abc
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(400)
+
+@functools.cache
+def _gauss_legendre_400() -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and weights of the 400-point Gauss–Legendre rule on [-1, 1] (computed on first use)."""
+    return np.polynomial.legendre.leggauss(400)
 
 
 class RevolutionProfile(abc.ABC):
@@ -59,10 +64,11 @@ class RevolutionProfile(abc.ABC):
             if hi <= lo:
                 return 0.0
         edges = [lo, *sorted(b for b in self.breakpoints if lo < b < hi), hi]
+        nodes, weights = _gauss_legendre_400()
         total = 0.0
         for a, b in zip(edges, edges[1:]):
-            x = 0.5 * (b - a) * _GL_NODES + 0.5 * (a + b)
-            total += 0.5 * (b - a) * float(np.sum(_GL_WEIGHTS * f(x)))
+            x = 0.5 * (b - a) * nodes + 0.5 * (a + b)
+            total += 0.5 * (b - a) * float(np.sum(weights * f(x)))
         return total
 
     def volume_um3(self) -> float:
