@@ -2,11 +2,12 @@
 
 What is drawn (each switched by a key of ``simulation:``, see ``config/simulated.yaml``):
 
-* **the body** (``larva_varies``): age A uniform in ``age_dpf``; length L = 3.0 mm + 0.75 mm/day ·
+* **the body** (``larva_varies``): the shape of a real 3-dpf larva (:data:`ZF1_SHAPE`, varied);
+  age A uniform in ``age_dpf``; length L = 3.0 mm + 0.75 mm/day ·
   (A − 3) (±4 %), so 3.0 mm at 3 dpf and 4.5 mm at 5 dpf; dorso-ventral height 0.50–0.58 mm; the
   yolk bump and the dark yolk (μ 0.006–0.012 /µm: nearly opaque) shrink with age (mostly absorbed
   by 5 dpf); flattening (lateral/dorso-ventral)
-  0.68–0.82; tissue contrast — the edge transmission 0.62–0.85 and the tissue attenuation
+  0.60–0.75; tissue contrast — the edge transmission 0.62–0.85 and the tissue attenuation
   2.5–7·10⁻⁴ /µm — i.e. a dim to a clear larva. This is the **measured body**: the truth file's
   volume, area and visual hull are its own (:class:`~simulators.camera.phantom.Phantom`).
 * **the median fin fold** (``fin_fold``): a sheet 4–8 µm thick in the sagittal plane z = 0 of the
@@ -15,8 +16,8 @@ What is drawn (each switched by a key of ``simulation:``, see ``config/simulated
   body rises to H (``fin_fold_height_um``) over 20 % of the length. Beer–Lambert with
   μ = 0.006–0.012 /µm: seen face-on it transmits exp(−μ t) ≈ 0.93–0.98 (lighter than the body,
   darker than the background); seen edge-on it is a thin dark line. NOT part of the body.
-* **pectoral fins** (``pectoral_fins``): two thin (≈ 10 µm) ellipsoidal paddles beside the front of
-  the yolk, sticking out sideways 70–110 µm, μ = 0.006–0.012 /µm: they stick out of the silhouette
+* **pectoral fins** (``pectoral_fins``): two thin (≈ 10 µm) ellipsoidal paddles behind the head,
+  above the front of the yolk, sticking out sideways 70–110 µm, μ = 0.006–0.012 /µm: they stick out of the silhouette
   in dorsal and ventral views. NOT part of the body.
 * **melanophores** (``melanophores``, Poisson mean): flat dark ellipsoids (10–25 µm long,
   μ = 0.05–0.1 /µm) just under the skin — 40 % on the dorsal, 40 % on the ventral midline (they lie
@@ -36,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -229,36 +230,63 @@ def frame_x_edges_um(optics: OpticsConfig, camera: CameraConfig) -> tuple[float,
     return (roi.x - 0.5 - cx) * scale, (roi.x + roi.width - 0.5 - cx) * scale
 
 
+ZF1_SHAPE: dict[str, Any] = {"c0": 0.052, "k": 0.0, "bumps": ((2.023, 0.008, 0.073), (0.457, 0.198, 0.143), (0.077, 0.476, 0.085))}
+""":class:`LarvaProfile` parameters of a real 3-dpf larva: a least-squares fit (rms 0.004 L) of the
+dorso-ventral height profile — the largest of its 21 silhouettes, column by column, over its length —
+of the shared ZF1 masks (``../shared/data/zf_3dpf_s001/silhouettes``): a big head (u ≈ 0–0.1),
+the yolk at u ≈ 0.2, a trunk that thins to 0.03 L before the tip. With its 3.47 mm, 0.60 mm height and
+a lateral scale 0.6–0.65 it gives 0.24–0.26 mm³ and 3.1–3.2 mm² (published ZF1: 0.249 mm³, 3.24 mm²);
+the fixed 3 mm phantom (slender, 0.155 mm³) is kept for the existing tests."""
+
+
+def _fit_inside(profile: LarvaProfile, lateral: float, make: Callable[[float], tuple[EllipsoidFeature, ...]]) -> tuple[EllipsoidFeature, ...]:
+    """``make(shrink)`` for the largest shrink in 1, 0.9, … 0.4 whose ellipsoids all lie inside the body."""
+    for shrink in (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4):
+        feats = make(shrink)
+        if all(_inside(profile, lateral, f) for f in feats):
+            return feats
+    log.warning("larva features %s do not fit inside the body; left out", ", ".join(f.name for f in make(0.4)))
+    return ()
+
+
 def _larva_body(sim: SimulationConfig, rng: np.random.Generator, x_centre: float) -> tuple[Phantom, dict[str, Any]]:
-    """The body, eyes and yolk of a larva of drawn age (module docstring)."""
+    """The body, eyes and yolk of a larva of drawn age (module docstring; shape :data:`ZF1_SHAPE`
+    with the head ×0.85–1.15, the trunk bump ×0.7–1.3, the tail ×0.8–1.2, the yolk shrinking with age)."""
     a0, a1 = _check_range("age_dpf", sim.age_dpf, 2.0, 7.0)
     age = float(rng.uniform(a0, a1))
     length = (3000.0 + 750.0 * (age - 3.0)) * float(rng.uniform(0.96, 1.04))
     height = float(rng.uniform(500.0, 580.0))
-    lateral = float(rng.uniform(0.68, 0.82))
+    lateral = float(rng.uniform(0.6, 0.75))
     edge_t = float(rng.uniform(0.62, 0.85))
     mu_body = float(rng.uniform(2.5e-4, 7e-4))
     yolk_left = float(np.clip(1.0 - 0.4 * (age - 3.0), 0.15, 1.0))  # fraction of the 3-dpf yolk
     mu_yolk = float(rng.uniform(0.006, 0.012))  # a nearly opaque yolk, as in real brightfield frames
-    bumps = ((0.7, 0.12, 0.10), (0.25 + 0.65 * yolk_left, 0.33, 0.11), (0.10, 0.5, 0.2))
-    profile = LarvaProfile(length=length, max_diameter=height, bumps=bumps, x_centre=x_centre)
-    k = length / 3000.0
-    hk = height / 540.0
-    x_eye = profile.x_head + 0.137 * length
-    eyes = tuple(EllipsoidFeature(f"{side} eye", (x_eye, 0.0, sign * 80.0 * hk * lateral / 0.75), (75.0 * k**0.5, 55.0 * hk, 45.0 * hk), 0.02)
-                 for side, sign in (("left", 1.0), ("right", -1.0)))
-    feats = list(eyes)
-    x_yolk = profile.x_head + 0.34 * length
-    for shrink in (1.0, 0.85, 0.7, 0.55):
-        s = shrink * yolk_left**0.5
-        yolk = EllipsoidFeature("yolk", (x_yolk, 30.0 * hk, 0.0), (190.0 * k * s, 130.0 * hk * s, 130.0 * hk * s * lateral / 0.75), mu_yolk)
-        if _inside(profile, lateral, yolk):
-            feats.append(yolk)
-            break
-    feats = [f for f in feats if _inside(profile, lateral, f)]
-    ph = Phantom(profile, tuple(feats), body_attenuation_per_um=mu_body, edge_transmission=edge_t, lateral_scale=lateral, name="zebrafish-larva")
+    head, trunk, tail = (float(v) for v in rng.uniform([0.85, 0.7, 0.8], [1.15, 1.3, 1.2]))
+    (hh, hm, hw), (yh, ym, yw), (th, tm, tw) = ZF1_SHAPE["bumps"]
+    bumps = ((hh * head, hm, hw), (yh * (0.3 + 0.7 * yolk_left), ym, yw), (th * trunk, tm, tw))
+    profile = LarvaProfile(length=length, max_diameter=height, c0=ZF1_SHAPE["c0"] * tail, k=ZF1_SHAPE["k"], bumps=bumps, x_centre=x_centre)
+    L = length
+
+    def r_at(u: float) -> float:
+        return float(profile.radius_um(np.array([profile.x_head + u * L]))[0])
+
+    r_eye, r_yolk = r_at(0.075), r_at(ym)
+
+    def eyes(k: float) -> tuple[EllipsoidFeature, ...]:
+        a = (0.035 * L * k, 0.33 * r_eye * k, 0.25 * r_eye * k)
+        zc = lateral * r_eye - 1.1 * a[2] - 3.0
+        return tuple(EllipsoidFeature(f"{side} eye", (profile.x_head + 0.075 * L, 0.0, sign * zc), a, 0.02)
+                     for side, sign in (("left", 1.0), ("right", -1.0)))
+
+    def yolk(k: float) -> tuple[EllipsoidFeature, ...]:
+        k = k * (0.35 + 0.65 * yolk_left) ** 0.5
+        return (EllipsoidFeature("yolk", (profile.x_head + ym * L, 0.15 * r_yolk, 0.0), (0.1 * L * k, 0.7 * r_yolk * k, 0.7 * lateral * r_yolk * k), mu_yolk),)
+
+    feats = _fit_inside(profile, lateral, eyes) + _fit_inside(profile, lateral, yolk)
+    ph = Phantom(profile, feats, body_attenuation_per_um=mu_body, edge_transmission=edge_t, lateral_scale=lateral, name="zebrafish-larva")
     info = {"age_dpf": age, "length_um": length, "height_um": height, "lateral_scale": lateral, "edge_transmission": edge_t,
-            "body_attenuation_per_um": mu_body, "yolk_fraction": yolk_left, "yolk_attenuation_per_um": mu_yolk}
+            "body_attenuation_per_um": mu_body, "yolk_fraction": yolk_left, "yolk_attenuation_per_um": mu_yolk,
+            "shape_head_trunk_tail": [head, trunk, tail]}
     return ph, info
 
 
@@ -304,7 +332,7 @@ def _melanophores(profile: LarvaProfile, lateral: float, mean: float, rng: np.ra
 
 def _pectoral_fins(profile: LarvaProfile, lateral: float, rng: np.random.Generator) -> tuple[EllipsoidFeature, ...]:
     L = profile.length
-    x = profile.x_head + 0.27 * L
+    x = profile.x_head + 0.17 * L  # just behind the head, above the front of the yolk
     r = float(profile.radius_um(np.array([x]))[0])
     reach = float(rng.uniform(70.0, 110.0))
     long_ = float(rng.uniform(60.0, 90.0))
