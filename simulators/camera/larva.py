@@ -234,9 +234,10 @@ ZF1_SHAPE: dict[str, Any] = {"c0": 0.052, "k": 0.0, "bumps": ((2.023, 0.008, 0.0
 """:class:`LarvaProfile` parameters of a real 3-dpf larva: a least-squares fit (rms 0.004 L) of the
 dorso-ventral height profile — the largest of its 21 silhouettes, column by column, over its length —
 of the shared ZF1 masks (``../shared/data/zf_3dpf_s001/silhouettes``): a big head (u ≈ 0–0.1),
-the yolk at u ≈ 0.2, a trunk that thins to 0.03 L before the tip. With its 3.47 mm, 0.60 mm height and
-a lateral scale 0.6–0.65 it gives 0.24–0.26 mm³ and 3.1–3.2 mm² (published ZF1: 0.249 mm³, 3.24 mm²);
-the fixed 3 mm phantom (slender, 0.155 mm³) is kept for the existing tests."""
+the yolk at u ≈ 0.2, a trunk that thins to 0.03 L before the tip. At ZF1's 3.42 × 0.59 mm and a
+lateral scale 0.6–0.7 it gives 0.225–0.263 mm³ and 3.0–3.2 mm² (published ZF1: 0.249 mm³, 3.24 mm²;
+``benchmarks/fit_larva_shape.py`` re-does the fit); the fixed 3 mm phantom (slender, 0.155 mm³) is
+kept for the existing tests."""
 
 
 def _fit_inside(profile: LarvaProfile, lateral: float, make: Callable[[float], tuple[EllipsoidFeature, ...]]) -> tuple[EllipsoidFeature, ...]:
