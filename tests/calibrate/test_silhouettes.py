@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel, Gaussian
-from vastcal.calibrate.silhouettes import half_contrast_edges, specimen_maps, specimen_only, static_bands
+from vastcal.calibrate.silhouettes import half_contrast_edges, specimen_maps, specimen_only, static_bands, touches_frame_edge
 
 
 def _walls_and_blob(n: int = 12, h: int = 80, w: int = 200) -> np.ndarray:
@@ -67,3 +67,89 @@ def test_a_dark_rim_is_cut_at_half_its_own_contrast() -> None:
     assert abs(r - r_true) < 0.25
     flat_plateau = np.sqrt((half_contrast_edges(pf, t, plateau_px=0.0)[0] > 0.5).sum() / np.pi)  # no plateau: half of 1
     assert flat_plateau > r_true + 0.4
+
+
+# -- scenes of a larva in a capillary (issue 15): what the maps keep and drop --------------------------------
+
+_BG = 230.0
+
+
+def _absorbing_model() -> ColourModel:
+    """Grey model of a specimen at 45 % transmission on a background flattened to 1."""
+    return ColourModel(Gaussian(np.array([0.45]), np.array([[0.02]])), Gaussian(np.array([1.0]), np.array([[1e-4]])), 0.2, "grey")
+
+
+def _render(absorption: np.ndarray, blur_px: float = 1.0, seed: int = 0) -> np.ndarray:
+    """uint8 views (N, H, W) of absorption maps a (Beer–Lambert: I = I_bg·exp(−a)), blurred, with sensor noise."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for a in absorption:
+        img = cv2.GaussianBlur((_BG * np.exp(-a)).astype(np.float32), (0, 0), blur_px)
+        out.append(np.clip(img + rng.normal(0, 1.0, img.shape), 0, 255).astype(np.uint8))
+    return np.stack(out)
+
+
+def _body(h: int, w: int, centre: tuple[int, int], axes: tuple[int, int], a_body: float = 0.8) -> np.ndarray:
+    a = np.zeros((h, w), np.float32)
+    cv2.ellipse(a, centre, axes, 0, 0, 360, a_body, -1)
+    return a
+
+
+def test_a_translucent_fin_fold_is_dropped_and_the_body_kept() -> None:
+    """A fin fold: a sheet around the tail and past its tip whose absorption is a quarter of the body's."""
+    n, h, w = 6, 120, 300
+    views, truth = [], []
+    for i in range(n):
+        body = _body(h, w, (140, 60), (90, 14 + i % 3))
+        fold = np.zeros((h, w), np.float32)
+        cv2.ellipse(fold, (190, 60), (85, 26 + i % 3), 0, 0, 360, 0.2, -1)
+        views.append(np.maximum(body, fold))
+        truth.append(body > 0)
+    maps = specimen_maps(_absorbing_model(), _render(np.stack(views)))
+    for m, t in zip(maps > 0.5, truth):
+        assert (m & ~t).sum() < 0.08 * t.sum()  # the fold (as large as the body) is gone: at most ½ px around the body
+        assert (t & ~m).sum() < 0.03 * t.sum()  # the body is whole
+        assert not m[:, 235:].any()  # nothing past the tail tip
+
+
+def test_a_pale_interior_between_pigmented_rims_is_kept() -> None:
+    """A thin tail: dark rims and a pale core (notochord) — all body, however pale inside."""
+    n, h, w = 6, 100, 300
+    views = []
+    for i in range(n):
+        a = _body(h, w, (150, 50), (120, 12), a_body=1.0)
+        cv2.ellipse(a, (150, 50), (100, 7), 0, 0, 360, 0.15, -1)
+        views.append(a)
+    maps = specimen_maps(_absorbing_model(), _render(np.stack(views)))
+    inner = _body(h, w, (150, 50), (100, 7)) > 0
+    assert (maps[:, inner] > 0.5).all()
+
+
+def test_a_larva_against_a_tilted_wall_keeps_its_edge_and_the_walls_go() -> None:
+    """Two dark capillary walls across the frame, tilted by 4 px; in half the views the body touches the lower one."""
+    n, h, w = 8, 120, 300
+    views, bodies = [], []
+    for i in range(n):
+        a = np.zeros((h, w), np.float32)
+        for y0 in (20, 96):
+            cv2.line(a, (0, y0), (w - 1, y0 + 4), 1.2, 3)
+        touch = i % 2 == 0
+        body = _body(h, w, (150, 78 if touch else 60), (80, 16))
+        views.append(np.maximum(a, body))
+        bodies.append(body > 0)
+    maps = specimen_maps(_absorbing_model(), _render(np.stack(views)))
+    for i, (m, b) in enumerate(zip(maps > 0.5, bodies)):
+        assert not m[:, :40].any() and not m[:, 260:].any()  # the walls are cleared beyond the body
+        lost = b & ~m
+        assert lost.sum() < 0.04 * b.sum(), f"view {i}: {lost.sum()} body pixels lost"
+
+
+def test_a_specimen_cut_by_the_frame_is_kept_and_flagged() -> None:
+    """The tail runs out of the right edge in every view: the larva is not a static blob."""
+    n, h, w = 6, 100, 260
+    views = np.stack([_body(h, w, (200, 50), (90, 14 + i % 3)) for i in range(n)])
+    maps = specimen_maps(_absorbing_model(), _render(views))
+    assert ((maps > 0.5).sum(axis=(1, 2)) > 0.9 * (views > 0).sum(axis=(1, 2))).all()
+    assert touches_frame_edge(maps).all()
+    inside = np.stack([_body(h, w, (120, 50), (60, 12))] * n)
+    assert not touches_frame_edge(specimen_maps(_absorbing_model(), _render(inside))).any()

@@ -32,6 +32,8 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel
+from vastcal.calibrate.specimen_parts import single_specimen
+from vastcal.calibrate.translucent import drop_translucent
 
 log = logging.getLogger(__name__)
 
@@ -56,14 +58,18 @@ def static_bands(silhouettes: np.ndarray, *, views: float = STATIC_VIEWS, span: 
     return static.mean(axis=1) >= span, static.mean(axis=0) >= span
 
 
-def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_px: int = 3) -> np.ndarray:
+def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_px: int = 3,
+                  t: np.ndarray | None = None) -> np.ndarray:
     """Posteriors (N, H, W) with static bands and the static blobs cut by the frame's edge set to 0.
 
     Static bands (capillary walls and the strip beside them, :func:`static_bands`) are cleared in
-    every view, grown by one pixel. The specimen is framed whole but may touch a wall, so the
-    remaining thin lines are first removed from the blob test by an opening with a ``wall_px``-tall
-    vertical kernel (thin horizontal lines vanish, the body stays); every remaining region that
-    touches the frame's edge is a static blob and is cleared (grown by ``margin_px``).
+    every view, grown by one pixel — except, when the contrast ``t`` (N, H, W) of an absorbing
+    specimen is given, the walls are found as thin static lines (tilted or not) and cleared where the
+    static scene explains them (:func:`clear_wall_lines`: a larva lying against the wall keeps its edge). The specimen may touch a wall, so the remaining thin lines are first removed from the
+    blob test by an opening with a ``wall_px``-tall vertical kernel (thin horizontal lines vanish, the
+    body stays); every remaining region that touches the frame's edge is a static blob and is cleared
+    (grown by ``margin_px``) — unless it is the largest region of its view: that is the specimen running
+    out of the frame (a tail tip past the edge), which is kept (:func:`touches_frame_edge` reports it).
     """
     out = np.array(pf, dtype=np.float32, copy=True)
     if out.ndim == 3:
@@ -71,20 +77,105 @@ def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_
         if rows.any() or cols.any():
             rows = cv2.dilate(rows.astype(np.uint8)[:, None], np.ones((3, 1), np.uint8))[:, 0] > 0
             cols = cv2.dilate(cols.astype(np.uint8)[None, :], np.ones((1, 3), np.uint8))[0] > 0
-            out[:, rows, :] = 0.0
             out[:, :, cols] = 0.0
-            log.info("static bands cleared: %d rows, %d columns", int(rows.sum()), int(cols.sum()))
+            if t is None:
+                out[:, rows, :] = 0.0
+            log.info("static bands: %d rows, %d columns", int(rows.sum()), int(cols.sum()))
+        if t is not None:
+            clear_wall_lines(out, np.asarray(t, np.float32), level=level, wall_px=wall_px)
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (1, wall_px))
     grow = np.ones((2 * margin_px + 1,) * 2, np.uint8)
     for p in out.reshape((-1,) + out.shape[-2:]):
         body = cv2.morphologyEx((p > level).astype(np.uint8), cv2.MORPH_OPEN, kernel)
-        n, labels = cv2.connectedComponents(body, connectivity=8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(body, connectivity=8)
         edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
         edge = edge[edge > 0]
+        if n > 1:
+            edge = edge[edge != 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))]  # the specimen itself stays
         if edge.size:
             blobs = cv2.dilate(np.isin(labels, edge).astype(np.uint8), grow) > 0
             p[blobs] = 0.0
     return out
+
+
+def wall_lines(static: np.ndarray, *, wall_px: int = 15, span: float = 0.5) -> list[tuple[float, float, float]]:
+    """The capillary's walls: thin static lines along the frame's rows, as (a, b, half-thickness) of y = a + b·x (px).
+
+    ``static`` (H, W) bool marks the pixels that are specimen-coloured in (almost) every view. A wall
+    is a connected part of it thinner than ``wall_px`` across (what an opening with a ``wall_px``-tall
+    vertical kernel removes — the static core of a specimen near the axis is thicker and stays) that
+    runs along at least ``span`` of the frame's width; where a specimen filling the capillary touches
+    it, it is broken, so the line fitted to the longer part stands for the whole wall. It may be tilted
+    (a pitched axis): no row is assumed. Parts on one line are merged.
+    """
+    st = np.asarray(static, bool)
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (1, wall_px))
+    thin = st & ~(cv2.morphologyEx(st.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(thin.astype(np.uint8), connectivity=8)
+    w = st.shape[1]
+    lines: list[tuple[float, float, float]] = []
+    for k in sorted(range(1, n), key=lambda k: -stats[k, cv2.CC_STAT_WIDTH]):
+        if stats[k, cv2.CC_STAT_WIDTH] < span * w:
+            break
+        ys, xs = np.nonzero(labels == k)
+        b, a = np.polyfit(xs.astype(float), ys.astype(float), 1)
+        half = max(1.0, float(np.percentile(np.abs(ys - (a + b * xs)), 95)))
+        xc = 0.5 * (w - 1)
+        if any(abs((a + b * xc) - (a2 + b2 * xc)) <= half + h2 + 1.0 for a2, b2, h2 in lines):
+            continue
+        lines.append((float(a), float(b), half))
+    return lines
+
+
+def clear_wall_lines(pf: np.ndarray, t: np.ndarray, *, level: float = 0.5, wall_px: int = 15,
+                     views: float = STATIC_VIEWS) -> int:
+    """Clear the capillary's walls from ``pf`` (N, H, W, in place) where the static scene explains them.
+
+    The capillary is a straight, view-invariant structure: each wall (:func:`wall_lines`) is a line
+    y = a + b·x fitted to its pixels, and the *static scene* beside it is its contrast profile across
+    the line — for every ½-px step of distance from the line, the lower quartile of the contrast over
+    all views and along the whole line (the specimen only adds absorption, and covers a wall along
+    part of its length, in some views). Within the wall's thickness again on either side (the dim strip
+    of lumen beside it), a pixel is cleared when the static profile there is at least half the wall's
+    darkest (the glass, inside the line's half-contrast edge) or when the view is not darker than the
+    static scene by a quarter of the specimen's mean contrast (Δt < ¼: a pixel the specimen half covers
+    shows half its rim's contrast, and a thin rim's contrast is about half the mean), or when it belongs to no vertical run
+    of the view's map as long as the near zone is wide (a strip along the wall). What remains is a
+    specimen lying against the wall: its edge then ends at the wall's half-contrast edge. Returns the
+    number of walls.
+    """
+    n, h, w = pf.shape
+    static = (pf > level).mean(axis=0) >= views
+    walls = wall_lines(static, wall_px=wall_px)
+    xx = np.arange(w, dtype=np.float64)
+    yy = np.arange(h, dtype=np.float64)[:, None]
+    for a, b, half in walls:
+        reach = half + 2.0 * half + 2.0
+        d = yy - (a + b * xx)[None, :]  # (H, W) signed distance from the line, px (rows)
+        near = np.abs(d) <= reach
+        bins = np.round(2.0 * d[near]).astype(int)  # ½-px steps
+        vals = t[:, near]  # (N, M)
+        lo = bins.min()
+        profile = np.full(bins.max() - lo + 1, np.nan)
+        for k in np.unique(bins):
+            sel = bins == k
+            profile[k - lo] = np.percentile(vals[:, sel], 25)
+        prof = profile[bins - lo]
+        glass = prof >= 0.5 * float(np.nanmax(profile))
+        cleared = glass[None, :] | ((vals - prof[None, :]) < 0.25)
+        sub = pf[:, near]
+        sub[cleared] = 0.0
+        pf[:, near] = sub
+        # What is left beside the wall must reach away from it like a body does: strips along the wall
+        # thinner than the near zone (the lumen there is dimmer than the line's profile at one end of
+        # the frame, say) are not a specimen against the wall.
+        k = int(2 * np.ceil(reach) + 1)
+        tall = cv2.getStructuringElement(cv2.MORPH_RECT, (1, k))
+        for i in range(n):
+            keep = cv2.morphologyEx((pf[i] > level).astype(np.uint8), cv2.MORPH_OPEN, tall) > 0
+            pf[i][near & (pf[i] > level) & ~keep] = 0.0
+        log.info("capillary wall y = %.1f %+.4f x cleared (±%.1f px)", a, b, reach)
+    return len(walls)
 
 
 def contrast(model: ColourModel, f: np.ndarray) -> np.ndarray:
@@ -100,7 +191,7 @@ def contrast(model: ColourModel, f: np.ndarray) -> np.ndarray:
 
 
 def half_contrast_edges(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, plateau_px: float = 2.0,
-                        level: float = 0.5) -> np.ndarray:
+                        level: float = 0.5, soft: bool = False, forbid: np.ndarray | None = None) -> np.ndarray:
     """Posteriors with the silhouettes' rims moved in to the local half-contrast point (module docstring).
 
     A blurred edge rises from the background (contrast 0) to the specimen's value just inside it —
@@ -111,25 +202,74 @@ def half_contrast_edges(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, 
     plateau_px`` of it (the global 1 where there are none, e.g. at a thin tip); pixels within
     ``band_px`` of the boundary whose contrast ``t`` is below half their plateau are set to 0.
     Deeper pale parts of the specimen (a clear fin inside the outline) are kept.
+
+    ``soft``: the rim's pixels (the band inside, and one pixel outside the silhouette unless ``forbid``
+    (same shape as ``pf``) marks it as cleared by an earlier rule) get p = t / (their plateau), clipped
+    to [0, 1] — the fraction of the edge's contrast they show, i.e. of the pixel the specimen covers
+    when the blur is short. The same pixels are in or out (p ≥ ½ ⟺ t ≥ ½ plateau), but the bilinear
+    sampling of the reconstruction and the coherence cost then finds the edge between pixel centres
+    instead of on a pixel boundary (a quantisation of ±½ px per view, which biases the narrowest views'
+    hull: a 1-px strip of a 60-px-wide view is 1.7 % of its width).
     """
     out = np.array(pf, dtype=np.float32, copy=True)
     flat_p = out.reshape((-1,) + out.shape[-2:])
     flat_t = np.asarray(t, np.float32).reshape(flat_p.shape)
     reach = int(np.ceil(band_px + plateau_px))
     box = (2 * reach + 1, 2 * reach + 1)
-    for p, tt in zip(flat_p, flat_t):
+    flat_f = None if forbid is None else np.asarray(forbid, bool).reshape(flat_p.shape)
+    cross = np.ones((3, 3), np.uint8)
+    for k, (p, tt) in enumerate(zip(flat_p, flat_t)):
         inside = (p > level).astype(np.uint8)
         depth = cv2.distanceTransform(inside, cv2.DIST_L2, 3)
         ring = ((depth > band_px) & (depth <= band_px + plateau_px)).astype(np.float32)
         total = cv2.boxFilter(ring * tt, -1, box, normalize=False, borderType=cv2.BORDER_CONSTANT)
         count = cv2.boxFilter(ring, -1, box, normalize=False, borderType=cv2.BORDER_CONSTANT)
-        plateau = np.where(count > 0.5, total / np.maximum(count, 1.0), 1.0)
-        p[(inside > 0) & (depth <= band_px) & (tt < 0.5 * np.clip(plateau, 0.2, 3.0))] = 0.0
+        plateau = np.clip(np.where(count > 0.5, total / np.maximum(count, 1.0), 1.0), 0.2, 3.0)
+        rim = (inside > 0) & (depth <= band_px)
+        if not soft:
+            p[rim & (tt < 0.5 * plateau)] = 0.0
+            continue
+        outer = (cv2.dilate(inside, cross) > 0) & (inside == 0)
+        if flat_f is not None:
+            outer &= ~flat_f[k]
+        # the outer pixel's plateau is its inside neighbours': spread the rim's plateau out by one pixel
+        num = cv2.dilate(np.where(rim, plateau, 0.0).astype(np.float32), cross)
+        frac = np.clip(tt / np.where(outer, np.maximum(num, 0.2), plateau), 0.0, 1.0).astype(np.float32)
+        p[rim | outer] = frac[rim | outer]
     return out
 
 
+def absorbing(model: ColourModel) -> bool:
+    """True when the specimen is darker than its background (transmitted light: Beer–Lambert contrast)."""
+    return float(np.sum(model.fg.mean)) < float(np.sum(model.bg.mean))
+
+
 def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 3.0) -> np.ndarray:
-    """The specimen's probability maps (N, H, W) float32: posteriors → :func:`specimen_only` → :func:`half_contrast_edges`."""
+    """The specimen's probability maps (N, H, W) float32.
+
+    Posteriors → :func:`specimen_only` → (absorbing specimens: :func:`.translucent.drop_translucent`)
+    → :func:`half_contrast_edges` (soft rims for absorbing specimens) → (absorbing specimens:
+    :func:`.specimen_parts.single_specimen`, the parts no rigid body explains dropped). ``band_px`` is the rim band in
+    pixels of these images (3 px of the full frame; the calibration passes 3 / its downsampling
+    factor), and sets the scale of every other pixel length.
+    """
     f = model.features(images)  # once: the background flattening is the costly part
-    pf = specimen_only(np.exp(model.log_foreground_probability_of_features(f)))
-    return half_contrast_edges(pf, contrast(model, f), band_px=band_px)
+    t = contrast(model, f)
+    raw = np.exp(model.log_foreground_probability_of_features(f))
+    if not (absorbing(model) and raw.ndim == 3):
+        return half_contrast_edges(specimen_only(raw), t, band_px=band_px)
+    pf = drop_translucent(specimen_only(raw, t=t), t, band_px=band_px)
+    pf = half_contrast_edges(pf, t, band_px=band_px, soft=True, forbid=(raw > 0.5) & (pf <= 0.5))
+    return single_specimen(pf, tol_px=2.0 * band_px / 3.0)
+
+
+def touches_frame_edge(maps: np.ndarray, level: float = 0.5) -> np.ndarray:
+    """Per view (N,) bool: the specimen map reaches the frame's outermost row or column.
+
+    A specimen cut by the frame (a tail tip past the edge) is kept in the maps (:func:`specimen_only`),
+    but its hull is then only the part every view sees: volume and area are lower bounds.
+    """
+    m = np.asarray(maps)
+    m = m[None] if m.ndim == 2 else m
+    inside = m > level
+    return inside[:, 0, :].any(axis=1) | inside[:, -1, :].any(axis=1) | inside[:, :, 0].any(axis=1) | inside[:, :, -1].any(axis=1)

@@ -1,0 +1,124 @@
+"""Translucent appendages out of the specimen maps: the fin fold and the fins are not the body.
+
+Physics (transmitted light, Beer–Lambert): a pixel's absorption is the line integral of the
+attenuation along its ray, so its contrast against the background grows with the thickness of tissue
+crossed. A larva's median fin fold and pectoral fins are sheets a few µm thick of nearly clear
+tissue; the body beside them is tens to hundreds of µm thick and pigmented. Their contrast is a
+small fraction of the body's next to them, over a region many pixels wide — whereas the body's own
+contrast, blurred by the optics, falls from its plateau to zero within a few pixels of its outline.
+
+The rule: a pixel is *body core* when its (lightly smoothed) contrast reaches ``fraction`` (½, the
+half-contrast point of :func:`.silhouettes.half_contrast_edges`) of the **body reference** around
+it — the highest smoothed contrast of the specimen within ``reach`` pixels, at most the specimen's
+mean contrast. Holes of the kept region
+(pale regions the body encloses: a swim bladder, the clear yolk seen edge-on) are filled, and so is
+everything between the core's first and last pixel of a column (a column images one slice across the
+axis, and a slice of the body projects to one interval: a pale notochord between two pigmented rims
+is body). Specimen
+pixels farther than ``band_px`` from the core are dropped; the rim within the band is left to the
+half-contrast rule. A fin wider than the band is therefore dropped, the body's blurred rim is kept.
+
+``reach`` is the body's own scale: the median half-height of the specimen over the columns where
+it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
+farther than that from the body is cut off from it and left as a separate part; see
+:mod:`.specimen_parts`). The rule applies only to an absorbing specimen (darker than its
+background); a bright specimen on a dark background (a statue on a turntable) has no such physics
+and its maps are left alone.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+log = logging.getLogger(__name__)
+
+#: The core is where the contrast reaches this fraction of the body reference (the half-contrast point).
+CORE_FRACTION = 0.5
+
+
+def body_reach_px(inside: np.ndarray, *, minimum: float = 6.0) -> float:
+    """The body's half-height, px: the median over the columns holding specimen of half its pixel count.
+
+    Args:
+        inside: (N, H, W) bool maps of one revolution (the long axis along the image rows).
+        minimum: lower bound of the result, px.
+    """
+    cols = np.asarray(inside, bool).sum(axis=-2).astype(float)  # (N, W) specimen pixels per column
+    filled = cols[cols > 0]
+    if filled.size == 0:
+        return minimum
+    return max(minimum, 0.5 * float(np.median(filled)))
+
+
+def body_reference(t: np.ndarray, inside: np.ndarray, reach_px: float, smooth_px: float) -> np.ndarray:
+    """Highest smoothed contrast of the specimen within ``reach_px`` of every pixel, (H, W) float32.
+
+    ``t`` (H, W) is the contrast (0 background, 1 the specimen's mean colour), ``inside`` (H, W) bool
+    the specimen. The contrast is capped at the specimen's mean (t = 1: dark organs — eyes, pigment — do
+    not raise the reference of the pale body around them) and smoothed (Gaussian σ ``smooth_px``)
+    before the maximum, so that one dark speck does not set the reference of its neighbourhood either.
+    """
+    ts = cv2.GaussianBlur(np.where(inside, np.minimum(t, 1.0), 0.0).astype(np.float32), (0, 0), max(smooth_px, 0.3))
+    r = max(1, int(round(reach_px)))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    return cv2.dilate(ts, disc)
+
+
+def between_in_columns(core: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels between the first and the last pixel of one connected part of the core in their column.
+
+    Each column images one slice across the rotation axis (the long axis runs along the rows), and a
+    slice of the body projects to one interval: whatever lies between its two rims belongs to it,
+    however pale (the notochord, the clear interior of a thin tail).
+    """
+    c = np.asarray(core, bool)
+    out = np.zeros_like(c)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(c.astype(np.uint8), connectivity=8)
+    for k in range(1, n):  # per connected part: a gap between two separate things is not filled
+        x, y, w, h = stats[k, :4]
+        part = labels[y:y + h, x:x + w] == k
+        any_ = part.any(axis=0)
+        first = np.where(any_, np.argmax(part, axis=0), h)
+        last = np.where(any_, h - 1 - np.argmax(part[::-1], axis=0), -1)
+        rows = np.arange(h)[:, None]
+        out[y:y + h, x:x + w] |= (rows >= first[None, :]) & (rows <= last[None, :])
+    return out
+
+
+def drop_translucent(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, level: float = 0.5,
+                     fraction: float = CORE_FRACTION, reach_px: float | None = None) -> np.ndarray:
+    """Posteriors (N, H, W) with the specimen's translucent sheets set to 0 (module docstring).
+
+    Args:
+        pf: (N, H, W) specimen posteriors (walls and static blobs already cleared).
+        t: (N, H, W) contrast, 0 at the background, 1 at the specimen's mean colour.
+        band_px: the rim band kept around the core (the blur's reach), px of these maps.
+        level: posterior level of the specimen.
+        fraction: core threshold as a fraction of the body reference.
+        reach_px: radius of the body reference, px (default :func:`body_reach_px`).
+    """
+    out = np.array(pf, dtype=np.float32, copy=True)
+    flat_p = out.reshape((-1,) + out.shape[-2:])
+    flat_t = np.asarray(t, np.float32).reshape(flat_p.shape)
+    inside_all = flat_p > level
+    reach = body_reach_px(inside_all) if reach_px is None else float(reach_px)
+    smooth = band_px / 3.0  # one pixel of the full frame
+    grow = max(1, int(np.ceil(band_px / 3.0)))  # one pixel of the full frame: the core's edge is already at half contrast
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+    dropped = 0
+    for p, tt, inside in zip(flat_p, flat_t, inside_all):
+        if not inside.any():
+            continue
+        ref = body_reference(tt, inside, reach, smooth)
+        ts = cv2.GaussianBlur(tt, (0, 0), max(smooth, 0.3))
+        core = inside & (ts >= fraction * ref) & (ref > 0)
+        keep = ndimage.binary_fill_holes((cv2.dilate(core.astype(np.uint8), kernel) > 0) | between_in_columns(core))
+        gone = inside & ~keep
+        dropped += int(gone.sum())
+        p[gone] = 0.0
+    log.info("translucent parts dropped: %d px over %d views (body reach %.1f px)", dropped, flat_p.shape[0], reach)
+    return out
