@@ -21,6 +21,7 @@ import re
 import signal
 import sys
 import threading
+import traceback
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -398,6 +399,31 @@ def _quiet_unraisable(unraisable: Any) -> None:
     log.debug("ignored while releasing %r: %s", unraisable.object, unraisable.exc_value)
 
 
+EXIT_DAMAGED = 2
+"""Exit code when a session's contents are not what vastcal wrote (as for any bad input)."""
+EXIT_INTERNAL = 70
+"""Exit code of an error vastcal did not anticipate (BSD sysexits EX_SOFTWARE)."""
+
+
+def _unexpected(exc: BaseException, args: argparse.Namespace) -> int:
+    """One line for an exception no check anticipated; ``-v`` re-raises it for the traceback.
+
+    An exception raised while h5py was reading a session means the file does not hold what vastcal
+    wrote there (a damaged or hand-edited session): that is bad input, named as such.
+    """
+    if getattr(args, "verbose", 0):
+        raise exc
+    first = (str(exc).strip().splitlines() or [""])[0][:200]
+    session = getattr(args, "session", None) or getattr(args, "resume", None)
+    frames = traceback.extract_tb(exc.__traceback__)
+    if session and any("/h5py/" in f.filename or f.filename.endswith("session.py") for f in frames):
+        _say(f"vastcal: error: {session}: damaged session: cannot read what vastcal expects there ({type(exc).__name__}: {first})")
+        return EXIT_DAMAGED
+    where = f" on {session}" if session else ""
+    _say(f"vastcal: error: internal error{where} ({type(exc).__name__}: {first}); run again with -v for the traceback and report it")
+    return EXIT_INTERNAL
+
+
 def _say(line: str) -> None:
     """Print one line to stderr; a terminal that went away (SIGHUP, closed pipe) is ignored."""
     line = " ".join(line.split("\n"))
@@ -446,7 +472,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (MemoryError, OSError, RuntimeError) as exc:
         what = _resource_exhausted(exc)
         if what is None:
-            raise
+            return _unexpected(exc, args)
         _say(f"vastcal: error: {what}")
         if "no space" in what or "file size limit" in what:
             _POISONED.append(exc)
@@ -455,6 +481,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 sys.stdout.flush()
                 os._exit(1)
         return 1
+    except Exception as exc:  # noqa: BLE001 — the last resort: one line, never a traceback (-v shows it)
+        return _unexpected(exc, args)
     finally:
         sys.unraisablehook = hook
         for sig, handler in previous.items():

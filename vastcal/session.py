@@ -247,26 +247,31 @@ class SessionWriter:
             h5 = h5py.File(tmp, "w", libver="latest")
             try:
                 cls._layout(h5, tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {})
-                if not live:
-                    return cls(h5, p, lock=lock, staged_from=tmp, replace=force, durable=False)
-                h5.close()
             except BaseException:
                 h5.close()
                 tmp.unlink(missing_ok=True)
                 raise
-            place_atomically(tmp, p, replace=force)  # the empty skeleton appears in one step
-            return cls._open_live(p, lock, durable)
+            if not live:
+                return cls(h5, p, lock=lock, staged_from=tmp, replace=force, durable=False)
+            return cls._go_live(h5, tmp, p, lock, durable, replace=force)
         except BaseException:
             lock.release()
             raise
 
     @classmethod
-    def _open_live(cls, p: Path, lock: PathLock, durable: bool) -> "SessionWriter":
-        h5 = h5py.File(p, "r+", libver="latest")
+    def _go_live(cls, h5: h5py.File, tmp: Path, p: Path, lock: PathLock, durable: bool, replace: bool) -> "SessionWriter":
+        """Switch the finished skeleton ``tmp`` to SWMR writing, then rename it to ``p``.
+
+        The file appears under its name only once it is in SWMR mode, so no reader (and no
+        resume) can ever meet it in the one-write window between "open for writing" and "SWMR".
+        """
         try:
+            h5.flush()
             h5.swmr_mode = True
+            place_atomically(tmp, p, replace=replace)
         except BaseException:
             h5.close()
+            tmp.unlink(missing_ok=True)
             raise
         return cls(h5, p, lock=lock, durable=durable)
 
@@ -359,19 +364,19 @@ class SessionWriter:
                     raise OutputExistsError(f"{p}: the session is complete (exit_status success); nothing to resume")
                 n = src.n_views
                 tmp = p.with_name(f".{p.name}.partial")
-                cls.rebuild(src, tmp, ending=src.stop_record or {"exit_status": "incomplete", "reason": "the writer was killed",
-                                                                 "views_written": n})
-            place_atomically(tmp, p, replace=True)
+                h5 = cls.rebuild(src, tmp, ending=src.stop_record or {"exit_status": "incomplete", "reason": "the writer was killed",
+                                                                       "views_written": n}, keep_open=True)
             log.info("%s: resuming after %d committed views", p, n)
-            return cls._open_live(p, lock, durable)
+            return cls._go_live(h5, tmp, p, lock, durable, replace=True)
         except BaseException:
             lock.release()
             raise
 
     @classmethod
-    def rebuild(cls, src: "Session", tmp: Path, ending: dict[str, Any] | None = None) -> None:
-        """Write a closed copy of ``src`` at ``tmp``: its committed views (CRC-checked, bit for bit),
+    def rebuild(cls, src: "Session", tmp: Path, ending: dict[str, Any] | None = None, keep_open: bool = False) -> h5py.File | None:
+        """Write a copy of ``src`` at ``tmp``: its committed views (CRC-checked, bit for bit),
         masks, cameras, stage runs and history, plus ``ending`` appended to the resume history.
+        Returns the open file when ``keep_open``, else closes it and returns None.
 
         Raises:
             SessionCorruptError: a committed frame fails its checksum.
@@ -403,7 +408,10 @@ class SessionWriter:
             writer._set_committed(n)
             if src.stop_record and not ending:
                 out[VASTCAL]["stop_record"][()] = np.bytes_(json.dumps(src.stop_record, default=_json_default).encode())
+            if keep_open:
+                return out
             out.close()
+            return None
         except BaseException:
             out.close()
             tmp.unlink(missing_ok=True)
@@ -537,7 +545,10 @@ class SessionWriter:
 
 def _json_default(v: Any) -> Any:
     if isinstance(v, np.generic):
-        return v.item()
+        item = v.item()
+        if isinstance(item, np.generic):  # long double, complex long double …: no Python twin
+            return float(item.real) if np.issubdtype(item.dtype, np.number) else str(item)
+        return item
     if isinstance(v, np.ndarray):
         return v.tolist()
     return str(v)
@@ -651,6 +662,20 @@ class Session:
             raise NotASessionError(f"{p}: damaged session: pixel size {ps} µm; expected positive numbers")
         self.plan  # noqa: B018
         self.start_record  # noqa: B018
+        n_proj = int(np.count_nonzero(keys[:n] == 0))
+        vc = h5[VASTCAL]
+        if "cameras" in vc:
+            _check_cameras(p, "/entry/vastcal/cameras/P", vc["cameras"]["P"], n_proj)
+        if "masks" in vc:
+            m = vc["masks"]
+            if m.ndim != 3 or m.shape[0] < n_proj or m.shape[1:] != data.shape[1:3]:
+                raise NotASessionError(f"{p}: damaged session: /entry/vastcal/masks is {m.shape}; expected {n_proj} x {data.shape[1]} x {data.shape[2]}")
+        for stage in STAGE_GROUPS:
+            for name, run in (vc[stage].items() if stage in vc else ()):
+                if not isinstance(run, h5py.Group):
+                    raise NotASessionError(f"{p}: damaged session: /entry/vastcal/{stage}/{name} is not a group")
+                if stage == "calibration" and "P" in run:
+                    _check_cameras(p, f"/entry/vastcal/{stage}/{name}/P", run["P"], n_proj)
 
     def verify(self) -> None:
         """Check every committed frame against its CRC-32 (schema 2 sessions).
@@ -947,6 +972,20 @@ class Session:
         log.debug("stored results in %s", self.path)
 
 
+def _check_cameras(p: Path, where: str, ds: Any, n: int) -> None:
+    """Cameras must be (n, 3, 4), finite, with a full-rank left 3 x 3 block."""
+    if not isinstance(ds, h5py.Dataset) or ds.dtype.kind not in "fi" or ds.shape != (n, 3, 4):
+        shape = getattr(ds, "shape", "?")
+        raise NotASessionError(f"{p}: damaged session: {where} is {shape}; expected {n} x 3 x 4 numbers")
+    P = ds[...].astype(float)
+    if not np.all(np.isfinite(P)):
+        raise NotASessionError(f"{p}: damaged session: {where} holds NaN or infinite values")
+    with np.errstate(all="ignore"):
+        det = np.linalg.det(P[:, :, :3])
+    if not np.all(np.isfinite(det)) or np.any(np.abs(det) < 1e-300):
+        raise NotASessionError(f"{p}: damaged session: {where} holds a degenerate camera (singular 3 x 3 block)")
+
+
 def _put(ds: h5py.Dataset, i: int, value: Any) -> None:
     """Set element ``i`` of a 1-D dataset, growing it to ``i + 1`` elements if needed."""
     if ds.shape[0] < i + 1:
@@ -962,7 +1001,10 @@ def _decode_json(v: Any) -> Any:
         except ValueError:
             return v
     if isinstance(v, np.generic):
-        return v.item()
+        item = v.item()
+        if isinstance(item, np.generic):  # long double, complex long double …: no Python twin
+            return float(item.real) if np.issubdtype(item.dtype, np.number) else str(item)
+        return item
     if isinstance(v, np.ndarray):
         return v.tolist()
     return v
