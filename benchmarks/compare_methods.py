@@ -50,9 +50,13 @@ def _truth_session(tmp: Path, name: str, folder: Path, cameras: Path, n: int, of
     return s, true_rolls
 
 
-def _angle_errors(theta: np.ndarray, true_rolls: np.ndarray) -> tuple[float, float]:
+def _gauge_free(theta: np.ndarray, true_rolls: np.ndarray) -> np.ndarray:
     err = (theta[3:] - theta[3]) - (true_rolls - true_rolls[0])
-    err = err - np.median(err)  # gauge-free: a common roll of every view is unobservable
+    return err - np.median(err)  # gauge-free: a common roll of every view is unobservable
+
+
+def _angle_errors(theta: np.ndarray, true_rolls: np.ndarray) -> tuple[float, float]:
+    err = _gauge_free(theta, true_rolls)
     return float(np.mean(np.abs(err))), float(np.max(np.abs(err)))
 
 
@@ -82,6 +86,9 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
             mean, mx = _angle_errors(r.theta_deg, true_rolls)
             print(f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
                   f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f}", flush=True)
+            e, e0 = _gauge_free(r.theta_deg, true_rolls), _gauge_free(theta0, true_rolls)
+            worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
+            print(f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}")
 
 
 def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) -> None:
