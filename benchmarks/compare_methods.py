@@ -7,7 +7,7 @@ as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel samp
   cost, θ, and the RMS spread of the rolls over the seeds. VR uses the authors' hand masks.
 * ETH David (true cameras, pixel origin 0.5): 10 views offset +10°, rolls free in ±15°, no prior, the
   common-offset scan (0.5°); error against the truth with the common offset removed (gauge-free).
-* dinoRing (true cameras in metres, 0-based): views 1–10 offset +10°, rolls free in ±15°, no prior,
+* dinoRing (true cameras in metres, 0-based; views 1–47: the 48th repeats the 2nd's position): views 1–10 offset +10°, rolls free in ±15°, no prior,
   offset scan 0.5°; gauge-free error.
 
 For the ground-truth sets each run also scores the truth on its own final cost (the judge: the finest
@@ -64,9 +64,16 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
     if name == "david":
         folder = DATA / "eth_david"
         s, true_rolls = _truth_session(tmp, name, folder, folder, 18, np.arange(1, 18, 2)[:9].tolist() + [16], 0.5, None)
-    else:
+    else:  # view 48 repeats view 2's position (365°); the importer refuses duplicate angles, so views 1-47 are used
         folder = DATA / "middlebury_dinoRing"
-        s, true_rolls = _truth_session(tmp, name, folder, folder / "dinoR_par.txt", 48, list(range(1, 11)), 0.0, "m")
+        images = tmp / "dino47"
+        images.mkdir()
+        for f in sorted(folder.glob("dinoR00*.png"))[:47]:
+            (images / f.name).symlink_to(f)
+        lines = (folder / "dinoR_par.txt").read_text().splitlines()
+        cams = tmp / "dino47_par.txt"
+        cams.write_text("\n".join(["47"] + lines[1:48]) + "\n")
+        s, true_rolls = _truth_session(tmp, name, folder, cams, 47, list(range(1, 11)), 0.0, "m", image_folder=images)
     from vastcal.session import Session
     from vastcal.calibrate.session_run import session_camera_model
     with Session.open(s) as ss:
