@@ -35,6 +35,7 @@ from vastcal.config import RigConfig, dump_config
 from vastcal.devices import Camera, CameraSettings, Frame, RotationStage
 from vastcal.errors import AcquisitionAborted, DeviceError, DeviceTimeoutError, SessionError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.session import Session, SessionWriter, check_writable_output
+from vastcal.session_files import PathLock
 
 log = logging.getLogger(__name__)
 
@@ -159,11 +160,17 @@ def acquire(
             raise SessionIncompleteError(f"{out}: cannot resume: the session was planned for {plan_attrs.get('usteps_per_revolution')} "
                                          f"µsteps per revolution, the stage reports {cycle}")
         plan = RevolutionPlan(int(plan_attrs["views"]), cycle, tuple(int(t) for t in plan_attrs["targets_usteps"]))
-        writer = SessionWriter.resume(out)
+        writer = SessionWriter.resume(out)  # takes the path's writer lock
+        lock = None
     else:
         check_writable_output(out, force)
+        lock = PathLock(out).acquire()  # one writer per path, taken before the stage moves
         plan = RevolutionPlan.uniform(views or cfg.acquisition.views, cycle)
-        read_back = camera.configure(camera_settings(cfg))
+        try:
+            read_back = camera.configure(camera_settings(cfg))
+        except BaseException:
+            lock.release()
+            raise
         info = {"stage": stage.describe(), "camera": camera.describe(), "camera_settings": read_back, **(start_info or {})}
         writer = None  # created after the first frame tells us the shape and type
     first_index = writer.n_views if writer is not None else 0
@@ -190,7 +197,7 @@ def acquire(
             if writer is None:
                 writer = SessionWriter.create(out, frame_shape=frame.pixels.shape, dtype=frame.pixels.dtype, rig_yaml=dump_config(cfg),
                                               plan=plan.as_attrs(), pixel_size_um=_pixel_um(cfg), roi_offset_px=(cfg.camera.roi.x, cfg.camera.roi.y),
-                                              title=f"{cfg.name} revolution", start_info=info, force=force)
+                                              title=f"{cfg.name} revolution", start_info=info, force=force, lock=lock)
             writer.append_view(frame.pixels, plan.angle_deg(k), commanded_usteps=plan.targets_usteps[k], readback_usteps=move.readback_usteps,
                                host_time_s=frame.host_time_s, device_time_s=np.nan if frame.device_time_s is None else frame.device_time_s,
                                frame_id=frame.frame_id, exposure_us=frame.exposure_us, gain_db=frame.gain_db, move_s=move.duration_s,
@@ -225,8 +232,11 @@ def acquire(
                     result.exit_status, result.reason = "fail", f"stop record not written: {exc}"
             finally:
                 writer.close()
-        elif result.exit_status != "success":
-            log.warning("no view was acquired; no session file written (%s)", result.reason)
+        else:
+            if lock is not None:
+                lock.release()
+            if result.exit_status != "success":
+                log.warning("no view was acquired; no session file written (%s)", result.reason)
         result.state = RunState.DONE
     log.info("acquisition %s: %d of %d views in %s%s", result.exit_status, result.views_written, plan.views, out,
              f" ({result.reason})" if result.reason else "")

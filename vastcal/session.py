@@ -219,6 +219,7 @@ class SessionWriter:
         force: bool = False,
         live: bool = True,
         durable: bool = True,
+        lock: PathLock | None = None,
     ) -> "SessionWriter":
         """Create a new session file with zero views.
 
@@ -234,6 +235,7 @@ class SessionWriter:
             live: grow the file in place in SWMR mode (acquisition); otherwise stage it and
                 rename it into place at a successful :meth:`finish` (import).
             durable: ``fsync`` each view before committing it (power cuts, not only kills).
+            lock: the path's writer lock, when the caller took it already (before homing a stage).
 
         Raises:
             OutputExistsError: the file exists and ``force`` is false.
@@ -241,7 +243,7 @@ class SessionWriter:
         """
         p = check_writable_output(path, force)
         p.parent.mkdir(parents=True, exist_ok=True)
-        lock = PathLock(p).acquire()
+        lock = (lock or PathLock(p)).acquire()
         try:
             tmp = p.with_name(f".{p.name}.partial")
             h5 = h5py.File(tmp, "w", libver="latest")
