@@ -5,6 +5,7 @@ exit code is 128 + the signal number (143, 129). Real subprocesses, as in test_c
 from __future__ import annotations
 
 import signal
+import time
 from pathlib import Path
 from types import ModuleType
 
@@ -33,3 +34,18 @@ def test_stop_signal_aborts_a_cli_acquisition_like_ctrl_c(tmp_path: Path, acq: M
     acq.check_kept_views(tmp_path / "S.h5", kept, cfg, VIEWS)
     with Session.open(tmp_path / "S.h5") as s:
         assert s.exit_status == "abort" and "cancelled" in s.stop_record["reason"]
+
+
+def test_sigterm_during_demo_ends_it_with_143_and_one_line(tmp_path: Path, spawn) -> None:
+    """A command without its own gentle handler (demo: acquisition, then analysis) stops at once."""
+    proc = spawn("-q", "demo", "-o", "D", "--views", "6", cwd=tmp_path)
+    deadline = time.monotonic() + 60
+    while not any((tmp_path / "D").glob("*.h5")):  # the handlers are installed long before the session appears
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1] if proc.poll() is not None else "no session"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    assert "Traceback" not in stderr and stdout == ""
+    last = stderr.strip().splitlines()[-1]
+    assert last.startswith("vastcal: ") and ("SIGTERM" in last or "abort" in last), stderr
