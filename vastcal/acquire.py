@@ -227,7 +227,7 @@ def acquire(
             try:
                 writer.finish(result.exit_status, result.reason, views_planned=plan.views, elapsed_s=time.monotonic() - t0)
             except OSError as exc:  # e.g. a full disk: the committed views stay readable, the session reads "incomplete"
-                log.error("%s: the stop record could not be written (%s); the %d committed views are kept", out, exc, writer.n_views)
+                log.info("%s: the stop record could not be written (%s); the %d committed views are kept", out, exc.strerror, writer.n_views)
                 if result.exit_status == "success":
                     result.exit_status, result.reason = "fail", f"stop record not written: {exc}"
             finally:

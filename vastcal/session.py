@@ -52,10 +52,12 @@ Schema-1 sessions (no commit record, stop record as group attributes) are read a
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import json
 import logging
 import os
 import platform
+import re
 import shutil
 import socket
 import uuid
@@ -148,6 +150,49 @@ def check_writable_output(path: str | Path, force: bool) -> Path:
     return check_output_path(path, force)
 
 
+def _os_error(exc: BaseException, path: Path) -> OSError:
+    """An OSError naming the session (h5py names the file it opened, and reports errno in its text)."""
+    code = getattr(exc, "errno", None)
+    if not code:
+        found = re.search(r"errno = (\d+)", str(exc))
+        code = int(found.group(1)) if found else errno.EIO
+    return OSError(code, os.strerror(code), str(path))
+
+
+def _write_skeleton(tmp: Path, layout: Any) -> None:
+    """Build a file in memory with ``layout(h5)`` and write its bytes to ``tmp`` with plain I/O.
+
+    HDF5 does not always report a failed write while it builds a file (a full disk), and closing
+    such a file crashes it; bytes written by Python fail loudly and leave nothing half-made.
+    """
+    mem = h5py.File(f"skeleton-{uuid.uuid4()}", "w", driver="core", backing_store=False, libver="latest")
+    try:
+        layout(mem)
+        mem.flush()
+        image = mem.id.get_file_image()
+    finally:
+        mem.close()
+    try:
+        with open(tmp, "wb") as f:
+            f.write(image)
+            f.flush()
+            os.fsync(f.fileno())
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+_ABANDONED: list[h5py.File] = []
+"""Files whose write failed (a full disk): HDF5 crashes (segmentation fault) when such a file is
+closed or freed, so they are kept open and never touched again; the committed part on disk stays
+as it was. A command-line run then ends with ``os._exit`` (no library clean-up)."""
+
+
+def _abandon(f: h5py.File | None) -> None:
+    if f is not None:
+        _ABANDONED.append(f)
+
+
 def _frame_crc(frame: np.ndarray) -> int:
     return zlib.crc32(np.ascontiguousarray(frame).data) & 0xFFFFFFFF
 
@@ -192,6 +237,7 @@ class SessionWriter:
         self._replace = replace
         self._durable = durable
         self._finished = False
+        self._failed: OSError | None = None  # a write failed: the file is never written or closed again
         det, views = h5[DETECTOR], h5[VASTCAL]["views"]
         # Growable 1-D datasets written once per view, looked up once (hot path of acquisition).
         self._data = det["data"]
@@ -246,15 +292,18 @@ class SessionWriter:
         lock = (lock or PathLock(p)).acquire()
         try:
             tmp = p.with_name(f".{p.name}.partial")
-            h5 = h5py.File(tmp, "w", libver="latest")
-            try:
-                cls._layout(h5, tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {})
-            except BaseException:
-                h5.close()
-                tmp.unlink(missing_ok=True)
-                raise
+            layout = (tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {})
             if not live:
+                h5 = h5py.File(tmp, "w", libver="latest")
+                try:
+                    cls._layout(h5, *layout)
+                except BaseException:
+                    h5.close()
+                    tmp.unlink(missing_ok=True)
+                    raise
                 return cls(h5, p, lock=lock, staged_from=tmp, replace=force, durable=False)
+            _write_skeleton(tmp, lambda h5: cls._layout(h5, *layout))
+            h5 = h5py.File(tmp, "r+", libver="latest")
             return cls._go_live(h5, tmp, p, lock, durable, replace=force)
         except BaseException:
             lock.release()
@@ -406,7 +455,7 @@ class SessionWriter:
                 raw = det["data"].id.read_direct_chunk((i,) + origin)[1]
                 frame = np.frombuffer(raw, dtype=src.dtype).reshape(src.frame_shape)
                 cols = {c.name: table[c.name][i] for c in VIEW_COLUMNS if c.name in table and c.name != "frame_crc32"}
-                writer._write_view(frame, float(cols.pop("commanded_angle_deg")), int(keys[i]), cols)
+                writer._write_view(i, frame, float(cols.pop("commanded_angle_deg")), int(keys[i]), cols)
             writer._set_committed(n)
             if src.stop_record and not ending:
                 out[VASTCAL]["stop_record"][()] = np.bytes_(json.dumps(src.stop_record, default=_json_default).encode())
@@ -438,17 +487,31 @@ class SessionWriter:
         unknown = set(columns) - set(self._columns) | ({"frame_crc32"} & set(columns))
         if unknown:
             raise ValueError(f"unknown per-view columns: {sorted(unknown)}")
+        self._check_usable()
         i = self._n
-        self._write_view(frame, angle_deg, image_key, columns)
-        self._h5.flush()
-        if self._durable:
-            os.fsync(self._h5.id.get_vfd_handle())  # the view is on disk before the commit names it
-        self._set_committed(i + 1)
+        try:
+            self._write_view(i, frame, angle_deg, image_key, columns)
+            self._h5.flush()
+            if self._durable:
+                os.fsync(self._h5.id.get_vfd_handle())  # the view is on disk before the commit names it
+            self._set_committed(i + 1)
+        except (OSError, RuntimeError) as exc:  # h5py reports a full disk as either
+            self._fail(exc)
         return i
 
-    def _write_view(self, frame: np.ndarray, angle_deg: float, image_key: int, columns: dict[str, Any]) -> None:
-        """Rows ``n`` of every per-view dataset (rows beyond ``n`` left by a kill are overwritten)."""
-        i = self._n
+    def _check_usable(self) -> None:
+        if self._failed is not None:
+            raise OSError(self._failed.errno, f"{self.path}: an earlier write failed ({self._failed}); nothing more is written")
+
+    def _fail(self, exc: BaseException) -> None:
+        """Stop touching the file after a failed write; its committed views stay as they are."""
+        self._failed = _os_error(exc, self.path)
+        _abandon(self._h5)
+        log.info("%s: writing failed (%s); the file is left as it was after the last committed view", self.path, self._failed.strerror)
+        raise self._failed from exc
+
+    def _write_view(self, i: int, frame: np.ndarray, angle_deg: float, image_key: int, columns: dict[str, Any]) -> None:
+        """Row ``i`` of every per-view dataset (not yet committed)."""
         values = {c.name: columns.get(c.name, c.fill) for c in VIEW_COLUMNS}
         values["commanded_angle_deg"] = angle_deg
         values["frame_crc32"] = _frame_crc(frame)
@@ -463,7 +526,6 @@ class SessionWriter:
         if self._data.shape[0] < i + 1:
             self._data.resize((i + 1,) + self._data.shape[1:])
         self._data.id.write_direct_chunk((i,) + (0,) * frame.ndim, np.ascontiguousarray(frame).tobytes())
-        self._n = i + 1
 
     def _set_committed(self, n: int) -> None:
         self._committed[0] = n
@@ -501,14 +563,18 @@ class SessionWriter:
         """
         if exit_status not in ("success", "abort", "fail"):
             raise ValueError(f"exit_status must be success, abort or fail, got {exit_status!r}")
+        self._check_usable()
         record = {"exit_status": exit_status, "reason": reason, "views_written": self.n_views, "time": _now(), **extra}
         text = json.dumps(record, default=_json_default)
         if len(text.encode()) > STOP_RECORD_BYTES:  # a very long reason is cut, never the record
             record["reason"] = reason[: STOP_RECORD_BYTES // 2] + " …"
             text = json.dumps(record, default=_json_default)[:STOP_RECORD_BYTES]
-        self._h5[ENTRY]["end_time"][()] = np.bytes_(_now()[:40])
-        self._h5[VASTCAL]["stop_record"][()] = np.bytes_(text.encode())
-        self._h5.flush()
+        try:
+            self._h5[ENTRY]["end_time"][()] = np.bytes_(_now()[:40])
+            self._h5[VASTCAL]["stop_record"][()] = np.bytes_(text.encode())
+            self._h5.flush()
+        except (OSError, RuntimeError) as exc:
+            self._fail(exc)
         self._finished = True
         if self._staged_from is not None:
             self._h5.close()
@@ -521,8 +587,14 @@ class SessionWriter:
     def close(self) -> None:
         """Close the file and release the path (idempotent). An unfinished staged file is discarded."""
         try:
-            if self._h5.id.valid:
-                self._h5.close()
+            if self._failed is None and self._h5.id.valid:
+                try:
+                    self._h5.flush()  # HDF5 may have deferred a failed write: it fails again here, not in close
+                except (OSError, RuntimeError) as exc:
+                    self._failed = _os_error(exc, self.path)
+                    _abandon(self._h5)
+                else:
+                    self._h5.close()
             if self._staged_from is not None:
                 self._staged_from.unlink(missing_ok=True)
                 self._staged_from = None
@@ -534,7 +606,7 @@ class SessionWriter:
 
     def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
         try:
-            if not self._finished and self._h5.id.valid:
+            if not self._finished and self._failed is None and self._h5.id.valid:
                 if exc_type is None:
                     self.finish("success")
                 elif issubclass(exc_type, KeyboardInterrupt):
@@ -710,9 +782,13 @@ class Session:
             self._h5.close()
 
     def discard_results(self) -> None:
-        """Forget the results staged since opening; the session file stays as it was."""
+        """Forget the results staged since opening; the session file stays as it was.
+
+        The staged copy is not closed (a failed write there may be why it is discarded, and HDF5
+        crashes when such a file is closed); its name is removed, so nothing of it remains visible.
+        """
         if self._staging is not None:
-            self._staging.close()
+            _abandon(self._staging)
             self._staging = None
         if self._staging_path is not None:
             self._staging_path.unlink(missing_ok=True)
@@ -967,6 +1043,11 @@ class Session:
         """Rename the staged copy over the session (fsync-ed): the new runs appear in one step."""
         if self._staging is None or self._staging_path is None:
             return
+        try:
+            self._staging.flush()
+        except (OSError, RuntimeError):
+            self.discard_results()
+            raise
         self._staging.close()
         self._staging = None
         place_atomically(self._staging_path, self.path, replace=True)

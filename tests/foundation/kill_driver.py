@@ -5,7 +5,8 @@ Usage::
     python kill_driver.py PLAN.json
 
 PLAN.json holds ``{"argv": [...], "work": "DIR", "input": "S.h5" | null, "first": 1, "last": K,
-"then": [...] | null, "stub_calibration": "result.pickle" | null}``. For every N in first..last the
+"then": [...] | null, "stub_calibration": "result.pickle" | null, "inject": "signal=SIGKILL"}``
+(``inject`` may instead be ``error=ENOSPC``: the N-th write fails as on a full disk). For every N in first..last the
 driver forks a child that stops itself; ``strace -p CHILD -e inject=pwrite64:signal=SIGKILL:when=N``
 attaches; the child continues and runs ``vastcal.cli.main(argv)`` (with ``{out}`` in argv replaced by
 ``DIR/N/S.h5``, a fresh copy of ``input`` when given), and is killed by the kernel at its N-th
@@ -49,7 +50,7 @@ def _child(argv: list[str], stub: str | None) -> None:
     os._exit(code)
 
 
-def _run(argv: list[str], n: int | None, stub: str | None) -> tuple[bool, int]:
+def _run(argv: list[str], n: int | None, stub: str | None, inject: str = "signal=SIGKILL") -> tuple[bool, int]:
     pid = os.fork()
     if pid == 0:
         try:
@@ -60,7 +61,7 @@ def _run(argv: list[str], n: int | None, stub: str | None) -> tuple[bool, int]:
     tracer = None
     if n is not None:
         tracer = subprocess.Popen(["strace", "-qq", "-o", os.devnull, "-p", str(pid), "-e", "trace=pwrite64",
-                                   "-e", f"inject=pwrite64:signal=SIGKILL:when={n}"], stderr=subprocess.PIPE)
+                                   "-e", f"inject=pwrite64:{inject}:when={n}"], stderr=subprocess.PIPE)
         # strace is attached once the child shows a tracer in /proc
         for _ in range(2000):
             with open(f"/proc/{pid}/status") as f:
@@ -91,7 +92,10 @@ def main() -> None:
         if plan.get("input"):
             shutil.copyfile(plan["input"], out)
         argv = [a.replace("{out}", str(out)) for a in plan["argv"]]
-        killed, code = _run(argv, n, plan.get("stub_calibration"))
+        inject = plan.get("inject", "signal=SIGKILL")
+        killed, code = _run(argv, n, plan.get("stub_calibration"), inject)
+        if not inject.startswith("signal="):  # an injected error (e.g. ENOSPC): the run fails instead of dying
+            killed = code != 0
         rec = {"n": n, "killed": killed, "exit": code}
         if plan.get("then") and out.exists():
             shutil.copyfile(out, d / "killed.h5")

@@ -48,10 +48,10 @@ def _need_strace() -> None:
 
 
 def kill_at_every_write(tmp: Path, argv: list[str], *, input_file: Path | None = None, then: list[str] | None = None,
-                        stub: Path | None = None) -> list[dict]:
+                        stub: Path | None = None, inject: str = "signal=SIGKILL") -> list[dict]:
     """Run the fork server over every write; one record per N (the last one unkilled)."""
     plan = {"argv": argv, "work": str(tmp / "runs"), "input": str(input_file) if input_file else None, "first": 1, "last": 2000,
-            "then": then, "stub_calibration": str(stub) if stub else None}
+            "then": then, "stub_calibration": str(stub) if stub else None, "inject": inject}
     (tmp / "plan.json").write_text(json.dumps(plan))
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}  # one process at a time: no BLAS thread pools
     proc = subprocess.run([sys.executable, str(HERE / "kill_driver.py"), str(tmp / "plan.json")], capture_output=True, text=True,
@@ -183,3 +183,33 @@ def test_reconstruct_killed_at_every_write_of_its_run_keeps_images_and_earlier_r
     pristine_path = _analysis_fixture(tmp_path)
     records = kill_at_every_write(tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path)
     _check_analysis_kills(tmp_path, records, _snapshot(pristine_path), "measurement")
+
+
+@pytest.mark.timeout(1200)
+def test_a_full_disk_at_any_write_of_a_reconstruction_is_one_error_and_loses_nothing(tmp_path: Path) -> None:
+    """ENOSPC injected at every write of storing a reconstruction: exit 1, nothing lost, nothing half-stored."""
+    pristine_path = _analysis_fixture(tmp_path)
+    records = kill_at_every_write(tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path,
+                                  inject="error=ENOSPC")
+    assert all(r["exit"] == 1 for r in records[:-1]) and records[-1]["exit"] == 0
+    _check_analysis_kills(tmp_path, records, _snapshot(pristine_path), "measurement")
+    assert not list((tmp_path / "runs").rglob(".*.partial")), "a failed store left its temporary copy behind"
+
+
+@pytest.mark.timeout(1500)
+def test_a_full_disk_during_acquisition_keeps_the_committed_views_and_resume_completes_them(tmp_path: Path) -> None:
+    """ENOSPC injected at every write of a 3-view acquisition (the disk is freed before --resume)."""
+    views = 3
+    rig = _small_rig(tmp_path / "rig.yaml", views)
+    records = kill_at_every_write(tmp_path, ["-q", "acquire", "--config", str(rig), "-o", "{out}"],
+                                  then=["-q", "acquire", "--resume", "{out}"], inject="error=ENOSPC")
+    for r in records[:-1]:
+        assert r["exit"] == 1, r
+        d = tmp_path / "runs" / str(r["n"])
+        if (d / "killed.h5").exists():
+            with Session.open(d / "killed.h5") as s:
+                s.verify()
+                done = s.n_views
+            assert r["then_exit"] == 0 or done == views, r
+            with Session.open(d / "S.h5") as s:
+                assert s.n_views == views and s.is_complete
