@@ -63,13 +63,17 @@ def test_resource_exhaustion_is_one_line_naming_what_ran_out(monkeypatch: pytest
     assert _one_line(capsys.readouterr().err).startswith(expected)
 
 
-def test_other_os_errors_are_still_bugs_with_a_traceback(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_other_os_errors_are_bugs_one_line_exit_70_and_their_traceback_with_v(monkeypatch: pytest.MonkeyPatch,
+                                                                               capsys: pytest.CaptureFixture[str]) -> None:
     def failing(args: object) -> int:
         raise OSError(errno.EBADF, "Bad file descriptor")
 
     monkeypatch.setattr(cli, "cmd_info", failing)
+    assert cli.main(["info", "S.h5"]) == cli.EXIT_INTERNAL
+    err = capsys.readouterr().err
+    assert "internal error" in err and "-v" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
     with pytest.raises(OSError):
-        cli.main(["info", "S.h5"])
+        cli.main(["-v", "info", "S.h5"])
 
 
 def test_a_huge_error_message_is_cut_to_one_short_line(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
