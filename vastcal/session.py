@@ -493,7 +493,7 @@ class SessionWriter:
             self._write_view(i, frame, angle_deg, image_key, columns)
             self._h5.flush()
             if self._durable:
-                os.fsync(self._h5.id.get_vfd_handle())  # the view is on disk before the commit names it
+                os.fdatasync(self._h5.id.get_vfd_handle())  # the view is on disk before the commit names it
             self._set_committed(i + 1)
         except (OSError, RuntimeError) as exc:  # h5py reports a full disk as either
             self._fail(exc)
