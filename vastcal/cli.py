@@ -382,7 +382,7 @@ def _resource_exhausted(exc: BaseException) -> str | None:
         if code == errno.EFBIG or "File too large" in text:
             return ("file size limit reached (ulimit -f, or the file system's largest file)" + (f" writing {where}" if where else "")
                     + "; raise the limit or write elsewhere")
-        if code == errno.ENOMEM:
+        if code == errno.ENOMEM or "Insufficient memory" in text:  # OpenCV's cv2.error for a failed allocation
             return "out of memory (the system refused an allocation); free memory or raise the limit (ulimit -v)"
         e = e.__cause__ or e.__context__
     return None
@@ -469,7 +469,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (OSError, ValueError):
             pass
         return 128 + getattr(signal, "SIGPIPE", 13)
-    except (MemoryError, OSError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 — resources running out, else the last resort: one line (-v shows the traceback)
         what = _resource_exhausted(exc)
         if what is None:
             return _unexpected(exc, args)
@@ -481,8 +481,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                 sys.stdout.flush()
                 os._exit(1)
         return 1
-    except Exception as exc:  # noqa: BLE001 — the last resort: one line, never a traceback (-v shows it)
-        return _unexpected(exc, args)
     finally:
         sys.unraisablehook = hook
         for sig, handler in previous.items():

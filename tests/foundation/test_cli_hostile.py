@@ -178,3 +178,27 @@ def test_a_real_write_limit_during_import_is_one_line_without_a_crash(tmp_path: 
     assert proc.returncode == 1, (proc.returncode, proc.stderr)
     assert _one_line(proc.stderr).startswith("vastcal: error: file size limit reached"), proc.stderr
     assert not (tmp_path / "S.h5").exists()
+
+
+MEMORY_CHILD = """
+import resource, sys
+import cv2, h5py, numpy, PIL.Image, vastcal.cli, vastcal.importer, vastcal.session
+vm = [int(line.split()[1]) for line in open('/proc/self/status') if line.startswith('VmSize')][0] * 1024
+limit = vm + (16 << 20)  # 16 MiB beyond what the loaded libraries already map
+resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+sys.exit(vastcal.cli.main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc to set an address-space limit just above the loaded libraries")
+def test_a_real_address_space_limit_during_import_is_one_line_naming_memory(tmp_path: Path) -> None:
+    """``ulimit -v`` just above the loaded libraries: decoding 4000 x 4000 16-bit images (32 MB each)
+    fails inside OpenCV (cv2.error "Insufficient memory") or numpy (MemoryError): one line, exit 1."""
+    (tmp_path / "imgs").mkdir()
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / "imgs" / f"v{i}.png"), np.full((4000, 4000), i, np.uint16))  # compresses to a few kB
+    proc = subprocess.run([sys.executable, "-c", MEMORY_CHILD, "-q", "import", "imgs", "-o", "S.h5"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1, (proc.returncode, proc.stderr)
+    assert _one_line(proc.stderr).startswith("vastcal: error: out of memory"), proc.stderr
+    assert not (tmp_path / "S.h5").exists()
