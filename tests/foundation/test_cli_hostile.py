@@ -94,7 +94,13 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, int]]:
 
 @pytest.mark.parametrize("force", [False, True], ids=["plain", "force"])
 def test_acquire_and_import_refuse_a_directory_as_output_before_anything_moves(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                                               force: bool) -> None:
+                                                                               force: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    import vastcal.rig
+
+    def no_devices(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the rig was connected (and the stage homed) before the output was checked")
+
+    monkeypatch.setattr(vastcal.rig, "connect_rig", no_devices)
     (tmp_path / "S.h5").mkdir()
     (tmp_path / "S.h5" / "keep.txt").write_text("mine")
     (tmp_path / "imgs").mkdir()
