@@ -152,6 +152,9 @@ class AcquisitionConfig:
     views: int = field(default=21, metadata=_range(3, 100_000))
     flat_frames: int = field(default=0, metadata=_range(0, 1000))
     dark_frames: int = field(default=0, metadata=_range(0, 1000))
+    sync_each_view: bool = True
+    """fdatasync every view before committing it: committed views survive a power cut, not only a
+    killed process (costs the disk's sync latency per view; false keeps kill-safety only)."""
 
 
 @dataclass(frozen=True)
