@@ -30,9 +30,10 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
-def _writable_folder(path: Path, option: str) -> None:
-    """The nearest existing ancestor of ``path`` (itself included) is a folder we may write in."""
-    anc = path
+def _writable_folder(folder: Path, option: str, path: Path) -> None:
+    """The nearest existing ancestor of ``folder`` (itself included) is a folder we may write in;
+    messages name ``path``, the output given."""
+    anc = folder
     while not anc.exists() and anc != anc.parent:
         anc = anc.parent
     if not anc.is_dir():
@@ -84,7 +85,7 @@ def check_output_file(path: str | Path, *, force: bool, option: str = "-o", exis
             raise UserInputError(f"{p}: {option}: cannot write to it (read-only)")
     elif st is not None and not force:
         raise OutputExistsError(f"{p}: file exists; pass --force to overwrite it")
-    _writable_folder(p.parent if str(p.parent) else Path("."), option)
+    _writable_folder(p.parent if str(p.parent) else Path("."), option, p)
     return p
 
 
@@ -100,5 +101,5 @@ def check_output_folder(path: str | Path, *, option: str = "-o") -> Path:
         raise UserInputError(f"{option}: expected a folder name, got an empty string")
     if p.exists() and not p.is_dir():
         raise UserInputError(f"{p}: {option}: is {_kind(p.stat().st_mode) if not p.is_file() else 'a file'}, not a folder")
-    _writable_folder(p, option)
+    _writable_folder(p, option, p)
     return p

@@ -133,7 +133,7 @@ def test_a_read_only_location_is_refused_before_writing(tmp_path: Path, monkeypa
             self.f_flag = real(path).f_flag | os.ST_RDONLY
 
     monkeypatch.setattr(outputs.os, "statvfs", ReadOnly)
-    with pytest.raises(UserInputError, match="read-only file system"):
+    with pytest.raises(UserInputError, match=r"sub/S.h5: -o: cannot write there, .* is on a read-only file system"):
         outputs.check_output_file(tmp_path / "sub" / "S.h5", force=False)
     with pytest.raises(UserInputError, match="read-only file system"):
         outputs.check_output_folder(tmp_path / "report")
