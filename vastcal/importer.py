@@ -67,7 +67,7 @@ MAX_IMAGE_PIXELS = 1 << 28
 header that claims more is refused before the pixels are decoded."""
 
 MAX_TEXT_BYTES = 16 << 20
-"""Largest angle file read, bytes (one line per view)."""
+"""Largest angle or camera file read, bytes (one line per view)."""
 
 
 def image_size(path: Path) -> tuple[int, int] | None:
@@ -134,6 +134,8 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
         lines = [(k, ln.split()) for k, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
                  if ln.strip() and not ln.lstrip().startswith("#")]
         values = [float(r[-1]) for _, r in lines]
+    except ImportDataError:
+        raise
     except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
         raise ImportDataError(f"{path}: expected one angle in degrees per line ({str(exc)[:120]})") from None
     if len(values) != n:
@@ -171,7 +173,7 @@ def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
     mats: list[np.ndarray] = []
     names: list[str] = []
     if path.is_dir():
-        files = sorted(path.glob("*.pa"), key=lambda p: natural_key(p.name))
+        files = sorted((f for f in path.glob("*.pa") if f.is_file()), key=lambda p: natural_key(p.name))  # no FIFO: it would block
         for f in files:
             try:
                 m = np.loadtxt(f, dtype=float)
@@ -182,6 +184,8 @@ def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
             mats.append(m)
             names.append(f.stem)
     elif path.is_file():
+        if path.stat().st_size > MAX_TEXT_BYTES:
+            raise ImportDataError(f"{path}: larger than {MAX_TEXT_BYTES} bytes; expected one camera per line")
         first = True
         for lineno, ln in enumerate(path.read_text().splitlines(), 1):
             tok = ln.split()

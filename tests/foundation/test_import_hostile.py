@@ -4,6 +4,7 @@ directories or read-only. Each is one ImportDataError/UserInputError line; nothi
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -157,3 +158,19 @@ def test_frames_that_could_never_be_loaded_are_refused(tmp_path: Path, monkeypat
     with pytest.raises(ImportDataError, match=r"3 frames of \(20, 30\) uint8 need .* more than this machine's"):
         import_folder(tmp_path / "img", tmp_path / "s.h5")
     assert not (tmp_path / "s.h5").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes are POSIX")
+def test_named_pipes_among_the_inputs_are_never_opened(tmp_path: Path) -> None:
+    """Reading a FIFO blocks until a writer appears: every input is checked to be a regular file first."""
+    write_images(tmp_path / "img", 3)
+    os.mkfifo(tmp_path / "img" / "view9.png")  # skipped: not a regular file
+    os.mkfifo(tmp_path / "angles.txt")
+    with pytest.raises(ImportDataError, match="angles.txt: expected a text file of angles, got not a regular file"):
+        import_folder(tmp_path / "img", tmp_path / "s.h5", angles=tmp_path / "angles.txt")
+    (tmp_path / "pa").mkdir()
+    for i in range(3):
+        (tmp_path / "pa" / f"v{i}.pa").write_text("1000 0 15 0\n0 1000 10 0\n0 0 1 1000\n")
+    os.mkfifo(tmp_path / "pa" / "v3.pa")  # skipped
+    import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "pa")
+    assert (tmp_path / "s.h5").is_file()
