@@ -198,7 +198,8 @@ def acquire(
                 writer = SessionWriter.create(out, frame_shape=frame.pixels.shape, dtype=frame.pixels.dtype, rig_yaml=dump_config(cfg),
                                               plan=plan.as_attrs(), pixel_size_um=_pixel_um(cfg), roi_offset_px=(cfg.camera.roi.x, cfg.camera.roi.y),
                                               title=f"{cfg.name} revolution", start_info=info, force=force, lock=lock,
-                                              durable=cfg.acquisition.sync_each_view)
+                                              durable=cfg.acquisition.sync_each_view,
+                                              sensor_pixel_um=(cfg.optics.pixel_size_um, cfg.optics.pixel_size_um))
             writer.append_view(frame.pixels, plan.angle_deg(k), commanded_usteps=plan.targets_usteps[k], readback_usteps=move.readback_usteps,
                                host_time_s=frame.host_time_s, device_time_s=np.nan if frame.device_time_s is None else frame.device_time_s,
                                frame_id=frame.frame_id, exposure_us=frame.exposure_us, gain_db=frame.gain_db, move_s=move.duration_s,

@@ -266,6 +266,7 @@ class SessionWriter:
         live: bool = True,
         durable: bool = True,
         lock: PathLock | None = None,
+        sensor_pixel_um: tuple[float, float] | None = None,
     ) -> "SessionWriter":
         """Create a new session file with zero views.
 
@@ -282,6 +283,7 @@ class SessionWriter:
                 rename it into place at a successful :meth:`finish` (import).
             durable: ``fsync`` each view before committing it (power cuts, not only kills).
             lock: the path's writer lock, when the caller took it already (before homing a stage).
+            sensor_pixel_um: (x, y) pitch of the sensor itself, µm (``real_x_pixel_size``), when known.
 
         Raises:
             OutputExistsError: the file exists and ``force`` is false.
@@ -292,7 +294,8 @@ class SessionWriter:
         lock = (lock or PathLock(p)).acquire()
         try:
             tmp = p.with_name(f".{p.name}.partial")
-            layout = (tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {})
+            layout = (tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {}, None,
+                      sensor_pixel_um)
             if not live:
                 h5 = h5py.File(tmp, "w", libver="latest")
                 try:
@@ -329,7 +332,7 @@ class SessionWriter:
     @staticmethod
     def _layout(h5: h5py.File, frame_shape: tuple[int, ...], dtype: np.dtype, rig_yaml: str, plan: dict[str, Any],
                 pixel_size_um: tuple[float, float], roi_offset_px: tuple[int, int], title: str, start_info: dict[str, Any],
-                start_record: dict[str, Any] | None = None) -> None:
+                start_record: dict[str, Any] | None = None, sensor_pixel_um: tuple[float, float] | None = None) -> None:
         """Every object the file will ever hold, so that SWMR appends create nothing new."""
         h5.attrs["creator"] = CREATOR
         h5.attrs["vastcal_session_version"] = SCHEMA_VERSION
@@ -354,15 +357,24 @@ class SessionWriter:
         ct = det.create_dataset("count_time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
         ct.attrs["units"] = "s"
         for name, v in (("x_pixel_size", pixel_size_um[0]), ("y_pixel_size", pixel_size_um[1])):
-            det[name] = float(v)
+            det[name] = float(v)  # on the specimen: what reconstruction uses (NXtomo tools read it here)
             det[name].attrs["units"] = "um"
+        if sensor_pixel_um is not None:
+            for name, v in (("real_x_pixel_size", sensor_pixel_um[0]), ("real_y_pixel_size", sensor_pixel_um[1])):
+                det[name] = float(v)  # the sensor's own pitch
+                det[name].attrs["units"] = "um"
         sample = entry.create_group("sample")
         sample.attrs["NX_class"] = "NXsample"
+        for name, v in (("x_pixel_size", pixel_size_um[0]), ("y_pixel_size", pixel_size_um[1])):
+            sample[name] = float(v)  # the effective pixel on the specimen plane
+            sample[name].attrs["units"] = "um"
         ra = sample.create_dataset("rotation_angle", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
         ra.attrs["units"] = "degree"
         data = entry.create_group("data")
         data.attrs["NX_class"] = "NXdata"
         data.attrs["signal"] = "data"
+        data.attrs["axes"] = ["rotation_angle"] + ["."] * len(frame_shape)  # viewers show angle, not frame index
+        data.attrs["rotation_angle_indices"] = 0
         data["data"] = d
         data["rotation_angle"] = ra
         data["image_key"] = det["image_key"]
@@ -438,8 +450,10 @@ class SessionWriter:
         history = src.resume_history() + ([ending] if ending else [])
         out = h5py.File(tmp, "w", libver="latest")
         try:
+            det_real = [h5[DETECTOR][k][()] for k in ("real_x_pixel_size", "real_y_pixel_size") if k in h5[DETECTOR]]
             cls._layout(out, src.frame_shape, src.dtype, src.rig_yaml, src.plan_raw(), src.pixel_size_um, src.roi_offset_px,
-                        _attr_str(h5[ENTRY]["title"][()]), {}, start_record=src.start_record_raw())
+                        _attr_str(h5[ENTRY]["title"][()]), {}, start_record=src.start_record_raw(),
+                        sensor_pixel_um=(float(det_real[0]), float(det_real[1])) if len(det_real) == 2 else None)
             if history:
                 res = out[VASTCAL].create_group("resumed")
                 for k, rec in enumerate(history):

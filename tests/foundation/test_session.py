@@ -58,6 +58,9 @@ def test_nxtomo_reads_our_session(tmp_path: Path) -> None:
     px = nx.instrument.detector.x_pixel_size
     assert abs(px.to("um").magnitude - 5.5) < 1e-9 if hasattr(px, "to") else abs(px - 5.5e-6) < 1e-12
     assert nxtomo.__name__ == "nxtomo"
+    with h5py.File(tmp_path / "s.h5", "r") as f:  # NeXus viewers plot against the angle; the effective pixel is the sample's
+        assert list(f["/entry/data"].attrs["axes"]) == ["rotation_angle", ".", "."]
+        assert f["/entry/sample/x_pixel_size"][()] == 5.5 and f["/entry/sample/x_pixel_size"].attrs["units"] == "um"
 
 
 KILLED_WRITER = textwrap.dedent(
