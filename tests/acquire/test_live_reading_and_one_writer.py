@@ -11,10 +11,12 @@ from types import ModuleType
 import h5py
 
 VIEWS = 20
+LONG_VIEWS = 200
+"""Long enough (a few 100 ms per view) that three `vastcal info` processes start while it runs."""
 
 
 def test_info_and_an_swmr_reader_follow_an_acquisition_while_it_writes(tmp_path: Path, acq: ModuleType, spawn) -> None:
-    cfg = acq.small_config(views=VIEWS, slow=True)
+    cfg = acq.small_config(views=LONG_VIEWS, slow=True)
     config = acq.write_config(cfg, tmp_path / "rig.yaml")
     proc = spawn("-q", "acquire", "--simulate", "--config", str(config), "-o", "S.h5", cwd=tmp_path)
     acq.wait_for_views(tmp_path / "S.h5", 3, proc)
@@ -23,7 +25,7 @@ def test_info_and_an_swmr_reader_follow_an_acquisition_while_it_writes(tmp_path:
         info = acq.cli("info", "--json", "S.h5", cwd=tmp_path)
         assert info.returncode == 3 and "Traceback" not in info.stderr, info.stderr  # 3: incomplete, as it should be
         summary = json.loads(info.stdout)
-        assert summary["exit_status"] == "incomplete" and summary["views_planned"] == VIEWS
+        assert summary["exit_status"] == "incomplete" and summary["views_planned"] == LONG_VIEWS
         seen.append(summary["views"])
         acq.wait_for_views(tmp_path / "S.h5", seen[-1] + 1, proc)
     assert seen == sorted(seen) and seen[-1] > seen[0] >= 3
