@@ -60,6 +60,13 @@ def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _cpu_s() -> float:
+    """CPU time (user + system) of this process so far, s: on a shared machine a steadier measure than wall
+    time (on a quiet 2-core machine the wall time lies between half of it and all of it)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
 def _step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[str, float]:
     """One step in this (fresh) process; returns its figures."""
     session, truth = _session(workdir, views, full, seed)
@@ -83,21 +90,21 @@ def _step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[s
         from vastcal.calibrate import calibrate_session
         from vastcal.pipeline import score_against_truth
 
-        t = time.perf_counter()
+        t, c = time.perf_counter(), _cpu_s()
         cal = calibrate_session(session)
-        wall = time.perf_counter() - t
+        wall, cpu = time.perf_counter() - t, _cpu_s() - c
         s = score_against_truth(session, truth)
-        return {"cal_s": wall, "evals": cal.n_evaluations, "ms_per_eval": 1e3 * cal.time_per_evaluation_s, "cal_mb": _peak_mb(),
+        return {"cal_s": wall, "cal_cpu_s": cpu, "evals": cal.n_evaluations, "ms_per_eval": 1e3 * cal.time_per_evaluation_s, "cal_mb": _peak_mb(),
                 "yaw_err": s["yaw_error_deg"], "pitch_err": s["pitch_error_deg"], "roll_rms": s["angle_rms_error_deg"]}
     if step == "reconstruct":
         from vastcal.pipeline import score_against_truth
         from vastcal.reconstruct import reconstruct_session
 
-        t = time.perf_counter()
+        t, c = time.perf_counter(), _cpu_s()
         reconstruct_session(session)
-        wall = time.perf_counter() - t
+        wall, cpu = time.perf_counter() - t, _cpu_s() - c
         s = score_against_truth(session, truth)
-        return {"rec_s": wall, "rec_mb": _peak_mb(), "vol_pct": s.get("volume_vs_true_hull_pct", float("nan"))}
+        return {"rec_s": wall, "rec_cpu_s": cpu, "rec_mb": _peak_mb(), "vol_pct": s.get("volume_vs_true_hull_pct", float("nan"))}
     raise SystemExit(f"unknown step {step}")
 
 
@@ -125,7 +132,8 @@ def main() -> None:
     ap.add_argument("--full-frame", type=int, nargs="*", default=[], help="views of full 1024 x 1024 frame cases")
     ap.add_argument("--seed", type=int, default=1, help="simulated rig seed (simulation.seed)")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/vastcal_scaling"))
-    ap.add_argument("--no-reconstruct", action="store_true")
+    ap.add_argument("--no-reconstruct", action="store_true", help="calibrate only")
+    ap.add_argument("--no-calibrate", action="store_true", help="reconstruct only (from the session's latest calibration)")
     ap.add_argument("--_step")
     ap.add_argument("--_case", type=int)
     ap.add_argument("--_full", action="store_true")
@@ -140,12 +148,14 @@ def main() -> None:
     cases = [(v, False) for v in a.views] + [(v, True) for v in a.full_frame]
     load = os.getloadavg()[0]
     print(f"rig seed {a.seed}, {os.cpu_count()} CPUs, load average {load:.1f} at start", flush=True)
-    hdr = (f"{'views':>5} {'frame':>9} | {'cal s':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} {'pitch err':>9} "
-           f"{'roll rms':>8} | {'rec s':>6} {'rec MB':>6} {'vol %':>6}")
+    hdr = (f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} "
+           f"{'pitch err':>9} {'roll rms':>8} | {'rec s':>6} {'rec cpu':>7} {'rec MB':>6} {'vol %':>6}")
     rows = []
     for views, full in cases:
         _run_step("acquire", views, full, a.seed, a.workdir)
-        r = {"views": views, "full": full, **_run_step("calibrate", views, full, a.seed, a.workdir)}
+        r: dict = {"views": views, "full": full}
+        if not a.no_calibrate:
+            r.update(_run_step("calibrate", views, full, a.seed, a.workdir))
         if not a.no_reconstruct:
             r.update(_run_step("reconstruct", views, full, a.seed, a.workdir))
         rows.append(r)
@@ -153,18 +163,24 @@ def main() -> None:
     print(hdr)
     for r in rows:
         frame = "1024x1024" if r["full"] else "1024x320"
-        rec = (f"{r['rec_s']:6.1f} {r['rec_mb']:6.0f} {r['vol_pct']:+6.2f}" if "rec_s" in r else f"{'-':>6} {'-':>6} {'-':>6}")
-        print(f"{r['views']:5d} {frame:>9} | {r['cal_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} "
-              f"{r['yaw_err']:+8.3f} {r['pitch_err']:+9.3f} {r['roll_rms']:8.3f} | {rec}")
+        cal = (f"{r['cal_s']:7.1f} {r['cal_cpu_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} {r['yaw_err']:+8.3f} "
+               f"{r['pitch_err']:+9.3f} {r['roll_rms']:8.3f}" if "cal_s" in r else " ".join(f"{'-':>{k}}" for k in (7, 7, 5, 7, 6, 8, 9, 8)))
+        rec = (f"{r['rec_s']:6.1f} {r['rec_cpu_s']:7.1f} {r['rec_mb']:6.0f} {r['vol_pct']:+6.2f}" if "rec_s" in r
+               else " ".join(f"{'-':>{k}}" for k in (6, 7, 6, 6)))
+        print(f"{r['views']:5d} {frame:>9} | {cal} | {rec}")
     roi = [r for r in rows if not r["full"]]
     n = [r["views"] for r in roi]
-    print(f"growth exponent (time ~ N^b over {n} views): calibration b = {_exponent(n, [r['cal_s'] for r in roi]):.2f}, "
-          f"per evaluation b = {_exponent(n, [r['ms_per_eval'] for r in roi]):.2f}"
-          + (f", reconstruction b = {_exponent(n, [r['rec_s'] for r in roi]):.2f}" if roi and "rec_s" in roi[0] else ""))
+    fits = []
+    for key, name in (("cal_s", "calibration wall"), ("cal_cpu_s", "calibration CPU"), ("ms_per_eval", "per evaluation"),
+                      ("rec_s", "reconstruction wall"), ("rec_cpu_s", "reconstruction CPU")):
+        if roi and all(key in r for r in roi):
+            fits.append(f"{name} b = {_exponent(n, [r[key] for r in roi]):.2f}")
+    print(f"growth exponent (time ~ N^b over {n} views): " + ", ".join(fits))
     by_n = {r["views"]: r for r in roi}
     if 21 in by_n and 81 in by_n:
-        print(f"time(81) / time(21): calibration {by_n[81]['cal_s'] / by_n[21]['cal_s']:.2f}"
-              + (f", reconstruction {by_n[81]['rec_s'] / by_n[21]['rec_s']:.2f}" if "rec_s" in by_n[21] else ""))
+        ratios = [f"{name} {by_n[81][key] / by_n[21][key]:.2f}" for key, name in (("cal_s", "calibration wall"), ("cal_cpu_s", "calibration CPU"),
+                                                                                  ("rec_s", "reconstruction wall")) if key in by_n[21]]
+        print("time(81) / time(21): " + ", ".join(ratios))
     print(f"load average at end {os.getloadavg()[0]:.1f}")
 
 
