@@ -315,9 +315,9 @@ def test_photometric_views_fit_the_budget() -> None:
     sub = evenly_spread_views(angles, 40)
     assert len(sub) == 40 and sub[0] == 0 and np.all(np.diff(sub) == 9)
     assert np.array_equal(evenly_spread_views(angles[:21], 40), np.arange(21))
-    # 1024 × 320 frames, 130 000 voxels: ~13 MB a view; 1 GB free holds ~75 of them, never fewer than 21
+    # 1024 × 320 frames, 130 000 voxels: ~16 MB a view; 1 GB free holds ~63 of them, never fewer than 21
     k = len(photometric_views(angles, (320, 1024), 130_000, memory_mb=1500, used_mb=500))
-    assert 60 <= k <= 90
+    assert 50 <= k <= 75
     assert len(photometric_views(angles, (320, 1024), 130_000, memory_mb=600, used_mb=500)) == 21
     assert len(photometric_views(angles[:60], (320, 1024), 130_000, memory_mb=16000, used_mb=500)) == 60
 
