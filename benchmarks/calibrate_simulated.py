@@ -1,7 +1,7 @@
 """Calibration against the simulator's hidden truth (drift ±2°, yaw/pitch ±1°, axis offset, a larva phantom
 flattened sideways lying up to 40 µm off the rotation axis, 21 views).
 
-Acquires a revolution from the simulated rig (seeds from ``simulation.seed``), runs PI calibration
+Acquires a revolution from the simulated rig (seeds from ``simulation.seed``), runs the calibration (default: coherence)
 with the rig file's settings (config/simulated.yaml: the photometric yaw search is on, ~23 s of each
 calibration) and prints per-view roll RMS error, yaw and pitch errors (degrees), evaluations and wall time.
 
