@@ -136,6 +136,9 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
     check_output_file(out, force=args.force, option="--resume" if args.resume else "-o", existing=bool(args.resume))  # before the stage moves
     _check_views(args.views)
+    from vastcal.session_files import PathLock
+
+    PathLock(Path(out)).acquire().release()  # another writer on this path: refuse before connect_rig homes the stage
     from vastcal.rig import connect_rig
 
     cancel = _cancel_on_signals()
