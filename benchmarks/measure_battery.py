@@ -19,7 +19,9 @@ cases, the coverage, the median half-widths, and which features the failures car
 (``vastcal.calibrate.silhouettes.specimen_maps``) are carved with the simulator's true cameras, in
 this process — the silhouettes' own share of the error, in ~10 s per larva. ``--reuse`` keeps
 sessions already in ``--dir`` (a session that has been run holds its calibrations; ``vastcal run``
-adds new runs and reports the latest).
+adds new runs and reports the latest). Each finished larva is appended to
+``DIR/results-end-to-end.jsonl`` (or ``results-true-cameras.jsonl``); ``--summary`` prints the table
+and summary of what is there without running anything (e.g. of a run stopped early).
 
 Targets (issue 15): volume within 1 % and area within 2 % of the body hull on ≥ 28 of 30, none beyond
 3 %; the hull inside the k = 2 interval on ≥ 27 of 30.
@@ -33,7 +35,7 @@ import statistics
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +113,33 @@ def run_true_cameras(session: Path) -> dict[str, Any]:
             "verdict": "", "flags": f"frame_edge({len(edge)}v)" if edge.size else "", "lower_bound": bool(edge.size)}
 
 
+def finish_row(r: dict[str, Any]) -> None:
+    """Add the stated half-widths (% of the value) and whether the k = 2 intervals cover the truth."""
+    if "error" in r:
+        return
+    r["uv"] = None if r.get("U_volume") is None else 100.0 * r["U_volume"] / r["volume"]
+    r["ua"] = None if r.get("U_area") is None else 100.0 * r["U_area"] / r["area"]
+    r["in_v"] = None if r["uv"] is None else abs(r["volume"] - r["v_ref"]) <= r["U_volume"]
+    r["in_a"] = None if r["ua"] is None else abs(r["area"] - r["a_ref"]) <= r["U_area"]
+
+
+def print_row(r: dict[str, Any]) -> None:
+    """One line of the table."""
+    if "error" in r:
+        print(f"{r['seed']:>4} error: {r['error']} | {r['features']}", flush=True)
+        return
+
+    def f(x: float | None, w: int) -> str:
+        return f"{'-':>{w}}" if x is None else f"{x:>{w}.2f}"
+
+    def yn(x: bool | None) -> str:
+        return f"{'-':>3}" if x is None else f"{'yes' if x else 'NO':>3}"
+
+    print(f"{r['seed']:>4} {r['age']:>4.1f} {r['volume']:>7.4f} {r['dv']:>+6.2f} {f(r['uv'], 5)} {yn(r['in_v'])} {r['area']:>6.3f} "
+          f"{r['da']:>+6.2f} {f(r['ua'], 5)} {yn(r['in_a'])} {r['seconds']:>5.0f}  {r['verdict'] or '-':8} {r['flags'] or '-'}"
+          f"{' [cut: vs in-frame hull]' if r['cut'] else ''} | {r['features']}", flush=True)
+
+
 def pct(x: float | None, ref: float) -> float:
     return float("nan") if x is None else 100.0 * (float(x) / ref - 1.0)
 
@@ -124,10 +153,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=None, help="views per revolution (default: the rig file's, 21)")
     ap.add_argument("--reuse", action="store_true", help="keep sessions already in --dir")
     ap.add_argument("--true-cameras", action="store_true", help="silhouettes only: carve with the true cameras, no calibration")
+    ap.add_argument("--summary", action="store_true", help="print the table and summary of the results already in --dir, run nothing")
     a = ap.parse_args(argv)
     if a.n < 1 or a.jobs < 1:
         ap.error("--n and --jobs must be >= 1")
     a.dir.mkdir(parents=True, exist_ok=True)
+    if a.summary:
+        a.reuse = True
     seeds = list(range(a.first_seed, a.first_seed + a.n))
     mode = "true cameras, automatic silhouettes" if a.true_cameras else "end to end (vastcal run)"
     print(f"battery: {a.n} larvae (seeds {seeds[0]}-{seeds[-1]}), {mode}, {a.jobs} job(s), in {a.dir}", flush=True)
@@ -143,32 +175,27 @@ def main(argv: list[str] | None = None) -> int:
                    da=pct(res.get("area"), a_ref), age=tr.get("specimen", {}).get("age_dpf", float("nan")))
         return res
 
-    head = (f"{'seed':>4} {'dpf':>4} {'V mm3':>7} {'dV %':>6} {'±V %':>5} {'in':>3} {'A mm2':>6} {'dA %':>6} {'±A %':>5} {'in':>3} "
-            f"{'s':>5}  {'verdict':8} flags | features")
-    print(head, flush=True)
+    results = a.dir / ("results-true-cameras.jsonl" if a.true_cameras else "results-end-to-end.jsonl")
+    print(f"{'seed':>4} {'dpf':>4} {'V mm3':>7} {'dV %':>6} {'±V %':>5} {'in':>3} {'A mm2':>6} {'dA %':>6} {'±A %':>5} {'in':>3} "
+          f"{'s':>5}  {'verdict':8} flags | features", flush=True)
     rows: list[dict[str, Any]] = []
-    with ThreadPoolExecutor(max_workers=a.jobs) as pool:
-        for r in pool.map(one, seeds):
+    if a.summary:
+        done = [json.loads(line) for line in results.read_text().splitlines() if line.strip()] if results.is_file() else []
+        for r in sorted(done, key=lambda r: r["seed"]):
             rows.append(r)
-            if "error" in r:
-                print(f"{r['seed']:>4} error: {r['error']} | {r['features']}", flush=True)
-                continue
-            uv = None if r["U_volume"] is None else 100.0 * r["U_volume"] / r["volume"]
-            ua = None if r["U_area"] is None else 100.0 * r["U_area"] / r["area"]
-            r["uv"], r["ua"] = uv, ua
-            r["in_v"] = None if uv is None else abs(r["volume"] - r["v_ref"]) <= r["U_volume"]
-            r["in_a"] = None if ua is None else abs(r["area"] - r["a_ref"]) <= r["U_area"]
-
-            def f(x: float | None, w: int) -> str:
-                return f"{'-':>{w}}" if x is None else f"{x:>{w}.2f}"
-
-            def yn(x: bool | None) -> str:
-                return f"{'-':>3}" if x is None else f"{'yes' if x else 'NO':>3}"
-
-            print(f"{r['seed']:>4} {r['age']:>4.1f} {r['volume']:>7.4f} {r['dv']:>+6.2f} {f(uv, 5)} {yn(r['in_v'])} {r['area']:>6.3f} "
-                  f"{r['da']:>+6.2f} {f(ua, 5)} {yn(r['in_a'])} {r['seconds']:>5.0f}  {r['verdict'] or '-':8} {r['flags'] or '-'}"
-                  f"{' [cut: vs in-frame hull]' if r['cut'] else ''} | {r['features']}", flush=True)
-
+            print_row(r)
+    else:
+        results.write_text("")
+        with ThreadPoolExecutor(max_workers=a.jobs) as pool:
+            futures = [pool.submit(one, seed) for seed in seeds]
+            for fut in as_completed(futures):
+                r = fut.result()
+                finish_row(r)
+                rows.append(r)
+                print_row(r)
+                with results.open("a") as fh:
+                    fh.write(json.dumps(r) + "\n")
+        rows.sort(key=lambda r: r["seed"])
     ok = [r for r in rows if "error" not in r]
     print()
     print(f"summary over {len(rows)} larvae ({len(rows) - len(ok)} errors):")
