@@ -222,7 +222,9 @@ class CalibrationResult:
         return (f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
                 f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
                 f"roll − commanded (views 1..N-1): RMS {drift_rms_deg(d)[0]:.3f}°, max {drift_rms_deg(d)[1]:.3f}°"
-                f"{' - undetermined by the images: the rolls follow the prior' if {'rolls', 'all'} & set(self.free) else ''}\n"
+                f"{' - undetermined by the images: the rolls follow the prior' if {'rolls', 'all'} & set(self.free) and self.settings.roll_prior_weight > 0 else ''}\n"
+                f"  cost {self.final_cost:.6g} (commanded angles: {self.theta0_cost:.6g}), best of {0 if self.start_costs is None else len(self.start_costs)} "
+                f"start(s), {'converged' if self.converged else 'NOT converged'}: {self.stop_reason}\n"
                 f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
                 f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB")
 
