@@ -1,0 +1,87 @@
+"""vastcal batch: three small phantom sessions and a broken one on a real 2-process LocalCluster."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reconstruct"))  # phantom_views (--import-mode=importlib)
+
+from phantom_views import PhantomViews, render_views  # noqa: E402
+
+from simulators.camera.phantom import zebrafish_phantom  # noqa: E402
+
+pytest.importorskip("distributed", reason="dask[distributed] is not installed")
+
+
+def _rows(out: Path) -> dict[str, dict[str, str]]:
+    with (out / "measurements.csv").open() as f:
+        return {r["session"]: r for r in csv.DictReader(f)}
+
+
+def _fast_session(path: Path, views: PhantomViews) -> Path:
+    """A 9-view phantom session whose rig config keeps the run short (yaw only free, a 100 k-voxel grid)."""
+    from vastcal.config import CalibrationConfig, ReconstructionConfig, RigConfig, dump_config
+    from vastcal.session import SessionWriter
+
+    cfg = dataclasses.replace(RigConfig(), calibration=dataclasses.replace(CalibrationConfig(), free=("yaw",)),
+                              reconstruction=ReconstructionConfig(target_voxels=100_000))
+    n = len(views.angles_deg)
+    frames = (230 - 150 * views.coverage).astype(np.uint8)
+    with SessionWriter.create(path, frame_shape=frames.shape[1:], dtype=np.uint8, rig_yaml=dump_config(cfg), plan={"views": n}, live=False,
+                              pixel_size_um=(5.5, 5.5), title="phantom") as w:
+        for i in range(n):
+            w.append_view(frames[i], 360.0 * i / n)
+        w.write_masks(views.silhouettes)
+        w.write_cameras(views.P, source="phantom truth")
+        w.finish("success")
+    return path
+
+
+@pytest.mark.slow
+def test_batch_table_failure_and_resume(tmp_path: Path) -> None:
+    from vastcal.batch import run_batch
+
+    views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)
+    screen = tmp_path / "screen"
+    screen.mkdir()
+    for i in range(3):
+        _fast_session(screen / f"larva{i}.h5", views)
+    (screen / "broken.h5").write_bytes(b"not an HDF5 file at all")
+    (screen / "larva1.specimen.json").write_text(json.dumps({"specimen_id": "L-<1>", "age_dpf": 5, "strain": "AB", "well": "B3"}))
+    out = tmp_path / "results"
+
+    first = run_batch([screen], out, starts=1, n_workers=2, quiet=True)
+    assert (first.processed, first.skipped, first.failed) == (4, 0, 1)
+    rows = _rows(out)
+    assert sorted(rows) == ["broken", "larva0", "larva1", "larva2"]
+    assert rows["broken"]["status"] == "failed" and rows["broken"]["exit_class"] == "NotASessionError"
+    assert "broken.h5" in rows["broken"]["reason"]
+    for name in ("larva0", "larva1", "larva2"):
+        r = rows[name]
+        assert r["status"] == "ok", r
+        assert 0.12 < float(r["volume_mm3"]) < 0.2 and float(r["U_volume_mm3"]) > 0
+        assert 1.5 < float(r["area_mm2"]) < 3.0 and float(r["U_area_mm2"]) > 0
+        assert r["verdict"] != "-" and r["vastcal_version"] != "-"
+        assert (out / "reports" / name / "report.json").is_file()
+    assert rows["larva1"]["specimen_id"] == "L-<1>" and rows["larva1"]["well"] == "B3" and rows["larva0"]["strain"] == "-"
+    page = (out / "index.html").read_text()
+    assert "L-&lt;1&gt;" in page and "L-<1>" not in page  # escaped
+    assert 'href="reports/larva0/report.html"' in page and "NotASessionError" in page
+    if first.rows and (out / "measurements.parquet").exists():
+        import pyarrow.parquet as pq
+
+        assert pq.read_table(out / "measurements.parquet").num_rows == 4
+
+    # a second run skips what is done (the failed session is tried again) and never duplicates a row
+    before = {n: r["processed_at"] for n, r in _rows(out).items()}
+    second = run_batch([screen / "*.h5"], out, starts=1, n_workers=1, quiet=True)
+    assert (second.processed, second.skipped, second.failed) == (1, 3, 1)
+    after = {n: r["processed_at"] for n, r in _rows(out).items()}
+    assert len(after) == 4 and all(after[n] == before[n] for n in ("larva0", "larva1", "larva2"))

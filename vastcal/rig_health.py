@@ -1,0 +1,188 @@
+"""The rig's health across sessions: the stage's systematic angle error and the axis yaw/pitch over time.
+
+Pure functions of the calibrations stored by many sessions of one rig (as the batch collects them from
+each ``report.json``: commanded angles, calibrated − commanded angle per view, yaw, pitch, time).
+
+What the data can and cannot determine — say it with every figure:
+
+* Angles are relative to view 0 (ω_0 is held fixed), so a constant error common to all angles is not
+  determined; the curve is the error at each commanded angle *minus the error at 0°*.
+* Silhouettes constrain the individual rolls only weakly (docs/calibration.md, "What it does and does not
+  recover": a smooth drift of ±2° changes the silhouettes by a few hundredths of a pixel). Where a
+  calibration held the rolls at the commanded angles, or the rolls followed the prior, its deltas are
+  zero by construction and carry no information: such sessions are left out and counted. Averaging over
+  sessions reduces the random part (standard error ∝ 1/√n) but not a bias of the calibration towards the
+  commanded angles (the roll prior pulls there): a periodic stage error smaller than the per-session
+  roll uncertainty shows up attenuated, never amplified.
+* Yaw from silhouettes is weak too (the photometric yaw recovers it when enabled); pitch is well determined.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+ANGLE_DECIMALS = 3
+"""Commanded angles are grouped after rounding to 10⁻³ degree."""
+
+
+@dataclass
+class AngleError:
+    """Mean calibrated − commanded angle (degrees, relative to view 0) at one commanded angle, over sessions."""
+
+    commanded_deg: float
+    mean_deg: float
+    standard_error_deg: float
+    n_sessions: int
+
+
+@dataclass
+class AxisTrend:
+    """One axis angle (yaw or pitch, degrees) over sessions: mean ± standard error, and a linear drift per day."""
+
+    name: str
+    times: list[str]
+    values_deg: list[float]
+    mean_deg: float
+    standard_error_deg: float
+    slope_deg_per_day: float | None
+    slope_se_deg_per_day: float | None
+
+
+@dataclass
+class RigHealth:
+    """Angle error per commanded angle, yaw/pitch trends, and which sessions carried no information."""
+
+    angle_error: list[AngleError] = field(default_factory=list)
+    yaw: AxisTrend | None = None
+    pitch: AxisTrend | None = None
+    n_sessions: int = 0
+    n_rolls_informative: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def _rolls_informative(rec: Mapping[str, Any]) -> bool:
+    free = rec.get("free") or ()
+    if not ({"rolls", "all"} & set(free)):
+        return False
+    return rec.get("drift_status") not in ("not estimated", "undetermined")
+
+
+def angle_error_by_commanded(records: Sequence[Mapping[str, Any]]) -> list[AngleError]:
+    """Per commanded angle (deg), mean and standard error of calibrated − commanded over the given sessions.
+
+    ``records``: mappings with ``commanded_deg`` and ``delta_deg`` (equal-length sequences, degrees).
+    The standard error is the sample SD / √n (n ≥ 2; NaN for one session).
+    """
+    groups: dict[float, list[float]] = {}
+    for rec in records:
+        c, d = rec.get("commanded_deg"), rec.get("delta_deg")
+        if c is None or d is None or len(c) != len(d):
+            continue
+        for a, e in zip(c, d):
+            if a is None or e is None or not math.isfinite(float(e)):
+                continue
+            groups.setdefault(round(float(a) % 360.0, ANGLE_DECIMALS), []).append(float(e))
+    out = []
+    for a in sorted(groups):
+        v = np.asarray(groups[a])
+        se = float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else float("nan")
+        out.append(AngleError(a, float(v.mean()), se, len(v)))
+    return out
+
+
+def _days(t: str) -> float | None:
+    try:
+        return datetime.fromisoformat(t).timestamp() / 86400.0
+    except (TypeError, ValueError):
+        return None
+
+
+def axis_trend(name: str, records: Sequence[Mapping[str, Any]]) -> AxisTrend | None:
+    """``name`` (``yaw_deg``/``pitch_deg``) over the sessions' start times: mean ± SE and a least-squares slope ± SE."""
+    pts = [(r.get("time"), r.get(name)) for r in records if r.get(name) is not None]
+    pts = [(t, float(v)) for t, v in pts if math.isfinite(float(v))]
+    if not pts:
+        return None
+    pts.sort(key=lambda p: str(p[0]))
+    v = np.array([p[1] for p in pts])
+    se = float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else float("nan")
+    slope = slope_se = None
+    days = [_days(p[0]) for p in pts]
+    if len(v) >= 3 and all(d is not None for d in days):
+        x = np.array(days, float)
+        x -= x.mean()
+        sxx = float((x ** 2).sum())
+        if sxx > 0:
+            slope = float((x * (v - v.mean())).sum() / sxx)
+            resid = v - v.mean() - slope * x
+            slope_se = float(math.sqrt((resid ** 2).sum() / (len(v) - 2) / sxx))
+    return AxisTrend(name.removesuffix("_deg"), [str(p[0]) for p in pts], v.tolist(), float(v.mean()), se, slope, slope_se)
+
+
+def rig_health(records: Sequence[Mapping[str, Any]]) -> RigHealth:
+    """The rig's health from per-session calibration records (see the module docstring for what they cannot tell)."""
+    informative = [r for r in records if _rolls_informative(r)]
+    h = RigHealth(angle_error_by_commanded(informative), axis_trend("yaw_deg", records), axis_trend("pitch_deg", records),
+                  len(records), len(informative))
+    if len(informative) < len(records):
+        h.notes.append(f"{len(records) - len(informative)} of {len(records)} sessions held the rolls at the commanded angles "
+                       "(or their drift was not estimated): left out of the angle error")
+    h.notes.append("angles are relative to view 0: an error common to all angles is not determined")
+    h.notes.append("silhouettes constrain individual rolls only weakly and the roll prior pulls them to the commanded angles: "
+                   "a periodic stage error shows here attenuated, not amplified")
+    return h
+
+
+def _svg_points(xs: Sequence[float], ys: Sequence[float], es: Sequence[float], label: str, width: int = 420, height: int = 180) -> str:
+    pad = 30
+    ok = [(x, y, e if math.isfinite(e) else 0.0) for x, y, e in zip(xs, ys, es) if math.isfinite(y)]
+    if not ok:
+        return ""
+    x0, x1 = min(p[0] for p in ok), max(p[0] for p in ok)
+    y0, y1 = min(p[1] - p[2] for p in ok), max(p[1] + p[2] for p in ok)
+    if x1 <= x0:
+        x1 = x0 + 1
+    if y1 <= y0:
+        y0, y1 = y0 - 0.01, y1 + 0.01
+
+    def sx(x: float) -> float:
+        return pad + (x - x0) / (x1 - x0) * (width - 2 * pad)
+
+    def sy(y: float) -> float:
+        return height - pad - (y - y0) / (y1 - y0) * (height - 2 * pad)
+
+    marks = "".join(f'<line x1="{sx(x):.1f}" x2="{sx(x):.1f}" y1="{sy(y - e):.1f}" y2="{sy(y + e):.1f}" stroke="#888"/>'
+                    f'<circle cx="{sx(x):.1f}" cy="{sy(y):.1f}" r="2.5" fill="#b04a4a"/>' for x, y, e in ok)
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">'
+            f'<text x="{pad}" y="14" font-size="12">{html.escape(label)}</text>{marks}'
+            f'<text x="4" y="{pad}" font-size="10">{y1:.3g}</text><text x="4" y="{height - pad}" font-size="10">{y0:.3g}</text></svg>')
+
+
+def rig_health_html(h: RigHealth) -> str:
+    """An HTML section (inline SVG, every value escaped) for the batch overview."""
+    if h.n_sessions == 0:
+        return ""
+    parts = [f"<h2>Rig health ({h.n_sessions} calibrated sessions)</h2>"]
+    if h.angle_error:
+        parts.append(_svg_points([a.commanded_deg for a in h.angle_error], [a.mean_deg for a in h.angle_error],
+                                 [a.standard_error_deg for a in h.angle_error],
+                                 f"calibrated − commanded angle (deg, ± SE) vs commanded angle, {h.n_rolls_informative} sessions"))
+    else:
+        parts.append("<p>Stage angle error: not determined (no session calibrated its rolls).</p>")
+    for t in (h.yaw, h.pitch):
+        if t is None:
+            continue
+        slope = (f"; trend {t.slope_deg_per_day:+.3g} ± {t.slope_se_deg_per_day:.2g} °/day"
+                 if t.slope_deg_per_day is not None and t.slope_se_deg_per_day is not None else "")
+        parts.append(f"<p>{html.escape(t.name)}: mean {t.mean_deg:+.4f} ± {t.standard_error_deg:.2g}° (SE, n = {len(t.values_deg)})"
+                     f"{html.escape(slope)}</p>")
+        parts.append(_svg_points(list(range(len(t.values_deg))), t.values_deg, [0.0] * len(t.values_deg),
+                                 f"{t.name} (deg) per session, in time order"))
+    parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in h.notes) + "</ul>")
+    return "\n".join(parts)
