@@ -334,6 +334,10 @@ def run_batch(sessions: Iterable[str | Path], results_dir: str | Path, *, method
     """
     t_start = time.monotonic()
     say = say or log.info
+    if n_workers is not None and n_workers < 1:
+        raise UserInputError(f"--workers: expected an integer >= 1, got {n_workers}")
+    if starts < 1:
+        raise UserInputError(f"--starts: expected an integer >= 1, got {starts}")
     paths = expand_sessions(sessions)
     out = Path(results_dir)
     if out.exists() and not out.is_dir():

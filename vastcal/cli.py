@@ -266,6 +266,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table (exit 1 if any failed)."""
+    from vastcal.batch import run_batch
+
+    res = run_batch(args.sessions, args.output, method=args.method, seed=args.seed, starts=args.starts, force=args.force,
+                    scheduler=args.scheduler, n_workers=args.workers, quiet=args.quiet, say=_say)
+    print(res.summary())
+    return 1 if any(r.get("status") != "ok" for r in res.rows) else 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """vastcal demo [-o DIR]: acquire from the simulated rig, then run."""
     from vastcal.pipeline import demo
@@ -359,6 +369,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--starts", type=int, default=3, metavar="S",
                    help="independent calibration starts; the one of lowest cost is kept (default 3)")
     s.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("batch", help="run many sessions on Dask; one measurements table per screen")
+    s.add_argument("sessions", nargs="+", metavar="SESSIONS", help="session files, folders (every *.h5 below) or glob patterns")
+    s.add_argument("-o", "--output", required=True, metavar="RESULTS", help="results folder (measurements.csv, index.html, reports/)")
+    s.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="an existing Dask scheduler (default: DASK_SCHEDULER_ADDRESS, else a local cluster, one worker per core)")
+    s.add_argument("--workers", type=int, default=None, metavar="N", help="workers of the local cluster (default: one per core)")
+    s.add_argument("--force", action="store_true", help="re-process sessions already done with the same settings")
+    s.add_argument("--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr")
+    s.add_argument("--seed", type=int, default=None)
+    s.add_argument("--starts", type=int, default=3, metavar="S", help="independent calibration starts per session (default 3)")
+    s.set_defaults(func=cmd_batch)
     for sp in sub.choices.values():  # the global flags are accepted after the command too
         sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
         sp.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)")

@@ -85,3 +85,18 @@ def test_batch_table_failure_and_resume(tmp_path: Path) -> None:
     assert (second.processed, second.skipped, second.failed) == (1, 3, 1)
     after = {n: r["processed_at"] for n, r in _rows(out).items()}
     assert len(after) == 4 and all(after[n] == before[n] for n in ("larva0", "larva1", "larva2"))
+
+
+def test_batch_cli_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from vastcal.cli import main
+
+    assert main(["batch", str(tmp_path / "none"), "-o", str(tmp_path / "r")]) == 2
+    assert main(["batch", str(tmp_path), "-o", str(tmp_path / "r")]) == 2  # a folder without sessions
+    (tmp_path / "a.h5").write_bytes(b"x")
+    assert main(["batch", str(tmp_path / "a.h5"), "-o", str(tmp_path / "r"), "--workers", "0"]) == 2
+    (tmp_path / "r2").mkdir()
+    (tmp_path / "r2" / "batch_state.json").write_text("{")
+    assert main(["batch", str(tmp_path / "a.h5"), "-o", str(tmp_path / "r2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 4 and all(line.startswith("vastcal: error: ") for line in err), err
+    assert "batch_state.json" in err[3]
