@@ -171,10 +171,23 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
         log.debug("session %s: unexpected error\n%s", path, traceback.format_exc())
         row.update(status="failed", exit_class=type(exc).__name__, reason=f"unexpected error: {exc}".splitlines()[0], exit_code=1)
     row["t_total_s"] = time.monotonic() - t0
+    row["worker_peak_mb"] = _peak_rss_mb()
     row["fingerprint"] = file_fingerprint(Path(path))
     if row["status"] == "ok":
         row.update(_fields_from_report(Path(report_dir) / "report.json"))
     return row
+
+
+def _peak_rss_mb() -> float | None:
+    """Peak resident memory of this (worker) process so far, MB (Linux/macOS; None elsewhere)."""
+    try:
+        import resource
+        import sys
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
+    except (ImportError, OSError):
+        return None
 
 
 def _get(d: Any, *keys: str) -> Any:
