@@ -138,7 +138,9 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     _check_views(args.views)
     from vastcal.session_files import PathLock
 
-    PathLock(Path(out)).acquire().release()  # another writer on this path: refuse before connect_rig homes the stage
+    probe = PathLock(Path(out))
+    if probe.lock_path.exists():  # a writer holds (or held) this path: refuse before connect_rig homes the stage
+        probe.acquire().release()  # (no lock file: nobody writes; the probe then creates none)
     from vastcal.rig import connect_rig
 
     cancel = _cancel_on_signals()
