@@ -221,13 +221,22 @@ def main(argv: list[str] | None = None) -> int:
               f"area {statistics.median(r['ua'] for r in stated):.2f} % (target <= 2.5)")
     else:
         print("  k=2 interval: none in the reports")
-    print("  failures (volume > 1 % or area > 2 %) by drawn feature:")
+    print("  failures (volume > 1 % or area > 2 %) with and without each drawn feature:")
     fails = [r for r in ok if abs(r["dv"]) > V_TOL or abs(r["da"]) > A_TOL]
     keys = sorted({w.rstrip("0123456789.v").rstrip("0123456789") for r in ok for w in r["features"].split()})
     for k in keys:
         have = [r for r in ok if any(w.startswith(k) for w in r["features"].split())]
         bad = [r for r in have if r in fails]
-        print(f"    {k:8} {len(bad)}/{len(have)} fail" + (f": seeds {', '.join(str(r['seed']) for r in bad)}" if bad else ""))
+        rest = [r for r in ok if r not in have]
+        bad_rest = [r for r in rest if r in fails]
+        mean_dv = statistics.mean(r["dv"] for r in have)
+        print(f"    {k:8} with: {len(bad)}/{len(have)} fail (mean dV {mean_dv:+.2f} %)"
+              + (f"; without: {len(bad_rest)}/{len(rest)} fail (mean dV {statistics.mean(r['dv'] for r in rest):+.2f} %)" if rest
+                 else "; on every larva (not separable)"))
+    for name, lo, hi in (("blur < 0.7 px", 0.0, 0.7), ("blur >= 0.7 px", 0.7, 99.0)):
+        grp = [r for r in ok if lo <= float(next((w[4:] for w in r["features"].split() if w.startswith("blur")), "nan") or "nan") < hi]
+        if grp:
+            print(f"    {name:15} {sum(r in fails for r in grp)}/{len(grp)} fail (mean dV {statistics.mean(r['dv'] for r in grp):+.2f} %)")
     print(f"  time per larva: median {statistics.median(r['seconds'] for r in ok):.0f} s")
     return 0
 
