@@ -34,7 +34,8 @@ from typing import Any, Callable, Iterable, Sequence
 
 from vastcal.errors import OutputExistsError, UserInputError, VastcalError
 from vastcal.progress import ProgressLine, format_duration
-from vastcal.screen_table import SPECIMEN_FIELDS, atomic_write_bytes, write_index, write_table
+from vastcal.screen_table import atomic_write_bytes, write_index, write_table
+from vastcal.specimen import read_specimen
 
 log = logging.getLogger(__name__)
 
@@ -129,21 +130,6 @@ def file_fingerprint(path: Path) -> dict[str, Any]:
     return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
-def read_specimen(path: Path) -> dict[str, Any]:
-    """Specimen metadata from ``S.specimen.json`` beside session ``S.h5`` (``{}`` when absent or unreadable)."""
-    side = path.with_suffix(".specimen.json")
-    try:
-        data = json.loads(side.read_text())
-    except (OSError, ValueError):
-        return {}
-    if not isinstance(data, dict):
-        return {}
-    out = {k: data.get(k) for k in SPECIMEN_FIELDS if data.get(k) not in (None, "")}
-    if "specimen_id" not in out and data.get("id") not in (None, ""):
-        out["specimen_id"] = data["id"]
-    return out
-
-
 # ---------------------------------------------------------------- the task (runs on a worker)
 
 
@@ -154,8 +140,10 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
     or any other exception becomes a row with ``status`` ``failed``, the reason and the exit class.
     ``_rig`` holds what :mod:`vastcal.rig_health` needs (not a table column).
     """
+    from vastcal.allocator import keep_large_blocks
     from vastcal.pipeline import run_session
 
+    keep_large_blocks()  # as the vastcal command does: reuse the calibration's large temporaries
     t0 = time.monotonic()
     row: dict[str, Any] = {"path": path, "worker": f"{socket.gethostname()}:{os.getpid()}",
                            "processed_at": datetime.now(timezone.utc).isoformat(timespec="seconds")}

@@ -278,6 +278,25 @@ def cmd_batch(args: argparse.Namespace) -> int:
     return 1 if any(r.get("status") != "ok" for r in res.rows) else 0
 
 
+def cmd_annotate(args: argparse.Namespace) -> int:
+    """vastcal annotate S.h5… --id … | --manifest screen.csv: specimen metadata in S.specimen.json sidecars."""
+    from vastcal.specimen import annotate, annotate_from_manifest
+
+    fields = {"specimen_id": args.id, "age_dpf": args.age_dpf, "strain": args.strain, "treatment": args.treatment,
+              "plate": args.plate, "well": args.well}
+    if args.manifest:
+        if args.sessions:
+            raise UserInputError("annotate: give sessions with fields, or --manifest, not both")
+        written = annotate_from_manifest(args.manifest)
+    else:
+        if not args.sessions or all(v is None for v in fields.values()):
+            raise UserInputError("annotate: expected session files and at least one of --id --age-dpf --strain --treatment --plate --well")
+        written = [annotate(s, fields) for s in args.sessions]
+    for w in written:
+        print(f"wrote {w}")
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """vastcal demo [-o DIR]: acquire from the simulated rig, then run."""
     from vastcal.pipeline import demo
@@ -383,6 +402,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=None)
     s.add_argument("--starts", type=int, default=3, metavar="S", help="independent calibration starts per session (default 3)")
     s.set_defaults(func=cmd_batch)
+
+    s = sub.add_parser("annotate", help="attach specimen metadata to sessions (S.specimen.json beside S.h5)")
+    s.add_argument("sessions", nargs="*", metavar="S.h5")
+    s.add_argument("--manifest", metavar="CSV", help="CSV with a 'session' column and specimen_id, age_dpf, strain, treatment, plate, well")
+    s.add_argument("--id", default=None, help="specimen ID")
+    s.add_argument("--age-dpf", default=None, help="age, days post fertilisation")
+    s.add_argument("--strain", default=None)
+    s.add_argument("--treatment", default=None)
+    s.add_argument("--plate", default=None)
+    s.add_argument("--well", default=None)
+    s.set_defaults(func=cmd_annotate)
     for sp in sub.choices.values():  # the global flags are accepted after the command too
         sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
         sp.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)")
