@@ -34,7 +34,8 @@ import numpy as np
 from vastcal.config import RigConfig, dump_config
 from vastcal.devices import Camera, CameraSettings, Frame, RotationStage
 from vastcal.errors import AcquisitionAborted, DeviceError, DeviceTimeoutError, SessionError, SessionIncompleteError, UserInputError, VastcalError
-from vastcal.session import Session, SessionWriter, check_writable_output
+from vastcal.outputs import check_output_file
+from vastcal.session import Session, SessionWriter
 from vastcal.session_files import PathLock
 
 log = logging.getLogger(__name__)
@@ -163,7 +164,7 @@ def acquire(
         writer = SessionWriter.resume(out, durable=cfg.acquisition.sync_each_view)  # takes the path's writer lock
         lock = None
     else:
-        check_writable_output(out, force)
+        check_output_file(out, force=force)
         lock = PathLock(out).acquire()  # one writer per path, taken before the stage moves
         plan = RevolutionPlan.uniform(views or cfg.acquisition.views, cycle)
         try:

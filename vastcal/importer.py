@@ -33,7 +33,7 @@ from vastcal.config import CameraConfig, RigConfig, RoiConfig, check_setting, du
 from vastcal.errors import ImportDataError
 from vastcal.geometry import shift_pixels
 from vastcal.outputs import check_output_file
-from vastcal.session import SessionWriter, check_writable_output
+from vastcal.session import SessionWriter
 
 log = logging.getLogger(__name__)
 
@@ -284,7 +284,7 @@ def import_folder(
     """
     folder, out = Path(folder), Path(output)
     check_output_file(out, force=force)  # directories, devices, symlinks, read-only folders: refused before reading
-    check_writable_output(out, force)
+    check_output_file(out, force=force)
     if pixel_origin not in PIXEL_ORIGINS:
         raise ImportDataError(f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
                               f"(the coordinate of the first pixel's centre, --pixel-origin), got {pixel_origin}")

@@ -71,7 +71,8 @@ import numpy as np
 
 from vastcal import __version__
 from vastcal.errors import NotASessionError, OutputExistsError, SessionCorruptError, SessionError, SessionIncompleteError
-from vastcal.session_files import PathLock, check_output_path, place_atomically
+from vastcal.outputs import check_output_file
+from vastcal.session_files import PathLock, place_atomically
 
 log = logging.getLogger(__name__)
 
@@ -139,15 +140,6 @@ def _set_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
 def _attr_str(v: Any) -> Any:
     return v.decode() if isinstance(v, bytes) else v
 
-
-def check_writable_output(path: str | Path, force: bool) -> Path:
-    """Refuse to replace an existing file unless ``force``, or anything that is not a regular file.
-
-    Raises:
-        OutputExistsError: the file exists and ``force`` is false.
-        UserInputError: the path is a directory, a device or another non-regular file.
-    """
-    return check_output_path(path, force)
 
 
 def _os_error(exc: BaseException, path: Path) -> OSError:
@@ -289,7 +281,7 @@ class SessionWriter:
             OutputExistsError: the file exists and ``force`` is false.
             SessionBusyError: another process is writing the same path.
         """
-        p = check_writable_output(path, force)
+        p = check_output_file(path, force=force)
         p.parent.mkdir(parents=True, exist_ok=True)
         lock = (lock or PathLock(p)).acquire()
         try:

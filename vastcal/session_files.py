@@ -7,8 +7,6 @@
   ``rename`` (``os.replace``) or, when nothing may be replaced, one ``link`` that fails if the name
   appeared meanwhile; the file's data and the directory entry are ``fsync``-ed first, so after the
   call the new name refers to the whole new file, even across a power cut.
-* :func:`check_output_path` — refuse outputs that exist (without ``force``) and, even with
-  ``force``, anything that is not a regular file (a directory, a device node, a FIFO).
 """
 
 from __future__ import annotations
@@ -17,12 +15,12 @@ import errno
 import fcntl
 import logging
 import os
-import stat
 import time
 from pathlib import Path
 from types import TracebackType
 
-from vastcal.errors import OutputExistsError, SessionBusyError, UserInputError
+from vastcal.errors import OutputExistsError, SessionBusyError
+from vastcal.outputs import check_output_file
 
 log = logging.getLogger(__name__)
 
@@ -36,33 +34,6 @@ def fsync_path(path: Path) -> None:
         os.close(fd)
 
 
-def check_output_path(path: str | Path, force: bool) -> Path:
-    """Return ``path`` if a new file may be written there.
-
-    Raises:
-        OutputExistsError: the file exists and ``force`` is false.
-        UserInputError: the path exists and is not a regular file (directory, device, FIFO, …),
-            or its folder cannot be written.
-    """
-    p = Path(path)
-    try:
-        st = os.stat(p)
-    except FileNotFoundError:
-        st = None
-    except OSError as exc:
-        raise UserInputError(f"{p}: cannot use as output ({exc.strerror})") from None
-    if st is not None:
-        if not stat.S_ISREG(st.st_mode):
-            kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
-            raise UserInputError(f"{p}: is {kind}; give a file name for the output (--force only replaces regular files)")
-        if not force:
-            raise OutputExistsError(f"{p}: file exists; pass --force to overwrite it")
-    parent = p.parent if str(p.parent) else Path(".")
-    if parent.exists() and not os.access(parent, os.W_OK | os.X_OK):
-        raise UserInputError(f"{p}: folder {parent} is not writable")
-    return p
-
-
 def place_atomically(tmp: Path, final: Path, replace: bool) -> None:
     """Make the finished file ``tmp`` appear as ``final`` in one step, durably.
 
@@ -72,11 +43,11 @@ def place_atomically(tmp: Path, final: Path, replace: bool) -> None:
 
     Raises:
         OutputExistsError: ``final`` exists and ``replace`` is false.
-        UserInputError: ``final`` is not a regular file.
+        UserInputError: ``final`` is not a regular file (see :func:`vastcal.outputs.check_output_file`).
     """
     fsync_path(tmp)
     if replace:
-        check_output_path(final, force=True)
+        check_output_file(final, force=True)
         os.replace(tmp, final)
     else:
         try:
