@@ -96,6 +96,9 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
     try:
         session.require_complete(min_views=3)
         cfg = session.rig_config().calibration
+        if method is None and cfg.method == "pi":
+            log.warning("%s: its rig file asks for method pi, the paper's objective as published (since 2026-11-25); vastcal's "
+                        "default cost is now called coherence (--method coherence)", session.path)
         method = method or cfg.method
         seed = cfg.seed if seed is None else int(seed)
         free = cfg.free if free is None else free
