@@ -623,7 +623,8 @@ class SessionWriter:
             self.close()
 
 
-def _json_default(v: Any) -> Any:
+def _plain(v: Any) -> Any:
+    """A NumPy scalar or array as the Python value JSON and callers expect (others unchanged)."""
     if isinstance(v, np.generic):
         item = v.item()
         if isinstance(item, np.generic):  # long double, complex long double …: no Python twin
@@ -631,7 +632,12 @@ def _json_default(v: Any) -> Any:
         return item
     if isinstance(v, np.ndarray):
         return v.tolist()
-    return str(v)
+    return v
+
+
+def _json_default(v: Any) -> Any:
+    plain = _plain(v)
+    return str(plain) if plain is v else plain
 
 
 def _open_h5_for_reading(p: Path) -> tuple[h5py.File, bool]:
@@ -1089,14 +1095,7 @@ def _decode_json(v: Any) -> Any:
             return json.loads(v)
         except ValueError:
             return v
-    if isinstance(v, np.generic):
-        item = v.item()
-        if isinstance(item, np.generic):  # long double, complex long double …: no Python twin
-            return float(item.real) if np.issubdtype(item.dtype, np.number) else str(item)
-        return item
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    return v
+    return _plain(v)
 
 
 def write_attrs(group: h5py.Group, attrs: dict[str, Any]) -> None:
