@@ -21,6 +21,24 @@ Three things in that map are not the specimen's outline, and this module removes
    moved to half the specimen's mean contrast, and +0.9 % (area +0.3 %) at half the local rim's;
    the rim then lies 0.1 px outside the hand-made outline on average (−0.4…+0.5 px per view).
 
+For an absorbing specimen (darker than its background: transmitted light) three more rules apply,
+each from physics that holds for any larva (issue 15):
+
+4. **The capillary's walls** are found as thin static lines, tilted or not (:func:`wall_lines`), and
+   cleared where the static scene explains them; a larva lying against a wall keeps its edge
+   (:func:`clear_wall_lines`).
+5. **Translucent sheets** — the fin fold and the pectoral fins, whose optical density is a small
+   fraction of the body's next to them — are dropped (:mod:`.translucent`).
+6. **Parts no rigid body explains** — debris and bubbles drifting in the capillary, a sheet of fin cut
+   off from the body — are dropped (:mod:`.specimen_parts`).
+
+A specimen that runs out of the frame is kept (the largest region of a view is never a static blob);
+:func:`touches_frame_edge` says in which views (its volume and area are then lower bounds). The rims
+of absorbing specimens carry soft values (the fraction of the edge's contrast) for sub-pixel edges.
+On ZF1 (authors' PI cameras, their grid) the automatic silhouettes' IoU with the hand masks went from
+0.897 to 0.971 (mean over views), the hull from +0.95 % / +0.27 % (volume / area) to +0.85 % / −0.62 %
+against the published 0.249 mm³ / 3.24 mm².
+
 :func:`specimen_maps` composes them; calibration and reconstruction both use it.
 """
 
