@@ -144,7 +144,7 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
     from vastcal.pipeline import run_session
 
     keep_large_blocks()  # as the vastcal command does: reuse the calibration's large temporaries
-    t0 = time.monotonic()
+    t0, c0 = time.monotonic(), time.process_time()
     row: dict[str, Any] = {"path": path, "worker": f"{socket.gethostname()}:{os.getpid()}",
                            "processed_at": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     try:
@@ -159,6 +159,7 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
         log.debug("session %s: unexpected error\n%s", path, traceback.format_exc())
         row.update(status="failed", exit_class=type(exc).__name__, reason=f"unexpected error: {exc}".splitlines()[0], exit_code=1)
     row["t_total_s"] = time.monotonic() - t0
+    row["cpu_s"] = time.process_time() - c0  # user + system CPU of the worker process during this session
     row["worker_peak_mb"] = _peak_rss_mb()
     row["fingerprint"] = file_fingerprint(Path(path))
     if row["status"] == "ok":
@@ -297,6 +298,9 @@ def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
     """A Dask client: on ``scheduler`` (or ``DASK_SCHEDULER_ADDRESS``), else on a new LocalCluster."""
     from distributed import Client, LocalCluster
 
+    if not logging.getLogger("vastcal").isEnabledFor(logging.DEBUG):  # Dask's own INFO lines only with -vv
+        for name in ("distributed", "bokeh", "tornado"):
+            logging.getLogger(name).setLevel(logging.WARNING)
     address = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS")
     if address:
         try:

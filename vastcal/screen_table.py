@@ -32,14 +32,14 @@ COLUMNS: tuple[str, ...] = (
     "volume_mm3", "U_volume_mm3", "area_mm2", "U_area_mm2", "k",
     "verdict", "flags",
     "n_views", "cal_method", "cal_final_cost", "cal_yaw_deg", "cal_pitch_deg", "cal_drift_rms_deg", "cal_drift_status",
-    "vastcal_version", "t_calibrate_s", "t_reconstruct_s", "t_report_s", "t_total_s",
+    "vastcal_version", "t_calibrate_s", "t_reconstruct_s", "t_report_s", "t_total_s", "cpu_s",
     "worker", "worker_peak_mb", "processed_at", "uid", "report", "path",
 )
 """Columns of ``measurements.csv`` in order."""
 
 NUMERIC: frozenset[str] = frozenset({"age_dpf", "volume_mm3", "U_volume_mm3", "area_mm2", "U_area_mm2", "k", "n_views", "cal_final_cost",
                                      "cal_yaw_deg", "cal_pitch_deg", "cal_drift_rms_deg", "t_calibrate_s", "t_reconstruct_s",
-                                     "t_report_s", "t_total_s", "worker_peak_mb"})
+                                     "t_report_s", "t_total_s", "cpu_s", "worker_peak_mb"})
 
 MISSING = "-"
 

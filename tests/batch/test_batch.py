@@ -100,3 +100,46 @@ def test_batch_cli_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureF
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 4 and all(line.startswith("vastcal: error: ") for line in err), err
     assert "batch_state.json" in err[3]
+
+
+@pytest.mark.slow
+def test_a_killed_worker_is_retried_and_no_row_is_duplicated(tmp_path: Path) -> None:
+    """A real 2-process LocalCluster; one worker process is SIGKILLed while it runs a session."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from distributed import Client, LocalCluster
+
+    from vastcal.batch import run_batch
+
+    views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)
+    screen = tmp_path / "screen"
+    screen.mkdir()
+    for i in range(4):
+        _fast_session(screen / f"larva{i}.h5", views)
+    killed: list[int] = []
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=50) as cluster, \
+            Client(cluster) as client:
+
+        def kill_one() -> None:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and not killed:
+                busy = [w for w, tasks in client.processing().items() if tasks]
+                if busy:
+                    time.sleep(2.0)  # inside run_session
+                    pid = client.run(os.getpid, workers=[busy[0]])[busy[0]]
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+                time.sleep(0.2)
+
+        killer = threading.Thread(target=kill_one, daemon=True)
+        killer.start()
+        res = run_batch([screen], tmp_path / "out", starts=1, scheduler=cluster.scheduler_address, quiet=True)
+        killer.join(5)
+    assert killed, "no worker was killed (the batch ended before the killer found a running task)"
+    rows = _rows(tmp_path / "out")
+    assert sorted(rows) == ["larva0", "larva1", "larva2", "larva3"]
+    assert all(r["status"] == "ok" for r in rows.values()), rows
+    assert res.processed == 4 and len(res.rows) == 4
