@@ -6,11 +6,13 @@
    in ``DIR/battery``).
 2. Sequential: ``vastcal run`` on a copy of each session, one after the other (wall time of each).
 3. Batch: ``vastcal batch`` on other copies with a W-worker LocalCluster (default: one per core).
-4. Prints sessions per hour for both, the speed-up, the peak resident memory of each worker (from the
-   table's ``worker_peak_mb``), and what a 10 000-larva screen costs on 1, 2, 8, 32 and 128 workers at the
-   measured per-session time (arithmetic, assuming the cluster's workers are like this machine's cores).
+4. Prints sessions per hour for both, the speed-up, CPU seconds per session (steadier than wall time on a
+   shared machine), the peak resident memory of each worker (the table's ``worker_peak_mb``), and what a
+   10 000-larva screen costs on 1, 2, 8, 32 and 128 workers at the measured CPU time per session
+   (arithmetic, assuming each worker has one unshared core like these).
 
-Timings on a shared machine are noisy; the load average is printed beside them.
+Wall times on a shared machine are noisy (a batch of 2 processes also gets a larger share of a machine
+loaded by others than one sequential process does); the load average is printed beside them.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -53,6 +56,7 @@ def main() -> int:
 
     seq_s = float("nan")
     per_session: list[float] = []
+    cpu_seq: list[float] = []
     if not a.skip_sequential:
         seq = a.workdir / "sequential"
         shutil.rmtree(seq, ignore_errors=True)
@@ -61,10 +65,13 @@ def main() -> int:
         for s in sessions:
             copy = Path(shutil.copy(s, seq / s.name))
             t = time.monotonic()
+            c = resource.getrusage(resource.RUSAGE_CHILDREN)
             subprocess.run(_vastcal("run", str(copy), "-o", str(seq / (s.stem + "-report")), "--starts", str(a.starts), "-q"),
                            check=True, stdout=subprocess.DEVNULL)
             per_session.append(time.monotonic() - t)
-            print(f"  sequential {s.name}: {per_session[-1]:.1f} s", flush=True)
+            c2 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu_seq.append(c2.ru_utime + c2.ru_stime - c.ru_utime - c.ru_stime)
+            print(f"  sequential {s.name}: {per_session[-1]:.1f} s wall, {cpu_seq[-1]:.1f} s CPU", flush=True)
         seq_s = time.monotonic() - t0
 
     par = a.workdir / "batch-input"
@@ -95,9 +102,15 @@ def main() -> int:
           f"(includes cluster start-up)")
     if per_session:
         print(f"speed-up over sequential: {seq_s / batch_s:.2f}x")
+    cpu_batch = [float(r["cpu_s"]) for r in ok if r.get("cpu_s", "-") != "-"]
+    if cpu_batch:
+        print(f"CPU per session in the batch workers: mean {sum(cpu_batch) / len(cpu_batch):.1f} s"
+              + (f"; sequential vastcal run: mean {sum(cpu_seq) / len(cpu_seq):.1f} s (includes process start-up)" if cpu_seq else "")
+              + f" -> {3600 * len(cpu_batch) / sum(cpu_batch):.0f} sessions per hour per fully used core")
     print("peak resident memory per worker (MB): " + ", ".join(f"{v:.0f}" for v in sorted(peaks.values())))
-    per = (seq_s / len(sessions)) if per_session else batch_s * workers / len(sessions)
-    print(f"10 000-larva screen at {per:.1f} s per session per worker (perfect scaling, no I/O limit):")
+    per = sum(cpu_batch) / len(cpu_batch) if cpu_batch else batch_s * workers / len(sessions)
+    print(f"10 000-larva screen at {per:.1f} CPU s per session per worker (a worker = one unshared core like these; "
+          "perfect scaling, no I/O limit):")
     for n in (1, 2, 8, 32, 128):
         hours = 10_000 * per / n / 3600
         print(f"  {n:4d} workers: {hours:8.1f} h  ({hours * n:.0f} worker-hours)")
