@@ -30,6 +30,9 @@ import numpy as np
 ANGLE_DECIMALS = 3
 """Commanded angles are grouped after rounding to 10⁻³ degree."""
 
+MIN_TREND_SPAN_DAYS = 1.0
+"""A yaw/pitch trend (degrees per day) is fitted only over sessions spanning at least this many days."""
+
 
 @dataclass
 class AngleError:
@@ -104,7 +107,8 @@ def _days(t: str) -> float | None:
 
 
 def axis_trend(name: str, records: Sequence[Mapping[str, Any]]) -> AxisTrend | None:
-    """``name`` (``yaw_deg``/``pitch_deg``) over the sessions' start times: mean ± SE and a least-squares slope ± SE."""
+    """``name`` (``yaw_deg``/``pitch_deg``) over the sessions' start times: mean ± SE and a least-squares slope ± SE
+    (per day; only when the sessions span :data:`MIN_TREND_SPAN_DAYS` or more)."""
     pts = [(r.get("time"), r.get(name)) for r in records if r.get(name) is not None]
     pts = [(t, float(v)) for t, v in pts if math.isfinite(float(v))]
     if not pts:
@@ -118,7 +122,7 @@ def axis_trend(name: str, records: Sequence[Mapping[str, Any]]) -> AxisTrend | N
         x = np.array(days, float)
         x -= x.mean()
         sxx = float((x ** 2).sum())
-        if sxx > 0:
+        if float(x.max() - x.min()) >= MIN_TREND_SPAN_DAYS and sxx > 0:
             slope = float((x * (v - v.mean())).sum() / sxx)
             resid = v - v.mean() - slope * x
             slope_se = float(math.sqrt((resid ** 2).sum() / (len(v) - 2) / sxx))
@@ -132,7 +136,7 @@ def rig_health(records: Sequence[Mapping[str, Any]]) -> RigHealth:
                   len(records), len(informative))
     if len(informative) < len(records):
         h.notes.append(f"{len(records) - len(informative)} of {len(records)} sessions held the rolls at the commanded angles "
-                       "(or their drift was not estimated): left out of the angle error")
+                       "or their report marks the drift not estimated/undetermined (rolls following the prior): left out of the angle error")
     h.notes.append("angles are relative to view 0: an error common to all angles is not determined")
     h.notes.append("silhouettes constrain individual rolls only weakly and the roll prior pulls them to the commanded angles: "
                    "a periodic stage error shows here attenuated, not amplified")
