@@ -36,6 +36,10 @@ from vastcal.errors import AnalysisError
 log = logging.getLogger(__name__)
 
 
+
+LENGTH_UNITS_UM: dict[str, float] = {"nm": 1e-3, "um": 1.0, "mm": 1e3, "cm": 1e4, "m": 1e6}
+"""Micrometres per unit of the length units a camera world may be given in."""
+
 def rot_x(angle_rad: np.ndarray | float) -> np.ndarray:
     """Rotation matrices about x for angles in radians; shape (..., 3, 3)."""
     a = np.asarray(angle_rad, dtype=float)

@@ -31,7 +31,7 @@ import numpy as np
 
 from vastcal.config import CameraConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError
-from vastcal.geometry import shift_pixels
+from vastcal.geometry import LENGTH_UNITS_UM, shift_pixels
 from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter
 
@@ -154,8 +154,6 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     return angles
 
 
-#: Length units an imported camera file's world may be in, and their size in micrometres.
-LENGTH_UNITS_UM: dict[str, float] = {"nm": 1e-3, "um": 1.0, "mm": 1e3, "cm": 1e4, "m": 1e6}
 
 
 def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:

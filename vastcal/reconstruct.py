@@ -48,6 +48,7 @@ import cv2
 import numpy as np
 
 from vastcal.errors import AnalysisError, EmptyHullError, MissingStageError, UserInputError, VastcalError
+from vastcal.geometry import LENGTH_UNITS_UM
 from vastcal.voxels import VoxelGrid, grid_around_specimen
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -516,6 +517,7 @@ class ReconstructionInputs:
         camera_source: ``"calibration/run_NNN"`` or ``"cameras (imported)"``.
         silhouette_source: ``"masks"`` or ``"colour_model of calibration/run_NNN (p >= 0.5)"``.
         calibration_run: name of the calibration run used, or None.
+        length_unit: the cameras' world unit as given (P is re-expressed in µm), or ``"unknown"``.
     """
 
     P: np.ndarray
@@ -523,6 +525,7 @@ class ReconstructionInputs:
     camera_source: str
     silhouette_source: str
     calibration_run: str | None
+    length_unit: str = "um"
 
 
 FOREGROUND_THRESHOLD = 0.5
@@ -564,6 +567,7 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
         raise MissingStageError(f"{path}: no calibrated cameras: run 'vastcal calibrate {path}' first")
     if P.shape[0] != n:
         raise AnalysisError(f"{path}: {P.shape[0]} cameras for {n} projection views")
+    P, length_unit = cameras_in_um(P, _world_length_unit(session, cal))
 
     masks = session.masks
     if use_masks and masks is None:
@@ -587,7 +591,30 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
         raise MissingStageError(f"{path}: no silhouettes (no colour model and no masks): run 'vastcal calibrate {path}' first")
     if sil.shape[0] != n:
         raise AnalysisError(f"{path}: {sil.shape[0]} silhouettes for {n} projection views")
-    return ReconstructionInputs(P, sil, cam_src, sil_src, cal_name)
+    return ReconstructionInputs(P, sil, cam_src, sil_src, cal_name, length_unit)
+
+
+def _world_length_unit(session: Any, cal: Any) -> str:
+    """The length unit of the cameras' world: the calibration run's, else the imported cameras', else µm (a rig)."""
+    from vastcal.session import read_attrs
+
+    if cal is not None and "distance_units" in cal.attrs:
+        return str(read_attrs(cal).get("distance_units", "um"))
+    cams = session.h5["/entry/vastcal"].get("cameras")
+    return str(read_attrs(cams).get("length_unit", "um")) if cams is not None else "um"
+
+
+def cameras_in_um(P: np.ndarray, unit: str) -> tuple[np.ndarray, str]:
+    """Cameras whose world is in ``unit`` (one of :data:`vastcal.geometry.LENGTH_UNITS_UM`), re-expressed
+    with the world in µm, so that every voxel size and measurement downstream is in µm.
+
+    An unknown unit is left as it is (read as µm) and returned as ``"unknown"``: the measurement
+    then labels its numbers "(units of the cameras)".
+    """
+    scale = LENGTH_UNITS_UM.get(unit)
+    if scale is None:
+        return P, "unknown"
+    return P @ np.diag([1.0 / scale, 1.0 / scale, 1.0 / scale, 1.0]), unit
 
 
 def choose_grid(P: np.ndarray, silhouettes: np.ndarray, *, voxel_size_um: float | None = None, target_voxels: int = 5_000_000) -> VoxelGrid:
@@ -696,7 +723,8 @@ def reconstruct_session(
         store_reconstruction(rec, hull, inputs, {"voxel_size_um": size, "target_voxels": target, "block": BLOCK,
                                                   "foreground_threshold": FOREGROUND_THRESHOLD, "use_masks": use_masks})
         meas = meas.with_provenance(reconstruction_run=rec.name.rsplit("/", 1)[-1], calibration_run=inputs.calibration_run,
-                                    camera_source=inputs.camera_source, silhouette_source=inputs.silhouette_source)
+                                    camera_source=inputs.camera_source, silhouette_source=inputs.silhouette_source,
+                                    length_unit=inputs.length_unit)
         from vastcal.uncertainty import assess_session_measurement  # uncertainty budget and per-view QC (helper H3)
 
         meas = assess_session_measurement(s, inputs, hull, meas)

@@ -230,8 +230,13 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         "run": mrun,
         "volume_mm3": ma.get("volume_mm3"), "mesh_volume_mm3": ma.get("mesh_volume_mm3"), "surface_area_mm2": ma.get("surface_area_mm2"),
         "raw_surface_area_mm2": ma.get("raw_surface_area_mm2"),
-        "units": {"volume_mm3": "mm^3", "mesh_volume_mm3": "mm^3", "surface_area_mm2": "mm^2", "raw_surface_area_mm2": "mm^2",
-                  "voxel_size_um": "um", "iso_level": "silhouettes"},
+        "units": ({"volume_mm3": "mm^3", "mesh_volume_mm3": "mm^3", "surface_area_mm2": "mm^2", "raw_surface_area_mm2": "mm^2",
+                   "voxel_size_um": "um", "iso_level": "silhouettes"}
+                  if (ma.get("provenance") or {}).get("length_unit") != "unknown" else
+                  {"volume_mm3": "1e-9 (units of the cameras)^3", "mesh_volume_mm3": "1e-9 (units of the cameras)^3",
+                   "surface_area_mm2": "1e-6 (units of the cameras)^2", "raw_surface_area_mm2": "1e-6 (units of the cameras)^2",
+                   "voxel_size_um": "units of the cameras", "iso_level": "silhouettes",
+                   "note": "the cameras' length unit is unknown (vastcal import --length-unit): values are in the cameras' own units"}),
         "volume_method": ma.get("volume_method", ""), "surface_method": ma.get("surface_method", ""),
         "n_views": ma.get("n_views"), "voxel_size_um": ma.get("voxel_size_um"), "n_inside_voxels": ma.get("n_inside_voxels"),
         "iso_level": ma.get("iso_level"), "n_mesh_vertices": ma.get("n_mesh_vertices"), "n_mesh_faces": ma.get("n_mesh_faces"),
