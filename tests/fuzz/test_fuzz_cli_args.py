@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import os
 import random
+import sys
 import stat
-import struct
-import zlib
 from pathlib import Path
 from types import ModuleType
 
@@ -18,18 +17,13 @@ import cv2
 import numpy as np
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # hostile_files (--import-mode=importlib)
+from hostile_files import png_claiming  # noqa: E402
+
 from vastcal import cli
 from vastcal.importer import import_folder
 
 CASES = 100
-
-
-def _png_claiming(width: int, height: int) -> bytes:
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b""))
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +43,7 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (w / "bin.bin").write_bytes(rng.integers(0, 256, 4096, dtype=np.uint8).tobytes())
     (w / "img.png").write_bytes((w / "imgs" / "v0.png").read_bytes())
     cv2.imwrite(str(w / "img.tif"), np.zeros((16, 16), np.uint8))
-    (w / "huge.png").write_bytes(_png_claiming(100_000, 100_000))
+    (w / "huge.png").write_bytes(png_claiming(100_000, 100_000))
     (w / "emptydir").mkdir()
     (w / "badimgs").mkdir()
     (w / "badimgs" / "a.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")

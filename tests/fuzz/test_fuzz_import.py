@@ -8,8 +8,7 @@ leaves no output (nor a temporary file) behind."""
 from __future__ import annotations
 
 import random
-import struct
-import zlib
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -17,19 +16,14 @@ import cv2
 import numpy as np
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # hostile_files (--import-mode=importlib)
+from hostile_files import png_claiming  # noqa: E402
+
 from vastcal.errors import VastcalError
 from vastcal.importer import import_folder
 from vastcal.session import Session
 
 CASES = 70
-
-
-def _png_claiming(width: int, height: int) -> bytes:
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b""))
 
 
 def _image(rng: random.Random, h: int, w: int, dtype: type, channels: int) -> np.ndarray:
@@ -69,7 +63,7 @@ def _build_case(rng: random.Random, root: Path) -> tuple[dict, int]:
         elif kind == 2:
             victim.write_bytes(bytes(rng.randrange(256) for _ in range(200)))
         elif kind == 3:
-            (folder / "zz_huge.png").write_bytes(_png_claiming(rng.choice([100_000, 70_000, 2**31 - 1]), 100_000))
+            (folder / "zz_huge.png").write_bytes(png_claiming(rng.choice([100_000, 70_000, 2**31 - 1]), 100_000))
         elif kind == 4:
             (folder / "zz_dir.png").mkdir(exist_ok=True)
         elif kind == 5 and Path("/dev/zero").exists() and not (folder / "zz_dev.png").is_symlink():
