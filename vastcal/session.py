@@ -741,7 +741,7 @@ class Session:
         keys = h5[DETECTOR]["image_key"]
         if keys.shape[0] < n:
             raise NotASessionError(f"{p}: damaged session: {n} views but {keys.shape[0]} image keys")
-        self.pixel_size_um  # noqa: B018 — raises KeyError/ValueError when absent or malformed
+        # Each of these raises KeyError/ValueError/TypeError when absent or malformed (reported as damage).
         self.roi_offset_px  # noqa: B018
         ps = self.pixel_size_um
         if not all(np.isfinite(v) and v > 0 for v in ps):
