@@ -4,8 +4,8 @@ Each larva k = S, S+1, … S+N−1 is acquired from the simulated rig of
 ``simulators.camera.battery.battery_config(k)`` — ``config/simulated.yaml`` with every realism
 feature on (age 3–5 dpf, size, contrast, fin fold, pectoral fins, melanophores, wall contact, tail
 out of frame, debris, bubbles, lamp gradient, vignetting, defocus), all drawn from the seed k —
-through the same library path as ``vastcal acquire --simulate`` (``vastcal.rig.connect_rig`` +
-``vastcal.acquire.acquire``). Writes ``OUTDIR/larva_KKK.h5`` and ``OUTDIR/larva_KKK.truth.json``
+through the same library path as ``vastcal acquire --simulate`` (``vastcal.pipeline.acquire_simulated``).
+Writes ``OUTDIR/larva_KKK.h5`` and ``OUTDIR/larva_KKK.truth.json``
 (the body's exact visual hull for the actual angles, the solid body, the drawn features) and
 ``OUTDIR/battery.csv`` (one row per larva), and prints the same table.
 
@@ -24,8 +24,8 @@ import time
 from pathlib import Path
 
 from simulators.camera.battery import battery_config
-from vastcal.acquire import acquire
-from vastcal.rig import connect_rig
+from vastcal.errors import VastcalError
+from vastcal.pipeline import acquire_simulated
 
 COLUMNS = ("seed", "age_dpf", "length_um", "hull_volume_mm3", "hull_area_mm2", "true_volume_mm3", "true_area_mm2",
            "flags", "seconds")
@@ -58,12 +58,11 @@ def make_one(seed: int, outdir: Path, views: int | None, force: bool) -> dict:
     """Acquire larva ``seed`` into ``outdir``; return its table row."""
     cfg = battery_config(seed)
     session = outdir / f"larva_{seed:03d}.h5"
-    truth_path = outdir / f"larva_{seed:03d}.truth.json"
     t = time.monotonic()
-    with connect_rig(cfg, truth_path=truth_path) as rig:
-        res = acquire(rig.stage, rig.camera, cfg, session, views=views, force=force, start_info=rig.start_info, on_view=rig.on_view)
-    if res.exit_status != "success":
-        raise SystemExit(f"make_battery: {session}: acquisition {res.exit_status}: {res.reason}")
+    try:
+        truth_path = acquire_simulated(cfg, session, views=views, force=force)
+    except VastcalError as exc:
+        raise SystemExit(f"make_battery: {exc}") from None
     truth = json.loads(truth_path.read_text())
     sp = truth.get("specimen", {})
     return {"seed": seed, "age_dpf": round(sp.get("age_dpf", float("nan")), 2), "length_um": round(sp.get("length_um", float("nan"))),

@@ -37,7 +37,6 @@ from scipy.optimize import least_squares
 from simulators.camera.phantom import zebrafish_phantom
 from simulators.camera.render import BrightfieldRenderer
 from simulators.camera.truth_geometry import RigTruth, camera_pose
-from vastcal.acquire import acquire
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.objective_coherence import axis_probe
 from vastcal.calibrate.photometric_yaw import absorption_images, background_noise, drop_static
@@ -45,7 +44,7 @@ from vastcal.calibrate.session_run import load_colour_model
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.config import load_config
 from vastcal.geometry import project, projection_matrices
-from vastcal.rig import connect_rig
+from vastcal.pipeline import acquire_simulated
 from vastcal.session import Session
 
 STEP_DEG = 0.01
@@ -153,10 +152,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         for k in range(n_rigs):
             cfg = dataclasses.replace(base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k))
-            session, truth_path = Path(d) / f"sim{k}.h5", Path(d) / f"sim{k}.truth.json"
-            with connect_rig(cfg, truth_path=truth_path) as rig:
-                res = acquire(rig.stage, rig.camera, cfg, session, start_info=rig.start_info, on_view=rig.on_view)
-            assert res.exit_status == "success", res.reason
+            session = Path(d) / f"sim{k}.h5"
+            truth_path = acquire_simulated(cfg, session)
             cal = calibrate_session(session)
             truth = json.loads(truth_path.read_text())
             actual = np.asarray(truth["actual_angles_deg"], float)

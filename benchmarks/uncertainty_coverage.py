@@ -22,11 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vastcal.acquire import acquire
 from vastcal.calibrate import calibrate_session
 from vastcal.config import load_config
+from vastcal.pipeline import acquire_simulated
 from vastcal.reconstruct import reconstruct_session
-from vastcal.rig import connect_rig
 
 
 def main() -> None:
@@ -37,10 +36,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         for k in range(n_rigs):
             cfg = dataclasses.replace(base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k))
-            session, truth_path = Path(d) / f"sim{k}.h5", Path(d) / f"sim{k}.truth.json"
-            with connect_rig(cfg, truth_path=truth_path) as rig:
-                res = acquire(rig.stage, rig.camera, cfg, session, start_info=rig.start_info, on_view=rig.on_view)
-            assert res.exit_status == "success", res.reason
+            session = Path(d) / f"sim{k}.h5"
+            truth_path = acquire_simulated(cfg, session)
             calibrate_session(session)
             m = reconstruct_session(session)
             truth = json.loads(truth_path.read_text())

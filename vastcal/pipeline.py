@@ -11,6 +11,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -106,6 +107,27 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     return res
 
 
+
+def acquire_simulated(cfg: Any, session: Path, *, views: int | None = None, force: bool = False,
+                      progress: Callable[[int, int, float], None] | None = None) -> Path:
+    """Acquire one revolution from the simulated rig ``cfg`` into ``session``; return its truth file.
+
+    The hidden truth goes to ``S.truth.json`` beside the session, never inside it.
+
+    Raises:
+        VastcalError: the acquisition did not end with success (its reason in the message).
+    """
+    from vastcal.acquire import acquire
+    from vastcal.rig import connect_rig
+
+    truth_path = session.with_name(session.stem + ".truth.json")
+    with connect_rig(cfg, truth_path=truth_path) as rig:
+        result = acquire(rig.stage, rig.camera, cfg, session, views=views, force=force, cancel=threading.Event(),
+                         progress=progress, start_info=rig.start_info, on_view=rig.on_view)
+    if result.exit_status != "success":
+        raise VastcalError(f"{session}: simulated acquisition {result.exit_status}: {result.reason}")
+    return truth_path
+
 def _calibration_digest(cal: Any) -> dict[str, Any]:
     """A few numbers of a calibration result, whatever its exact type."""
     out: dict[str, Any] = {}
@@ -129,9 +151,7 @@ def demo(output_dir: str | Path = "vastcal-demo", *, views: int | None = None, f
 
     Writes ``demo.h5``, ``demo.truth.json`` and ``report/`` into ``output_dir``.
     """
-    from vastcal.acquire import acquire
     from vastcal.config import load_config
-    from vastcal.rig import connect_rig
 
     out = Path(output_dir)
     try:
@@ -139,18 +159,13 @@ def demo(output_dir: str | Path = "vastcal-demo", *, views: int | None = None, f
     except OSError as exc:
         raise VastcalError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     session = out / "demo.h5"
-    truth_path = out / "demo.truth.json"
-    cfg = load_config(None)
     bar = ProgressLine("acquire (simulated rig)", "views", enabled=not quiet)
     t = time.monotonic()
     try:
-        with connect_rig(cfg, truth_path=truth_path) as rig:
-            result = acquire(rig.stage, rig.camera, cfg, session, views=views, force=force, cancel=threading.Event(),
-                             progress=lambda d, n, e: bar.update(d, n, elapsed_s=e), start_info=rig.start_info, on_view=rig.on_view)
+        truth_path = acquire_simulated(load_config(None), session, views=views, force=force,
+                                       progress=lambda d, n, e: bar.update(d, n, elapsed_s=e))
     finally:
         bar.close()
-    if result.exit_status != "success":
-        raise VastcalError(f"{session}: simulated acquisition {result.exit_status}: {result.reason}")
     acquire_s = time.monotonic() - t
     res = run_session(session, out / "report", quiet=quiet)
     res.timings_s = {"acquire": acquire_s, **res.timings_s}
