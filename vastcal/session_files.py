@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import logging
 import os
 import time
 from pathlib import Path
@@ -22,7 +21,6 @@ from types import TracebackType
 from vastcal.errors import OutputExistsError, SessionBusyError
 from vastcal.outputs import check_output_file
 
-log = logging.getLogger(__name__)
 
 
 def fsync_path(path: Path) -> None:

@@ -44,15 +44,20 @@ def _fast_session(path: Path, views: PhantomViews) -> Path:
     return path
 
 
+
+def _screen(folder: Path, n: int) -> Path:
+    """A folder of ``n`` fast phantom sessions ``larva0.h5`` … (9 views, imported cameras and masks)."""
+    views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)
+    folder.mkdir()
+    for i in range(n):
+        _fast_session(folder / f"larva{i}.h5", views)
+    return folder
+
 @pytest.mark.slow
 def test_batch_table_failure_and_resume(tmp_path: Path) -> None:
     from vastcal.batch import run_batch
 
-    views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)
-    screen = tmp_path / "screen"
-    screen.mkdir()
-    for i in range(3):
-        _fast_session(screen / f"larva{i}.h5", views)
+    screen = _screen(tmp_path / "screen", 3)
     (screen / "broken.h5").write_bytes(b"not an HDF5 file at all")
     (screen / "larva1.specimen.json").write_text(json.dumps({"specimen_id": "L-<1>", "age_dpf": 5, "strain": "AB", "well": "B3"}))
     out = tmp_path / "results"
@@ -114,11 +119,7 @@ def test_a_killed_worker_is_retried_and_no_row_is_duplicated(tmp_path: Path) -> 
 
     from vastcal.batch import run_batch
 
-    views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)
-    screen = tmp_path / "screen"
-    screen.mkdir()
-    for i in range(4):
-        _fast_session(screen / f"larva{i}.h5", views)
+    screen = _screen(tmp_path / "screen", 4)
     killed: list[int] = []
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=50) as cluster, \
             Client(cluster) as client:
