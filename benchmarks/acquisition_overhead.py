@@ -48,7 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-import simulators.stage as simstage
+import vastcal.simulators.stage as simstage
 from vastcal.acquire import acquire
 from vastcal.config import load_config
 from vastcal.devices import MoveResult

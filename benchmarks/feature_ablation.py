@@ -24,7 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from simulators.camera.battery import battery_config
+from vastcal.simulators.camera.battery import battery_config
 from vastcal.acquire import acquire
 from vastcal.calibrate import calibrate_session
 from vastcal.pipeline import run_session, score_against_truth

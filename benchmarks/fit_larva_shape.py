@@ -3,7 +3,7 @@
 Reads the 21 hand masks of ZF1 (``../shared/data/zf_3dpf_s001/silhouettes``), takes per column of its
 length the largest silhouette height over the views (the dorso-ventral height: the larva is flattened
 sideways), normalised by the length, and least-squares fits c0, k and the three bumps of
-:class:`simulators.camera.profiles.LarvaProfile`. Prints the fit (compare
+:class:`vastcal.simulators.camera.profiles.LarvaProfile`. Prints the fit (compare
 ``simulators.camera.larva.ZF1_SHAPE``), its rms residual, and the volume and area of that shape at
 ZF1's size (length from the mask at 5.5 µm/px, magnification 1) for a few lateral scales, beside the
 published 0.249 mm³ / 3.24 mm².
@@ -21,9 +21,9 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from simulators.camera.larva import ZF1_SHAPE
-from simulators.camera.phantom import Phantom
-from simulators.camera.profiles import LarvaProfile
+from vastcal.simulators.camera.larva import ZF1_SHAPE
+from vastcal.simulators.camera.phantom import Phantom
+from vastcal.simulators.camera.profiles import LarvaProfile
 
 PIXEL_UM = 5.5
 

@@ -17,10 +17,10 @@ import time
 
 import numpy as np
 
-from simulators.camera.battery import battery_config
-from simulators.camera.hull_numeric import numeric_hull
-from simulators.camera.larva import draw_specimen
-from simulators.camera.truth_geometry import RigTruth, camera_pose
+from vastcal.simulators.camera.battery import battery_config
+from vastcal.simulators.camera.hull_numeric import numeric_hull
+from vastcal.simulators.camera.larva import draw_specimen
+from vastcal.simulators.camera.truth_geometry import RigTruth, camera_pose
 
 GRIDS = ((60, 120), (120, 240), (240, 480))
 

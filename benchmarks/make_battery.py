@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from simulators.camera.battery import battery_config
+from vastcal.simulators.camera.battery import battery_config
 from vastcal.errors import VastcalError
 from vastcal.pipeline import acquire_simulated
 

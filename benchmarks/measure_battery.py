@@ -91,7 +91,7 @@ def run_true_cameras(session: Path) -> dict[str, Any]:
     """Automatic silhouettes carved with the simulator's true cameras (no calibration), in this process."""
     import h5py
 
-    from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
+    from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
     from vastcal.calibrate.colour_model import fit_automatic
     from vastcal.calibrate.silhouettes import specimen_maps, touches_frame_edge
     from vastcal.measure import MeasureSettings, measure_hull

@@ -4,7 +4,7 @@
 
 For each phantom (zebrafish-like larva, prolate spheroid, capsule) seen through drifting views
 of a tilted, off-centre axis: volume and area against the exact visual hull of those views
-(orthographic hull factor × true value, :mod:`simulators.camera.phantom`) and against the true
+(orthographic hull factor × true value, :mod:`vastcal.simulators.camera.phantom`) and against the true
 solid (the visual-hull bias). Soft silhouettes (anti-aliased coverage, bilinear ≥ 0.5) unless
 --binary (pixel masks, nearest pixel).
 """
@@ -20,7 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "reconstruct"))
 from phantom_views import render_views  # noqa: E402
 
-from simulators.camera.phantom import PHANTOMS  # noqa: E402
+from vastcal.simulators.camera.phantom import PHANTOMS  # noqa: E402
 from vastcal.measure import MeasureSettings, measure_hull  # noqa: E402
 from vastcal.reconstruct import choose_grid, visual_hull  # noqa: E402
 

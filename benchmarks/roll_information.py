@@ -34,9 +34,9 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from simulators.camera.phantom import zebrafish_phantom
-from simulators.camera.render import BrightfieldRenderer
-from simulators.camera.truth_geometry import RigTruth, camera_pose
+from vastcal.simulators.camera.phantom import zebrafish_phantom
+from vastcal.simulators.camera.render import BrightfieldRenderer
+from vastcal.simulators.camera.truth_geometry import RigTruth, camera_pose
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.objective_coherence import axis_probe
 from vastcal.calibrate.photometric_yaw import absorption_images, background_noise, drop_static

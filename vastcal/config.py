@@ -225,7 +225,7 @@ class SimulationConfig:
     # from ``seed``; false / 0 switches it off (the defaults: the fixed 3 mm phantom, a clean scene).
     larva_varies: bool = False
     """Draw the larva's age in ``age_dpf``, and from it length, height, flattening, yolk and contrast;
-    false = the fixed 3 mm phantom (:func:`simulators.camera.phantom.zebrafish_phantom`)."""
+    false = the fixed 3 mm phantom (:func:`vastcal.simulators.camera.phantom.zebrafish_phantom`)."""
     age_dpf: tuple[float, float] = (3.0, 5.0)
     """Range of the larva's age, days post fertilisation (length 3.0 mm at 3 dpf to 4.5 mm at 5 dpf)."""
     fin_fold: bool = False

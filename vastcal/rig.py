@@ -4,9 +4,9 @@ This module is the *composition root* of acquisition: the only place in ``vastca
 knows the concrete device classes. :mod:`vastcal.acquire` receives the devices through the
 interfaces of :mod:`vastcal.devices` and never learns which kind it got.
 
-The simulated rig (``camera.driver: simulated``) wires a :class:`~simulators.stage.StageSimulator`
+The simulated rig (``camera.driver: simulated``) wires a :class:`~vastcal.simulators.stage.StageSimulator`
 (reached by the *real* Zaber driver through the in-process ``sim://`` serial scheme, so the real
-driver is what runs) to a :class:`~simulators.camera.SimulatedCamera` that renders at the
+driver is what runs) to a :class:`~vastcal.simulators.camera.SimulatedCamera` that renders at the
 stage's **actual** angle. Its hidden truth goes to a JSON file beside the session, rewritten
 after every view, never into the session itself.
 """
@@ -70,13 +70,13 @@ def connect_rig(cfg: RigConfig, truth_path: str | Path | None = None) -> Rig:
         DeviceError: a device cannot be opened (anything already opened is closed again).
         ConfigError: an unknown stage protocol or camera driver.
     """
-    from drivers.stage import open_stage
+    from vastcal.drivers.stage import open_stage
 
     stack = ExitStack()
     try:
         if cfg.camera.driver == "simulated":
             return _simulated_rig(cfg, stack, Path(truth_path) if truth_path else None)
-        from drivers.camera.genicam_camera import GenICamCamera
+        from vastcal.drivers.camera.genicam_camera import GenICamCamera
 
         stage = stack.enter_context(_closing(open_stage(cfg.stage)))
         camera = GenICamCamera.from_config(cfg.camera)
@@ -89,9 +89,9 @@ def connect_rig(cfg: RigConfig, truth_path: str | Path | None = None) -> Rig:
 
 
 def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) -> Rig:
-    import simulators.stage as simstage
-    from drivers.stage import open_stage
-    from simulators.camera import SimulatedCamera
+    import vastcal.simulators.stage as simstage
+    from vastcal.drivers.stage import open_stage
+    from vastcal.simulators.camera import SimulatedCamera
 
     assert cfg.simulation is not None  # parse_config fills it for simulated cameras
     if cfg.stage.url.startswith("sim://"):
@@ -160,7 +160,7 @@ def simulated_capillary() -> Any:
     That is what the real brightfield frames show (a water-filled glass capillary); a darker lumen
     would look like a second background to the automatic colour model.
     """
-    from simulators.camera import Capillary
+    from vastcal.simulators.camera import Capillary
 
     return Capillary(lumen_transmission=1.0)
 

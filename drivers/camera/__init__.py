@@ -1,9 +1,9 @@
 """The real camera: a GenICam GenTL device through ``harvesters`` (:class:`GenICamCamera`).
 
-:mod:`drivers.camera.pixel_formats` holds the pure buffer → numpy conversions,
-:mod:`drivers.camera.features` the tolerant node-map access.
+:mod:`vastcal.drivers.camera.pixel_formats` holds the pure buffer → numpy conversions,
+:mod:`vastcal.drivers.camera.features` the tolerant node-map access.
 """
 
-from drivers.camera.genicam_camera import GenICamCamera, find_producers, settings_from_config
+from vastcal.drivers.camera.genicam_camera import GenICamCamera, find_producers, settings_from_config
 
 __all__ = ["GenICamCamera", "find_producers", "settings_from_config"]

@@ -33,8 +33,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from drivers.camera import features as ft
-from drivers.camera.pixel_formats import from_component_data
+from vastcal.drivers.camera import features as ft
+from vastcal.drivers.camera.pixel_formats import from_component_data
 from vastcal.config import CameraConfig
 from vastcal.devices import Camera, CameraSettings, Frame
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError

@@ -1,7 +1,7 @@
 """Pure conversions from GenICam (PFNC) pixel buffers to numpy images.
 
 Everything here works on plain numpy arrays so that it is unit-tested with hand-made bytes,
-without a camera. The driver (:mod:`drivers.camera.genicam_camera`) calls :func:`to_image`.
+without a camera. The driver (:mod:`vastcal.drivers.camera.genicam_camera`) calls :func:`to_image`.
 
 Facts encoded here (see ``/work/shared/hardware.md``):
 

@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 
 
 def _zaber(cfg: StageConfig) -> RotationStage:
-    from drivers.stage.zaber_stage import ZaberRotationStage
+    from vastcal.drivers.stage.zaber_stage import ZaberRotationStage
 
     return ZaberRotationStage(cfg)
 

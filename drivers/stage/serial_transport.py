@@ -44,7 +44,7 @@ def port_error_reason(exc: BaseException) -> str:
         reason = str(exc).strip() or type(exc).__name__
     return reason if len(reason) <= 200 else reason[:199] + "…"
 
-URL_HANDLER_PACKAGES: dict[str, str] = {"sim": "simulators.stage"}
+URL_HANDLER_PACKAGES: dict[str, str] = {"sim": "vastcal.simulators.stage"}
 """Extra pyserial URL schemes → package holding ``protocol_<scheme>``; registered by *name*
 on first use so that ``sim://zaber`` works without the caller importing the simulator (the
 driver never imports simulator code itself)."""

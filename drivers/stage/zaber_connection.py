@@ -15,8 +15,8 @@ from __future__ import annotations
 import logging
 import time
 
-from drivers.stage import zaber_ascii as za
-from drivers.stage.serial_transport import SerialTransport
+from vastcal.drivers.stage import zaber_ascii as za
+from vastcal.drivers.stage.serial_transport import SerialTransport
 from vastcal.errors import CommandRejectedError, DeviceTimeoutError, ProtocolError
 
 log = logging.getLogger(__name__)

@@ -13,10 +13,10 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.stage import zaber_ascii as za
-from drivers.stage.motion_profile import ZaberUnits, move_time_s
-from drivers.stage.serial_transport import SerialTransport
-from drivers.stage.zaber_connection import ZaberConnection
+from vastcal.drivers.stage import zaber_ascii as za
+from vastcal.drivers.stage.motion_profile import ZaberUnits, move_time_s
+from vastcal.drivers.stage.serial_transport import SerialTransport
+from vastcal.drivers.stage.zaber_connection import ZaberConnection
 from vastcal.config import StageConfig
 from vastcal.devices import MoveResult, RotationStage
 from vastcal.errors import (

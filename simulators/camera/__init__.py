@@ -14,9 +14,9 @@
 * :mod:`~simulators.camera.hull_numeric` — the body's hull for the true pinhole cameras, numerically.
 """
 
-from simulators.camera.battery import battery_config
-from simulators.camera.larva import FinFold, Specimen, draw_specimen
-from simulators.camera.phantom import (
+from vastcal.simulators.camera.battery import battery_config
+from vastcal.simulators.camera.larva import FinFold, Specimen, draw_specimen
+from vastcal.simulators.camera.phantom import (
     PHANTOMS,
     EllipsoidFeature,
     Phantom,
@@ -25,9 +25,9 @@ from simulators.camera.phantom import (
     spheroid_phantom,
     zebrafish_phantom,
 )
-from simulators.camera.render import BrightfieldRenderer, Capillary, Sensor
-from simulators.camera.simulated_camera import SimulatedCamera
-from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
+from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary, Sensor
+from vastcal.simulators.camera.simulated_camera import SimulatedCamera
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
 
 __all__ = [
     "PHANTOMS", "BrightfieldRenderer", "Capillary", "EllipsoidFeature", "FinFold", "Phantom", "PinholeIntrinsics", "RigTruth", "Sensor",

@@ -2,7 +2,7 @@
 
 :func:`battery_config` is what ``benchmarks/make_battery.py`` writes sessions from, and what a test
 uses to make one varied larva. The features and their ranges are those of ``config/simulated.yaml``
-(documented in :mod:`simulators.camera.larva` and :mod:`simulators.camera.scene`); the battery only
+(documented in :mod:`vastcal.simulators.camera.larva` and :mod:`vastcal.simulators.camera.scene`); the battery only
 switches them on, with these rates:
 """
 

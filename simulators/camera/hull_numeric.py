@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simulators.camera.phantom import UM2_PER_MM2, UM3_PER_MM3, Phantom
+from vastcal.simulators.camera.phantom import UM2_PER_MM2, UM3_PER_MM3, Phantom
 
 NEWTON_STEPS = 5
 

@@ -9,7 +9,7 @@ What is drawn (each switched by a key of ``simulation:``, see ``config/simulated
   by 5 dpf); flattening (lateral/dorso-ventral)
   0.60–0.75; tissue contrast — the edge transmission 0.62–0.85 and the tissue attenuation
   2.5–7·10⁻⁴ /µm — i.e. a dim to a clear larva. This is the **measured body**: the truth file's
-  volume, area and visual hull are its own (:class:`~simulators.camera.phantom.Phantom`).
+  volume, area and visual hull are its own (:class:`~vastcal.simulators.camera.phantom.Phantom`).
 * **the median fin fold** (``fin_fold``): a sheet 4–8 µm thick in the sagittal plane z = 0 of the
   larva, from behind the head along the dorsal midline, round the tail tip (a rounded paddle
   60–160 µm past it) and along the ventral midline back to behind the yolk; its height beyond the
@@ -41,15 +41,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from simulators.camera.phantom import EllipsoidFeature, Phantom, zebrafish_phantom
-from simulators.camera.profiles import LarvaProfile
+from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom, zebrafish_phantom
+from vastcal.simulators.camera.profiles import LarvaProfile
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 from vastcal.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
 CAPILLARY_INNER_RADIUS_UM = 330.0
-"""Inner radius of the simulated capillary, µm (:class:`simulators.camera.render.Capillary`)."""
+"""Inner radius of the simulated capillary, µm (:class:`vastcal.simulators.camera.render.Capillary`)."""
 
 
 def _smoothstep(t: np.ndarray) -> np.ndarray:

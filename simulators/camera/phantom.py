@@ -1,7 +1,7 @@
 """Specimen phantoms with known volume and surface area, and the exact truth of their visual hull.
 
 A phantom is a translucent body about world x (the rotation axis) whose cross-section at x is the
-ellipse y² + (z/s)² ≤ r(x)² — r(x) from :mod:`simulators.camera.profiles`, s the *lateral scale*
+ellipse y² + (z/s)² ≤ r(x)² — r(x) from :mod:`vastcal.simulators.camera.profiles`, s the *lateral scale*
 (s = 1: a body of revolution; a zebrafish larva is flattened sideways, its lateral width z smaller
 than its dorso-ventral height y, so its silhouette changes with the viewing angle) — with darker
 absorbing ellipsoids (eyes, yolk) that lie **fully inside** the body, so that its silhouette is
@@ -19,7 +19,7 @@ r² tan(Δ_k/2) and two tangent segments of total length 2 r tan(Δ_k/2), so
 F does not depend on x, so the hull volume is F·V. Each hull face is a ruled surface
 x ↦ r(x)·n_k + t·e_k whose area element is √(1 + r'²) dx dt, so the hull area is
 ∫ √(1 + r'²) · perimeter(x) dx = F·A as well. A body lying off the rotation axis (parallel to
-it, :class:`simulators.camera.truth_geometry.RigTruth` ``specimen_offset_um``) has the translated
+it, :class:`vastcal.simulators.camera.truth_geometry.RigTruth` ``specimen_offset_um``) has the translated
 hull: the same volume and area.
 
 Elliptic cross-sections (s ≠ 1): every cross-section is r(x) times the same unit ellipse E
@@ -40,7 +40,7 @@ from typing import Sequence
 
 import numpy as np
 
-from simulators.camera.profiles import CapsuleProfile, LarvaProfile, RevolutionProfile, SpheroidProfile
+from vastcal.simulators.camera.profiles import CapsuleProfile, LarvaProfile, RevolutionProfile, SpheroidProfile
 from vastcal.errors import AnalysisError
 
 log = logging.getLogger(__name__)

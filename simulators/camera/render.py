@@ -17,7 +17,7 @@ at the minimiser), so the signed distance to the silhouette in pixels is δ ≈ 
 pixel's coverage is clip(0.5 − δ, 0, 1): exact for edges along a pixel axis, and its 50 %
 level lies exactly on the geometric edge for every edge direction.
 
-What is not the measured body — the fin fold and pectoral fins of :mod:`simulators.camera.larva` —
+What is not the measured body — the fin fold and pectoral fins of :mod:`vastcal.simulators.camera.larva` —
 multiplies every ray's transmission by exp(−τ_extra) (Beer–Lambert through thin tissue; no
 anti-aliasing beyond the final blur).
 
@@ -27,7 +27,7 @@ body (≈ 2√(−m)/a·|d|, mild) and through each ellipsoid feature (exact qua
 adds a thin dark line where a ray grazes its inner wall (ρ0 ≈ R_in), parallel to the axis.
 Noise: shot noise (Gaussian approximation of Poisson — every pixel holds ≫ 100 e⁻) scaled by
 ``noise``, plus read noise, on a full-well scale (after the scene's particles, defocus blur and
-lamp field, :mod:`simulators.camera.scene`); output Mono12 (uint16 0–4095), Mono16
+lamp field, :mod:`vastcal.simulators.camera.scene`); output Mono12 (uint16 0–4095), Mono16
 (uint16, 12-bit values ×16), Mono8 or RGB8 (a slightly tinted colour version).
 """
 
@@ -40,9 +40,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from simulators.camera.larva import FinFold, ellipsoid_depth
-from simulators.camera.phantom import EllipsoidFeature, Phantom
-from simulators.camera.scene import Illumination, Particle, paint_particles
+from vastcal.simulators.camera.larva import FinFold, ellipsoid_depth
+from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom
+from vastcal.simulators.camera.scene import Illumination, Particle, paint_particles
 from vastcal.errors import CameraError
 
 log = logging.getLogger(__name__)
@@ -324,7 +324,7 @@ class BrightfieldRenderer:
             exposure_scale: exposure relative to the reference (brightness ∝ exposure).
             gain_db: analogue gain, dB (amplifies signal and noise).
             body_offset_um: (y, z) of the phantom's axis off the rotation axis, µm (see :meth:`ray_geometry`).
-            particles: debris and bubbles at this view (world frame), :mod:`simulators.camera.scene`.
+            particles: debris and bubbles at this view (world frame), :mod:`vastcal.simulators.camera.scene`.
             illumination: lamp field and defocus blur, or ``None`` (flat, sharp).
         """
         if pixel_format not in OUTPUT_FORMATS:

@@ -18,7 +18,7 @@
   defocus of the whole scene; the larva, 0.5 mm deep at 1×, lies within one depth of field).
 
 Each is drawn from its own stream of ``simulation.seed``. Shot and read noise are added after all
-of these, by :class:`~simulators.camera.render.BrightfieldRenderer`.
+of these, by :class:`~vastcal.simulators.camera.render.BrightfieldRenderer`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from simulators.camera.larva import CAPILLARY_INNER_RADIUS_UM, Specimen, _check_range, frame_x_edges_um
+from vastcal.simulators.camera.larva import CAPILLARY_INNER_RADIUS_UM, Specimen, _check_range, frame_x_edges_um
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 
 

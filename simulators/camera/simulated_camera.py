@@ -17,11 +17,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from simulators.camera.larva import Specimen, draw_specimen
-from simulators.camera.phantom import Phantom
-from simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, Sensor
-from simulators.camera.scene import draw_illumination, draw_particles
-from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
+from vastcal.simulators.camera.larva import Specimen, draw_specimen
+from vastcal.simulators.camera.phantom import Phantom
+from vastcal.simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, Sensor
+from vastcal.simulators.camera.scene import draw_illumination, draw_particles
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 from vastcal.devices import Camera, CameraSettings, Frame
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError
@@ -43,12 +43,12 @@ class SimulatedCamera(Camera):
         simulation: seed, tilt/offset limits of the hidden truth, noise scale.
         angle_source: returns the stage's actual angle in degrees when called (e.g. the stage
             simulator's ``actual_angle_deg``).
-        phantom: the specimen's body; default: :func:`simulators.camera.larva.draw_specimen` of
+        phantom: the specimen's body; default: :func:`vastcal.simulators.camera.larva.draw_specimen` of
             ``simulation`` (the fixed 3 mm phantom with every feature off; with features, the drawn
             larva, its fins, melanophores and pose). A given phantom comes without fins.
         truth: the hidden axis pose (default drawn from ``simulation``; a larva drawn against the
             capillary wall replaces its specimen offset).
-        capillary, sensor: rendering models (defaults of :mod:`simulators.camera.render`).
+        capillary, sensor: rendering models (defaults of :mod:`vastcal.simulators.camera.render`).
     """
 
     def __init__(
@@ -228,7 +228,7 @@ class SimulatedCamera(Camera):
         ``hull_volume_mm3`` / ``hull_area_mm2`` — the exact orthographic visual hull of the
         phantom's BODY (fins, fin fold, debris, bubbles excluded; melanophores, eyes and yolk lie
         inside it) from the actual angles (``None`` with fewer than two distinct directions);
-        ``specimen`` — what was drawn (:func:`~simulators.camera.larva.draw_specimen` features,
+        ``specimen`` — what was drawn (:func:`~vastcal.simulators.camera.larva.draw_specimen` features,
         particle counts, lamp field, defocus); ``frame_cut_views`` — indices of the views whose
         frame edge cuts the body; when there are any, ``frame_x_range_um`` (the axis interval every
         frame sees) and ``hull_in_frame_volume_mm3`` / ``hull_in_frame_area_mm2`` — the body's hull

@@ -4,8 +4,8 @@
   ``actual_angle_deg()`` is the angle the camera simulator must render at.
 * ``serial.serial_for_url("sim://zaber?name=rig1")`` talks to the instance registered as
   ``rig1`` (:func:`register`, :func:`get`); plain ``sim://zaber`` uses ``"default"``.
-* ``python -m simulators.stage --pty | --tcp PORT`` serves the same bytes on a pseudo-terminal
-  or a TCP port (see :mod:`simulators.stage.__main__`).
+* ``python -m vastcal.simulators.stage --pty | --tcp PORT`` serves the same bytes on a pseudo-terminal
+  or a TCP port (see :mod:`vastcal.simulators.stage.__main__`).
 
 Importing this package registers the ``sim`` scheme with pyserial.
 """
@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import serial
 
-from simulators.stage.faults import Fault
-from simulators.stage.mechanics import StageMechanics
-from simulators.stage.registry import DEFAULT_NAME, get, get_or_create, names, register, unregister
-from simulators.stage.simulator import SimLink, StageSimulator
-from simulators.stage.zaber_device import ZaberDevice
+from vastcal.simulators.stage.faults import Fault
+from vastcal.simulators.stage.mechanics import StageMechanics
+from vastcal.simulators.stage.registry import DEFAULT_NAME, get, get_or_create, names, register, unregister
+from vastcal.simulators.stage.simulator import SimLink, StageSimulator
+from vastcal.simulators.stage.zaber_device import ZaberDevice
 
 if __name__ not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append(__name__)

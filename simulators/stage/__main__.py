@@ -1,12 +1,12 @@
-"""``python -m simulators.stage``: a simulated Zaber rotary stage in its own process.
+"""``python -m vastcal.simulators.stage``: a simulated Zaber rotary stage in its own process.
 
 Prints one line on stdout — the pyserial URL to open (a pseudo-terminal path such as
 ``/dev/pts/5``, or ``socket://127.0.0.1:PORT``) — then answers until SIGTERM or SIGINT.
 
 Examples::
 
-    python -m simulators.stage --pty
-    python -m simulators.stage --tcp 0 --seed 3 --max-drift-deg 1.5 --time-scale 20
+    python -m vastcal.simulators.stage --pty
+    python -m vastcal.simulators.stage --tcp 0 --seed 3 --max-drift-deg 1.5 --time-scale 20
 """
 
 from __future__ import annotations
@@ -19,15 +19,15 @@ import sys
 import threading
 from types import FrameType
 
-from simulators.stage.faults import Fault
-from simulators.stage.server import listen_tcp, open_pty, serve_pty, serve_tcp
-from simulators.stage.simulator import StageSimulator
+from vastcal.simulators.stage.faults import Fault
+from vastcal.simulators.stage.server import listen_tcp, open_pty, serve_pty, serve_tcp
+from vastcal.simulators.stage.simulator import StageSimulator
 from vastcal.config import SimulationConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
     defaults = SimulationConfig()
-    p = argparse.ArgumentParser(prog="python -m simulators.stage", description="Simulated Zaber ASCII rotary stage.")
+    p = argparse.ArgumentParser(prog="python -m vastcal.simulators.stage", description="Simulated Zaber ASCII rotary stage.")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--pty", action="store_true", help="serve on a new pseudo-terminal; print its path")
     where.add_argument("--tcp", type=int, metavar="PORT", help="serve on 127.0.0.1:PORT (0 = any); print socket://…")

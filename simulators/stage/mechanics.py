@@ -10,7 +10,7 @@ Frames and units:
 
 Time runs ``time_scale`` times faster than the wall clock, so a realistic 0.2 s move takes
 20 ms of test time at ``time_scale=10``. Speeds and accelerations are held in Zaber device
-units and converted with :class:`drivers.stage.motion_profile.ZaberUnits` (*unverified*).
+units and converted with :class:`vastcal.drivers.stage.motion_profile.ZaberUnits` (*unverified*).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from drivers.stage.motion_profile import ZaberUnits, trapezoid_phases
+from vastcal.drivers.stage.motion_profile import ZaberUnits, trapezoid_phases
 
 log = logging.getLogger(__name__)
 

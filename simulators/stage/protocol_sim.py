@@ -1,7 +1,7 @@
 """pyserial URL handler for ``sim://zaber[?name=NAME]``: an in-process simulated stage.
 
 pyserial finds this module through ``serial.protocol_handler_packages`` (the package
-``simulators.stage`` is added on import of :mod:`simulators.stage` and, by name, by the
+``simulators.stage`` is added on import of :mod:`vastcal.simulators.stage` and, by name, by the
 driver's transport). The port connects to the registry instance ``NAME`` (default
 ``default``, created on first use).
 """
@@ -12,8 +12,8 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from simulators.stage import registry
-from simulators.stage.simulator import SimLink
+from vastcal.simulators.stage import registry
+from vastcal.simulators.stage.simulator import SimLink
 from vastcal.errors import DeviceDisconnectedError
 
 
@@ -34,7 +34,7 @@ def parse_sim_url(url: str) -> str:
 
 
 class Serial(SerialBase):
-    """A pyserial port whose other end is a :class:`~simulators.stage.simulator.StageSimulator`."""
+    """A pyserial port whose other end is a :class:`~vastcal.simulators.stage.simulator.StageSimulator`."""
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         self._link: SimLink | None = None

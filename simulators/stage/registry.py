@@ -10,7 +10,7 @@ from __future__ import annotations
 import threading
 from typing import Callable
 
-from simulators.stage.simulator import StageSimulator
+from vastcal.simulators.stage.simulator import StageSimulator
 
 DEFAULT_NAME = "default"
 

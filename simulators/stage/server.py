@@ -1,6 +1,6 @@
 """Serve a :class:`StageSimulator` on a pseudo-terminal or a TCP port (one host at a time).
 
-Used by ``python -m simulators.stage``. The loops wake at least every ``POLL_S`` seconds so
+Used by ``python -m vastcal.simulators.stage``. The loops wake at least every ``POLL_S`` seconds so
 that a stop request (SIGTERM/SIGINT) ends them promptly.
 """
 
@@ -16,7 +16,7 @@ import time
 import tty
 from typing import Callable
 
-from simulators.stage.simulator import SimLink, StageSimulator
+from vastcal.simulators.stage.simulator import SimLink, StageSimulator
 from vastcal.errors import DeviceDisconnectedError
 
 log = logging.getLogger(__name__)

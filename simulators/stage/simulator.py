@@ -14,10 +14,10 @@ import threading
 import time
 from dataclasses import replace
 
-from drivers.stage.motion_profile import ZaberUnits
-from simulators.stage.faults import Fault
-from simulators.stage.mechanics import StageMechanics
-from simulators.stage.zaber_device import ZaberDevice
+from vastcal.drivers.stage.motion_profile import ZaberUnits
+from vastcal.simulators.stage.faults import Fault
+from vastcal.simulators.stage.mechanics import StageMechanics
+from vastcal.simulators.stage.zaber_device import ZaberDevice
 from vastcal.config import SimulationConfig
 from vastcal.errors import DeviceDisconnectedError
 
@@ -74,7 +74,7 @@ class StageSimulator:
         return self.mechanics.commanded_position()
 
     def inject(self, fault: Fault) -> None:
-        """Arm a fault (see :mod:`simulators.stage.faults`)."""
+        """Arm a fault (see :mod:`vastcal.simulators.stage.faults`)."""
         with self._lock:
             if fault.kind == "stall":
                 assert fault.at_usteps is not None

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import logging
 
-from drivers.stage import zaber_ascii as za
-from simulators.stage.mechanics import StageMechanics
+from vastcal.drivers.stage import zaber_ascii as za
+from vastcal.simulators.stage.mechanics import StageMechanics
 from vastcal.errors import ProtocolError
 
 log = logging.getLogger(__name__)

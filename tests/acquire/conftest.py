@@ -20,8 +20,8 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-import simulators.stage as simstage
-from simulators.stage import StageSimulator
+import vastcal.simulators.stage as simstage
+from vastcal.simulators.stage import StageSimulator
 from vastcal.config import RigConfig, dump_config, load_config
 from vastcal.rig import Rig
 from vastcal.session import Session

@@ -13,7 +13,7 @@ from typing import Callable
 
 import pytest
 
-from simulators.stage import Fault
+from vastcal.simulators.stage import Fault
 from vastcal.acquire import AcquisitionResult, acquire
 from vastcal.config import RigConfig
 from vastcal.rig import Rig, connect_rig

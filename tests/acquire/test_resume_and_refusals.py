@@ -11,9 +11,9 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-import simulators.stage as simstage
-from simulators.stage import Fault, StageSimulator
-from simulators.stage.process import start_stage_process, stop_stage_process
+import vastcal.simulators.stage as simstage
+from vastcal.simulators.stage import Fault, StageSimulator
+from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
 from vastcal import cli
 from vastcal.acquire import acquire
 from vastcal.errors import ProtocolError

@@ -11,7 +11,7 @@ from types import ModuleType
 import h5py
 import numpy as np
 
-from simulators.camera import SimulatedCamera
+from vastcal.simulators.camera import SimulatedCamera
 from vastcal import cli
 from vastcal.acquire import acquire, camera_settings
 from vastcal.config import RigConfig, load_config
@@ -128,7 +128,7 @@ def test_cli_acquire_simulate_writes_a_complete_session_that_info_accepts(tmp_pa
 def test_a_stage_url_naming_its_simulator_drives_the_one_the_camera_renders_from(tmp_path: Path, acq: ModuleType) -> None:
     import dataclasses
 
-    import simulators.stage as simstage
+    import vastcal.simulators.stage as simstage
 
     cfg = acq.small_config(views=4)
     name = "named-by-the-config"

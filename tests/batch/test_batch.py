@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reconstruct"))  # 
 
 from phantom_views import PhantomViews, render_views  # noqa: E402
 
-from simulators.camera.phantom import zebrafish_phantom  # noqa: E402
+from vastcal.simulators.camera.phantom import zebrafish_phantom  # noqa: E402
 
 pytest.importorskip("distributed", reason="dask[distributed] is not installed")
 

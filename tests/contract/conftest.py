@@ -8,9 +8,9 @@ from dataclasses import replace
 
 import pytest
 
-import simulators.stage as simstage
-from drivers.stage.zaber_stage import ZaberRotationStage
-from simulators.stage.process import start_stage_process, stop_stage_process
+import vastcal.simulators.stage as simstage
+from vastcal.drivers.stage.zaber_stage import ZaberRotationStage
+from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
 from vastcal.config import StageConfig
 
 TIME_SCALE = 20.0

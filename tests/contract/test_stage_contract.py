@@ -12,8 +12,8 @@ from dataclasses import replace
 
 import pytest
 
-from drivers.stage import open_stage
-from drivers.stage.zaber_stage import ZaberRotationStage
+from vastcal.drivers.stage import open_stage
+from vastcal.drivers.stage.zaber_stage import ZaberRotationStage
 from vastcal.config import StageConfig
 from vastcal.devices import MoveResult, RotationStage
 from vastcal.errors import AcquisitionAborted, CommandRejectedError, DeviceError, NotHomedError

@@ -10,8 +10,8 @@ import sys
 
 import pytest
 
-from drivers.stage.serial_transport import SerialTransport
-from drivers.stage.zaber_connection import ZaberConnection
+from vastcal.drivers.stage.serial_transport import SerialTransport
+from vastcal.drivers.stage.zaber_connection import ZaberConnection
 from vastcal.errors import DeviceDisconnectedError, DeviceError
 
 termios = pytest.importorskip("termios", reason="termios exists on POSIX only")

@@ -8,11 +8,11 @@ from contextlib import contextmanager
 
 import pytest
 
-import simulators.stage as simstage
-from drivers.stage import zaber_ascii as za
-from drivers.stage.serial_transport import SerialTransport
-from drivers.stage.zaber_connection import ZaberConnection
-from simulators.stage import Fault, StageSimulator
+import vastcal.simulators.stage as simstage
+from vastcal.drivers.stage import zaber_ascii as za
+from vastcal.drivers.stage.serial_transport import SerialTransport
+from vastcal.drivers.stage.zaber_connection import ZaberConnection
+from vastcal.simulators.stage import Fault, StageSimulator
 from vastcal.errors import CommandRejectedError, DeviceDisconnectedError, DeviceError, DeviceTimeoutError, ProtocolError
 
 

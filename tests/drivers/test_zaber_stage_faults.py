@@ -8,10 +8,10 @@ from dataclasses import replace
 
 import pytest
 
-import simulators.stage as simstage
-from drivers.stage import open_stage
-from drivers.stage.zaber_stage import MotionTiming, ZaberRotationStage
-from simulators.stage import Fault, StageSimulator
+import vastcal.simulators.stage as simstage
+from vastcal.drivers.stage import open_stage
+from vastcal.drivers.stage.zaber_stage import MotionTiming, ZaberRotationStage
+from vastcal.simulators.stage import Fault, StageSimulator
 from vastcal.config import StageConfig
 from vastcal.errors import (
     DeviceDisconnectedError,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.camera.pixel_formats import (
+from vastcal.drivers.camera.pixel_formats import (
     bayer_to_rgb,
     from_component_data,
     strip_x_padding,

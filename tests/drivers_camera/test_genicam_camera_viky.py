@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.camera import GenICamCamera, settings_from_config
+from vastcal.drivers.camera import GenICamCamera, settings_from_config
 from vastcal.config import CameraConfig, RoiConfig
 from vastcal.devices import CameraSettings
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceError, DeviceTimeoutError

@@ -79,7 +79,7 @@ def _run(argv: list[str], n: int | None, stub: str | None, inject: str = "signal
 
 def main() -> None:
     plan = json.loads(Path(sys.argv[1]).read_text())
-    import simulators.camera  # noqa: F401  (paid once, inherited by every child)
+    import vastcal.simulators.camera  # noqa: F401  (paid once, inherited by every child)
     import vastcal.calibrate.session_run  # noqa: F401
     import vastcal.cli  # noqa: F401
     import vastcal.reconstruct  # noqa: F401

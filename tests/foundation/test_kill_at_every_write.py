@@ -124,7 +124,7 @@ def _analysis_fixture(tmp: Path) -> Path:
     """A phantom session with an earlier calibration run and an earlier reconstruction run."""
     from phantom_views import make_session, render_views  # tests/reconstruct/phantom_views.py
 
-    from simulators.camera.phantom import zebrafish_phantom
+    from vastcal.simulators.camera.phantom import zebrafish_phantom
     from vastcal.reconstruct import reconstruct_session
 
     views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)

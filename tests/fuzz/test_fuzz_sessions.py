@@ -42,7 +42,7 @@ OBJECTS = ("/entry/instrument/detector/data", "/entry/sample/rotation_angle", "/
 def measured(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from phantom_views import make_session, render_views
 
-    from simulators.camera.phantom import zebrafish_phantom
+    from vastcal.simulators.camera.phantom import zebrafish_phantom
     from vastcal.reconstruct import reconstruct_session
 
     d = tmp_path_factory.mktemp("fuzzsessions")

@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # qc_sim
 from phantom_views import PhantomViews, render_views  # noqa: E402
 from qc_sim import Measured, noisy_frames  # noqa: E402
 
-from simulators.camera.phantom import zebrafish_phantom  # noqa: E402
+from vastcal.simulators.camera.phantom import zebrafish_phantom  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -12,7 +12,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # phantom_views (tests
 
 from phantom_views import PhantomViews, render_views  # noqa: E402
 
-from simulators.camera.phantom import spheroid_phantom  # noqa: E402
+from vastcal.simulators.camera.phantom import spheroid_phantom  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -2,7 +2,7 @@
 
 Silhouettes are the renderer's geometric coverage ≥ 0.5 (exact to sub-pixel: the 50 % level of
 the anti-aliased coverage lies on the true edge), seen through the simulator's own truth
-cameras (:mod:`simulators.camera.truth_geometry`) at drifting "actual" angles.
+cameras (:mod:`vastcal.simulators.camera.truth_geometry`) at drifting "actual" angles.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simulators.camera.phantom import Phantom
-from simulators.camera.render import BrightfieldRenderer
-from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
+from vastcal.simulators.camera.phantom import Phantom
+from vastcal.simulators.camera.render import BrightfieldRenderer
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
 
 
 @dataclass(frozen=True)

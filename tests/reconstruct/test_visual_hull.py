@@ -9,7 +9,7 @@ import pytest
 import tifffile
 from phantom_views import PhantomViews, read_authors_cameras, render_views
 
-from simulators.camera.phantom import capsule_phantom, zebrafish_phantom
+from vastcal.simulators.camera.phantom import capsule_phantom, zebrafish_phantom
 from vastcal.errors import AnalysisError, EmptyHullError
 from vastcal.measure import MeasureSettings, measure_hull
 from vastcal.reconstruct import choose_grid, hull_boundary, silhouette_counts, visual_hull, visual_hull_in_grid

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.stage.motion_profile import ZaberUnits, move_time_s
-from simulators.stage.mechanics import DriftModel, StageMechanics
+from vastcal.drivers.stage.motion_profile import ZaberUnits, move_time_s
+from vastcal.simulators.stage.mechanics import DriftModel, StageMechanics
 
 
 class FakeClock:

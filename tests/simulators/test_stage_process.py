@@ -1,4 +1,4 @@
-"""``python -m simulators.stage`` as a process: its one output line, signals, and pulled cables."""
+"""``python -m vastcal.simulators.stage`` as a process: its one output line, signals, and pulled cables."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.stage import open_stage
-from simulators.stage.process import start_stage_process, stop_stage_process
+from vastcal.drivers.stage import open_stage
+from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
 from vastcal.config import StageConfig
 from vastcal.errors import DeviceDisconnectedError, ProtocolError, StageFaultError
 

@@ -9,9 +9,9 @@ from collections.abc import Iterator
 import pytest
 import serial
 
-import simulators.stage as simstage
-from simulators.stage import Fault, StageSimulator
-from simulators.stage.protocol_sim import parse_sim_url
+import vastcal.simulators.stage as simstage
+from vastcal.simulators.stage import Fault, StageSimulator
+from vastcal.simulators.stage.protocol_sim import parse_sim_url
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulators.camera.battery import battery_config
+from vastcal.simulators.camera.battery import battery_config
 from vastcal.acquire import acquire
 from vastcal.rig import connect_rig
 from vastcal.session import Session

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulators.camera.battery import battery_config
-from simulators.camera.hull_numeric import numeric_hull
-from simulators.camera.larva import draw_specimen
-from simulators.camera.truth_geometry import RigTruth, camera_pose
+from vastcal.simulators.camera.battery import battery_config
+from vastcal.simulators.camera.hull_numeric import numeric_hull
+from vastcal.simulators.camera.larva import draw_specimen
+from vastcal.simulators.camera.truth_geometry import RigTruth, camera_pose
 
 
 def test_numeric_hull_of_the_pinhole_rig_converges_to_the_closed_form_truth() -> None:

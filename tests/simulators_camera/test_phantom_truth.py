@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simulators.camera.phantom import EllipsoidFeature, Phantom, capsule_phantom, orthographic_hull_factor, spheroid_phantom, zebrafish_phantom
-from simulators.camera.profiles import LarvaProfile, SpheroidProfile
+from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom, capsule_phantom, orthographic_hull_factor, spheroid_phantom, zebrafish_phantom
+from vastcal.simulators.camera.profiles import LarvaProfile, SpheroidProfile
 from vastcal.errors import AnalysisError
 
 

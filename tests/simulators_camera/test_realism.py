@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from simulators.camera import SimulatedCamera
-from simulators.camera.battery import battery_config
-from simulators.camera.larva import Specimen, draw_specimen
-from simulators.camera.phantom import zebrafish_phantom
-from simulators.camera.render import BrightfieldRenderer, Capillary, RayGeometry
-from simulators.camera.scene import Particle, draw_illumination, draw_particles, paint_particles
-from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
+from vastcal.simulators.camera import SimulatedCamera
+from vastcal.simulators.camera.battery import battery_config
+from vastcal.simulators.camera.larva import Specimen, draw_specimen
+from vastcal.simulators.camera.phantom import zebrafish_phantom
+from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary, RayGeometry
+from vastcal.simulators.camera.scene import Particle, draw_illumination, draw_particles, paint_particles
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
 from vastcal.config import CameraConfig, OpticsConfig, RoiConfig, SimulationConfig
 from vastcal.errors import ConfigError
 

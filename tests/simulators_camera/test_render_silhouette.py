@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq, minimize_scalar
 
-from simulators.camera.phantom import Phantom, spheroid_phantom, zebrafish_phantom
-from simulators.camera.profiles import SpheroidProfile
-from simulators.camera.render import BrightfieldRenderer, Capillary
-from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
+from vastcal.simulators.camera.phantom import Phantom, spheroid_phantom, zebrafish_phantom
+from vastcal.simulators.camera.profiles import SpheroidProfile
+from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
 from vastcal.config import OpticsConfig, RoiConfig
 from vastcal.errors import CameraError
 from vastcal.geometry import intrinsics_from_optics, projection_matrices

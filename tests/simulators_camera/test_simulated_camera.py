@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from simulators.camera import SimulatedCamera, spheroid_phantom
-from simulators.camera.render import BrightfieldRenderer, Sensor
-from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
+from vastcal.simulators.camera import SimulatedCamera, spheroid_phantom
+from vastcal.simulators.camera.render import BrightfieldRenderer, Sensor
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
 from vastcal.config import CameraConfig, OpticsConfig, RoiConfig, SimulationConfig
 from vastcal.devices import CameraSettings
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceError, DeviceTimeoutError

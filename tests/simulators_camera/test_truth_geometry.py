@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
 from vastcal.config import OpticsConfig, RoiConfig, SimulationConfig
 from vastcal.geometry import intrinsics_from_optics, projection_matrices
 
