@@ -123,8 +123,8 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     """Commanded angles (degrees) from a text file: one number per line, or ``name angle``.
 
     Raises:
-        ImportDataError: unreadable, not numbers, not finite, two views at one angle (modulo
-            360°), or a count different from ``n``.
+        ImportDataError: unreadable, not numbers, not finite, one angle given twice (the same
+            position a turn later, e.g. 0 and 360, is accepted), or a count different from ``n``.
     """
     try:
         if not path.is_file():
@@ -144,12 +144,13 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     for (lineno, _), a in zip(lines, angles):
         if not np.isfinite(a):
             raise ImportDataError(f"{path}: line {lineno}: angle {a} is not a finite number of degrees")
-    wrapped = np.round(np.mod(angles, 360.0), 9) % 360.0
+    # The same number twice is a repeated line; the same position a turn later (0 and 360, Middlebury dinoRing's
+    # 180 and -180) is a legitimate view of a revolution that goes past its start, kept.
     seen: dict[float, int] = {}
-    for i, a in enumerate(wrapped):
+    for i, a in enumerate(np.round(angles, 9)):
         if a in seen:
             raise ImportDataError(f"{path}: lines {lines[seen[a]][0]} and {lines[i][0]}: views {seen[a]} and {i} have the same angle "
-                                  f"({angles[seen[a]]:g} and {angles[i]:g} degrees, modulo 360)")
+                                  f"({angles[i]:g} degrees)")
         seen[a] = i
     return angles
 

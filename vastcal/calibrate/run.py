@@ -196,7 +196,8 @@ class CalibrationResult:
     run_name: str | None = None
     session_path: Path | None = None
     final_cost: float = float("nan")
-    """Cost (data + prior) of ``theta_deg`` on the judge: the finest level's batch-independent cost."""
+    """Cost (data + prior) of ``theta_deg`` — the stored pose, after the photometric yaw when it ran — on the
+    judge: the finest level's batch-independent cost."""
     converged: bool = False
     stop_reason: str = ""
     start_thetas: np.ndarray | None = field(default=None, repr=False)
@@ -619,10 +620,11 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     why = ("per-view polish: no roll move of ± the smallest step lowers the cost by 1e-4 of it" if converged and settings.polish
            else "per-view polish ran out of sweeps" if settings.polish else "no polish; CMA-ES stops " + "; ".join(",".join(s) for s in cma_stops))
     reports = [rep for r in runs for rep in r.reports]
-    reports.append({"judge": "finest level, batch-independent cost + prior", "start_costs": start_costs.tolist(),
-                    "theta0_cost": float(ref_costs[0]), "reference_costs": ref_costs[1:].tolist(), "kept": kept, "final_cost": f,
-                    "polish": polished, "converged": converged, "stop_reason": why,
-                    "cma_levels_converged": level_converged, "scored_costs": scored})
+    judge_report: dict[str, Any] = {"judge": "finest level, batch-independent cost + prior", "start_costs": start_costs.tolist(),
+                                    "theta0_cost": float(ref_costs[0]), "reference_costs": ref_costs[1:].tolist(), "kept": kept,
+                                    "final_cost": f, "polish": polished, "converged": converged, "stop_reason": why,
+                                    "cma_levels_converged": level_converged, "scored_costs": scored}
+    reports.append(judge_report)
     trace = [t for r in runs for t in r.trace] + [(evals_done, f)]
 
     if settings.photometric_yaw and method == "coherence" and space.free_mask[0]:
@@ -640,6 +642,14 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             evals_done += refined.n_evaluations
             eval_time += refined.time_s
             reports.append(refined.report())
+            # final_cost is the stored pose's: the judge again, at the photometric yaw (the silhouettes' own
+            # optimum's cost stays in the judge's report as silhouette_cost).
+            t_y = time.monotonic()
+            f_sil, f = f, float(judge(theta[None])[0])
+            evals_done += 1
+            eval_time += time.monotonic() - t_y
+            judge_report.update({"silhouette_cost": f_sil, "final_cost": f, "final_cost_after": "photometric yaw"})
+            trace.append((evals_done, f))
     P = projection_matrices(K, distance, theta[None])[0]
     wall = time.monotonic() - t0
     start_thetas = space.theta(X)

@@ -1,0 +1,86 @@
+"""Issue 17: a view at the position of another a turn later is imported (Middlebury dinoRing's 48th view is its
+2nd camera again), and ``final_cost`` is the cost of the pose that is stored — after the photometric yaw."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util as _importlib_util
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from vastcal.calibrate import calibrate_views
+from vastcal.calibrate import run as run_module
+from vastcal.errors import ImportDataError
+from vastcal.geometry import decompose_circular, shift_pixels
+from vastcal.importer import import_folder, read_cameras
+from vastcal.session import Session
+
+_spec = _importlib_util.spec_from_file_location("calibrate_test_helpers", Path(__file__).with_name("conftest.py"))
+_helpers = _importlib_util.module_from_spec(_spec)
+_spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
+FAST = _helpers.FAST
+
+DINO = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "middlebury_dinoRing"
+
+
+def _images(folder: Path, n: int) -> Path:
+    folder.mkdir()
+    for i in range(n):
+        cv2.imwrite(str(folder / f"v{i:02d}.png"), np.full((12, 16), 40 * i, np.uint8))
+    return folder
+
+
+def test_a_position_repeated_a_turn_later_is_imported_a_repeated_angle_is_not(tmp_path: Path) -> None:
+    img = _images(tmp_path / "img", 4)
+    (tmp_path / "turn.txt").write_text("0\n120\n240\n360\n")
+    s = import_folder(img, tmp_path / "s.h5", angles=tmp_path / "turn.txt")
+    with Session.open(s) as ss:
+        assert ss.angles_deg.tolist() == [0.0, 120.0, 240.0, 360.0]
+    (tmp_path / "twice.txt").write_text("0\n120\n120\n240\n")
+    with pytest.raises(ImportDataError, match="lines 2 and 3: views 1 and 2 have the same angle"):
+        import_folder(img, tmp_path / "t.h5", angles=tmp_path / "twice.txt")
+
+
+@pytest.mark.skipif(not (DINO / "dinoR_par.txt").is_file(), reason="../shared/data/middlebury_dinoRing is not on this machine")
+def test_dino_ring_imports_all_48_views_with_its_true_angles(tmp_path: Path) -> None:
+    P, names = read_cameras(DINO / "dinoR_par.txt", 48)
+    assert names[1] == "dinoR0002.png" and names[47] == "dinoR0048.png"
+    np.testing.assert_allclose(P[47], P[1], atol=1e-12)  # the 48th view is the 2nd camera photographed again
+    rolls = decompose_circular(P).motion.rolls_deg
+    assert rolls[47] == pytest.approx(rolls[1] + 360.0, abs=1e-6)
+    (tmp_path / "angles.txt").write_text("\n".join(f"{a:.6f}" for a in rolls))
+    s = import_folder(DINO, tmp_path / "dino.h5", angles=tmp_path / "angles.txt", cameras=DINO / "dinoR_par.txt", length_unit="m")
+    with Session.open(s) as ss:
+        assert ss.n_views == 48 and ss.known_cameras is not None
+        np.testing.assert_allclose(ss.known_cameras, shift_pixels(P, 0, 0))
+
+
+def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(views: np.ndarray, truth: np.ndarray,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """The yaw search is replaced by one that moves the yaw 0.4°: the stored final_cost must be the judge's cost
+    there (scored by a run without the yaw step: same seed, same judge), not the silhouettes' optimum's."""
+    import synthetic as sy
+
+    K, d = sy.camera()
+    theta0 = truth.copy()
+    theta0[3:] = np.arange(len(views)) * 360.0 / len(views)
+    settings = dataclasses.replace(FAST, polish=False)
+
+    def moved_yaw(images, pf, K, d, theta, box, progress=None):  # noqa: ANN001, ANN202 - refine_yaw's signature
+        return SimpleNamespace(yaw_deg=float(theta[0]) + 0.4, n_evaluations=1, time_s=0.0, report=lambda: {"stage": "photometric yaw"})
+
+    monkeypatch.setattr(run_module, "refine_yaw", moved_yaw)
+    r = calibrate_views(views, K, d, theta0, seed=0, free=["yaw", "pitch", "gamma"], settings=dataclasses.replace(settings, photometric_yaw=True))
+    judge = next(rep for rep in r.level_reports if "judge" in rep)
+    assert judge["final_cost_after"] == "photometric yaw" and judge["final_cost"] == r.final_cost
+    silhouette_pose = r.theta_deg.copy()
+    silhouette_pose[0] -= 0.4
+    check = calibrate_views(views, K, d, theta0, seed=0, free=["yaw", "pitch", "gamma"], settings=settings,
+                            score_thetas=[r.theta_deg, silhouette_pose])
+    assert check.final_cost == pytest.approx(judge["silhouette_cost"], rel=1e-6)
+    assert r.final_cost == pytest.approx(check.scored_costs[0], rel=1e-6)
+    assert r.final_cost != pytest.approx(judge["silhouette_cost"], rel=1e-3)
