@@ -57,6 +57,15 @@ _CHI2_999 = {1: 10.83, 3: 16.27}
 #: background whatever the specimen model says (faint halos, dust, a dim corner of the field).
 BACKGROUND_GATE = 3.0
 
+#: Pixels whose posteriors are computed at once (:meth:`ColourModel.log_foreground_probability_of_features`).
+PIXEL_CHUNK = 1 << 20
+
+#: Pixels whose features the automatic colour model is fitted from at most (:func:`fit_automatic`): views
+#: evenly spread over the revolution, as many as fit (all 21 views of a 1024 × 1024 revolution; 73 of 360 on
+#: 1024 × 320 frames). The fit draws ``max_samples`` pixels from them: more views add no information about two
+#: colour clusters, only memory (a float32 feature per pixel and channel).
+MAX_FIT_PIXELS = 24_000_000
+
 #: Variance floor of every channel (features in [0, 1]): σ ≥ 0.01, i.e. 2.5 levels of 8 bits, so that
 #: a saturated or quantised background does not make a needle-thin Gaussian.
 MIN_VAR = 1e-4
@@ -70,9 +79,9 @@ def image_space(images: np.ndarray) -> Space:
 def features(images: np.ndarray) -> np.ndarray:
     """Pixel values as float32 features in [0, 1]: (…, H, W, C) with C = 3 (RGB) or 1 (grey).
 
-    :func:`scaled_values`, then :func:`flatten_background`.
+    :func:`scaled_values`, then :func:`flatten_background` (in place: the stack's features are held once).
     """
-    return flatten_background(scaled_values(images))
+    return flatten_background(scaled_values(images), inplace=True)
 
 
 def scaled_values(images: np.ndarray) -> np.ndarray:
@@ -83,17 +92,24 @@ def scaled_values(images: np.ndarray) -> np.ndarray:
     a 12-bit camera's frames span [0, 1] like 8-bit ones. Float images are taken as they are.
     """
     a = np.asarray(images)
+    f = a.astype(np.float32)
+    np.divide(f, np.float32(value_scale(a)), out=f)  # in place: one float copy of the stack, not two
+    return f[..., None] if image_space(a) == "grey" else f
+
+
+def value_scale(images: np.ndarray) -> float:
+    """The full scale that :func:`scaled_values` divides by (1 for float images)."""
+    a = np.asarray(images)
     scale = 1.0
     if np.issubdtype(a.dtype, np.integer):
         scale = float(np.iinfo(a.dtype).max)
         if a.dtype.itemsize > 1 and a.size:
             bits = max(8, int(np.ceil(np.log2(float(a.max()) + 1.0))))
             scale = float(2**bits - 1)
-    f = a.astype(np.float32) / np.float32(scale)
-    return f[..., None] if image_space(a) == "grey" else f
+    return scale
 
 
-def flatten_background(f: np.ndarray) -> np.ndarray:
+def flatten_background(f: np.ndarray, *, inplace: bool = False) -> np.ndarray:
     """Divide out slow illumination changes behind a dark specimen (features (…, H, W, C) in [0, 1]).
 
     Brightfield frames are brighter in the middle than at the ends and tinted differently across
@@ -103,7 +119,7 @@ def flatten_background(f: np.ndarray) -> np.ndarray:
     smaller than the kernel, i.e. the specimen and the thin capillary walls — and divided out, so
     the background sits at 1 everywhere. Frames whose border is not clearly at the bright end of
     their range (a bright specimen on a dark background, e.g. a turntable scene, or no specimen at
-    all) are returned unchanged.
+    all) are returned unchanged. ``inplace``: overwrite ``f`` (float32) instead of returning a new stack.
     """
     if f.ndim < 3:
         return f
@@ -118,13 +134,13 @@ def flatten_background(f: np.ndarray) -> np.ndarray:
         return f
     ky, kx = 2 * int(0.3 * h) + 1, 2 * int(w / 32) + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (kx, ky))
-    out = np.empty_like(stack)
+    out = stack if inplace and stack.dtype == np.float32 else np.empty_like(stack)
     for i in range(n):
         img = stack[i] if c > 1 else stack[i, :, :, 0]
         bg = cv2.blur(cv2.dilate(img, kernel), (kx, kx))
         bg = np.maximum(bg, 1e-3)
         corr = img / bg
-        out[i] = corr if c > 1 else corr[..., None]
+        out[i] = corr if c > 1 else corr[..., None]  # view i is read whole above before it is overwritten
     np.clip(out, 0.0, 1.0, out=out)
     return out[0] if single else out
 
@@ -135,11 +151,12 @@ def check_images(images: np.ndarray) -> None:
     Raises:
         ColourModelError: a view whose pixels barely vary, or that is mostly saturated/black.
     """
-    f = scaled_values(images)  # raw values: saturation is a property of the sensor's output
-    n = f.shape[0]
-    for i in range(n):
-        v = f[i].reshape(-1, f.shape[-1])
-        sub = v[:: max(1, v.shape[0] // 20000)]
+    a = np.asarray(images)
+    scale = np.float32(value_scale(a))  # raw values: saturation is a property of the sensor's output
+    c = 3 if image_space(a) == "rgb" else 1
+    for i in range(a.shape[0]):  # one view at a time: no float copy of the whole stack
+        v = a[i].reshape(-1, c)
+        sub = v[:: max(1, v.shape[0] // 20000)].astype(np.float32) / scale
         sat = float(np.mean(np.all(sub >= 0.999, axis=1)))
         if sat > 0.9:
             raise ColourModelError(f"view {i} is saturated ({100 * sat:.0f}% of pixels at full scale): reduce the exposure")
@@ -258,7 +275,20 @@ class ColourModel:
         return features(images)
 
     def log_foreground_probability_of_features(self, f: np.ndarray) -> np.ndarray:
-        """Clamped log p_f, float32 (…, H, W), of features (…, H, W, C) from :meth:`features`."""
+        """Clamped log p_f, float32 (…, H, W), of features (…, H, W, C) from :meth:`features`.
+
+        Computed in chunks of :data:`PIXEL_CHUNK` pixels: its temporaries (float64 distances among them)
+        stay a few tens of MB however many views the stack holds.
+        """
+        f = np.asarray(f)
+        c = f.shape[-1]
+        flat = f.reshape(-1, c)
+        out = np.empty(flat.shape[0], np.float32)
+        for s in range(0, flat.shape[0], PIXEL_CHUNK):
+            out[s:s + PIXEL_CHUNK] = self._log_foreground_chunk(flat[s:s + PIXEL_CHUNK])
+        return out.reshape(f.shape[:-1])
+
+    def _log_foreground_chunk(self, f: np.ndarray) -> np.ndarray:
         lf = self.fg.log_pdf(f) + np.float32(np.log(self.prior_fg))
         lb = self.bg.log_pdf(f) + np.float32(np.log1p(-self.prior_fg))
         # log p_f = −log(1 + exp(lb − lf)), stable for either sign of the difference.
@@ -378,7 +408,7 @@ def _border_of(f: np.ndarray, border_frac: float) -> np.ndarray:
 
 
 def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separation: float = 0.5,
-                  max_samples: int = 200_000, em_rounds: int = 10, seed: int = 0) -> ColourModel:
+                  max_samples: int = 200_000, em_rounds: int = 10, seed: int = 0, max_pixels: int = MAX_FIT_PIXELS) -> ColourModel:
     """Colour models with no user input (assumptions in the module docstring).
 
     Args:
@@ -387,6 +417,7 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
         min_separation: least Bhattacharyya distance accepted between the two Gaussians.
         max_samples: pixels drawn (reproducibly, from ``seed``) for each fit.
         em_rounds: EM rounds refining both Gaussians on all views' pixels (:func:`em_refine`).
+        max_pixels: the views' pixels used at most; beyond it an evenly spread subset of the views (:func:`fit_views`).
 
     Raises:
         ColourModelError: blank or saturated views, nothing unlike the background, or no separation.
@@ -394,6 +425,10 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
     images = np.asarray(images)
     check_images(images)
     rng = np.random.default_rng(seed)
+    views = fit_views(images.shape[0], int(np.prod(images.shape[1:3])), max_pixels)
+    if views.size < images.shape[0]:
+        log.info("colour model: fitted on %d of %d views (evenly spread, at most %d pixels)", views.size, images.shape[0], max_pixels)
+        images = images[views]
     f = features(images)  # once: the background flattening is the costly part
     border = _border_of(f, border_frac)
     if border.shape[0] > max_samples:
@@ -407,6 +442,15 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
         raise ColourModelError(f"no specimen found: only {100 * frac:.2f}% of pixels differ from the background colour")
     model = em_refine(ColourModel(Gaussian.fit(sample[far]), bg, _prior(frac), image_space(images), "automatic"), sample, em_rounds)
     return _checked(model, min_separation)
+
+
+def fit_views(n_views: int, pixels_per_view: int, max_pixels: int = MAX_FIT_PIXELS) -> np.ndarray:
+    """Indices of the views (sorted) an automatic colour model is fitted from: all when their pixels fit
+    ``max_pixels``, else as many as fit (at least 3), evenly spread over the stack's order (a revolution)."""
+    k = int(np.clip(max_pixels // max(int(pixels_per_view), 1), min(3, n_views), n_views))
+    if k >= n_views:
+        return np.arange(n_views)
+    return np.unique(np.floor(np.arange(k) * n_views / k).astype(np.intp))
 
 
 def em_refine(model: ColourModel, samples: np.ndarray, rounds: int) -> ColourModel:
