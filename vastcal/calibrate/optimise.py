@@ -49,50 +49,28 @@ class CMAResult:
     trace_best: list[float] = field(default_factory=list)
 
 
-def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, stds: np.ndarray, *, seed: int,
-             max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
-             progress: Callable[[int, float], None] | None = None) -> CMAResult:
-    """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
+RESTARTS = ("none", "ipop", "bipop")
 
-    Args:
-        objective: vectorised cost of normalised candidates.
-        x0: start (F,), inside [−1, 1].
-        sigma0: initial step in box units; per-parameter steps are ``sigma0 · stds``.
-        seed: reproducible seed (≥ 0).
-        max_evaluations: budget of objective evaluations.
-        tolx, tolfun: cma stopping tolerances (box units, cost units).
-        progress: called after every generation with (evaluations so far, best cost).
-    """
-    cma = _cma()
-    if np.size(x0) == 1:  # cma needs at least two dimensions: add an inert one
-        inner = objective
-        r = minimise(lambda X: inner(np.asarray(X)[:, :1]), np.r_[np.ravel(x0), 0.0], sigma0, np.r_[np.ravel(stds), 1.0], seed=seed,
-                     max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress)
-        r.x_best = r.x_best[:1]
-        return r
-    opts = {"bounds": [-1.0, 1.0], "seed": int(seed) + 1, "CMA_stds": list(np.asarray(stds, float)), "maxfevals": int(max_evaluations),
-            "tolx": float(tolx), "tolfun": float(tolfun), "tolfunhist": 0.0, "verbose": -9, "verb_log": 0, "verb_disp": 0}
-    if popsize:
-        opts["popsize"] = int(popsize)
-    x0 = np.clip(np.asarray(x0, float), -0.99, 0.99)
+
+def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, opts: dict,
+             progress: Callable[[int, float], None] | None, evals_before: int) -> CMAResult:
+    """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept."""
     res = CMAResult(x0.copy(), float("inf"), 0, 0, {})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # cma warns on flat fitness and such; we log its stop reasons instead
-        es = cma.CMAEvolutionStrategy(list(x0), float(sigma0), opts)
-        while not es.stop():
-            X = np.asarray(es.ask())
-            f = np.asarray(objective(X), float)
-            es.tell(list(X), list(f))
-            res.n_evaluations += len(X)
-            res.n_generations += 1
-            i = int(np.argmin(f))
-            if f[i] < res.f_best:
-                res.f_best, res.x_best = float(f[i]), X[i].copy()
-            res.trace_evals.append(res.n_evaluations)
-            res.trace_best.append(res.f_best)
-            if progress is not None:
-                progress(res.n_evaluations, res.f_best)
-        res.stop = dict(es.stop())
+    es = cma.CMAEvolutionStrategy(list(x0), float(sigma0), opts)
+    while not es.stop():
+        X = np.asarray(es.ask())
+        f = np.asarray(objective(X), float)
+        es.tell(list(X), list(f))
+        res.n_evaluations += len(X)
+        res.n_generations += 1
+        i = int(np.argmin(f))
+        if f[i] < res.f_best:
+            res.f_best, res.x_best = float(f[i]), X[i].copy()
+        res.trace_evals.append(evals_before + res.n_evaluations)
+        res.trace_best.append(res.f_best)
+        if progress is not None:
+            progress(evals_before + res.n_evaluations, res.f_best)
+    res.stop = dict(es.stop())
     # The distribution mean is usually better than any single sample at convergence. The best sample's
     # cost came from its generation's batch (a cost may depend on its population: the coherence cost's
     # rays are searched around the batch mean), so it is scored again alone, like the mean, and the two
@@ -104,8 +82,87 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
     res.f_best = fb
     if fm <= fb:
         res.f_best, res.x_best = fm, xm
-    log.debug("CMA-ES: %d evaluations, %d generations, f=%.6g, stop %s", res.n_evaluations, res.n_generations, res.f_best, res.stop)
+    res.popsize = int(es.popsize)  # type: ignore[attr-defined]
     return res
+
+
+def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, stds: np.ndarray, *, seed: int,
+             max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
+             progress: Callable[[int, float], None] | None = None, restarts: str = "none") -> CMAResult:
+    """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
+
+    Args:
+        objective: vectorised cost of normalised candidates.
+        x0: start (F,), inside [−1, 1].
+        sigma0: initial step in box units; per-parameter steps are ``sigma0 · stds``.
+        seed: reproducible seed (≥ 0).
+        max_evaluations: budget of objective evaluations (of all restarts together).
+        tolx, tolfun: cma stopping tolerances (box units, cost units).
+        progress: called after every generation with (evaluations so far, best cost).
+        restarts: ``"none"`` (one run), ``"ipop"`` (Auger & Hansen 2005: whenever a run stops on its own
+            criteria while budget remains, restart from x0 with twice the population) or ``"bipop"``
+            (Hansen 2009: IPOP's large-population regime interleaved with short local runs of small random
+            populations and σ0 × 10^(−2u), u ~ U(0, 1), while the small regime has used less budget than the
+            large). The best run (re-scored alone) is returned; ``stop`` holds every run's reasons.
+    """
+    cma = _cma()
+    if restarts not in RESTARTS:
+        raise ValueError(f"restarts: expected one of {RESTARTS}, got {restarts!r}")
+    if np.size(x0) == 1:  # cma needs at least two dimensions: add an inert one
+        inner = objective
+        r = minimise(lambda X: inner(np.asarray(X)[:, :1]), np.r_[np.ravel(x0), 0.0], sigma0, np.r_[np.ravel(stds), 1.0], seed=seed,
+                     max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress, restarts=restarts)
+        r.x_best = r.x_best[:1]
+        return r
+    base = {"bounds": [-1.0, 1.0], "CMA_stds": list(np.asarray(stds, float)), "tolx": float(tolx), "tolfun": float(tolfun),
+            "tolfunhist": 0.0, "verbose": -9, "verb_log": 0, "verb_disp": 0}
+    x0 = np.clip(np.asarray(x0, float), -0.99, 0.99)
+    best: CMAResult | None = None
+    total, gens, k = 0, 0, 0
+    trace_e: list[int] = []
+    trace_f: list[float] = []
+    stops: dict[str, object] = {}
+    lam0 = int(popsize) if popsize else None
+    lam_large = lam0
+    used = {"large": 0, "small": 0}
+    rng = np.random.default_rng(int(seed) + 7919)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # cma warns on flat fitness and such; we log its stop reasons instead
+        while total < max_evaluations:
+            opts = dict(base, seed=int(seed) + 1 + 1000 * k, maxfevals=int(max_evaluations - total))
+            sig, regime = float(sigma0), "large"
+            if k > 0 and restarts == "bipop" and used["small"] < used["large"]:
+                u = rng.uniform()
+                regime, sig = "small", float(sigma0) * 10.0 ** (-2.0 * u)
+                lam = max(2, int(lam0 * (lam_large / lam0) ** (rng.uniform() ** 2)))  # type: ignore[operator]
+                opts["popsize"] = lam
+                opts["maxfevals"] = int(min(opts["maxfevals"], max(lam, 0.5 * used["large"])))
+            elif k > 0:
+                lam_large = 2 * lam_large  # type: ignore[operator]
+                opts["popsize"] = lam_large
+            elif lam0:
+                opts["popsize"] = lam0
+            r = _one_run(cma, objective, x0, sig, opts, progress, total)
+            if k == 0:
+                lam0 = lam_large = r.popsize  # type: ignore[attr-defined]
+            used[regime] += r.n_evaluations
+            total += r.n_evaluations
+            gens += r.n_generations
+            trace_e += r.trace_evals
+            trace_f += [min(f, best.f_best) if best else f for f in r.trace_best]
+            stops.update({(f"run {k} ({regime}, popsize {r.popsize}): " if restarts != "none" else "") + key: v  # type: ignore[attr-defined]
+                          for key, v in r.stop.items()})
+            log.debug("CMA-ES run %d (%s, popsize %d): %d evaluations, f=%.6g, stop %s", k, regime, r.popsize,  # type: ignore[attr-defined]
+                      r.n_evaluations, r.f_best, r.stop)
+            if best is None or r.f_best < best.f_best:
+                best = r
+            k += 1
+            if restarts == "none" or total >= max_evaluations:
+                break
+    assert best is not None
+    out = CMAResult(best.x_best, best.f_best, total, gens, stops, trace_e, trace_f)
+    log.debug("CMA-ES: %d evaluations in %d run(s), f=%.6g, stop %s", total, k, out.f_best, out.stop)
+    return out
 
 
 class ProgressClock:

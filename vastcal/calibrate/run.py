@@ -38,7 +38,7 @@ from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObject
                                                    signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
-from vastcal.calibrate.optimise import ProgressCallback, ProgressClock, minimise
+from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock, minimise
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE as PHOTOMETRIC_SCHEDULE
 from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
@@ -132,6 +132,9 @@ class CalibrationSettings:
             (absorption contrast) only, skipped with a warning otherwise.
         starts: independent coarse-to-fine CMA-ES runs (seeds seed, seed + 10, …); the one of lowest
             judged cost is kept. Each costs a full run.
+        restarts: CMA-ES restarts within every level (:func:`.optimise.minimise`): ``"none"``, ``"ipop"`` or
+            ``"bipop"``; with restarts a level spends its whole ``max_evaluations`` (restarts until it is used).
+            Measured on ETH David (``benchmarks/calibrate_restarts.py``): see docs/calibration.md.
         polish: after the starts, a per-view compass search of every free roll on the judge cost
             (:func:`polish_rolls`), steps ``polish_steps_deg`` (degrees, largest first).
         memory_mb: memory budget, MB: the photometric yaw uses as many views (evenly spread) as fit in it
@@ -159,6 +162,7 @@ class CalibrationSettings:
     roll_offset_scan_deg: float = 0.0
     photometric_yaw: bool = False
     starts: int = 1
+    restarts: str = "none"
     polish: bool = True
     polish_steps_deg: tuple[float, ...] = (0.2, 0.1, 0.05, 0.025)
     memory_mb: float = 1536.0
@@ -429,7 +433,7 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
             if lv.max_initial_step_px:
                 stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
         res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
-                       tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize,
+                       tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize, restarts=settings.restarts,
                        progress=lambda e, f, _b=base: clock.update(_b + e, f))
         x = x.copy()
         x[sel] = res.x_best
@@ -548,6 +552,8 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     n_starts = int(settings.starts if starts is None else starts)
     if n_starts < 1:
         raise UserInputError(f"starts: expected at least 1, got {n_starts}")
+    if settings.restarts not in RESTARTS:
+        raise UserInputError(f"restarts: expected one of {', '.join(RESTARTS)}, got {settings.restarts!r}")
     if silhouettes is not None and np.asarray(silhouettes).shape != images.shape[:3]:
         raise UserInputError(f"silhouettes are {np.asarray(silhouettes).shape}, the images {images.shape[:3]}")
     space = ParameterSpace.build(theta0, normalise_free(free), bounds, fixed_views)
