@@ -171,60 +171,183 @@ def _separable_terms(P: np.ndarray, grid: VoxelGrid) -> tuple[np.ndarray, np.nda
     return tx.astype(np.float32), ty.astype(np.float32), tz.astype(np.float32)
 
 
-def _inside_view(sil_flat: np.ndarray, h: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Boolean (M,): homogeneous points h (M, 3) inside one silhouette.
+class SilhouetteMaps:
+    """N silhouettes held compactly: each view's map cropped to the bounding box of its non-zero pixels.
 
-    ``sil_flat`` is one map of :func:`_prepare_silhouettes`, raveled: bool (H·W) → nearest pixel is True;
-    float32 ((H + 2)·(W + 2), zero-padded) → bilinear value ≥ 0.5 (sub-pixel edges).
+    Binary masks (nonzero = specimen) are kept as bool; soft maps (probabilities in [0, 1]) as float32 or,
+    with ``quantise``, as uint8 levels q = round(255 p) — a quarter of the memory; the inside test
+    (bilinear p ≥ ½) then moves an edge by at most 1/510 of the map's step across it (about 0.004 px on
+    the soft rims of :func:`~vastcal.calibrate.silhouettes.specimen_maps`). A specimen fills a fraction of
+    its frame, so a 360-view session's maps take a few hundred MB instead of 4 bytes per frame pixel and
+    view. Pixels outside a view's crop are 0 (outside), exactly as in the full map.
+
+    Behaves as a read-only (N, H, W) stack where the pipeline needs one: ``len``, ``shape``, ``maps[i]``
+    (the full-frame map of view i: float32 or bool), ``np.asarray(maps)`` (all of them: avoid it).
     """
-    inv = 1.0 / h[:, 2]
-    u = h[:, 0] * inv
-    v = h[:, 1] * inv
-    out = np.zeros(len(u), bool)
-    if sil_flat.dtype == bool:
-        u = np.rint(u)
-        v = np.rint(v)
-        ok = (u >= 0) & (u <= width - 1) & (v >= 0) & (v <= height - 1)
-        flat = (v[ok] * width + u[ok]).astype(np.intp)
-        out[ok] = sil_flat[flat]
+
+    def __init__(self, frame_shape: tuple[int, int], soft: bool, scale: float = 1.0) -> None:
+        self.frame_shape = (int(frame_shape[0]), int(frame_shape[1]))
+        self.soft = bool(soft)
+        self.scale = float(scale)
+        self._crops: list[np.ndarray] = []  # soft: padded by one zero pixel on every side
+        self._origins: list[tuple[int, int]] = []  # (x0, y0) of the crop's first (unpadded) pixel in the frame
+
+    # -- building ----------------------------------------------------------------------------------
+    @classmethod
+    def from_stack(cls, silhouettes: Any, *, quantise: bool = False) -> "SilhouetteMaps":
+        """Compact copy of an (N, H, W) stack: bool or integer = binary masks (nonzero = specimen), floating =
+        soft maps in [0, 1]. A :class:`SilhouetteMaps` is returned as it is.
+
+        Raises:
+            AnalysisError: not (N, H, W), or soft maps with non-finite values.
+        """
+        if isinstance(silhouettes, SilhouetteMaps):
+            return silhouettes
+        s = np.asarray(silhouettes)
+        if s.ndim != 3:
+            raise AnalysisError(f"silhouettes must be (N, H, W), got shape {s.shape}")
+        soft = bool(np.issubdtype(s.dtype, np.floating))
+        out = cls(s.shape[1:], soft, 1.0 / 255.0 if soft and quantise else 1.0)  # type: ignore[arg-type]
+        for m in s:
+            out.append(m)
         return out
-    # soft map, padded by one zero pixel on every side: pixel (u, v) sits at (u + 1, v + 1)
-    u = u + 1.0
-    v = v + 1.0
-    ok = (u >= 0) & (u < width + 1) & (v >= 0) & (v < height + 1)
-    u, v = u[ok], v[ok]
-    u0 = np.floor(u)
-    v0 = np.floor(v)
-    fu = (u - u0).astype(np.float32)
-    fv = (v - v0).astype(np.float32)
-    wp = width + 2
-    i00 = (v0 * wp + u0).astype(np.intp)
-    a = sil_flat[i00]
-    b = sil_flat[i00 + 1]
-    c = sil_flat[i00 + wp]
-    d = sil_flat[i00 + wp + 1]
-    top = a + (b - a) * fu
-    bot = c + (d - c) * fu
-    out[ok] = (top + (bot - top) * fv) >= 0.5
-    return out
 
+    def append(self, m: np.ndarray) -> None:
+        """Add one view's full-frame map (H, W): soft (floating, in [0, 1]) or binary, as the stack is.
 
-def _prepare_silhouettes(silhouettes: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(maps for :func:`_inside_view` (N, ·) raveled, binary pixel masks (N, H, W), soft?).
-
-    Boolean or integer input = binary masks (nonzero = specimen), nearest-pixel test.
-    Floating input = soft maps in [0, 1] (foreground probability or coverage), bilinear ≥ 0.5.
-    """
-    s = np.asarray(silhouettes)
-    if s.ndim != 3:
-        raise AnalysisError(f"silhouettes must be (N, H, W), got shape {s.shape}")
-    if np.issubdtype(s.dtype, np.floating):
-        if not np.isfinite(s).all():
+        Raises:
+            AnalysisError: a map of another size, or a soft map with non-finite values.
+        """
+        m = np.asarray(m)
+        if m.shape != self.frame_shape:
+            raise AnalysisError(f"silhouette of {m.shape[1] if m.ndim == 2 else '?'} x {m.shape[0]} px in a stack of "
+                                f"{self.frame_shape[1]} x {self.frame_shape[0]}")
+        if self.soft and not np.isfinite(m).all():
             raise AnalysisError("soft silhouettes contain non-finite values")
-        soft = np.pad(s.astype(np.float32), ((0, 0), (1, 1), (1, 1)))
-        return soft.reshape(s.shape[0], -1), s >= 0.5, True
-    binary = s != 0
-    return binary.reshape(s.shape[0], -1), binary, False
+        nz = m != 0
+        rows, cols = np.flatnonzero(nz.any(axis=1)), np.flatnonzero(nz.any(axis=0))
+        if rows.size == 0:
+            y0 = y1 = x0 = x1 = 0
+        else:
+            y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        crop = m[y0:y1, x0:x1]
+        if not self.soft:
+            c = crop != 0
+        elif self.scale == 1.0:
+            c = np.pad(crop.astype(np.float32), 1)
+        else:
+            c = np.pad(np.rint(np.clip(crop, 0.0, 1.0) * 255.0).astype(np.uint8), 1)
+        self._crops.append(np.ascontiguousarray(c))
+        self._origins.append((x0, y0))
+
+    # -- the stack ---------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self._crops)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """(N, H, W)."""
+        return (len(self._crops),) + self.frame_shape
+
+    ndim = 3
+
+    @property
+    def dtype(self) -> np.dtype:
+        """float32 (soft) or bool: the type of ``maps[i]``."""
+        return np.dtype(np.float32 if self.soft else bool)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the crops."""
+        return int(sum(c.nbytes for c in self._crops))
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        """The full-frame map (H, W) of view ``i``: float32 values (soft) or bool."""
+        i = int(i)
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"view {i} out of range (0..{len(self) - 1})")
+        c, (x0, y0) = self._crops[i], self._origins[i]
+        out = np.zeros(self.frame_shape, self.dtype)
+        if self.soft:
+            c = c[1:-1, 1:-1]
+            out[y0:y0 + c.shape[0], x0:x0 + c.shape[1]] = c * np.float32(self.scale) if self.scale != 1.0 else c
+        else:
+            out[y0:y0 + c.shape[0], x0:x0 + c.shape[1]] = c
+        return out
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        a = np.stack([self[i] for i in range(len(self))]) if len(self) else np.zeros(self.shape, self.dtype)
+        return a if dtype is None else a.astype(dtype)
+
+    def mask(self, i: int) -> np.ndarray:
+        """(H, W) bool: the pixels of view ``i`` inside the silhouette (p ≥ ½, or nonzero)."""
+        m = self[i]
+        return m >= FOREGROUND_THRESHOLD if self.soft else m
+
+    def any_inside(self, i: int) -> bool:
+        """Whether view ``i`` has a pixel inside the silhouette."""
+        c = self._crops[i]
+        return bool(np.any(c * self.scale >= FOREGROUND_THRESHOLD)) if self.soft else bool(c.any())
+
+    def inside(self, i: int, h: np.ndarray) -> np.ndarray:
+        """Boolean (M,): homogeneous points h (M, 3) (float32, pixels of the frames) inside silhouette ``i``.
+
+        Binary masks: the nearest pixel is True; soft maps: the bilinear value is ≥ ½ (sub-pixel edges).
+        A point projecting outside the frame (or the crop) is outside.
+        """
+        c, (x0, y0) = self._crops[i], self._origins[i]
+        height, width = self.frame_shape
+        inv = 1.0 / h[:, 2]
+        u = h[:, 0] * inv
+        v = h[:, 1] * inv
+        out = np.zeros(len(u), bool)
+        if not self.soft:
+            u = np.rint(u)
+            v = np.rint(v)
+            ch, cw = c.shape
+            ok = (u >= 0) & (u <= width - 1) & (v >= 0) & (v <= height - 1)
+            ok &= (u >= x0) & (u < x0 + cw) & (v >= y0) & (v < y0 + ch)
+            flat = ((v[ok] - y0) * cw + (u[ok] - x0)).astype(np.intp)
+            out[ok] = c.ravel()[flat]
+            return out
+        # padded crop: frame pixel (u, v) sits at (u + 1 − x0, v + 1 − y0); u + 1 is formed first, as on the full
+        # padded frame, so that the integer shift keeps the fractional part bit for bit
+        u = (u + 1.0) - x0
+        v = (v + 1.0) - y0
+        hp, wp = c.shape
+        ok = (u >= 0) & (u < wp - 1) & (v >= 0) & (v < hp - 1)
+        u, v = u[ok], v[ok]
+        u0 = np.floor(u)
+        v0 = np.floor(v)
+        fu = (u - u0).astype(np.float32)
+        fv = (v - v0).astype(np.float32)
+        flat_c = c.ravel()
+        i00 = (v0 * wp + u0).astype(np.intp)
+        a = flat_c[i00].astype(np.float32)
+        b = flat_c[i00 + 1].astype(np.float32)
+        cc = flat_c[i00 + wp].astype(np.float32)
+        d = flat_c[i00 + wp + 1].astype(np.float32)
+        top = a + (b - a) * fu
+        bot = cc + (d - cc) * fu
+        val = top + (bot - top) * fv
+        out[ok] = val >= (FOREGROUND_THRESHOLD if self.scale == 1.0 else FOREGROUND_THRESHOLD / self.scale)
+        return out
+
+
+class _MaskStack:
+    """The binary masks (p ≥ ½) of a :class:`SilhouetteMaps`, one view at a time, as :func:`vastcal.voxels.inside_all` reads them."""
+
+    def __init__(self, maps: SilhouetteMaps) -> None:
+        self.maps = maps
+        self.shape = maps.shape
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        return self.maps.mask(i)
+
+
+def _prepare_silhouettes(silhouettes: Any) -> SilhouetteMaps:
+    """:meth:`SilhouetteMaps.from_stack` (boolean or integer = binary masks, floating = soft maps in [0, 1])."""
+    return SilhouetteMaps.from_stack(silhouettes)
 
 
 def count_dtype(n_views: int) -> type:
@@ -238,13 +361,13 @@ def silhouette_counts(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray
     Brute force over all views (same inside test as :func:`visual_hull`: nearest pixel for binary
     masks, bilinear ≥ 0.5 for soft maps); meant for small point sets and checks.
     """
-    maps, binary, _ = _prepare_silhouettes(silhouettes)
-    n, height, width = binary.shape
+    maps = _prepare_silhouettes(silhouettes)
+    n = len(maps)
     X = np.concatenate([np.asarray(points, float), np.ones((len(points), 1))], 1)
     counts = np.zeros(len(points), count_dtype(n))
     for i in range(n):
         h = X @ np.asarray(P[i], float).T
-        counts += _inside_view(maps[i], h, width, height)
+        counts += maps.inside(i, h)
     return counts
 
 
@@ -266,16 +389,16 @@ def _box_counts(integral: np.ndarray, qu: np.ndarray, qv: np.ndarray, r: np.ndar
     return inside, (2 * r + 1) ** 2
 
 
-def _classify_blocks(P: np.ndarray, sil: np.ndarray, grid: VoxelGrid, b: int, soft: bool) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
+def _classify_blocks(P: np.ndarray, maps: SilhouetteMaps, grid: VoxelGrid, b: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
     """Per block: kept (not certainly outside any view) and per-view 'mixed' flags.
 
-    ``sil`` are the binary pixel masks (N, H, W). A voxel's test reads the pixel nearest to its
+    The binary pixel masks of ``maps`` (:meth:`SilhouetteMaps.mask`, one view at a time) are tested. A voxel's test reads the pixel nearest to its
     projection (within √2/2 px of it) or, for soft maps, the 4 pixels around it (within √2 px;
     bilinear ≥ 0.5 needs one of them ≥ 0.5 and holds when all four are), hence the slack.
     Returns ``keep`` (nb,) bool, ``mixed`` (N, nb) bool and the block-grid shape.
     """
-    slack = (_SQRT2 / 2 + _SQRT2 if soft else _SQRT2) + _SAFETY_PX
-    n, height, width = sil.shape
+    slack = (_SQRT2 / 2 + _SQRT2 if maps.soft else _SQRT2) + _SAFETY_PX
+    n, height, width = maps.shape
     nb = tuple(int(np.ceil(s / b)) for s in grid.shape)
     bgrid = VoxelGrid(np.asarray(grid.origin, float) + (b - 1) / 2 * grid.size, grid.size * b, nb)  # type: ignore[arg-type]
     centres = bgrid.centres(np.float64)
@@ -300,7 +423,7 @@ def _classify_blocks(P: np.ndarray, sil: np.ndarray, grid: VoxelGrid, b: int, so
         qu = np.rint(u).clip(-2 * width, 3 * width).astype(np.int64)
         qv = np.rint(v).clip(-2 * height, 3 * height).astype(np.int64)
         r = np.floor(rho).astype(np.int64)
-        integral = cv2.integral(sil[i].view(np.uint8))
+        integral = cv2.integral(maps.mask(i).view(np.uint8))
         inside, full = _box_counts(integral, qu, qv, r, width, height)
         certainly_in = inside == full
         certainly_out = inside == 0
@@ -311,10 +434,9 @@ def _classify_blocks(P: np.ndarray, sil: np.ndarray, grid: VoxelGrid, b: int, so
     return keep, mixed, nb  # type: ignore[return-value]
 
 
-def _carve(P: np.ndarray, maps: np.ndarray, sil: np.ndarray, soft: bool, grid: VoxelGrid, b: int = BLOCK) -> np.ndarray:
+def _carve(P: np.ndarray, maps: SilhouetteMaps, grid: VoxelGrid, b: int = BLOCK) -> np.ndarray:
     """Hull occupancy (nx, ny, nz) bool by two-level carving (module docstring, steps 1–2)."""
-    n, height, width = sil.shape
-    keep, mixed, nb = _classify_blocks(P, sil, grid, b, soft)
+    keep, mixed, nb = _classify_blocks(P, maps, grid, b)
     nx, ny, nz = grid.shape
     any_mixed = mixed.any(axis=0)
     full_blocks = keep & ~any_mixed
@@ -343,7 +465,7 @@ def _carve(P: np.ndarray, maps: np.ndarray, sil: np.ndarray, soft: bool, grid: V
             if sel.size == 0:
                 continue
             h = tx[i, vi[sel]] + ty[i, vj[sel]] + tz[i, vk[sel]]
-            ok_ = _inside_view(maps[i], h, width, height)
+            ok_ = maps.inside(int(i), h)
             if not ok_.all():
                 drop = np.ones(len(vi), bool)
                 drop[sel[~ok_]] = False
@@ -366,10 +488,9 @@ def hull_boundary(occ: np.ndarray) -> np.ndarray:
     return np.ravel_multi_index(tuple(b.T), occ.shape).astype(np.int64)
 
 
-def _grow_counts(P: np.ndarray, maps: np.ndarray, shape2d: tuple[int, int], grid: VoxelGrid, occ: np.ndarray, min_count: int) -> np.ndarray:
+def _grow_counts(P: np.ndarray, maps: SilhouetteMaps, grid: VoxelGrid, occ: np.ndarray, min_count: int) -> np.ndarray:
     """Exact silhouette counts around the hull by region growing (module docstring, step 3)."""
-    n = maps.shape[0]
-    height, width = shape2d
+    n = len(maps)
     shape = grid.shape
     counts = np.zeros(shape, count_dtype(n))
     counts[occ] = n
@@ -397,7 +518,7 @@ def _grow_counts(P: np.ndarray, maps: np.ndarray, shape2d: tuple[int, int], grid
         cnt = np.zeros(c.size, counts.dtype)
         for i in range(n):
             h = tx[i, ci] + ty[i, cj] + tz[i, ck]
-            cnt += _inside_view(maps[i], h, width, height)
+            cnt += maps.inside(i, h)
         counts_flat[c] = cnt
         frontier = c[cnt >= min_count]
     log.debug("silhouette counts: %d growing rounds, %d voxels counted", rounds, int(evaluated.sum()))
@@ -433,7 +554,8 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
         silhouettes: (N, H, W) binary masks (bool or integer, nonzero = specimen; nearest-pixel
             test) or soft maps (float in [0, 1]: foreground probability or coverage; a voxel is
             inside when the bilinearly interpolated value at its projection is ≥ 0.5, which
-            places the silhouette edges to sub-pixel accuracy).
+            places the silhouette edges to sub-pixel accuracy), or a :class:`SilhouetteMaps` (used
+            as it is: no copy — what repeated hulls of one session should pass).
         grid: the voxel grid (world µm).
         min_count: lowest silhouette count made exact around the hull (default N − 1, enough
             for iso-levels above N − 2; see the module docstring).
@@ -447,8 +569,8 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
         EmptyHullError: no voxel lies inside every silhouette.
     """
     t0 = time.perf_counter()
-    maps, sil, soft = _prepare_silhouettes(silhouettes)
-    n = sil.shape[0]
+    maps = _prepare_silhouettes(silhouettes)
+    n = len(maps)
     if np.shape(P)[0] != n:
         raise AnalysisError(f"{np.shape(P)[0]} cameras for {n} silhouettes")
     if n > 65535:
@@ -457,18 +579,18 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
         min_count = max(n - 1, 1)
     if not 1 <= min_count <= n:
         raise AnalysisError(f"min_count must be within 1..{n}, got {min_count}")
-    empty = [i for i in range(n) if not sil[i].any()]
+    empty = [i for i in range(n) if not maps.any_inside(i)]
     if empty:
         raise EmptyHullError(f"silhouette of view(s) {empty} is empty: nothing was segmented as specimen "
                              "(check the colour model or the masks)")
     Pn = normalise_cameras(P, grid)
-    occ = _carve(Pn, maps, sil, soft, grid)
+    occ = _carve(Pn, maps, grid)
     t1 = time.perf_counter()
     if not occ.any():
         raise EmptyHullError(f"every one of {grid.n_voxels} voxels was carved away: no voxel projects inside all {n} "
                              "silhouettes — the cameras do not agree with the silhouettes (wrong calibration run, "
                              "wrong pixel convention) or the colour model segmented the wrong region")
-    counts = _grow_counts(Pn, maps, sil.shape[1:], grid, occ, min_count)
+    counts = _grow_counts(Pn, maps, grid, occ, min_count)
     if keep_largest:
         counts = _largest_component(counts, n)
     t2 = time.perf_counter()
@@ -489,6 +611,7 @@ def visual_hull_in_grid(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid,
     max(16 voxels, 10 % of the extent) on the touched faces; after ``max_growths`` the warning of
     :func:`visual_hull` stands.
     """
+    silhouettes = _prepare_silhouettes(silhouettes)  # once for every growth
     for _ in range(max_growths):
         hull = visual_hull(P, silhouettes, grid, min_count=min_count, warn_border=False)
         faces = hull.border_faces()
@@ -513,7 +636,7 @@ class ReconstructionInputs:
 
     Attributes:
         P: (N, 3, 4) cameras, 0-based pixels of the stored frames.
-        silhouettes: (N, H, W) bool masks or float32 probability maps in [0, 1].
+        silhouettes: (N, H, W) bool masks, or the colour model's probability maps in [0, 1] held compactly (:class:`SilhouetteMaps`).
         camera_source: ``"calibration/run_NNN"`` or ``"cameras (imported)"``.
         silhouette_source: ``"masks"`` or ``"colour_model of calibration/run_NNN (p >= 0.5)"``.
         calibration_run: name of the calibration run used, or None.
@@ -532,14 +655,50 @@ FOREGROUND_THRESHOLD = 0.5
 """Probability above which a pixel is specimen when silhouettes come from the colour model."""
 
 
-def session_inputs(session: Any, *, calibration_run: str | None = None, use_masks: bool = False) -> ReconstructionInputs:
+DEFAULT_MEMORY_MB = 1536.0
+"""Memory budget of a reconstruction when the rig file gives none, MB."""
+
+
+def session_specimen_maps(session: Any, model: Any, *, memory_mb: float = DEFAULT_MEMORY_MB) -> SilhouetteMaps:
+    """The colour model's specimen maps of every projection of an open session, held compactly.
+
+    Frames are read from the session one at a time, a sub-revolution of views at a time
+    (:func:`vastcal.calibrate.view_budget.grouped_specimen_maps`: as many views as half of ``memory_mb``
+    holds, all of them on a 21-view session), and each view's map is kept cropped to the specimen and
+    quantised to uint8 (:class:`SilhouetteMaps`).
+    """
+    from vastcal.calibrate.view_budget import grouped_specimen_maps
+
+    idx = session.projection_indices
+    n = len(idx)
+    shape = tuple(session.frame_shape)
+    pending: dict[int, np.ndarray] = {}
+    maps = SilhouetteMaps(shape[:2], soft=True, scale=1.0 / 255.0)  # type: ignore[arg-type]
+
+    def read(views: np.ndarray) -> np.ndarray:
+        return np.stack([session.frame(int(idx[v])) for v in views])
+
+    def store(views: np.ndarray, pf: np.ndarray) -> None:
+        np.clip(np.nan_to_num(pf, copy=False), 0.0, 1.0, out=pf)
+        for v, m in zip(views, pf):
+            pending[int(v)] = m
+        while len(maps) in pending:  # views are added in order; a sub-revolution's maps wait for their turn
+            maps.append(pending.pop(len(maps)))
+
+    grouped_specimen_maps(model, read, n, shape, memory_mb, store)
+    log.info("specimen maps of %d views: %.0f MB compact (%.0f MB as float32 frames)", n, maps.nbytes / 2**20, 4.0 * n * np.prod(shape[:2]) / 2**20)
+    return maps
+
+
+def session_inputs(session: Any, *, calibration_run: str | None = None, use_masks: bool = False,
+                   memory_mb: float = DEFAULT_MEMORY_MB) -> ReconstructionInputs:
     """Cameras and silhouettes of an open :class:`~vastcal.session.Session`.
 
     Cameras: the calibration run ``calibration_run`` (default: the latest), else the imported
     known cameras. Silhouettes: the imported masks when ``use_masks``; otherwise the colour
     model's foreground probability maps of the calibration run (float32, soft: a voxel is inside
-    when the bilinearly sampled p ≥ 0.5, :data:`FOREGROUND_THRESHOLD`), falling back to imported
-    masks when there is no colour model.
+    when the bilinearly sampled p ≥ 0.5, :data:`FOREGROUND_THRESHOLD`; made within ``memory_mb`` and held
+    compactly, :func:`session_specimen_maps`), falling back to imported masks when there is no colour model.
 
     Raises:
         MissingStageError: no cameras, or no silhouettes, with the command that makes them.
@@ -576,13 +735,10 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
     sil_src = ""
     if not use_masks and cal is not None and "colour_model" in cal:
         from vastcal.calibrate.colour_model import ColourModel
-        from vastcal.calibrate.silhouettes import specimen_maps
 
         model = ColourModel.from_group(cal["colour_model"])
-        prob = np.asarray(specimen_maps(model, session.projections()), np.float32)
-        # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges);
-        # cleaned in place (N full-frame float32 maps: no second and third copy)
-        sil = np.clip(np.nan_to_num(prob, copy=False), 0.0, 1.0, out=prob)
+        # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)
+        sil = session_specimen_maps(session, model, memory_mb=memory_mb)
         sil_src = f"colour_model of {cam_src} (bilinear p >= {FOREGROUND_THRESHOLD})"
     elif masks is not None:
         sil = np.asarray(masks) > 0
@@ -621,8 +777,11 @@ def choose_grid(P: np.ndarray, silhouettes: np.ndarray, *, voxel_size_um: float 
     """The grid around the specimen: coarse carving, bounding box plus margin
     (:func:`vastcal.voxels.grid_around_specimen`), voxel edge ``voxel_size_um`` (µm) or chosen
     for about ``target_voxels`` voxels in the box."""
-    s = np.asarray(silhouettes)
-    mask = s >= FOREGROUND_THRESHOLD if np.issubdtype(s.dtype, np.floating) else s != 0
+    if isinstance(silhouettes, SilhouetteMaps):
+        mask: Any = _MaskStack(silhouettes)
+    else:
+        s = np.asarray(silhouettes)
+        mask = s >= FOREGROUND_THRESHOLD if np.issubdtype(s.dtype, np.floating) else s != 0
     return grid_around_specimen(np.asarray(P, float), mask, target_voxels, voxel_size=voxel_size_um)
 
 
@@ -704,12 +863,13 @@ def reconstruct_session(
         raise UserInputError(f"{mesh_path}: mesh file must end in .ply or .stl")
     t0 = time.perf_counter()
     with Session.open(path, mode="a") as s:
-        inputs = session_inputs(s, calibration_run=calibration_run, use_masks=use_masks)
         cfg = None
         try:
             cfg = s.rig_config().reconstruction
         except Exception as exc:  # an unreadable stored config must not block measuring
             log.warning("%s: stored rig configuration unreadable (%s); reconstruction defaults used", path, exc)
+        inputs = session_inputs(s, calibration_run=calibration_run, use_masks=use_masks,
+                                memory_mb=getattr(cfg, "memory_mb", DEFAULT_MEMORY_MB))
         size = voxel_size_um if voxel_size_um is not None else (cfg.voxel_size_um if cfg else None)
         target = target_voxels or (cfg.target_voxels if cfg else 5_000_000)
         settings = MeasureSettings()

@@ -84,7 +84,8 @@ class VoxelGrid:
 
 
 def inside_all(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Boolean (M,): points (M, 3) whose projection lies inside every silhouette (N, H, W).
+    """Boolean (M,): points (M, 3) whose projection lies inside every silhouette (N, H, W; or any stack
+    with ``shape`` whose ``[i]`` is view i's (H, W) mask).
 
     A point projecting outside an image counts as outside that silhouette. Nearest-pixel test.
     """
@@ -96,7 +97,7 @@ def inside_all(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray) -> np
         v = np.rint(uv[:, 1]).astype(np.int64)
         ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
         inside = np.zeros(len(u), bool)
-        inside[ok] = silhouettes[i, v[ok], u[ok]]
+        inside[ok] = np.asarray(silhouettes[i])[v[ok], u[ok]]  # one view at a time (a lazy stack of masks too)
         idx = np.flatnonzero(keep)
         keep[idx[~inside]] = False
     return keep

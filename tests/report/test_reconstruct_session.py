@@ -81,7 +81,10 @@ def test_silhouettes_from_the_calibration_colour_model(session_factory, monkeypa
     mod = types.ModuleType("vastcal.calibrate.colour_model")
     mod.ColourModel = FakeModel  # type: ignore[attr-defined]
     sil = types.ModuleType("vastcal.calibrate.silhouettes")
-    sil.specimen_maps = lambda model, images: model.foreground_probability(images)  # type: ignore[attr-defined]  # no static blobs here
+    sil.specimen_maps = lambda model, images, **kw: model.foreground_probability(images)  # type: ignore[attr-defined]  # no static blobs here
+    import vastcal.calibrate.view_budget as view_budget  # the real one: how many views are mapped at once
+
+    monkeypatch.setitem(sys.modules, "vastcal.calibrate.view_budget", view_budget)
     monkeypatch.setitem(sys.modules, "vastcal.calibrate", pkg)
     monkeypatch.setitem(sys.modules, "vastcal.calibrate.colour_model", mod)
     monkeypatch.setitem(sys.modules, "vastcal.calibrate.silhouettes", sil)

@@ -1,4 +1,4 @@
-"""Which views a calibration stage holds at once: evenly spread subsets that fit a memory budget.
+"""Which views a calibration or reconstruction stage holds at once: evenly spread subsets that fit a memory budget.
 
 The silhouette cost streams its ray samples in bounded chunks and checks each edge ray against a
 bounded set of partner views (:func:`.objective_coherence.partner_views`), so its memory and time grow
@@ -7,6 +7,13 @@ absorption maps and a sparse projection matrix of every view it uses (~4 entries
 at 360 views that is several GB. It therefore uses an evenly spread subset of the views — as many as
 ``calibration.memory_mb`` leaves room for, all of them when they fit — which still spans the whole
 revolution (the yaw is a property of the axis, seen by every view alike).
+
+The specimen maps (:func:`.silhouettes.specimen_maps`) need a whole revolution at once — static bands
+and capillary walls are what (almost) every view shows, a rigid body occupies the same columns in every
+view — and hold ~48 bytes a frame pixel while they are made. :func:`grouped_specimen_maps` therefore
+makes them for interleaved *sub-revolutions* (views j, j + g, j + 2g, …), each itself an evenly spread
+revolution of at least 21 views (the paper's), as many views at once as ``memory_mb`` leaves room for:
+a 360-view session is mapped as 8 revolutions of 45 views, a 21-view one exactly as before.
 """
 
 from __future__ import annotations
@@ -14,8 +21,12 @@ from __future__ import annotations
 import logging
 import os
 import resource
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from vastcal.calibrate.colour_model import ColourModel
 
 log = logging.getLogger(__name__)
 
@@ -73,3 +84,56 @@ def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxe
         log.info("photometric yaw: %d of %d views (evenly spread) fit %.0f MB (%.1f MB per view, %.0f MB in use)", k, n, memory_mb, per_view,
                  float(memory_mb) - free)
     return evenly_spread_views(angles_deg, k)
+
+
+#: Bytes per frame pixel that :func:`.silhouettes.specimen_maps` holds while it maps a stack: features,
+#: contrast, log-posterior and posterior, the copies of its three clean-up rules (float32 each), their
+#: masks, and the frames themselves. Measured (benchmarks/scaling.py, tracemalloc peak of one call on the
+#: simulated rig's 1024 × 320 Mono12 frames): see the README's "Many views".
+SPECIMEN_MAP_BYTES_PER_PIXEL = 48.0
+#: A sub-revolution never holds fewer views than this (when the session has them): the static-band and
+#: rigid-body rules of the specimen maps compare a revolution's views with each other.
+MIN_MAP_VIEWS = 21
+
+
+def map_group_views(n_views: int, frame_pixels: int, memory_mb: float) -> int:
+    """How many views :func:`grouped_specimen_maps` maps at once: half of ``memory_mb`` at
+    :data:`SPECIMEN_MAP_BYTES_PER_PIXEL`, at least :data:`MIN_MAP_VIEWS` (all when fewer), at most all."""
+    per_view = SPECIMEN_MAP_BYTES_PER_PIXEL * max(int(frame_pixels), 1)
+    k = int(0.5 * float(memory_mb) * 2**20 // per_view)
+    return int(np.clip(k, min(n_views, MIN_MAP_VIEWS), max(n_views, 1)))
+
+
+def sub_revolutions(n_views: int, max_views: int) -> list[np.ndarray]:
+    """Interleaved groups of view indices, each at most ``max_views`` long: views j, j + g, j + 2g, … for
+    j < g = ⌈N / max_views⌉. Views of a revolution stored in angle order make every group an evenly
+    spread revolution of its own; one group (all views) when they fit."""
+    g = max(1, -(-int(n_views) // max(int(max_views), 1)))
+    return [np.arange(j, n_views, g) for j in range(g)]
+
+
+def grouped_specimen_maps(model: "ColourModel", read: Callable[[np.ndarray], np.ndarray], n_views: int,
+                          frame_shape: tuple[int, ...], memory_mb: float, store: Callable[[np.ndarray, np.ndarray], None], *,
+                          band_px: float = 3.0) -> int:
+    """The specimen maps of ``n_views`` views, made one sub-revolution at a time (module docstring).
+
+    Args:
+        model: the colour model.
+        read: view indices (sorted) → their frames (k, H, W[, 3]); e.g. a session's frames read one at a time.
+        n_views: N.
+        frame_shape: (H, W[, C]) of a frame.
+        memory_mb: memory budget, MB (:func:`map_group_views`).
+        store: called with (view indices, their maps (k, H, W) float32) for every sub-revolution.
+        band_px: the rim band of :func:`.silhouettes.specimen_maps`, pixels of the frames.
+
+    Returns the number of sub-revolutions.
+    """
+    from vastcal.calibrate.silhouettes import specimen_maps
+
+    k = map_group_views(n_views, int(np.prod(frame_shape[:2])), memory_mb)
+    groups = sub_revolutions(n_views, k)
+    if len(groups) > 1:
+        log.info("specimen maps: %d views as %d interleaved revolutions of <= %d views (memory_mb %.0f)", n_views, len(groups), k, memory_mb)
+    for views in groups:
+        store(views, specimen_maps(model, read(views), band_px=band_px))
+    return len(groups)
