@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import importlib.resources
 import math
 import reprlib
 import types
@@ -30,8 +31,20 @@ import yaml
 
 from vastcal.errors import ConfigError
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
-"""Folder of the shipped rig descriptions (``config/`` at the project root)."""
+
+def _shipped_config_dir() -> Path:
+    """Folder of the shipped rig YAML: the package data of ``vastcal.rig_configs`` (``config/`` of the
+    repository, mapped by ``pyproject.toml``), found with :mod:`importlib.resources` so that it works from a
+    wheel as from a checkout. An editable install made before that mapping existed falls back to the
+    repository's ``config/``."""
+    try:
+        return Path(str(importlib.resources.files("vastcal.rig_configs")))
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parent.parent / "config"
+
+
+CONFIG_DIR = _shipped_config_dir()
+"""Folder of the shipped rig descriptions (``config/`` of the repository; ``vastcal/rig_configs`` installed)."""
 
 DEFAULT_CONFIG = CONFIG_DIR / "simulated.yaml"
 """The embedded default rig: fully simulated, no hardware."""
@@ -192,6 +205,10 @@ class CalibrationConfig:
     memory_mb: float = field(default=1536.0, metadata=_range(256.0, 1e7))
     """Memory budget of a calibration, MB: the photometric yaw uses as many views (evenly spread) as fit
     in it; the silhouette cost grows linearly with the views (:mod:`vastcal.calibrate.view_budget`)."""
+    prior_from: str | None = None
+    """Results folder of an earlier ``vastcal batch`` on this rig (``RESULTS/``; relative to the working folder):
+    its ``rig_health.json`` — the stage's angle error per commanded angle and the axis yaw/pitch — becomes the
+    start and the prior's centre of this calibration (:func:`vastcal.rig_health.load_rig_prior`); null = none."""
 
 
 @dataclass(frozen=True)
