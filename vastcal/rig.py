@@ -76,8 +76,9 @@ def connect_rig(cfg: RigConfig, truth_path: str | Path | None = None) -> Rig:
     try:
         if cfg.camera.driver == "simulated":
             return _simulated_rig(cfg, stack, Path(truth_path) if truth_path else None)
-        from vastcal.drivers.camera.genicam_camera import GenICamCamera
+        from vastcal.drivers.camera.genicam_camera import GenICamCamera, require_harvesters
 
+        require_harvesters()  # the [rig] extra, checked before the stage is opened or homed
         stage = stack.enter_context(_closing(open_stage(cfg.stage)))
         camera = GenICamCamera.from_config(cfg.camera)
         camera.open()

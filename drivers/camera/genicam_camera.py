@@ -63,6 +63,26 @@ def settings_from_config(cfg: CameraConfig) -> CameraSettings:
     return CameraSettings(pixel_format=cfg.pixel_format, exposure_us=cfg.exposure_us, gain_db=cfg.gain_db, roi=roi, packet_size=cfg.packet_size)
 
 
+RIG_EXTRA = "pip install 'vastcal[rig]'"
+"""How to install what a real camera needs (``harvesters`` and ``genicam``, the ``[rig]`` extra)."""
+
+
+def require_harvesters() -> None:
+    """Check that the real camera's libraries can be imported, before any device is touched.
+
+    ``harvesters`` and ``genicam`` are the ``[rig]`` extra: analysis, import and the simulated rig run
+    without them (``genicam`` has no wheel for some platforms).
+
+    Raises:
+        CameraError: one line saying to ``pip install 'vastcal[rig]'`` (and what failed to import).
+    """
+    try:
+        import harvesters.core  # noqa: F401 - imports genicam too
+    except ImportError as exc:
+        missing = getattr(exc, "name", None) or ft.first_line(exc)
+        raise CameraError(f"a real camera needs harvesters and genicam ({missing} cannot be imported): {RIG_EXTRA}") from exc
+
+
 def find_producers(cti: str | os.PathLike[str] | None) -> list[Path]:
     """GenTL producer files to load: ``cti`` itself, or every ``*.cti`` on ``GENICAM_GENTL64_PATH``.
 
@@ -129,6 +149,7 @@ class GenICamCamera(Camera):
         return self._software_trigger
 
     def _do_open(self) -> None:
+        require_harvesters()
         from harvesters.core import Harvester  # heavy import, only when a real camera is used
 
         producers = find_producers(self._cti)

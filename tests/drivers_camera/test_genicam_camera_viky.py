@@ -23,6 +23,7 @@ from vastcal.errors import AcquisitionAborted, CameraError, DeviceError, DeviceT
 def _viky_path() -> Path | None:
     try:
         import genicam
+        import harvesters.core  # noqa: F401
     except ImportError:
         return None
     hits = sorted(Path(genicam.__file__).parent.rglob("viky*.cti"))
@@ -30,7 +31,7 @@ def _viky_path() -> Path | None:
 
 
 VIKY = _viky_path()
-pytestmark = pytest.mark.skipif(VIKY is None, reason="viky.cti not found in the installed genicam wheel")
+pytestmark = pytest.mark.skipif(VIKY is None, reason="harvesters, genicam or its viky.cti not installed (the [rig] extra)")
 
 
 @pytest.fixture
