@@ -248,7 +248,7 @@ def _save(results_dir: Path, state: dict[str, Any], title: str, progress: str = 
     atomic_write_bytes(results_dir / STATE_FILE, json.dumps(state, indent=1, default=str).encode())
     rows = table_rows(state)
     write_table(rows, results_dir)
-    write_index(rows, results_dir, title=title, extra_html=_rig_html(state), progress=progress)
+    write_index(rows, results_dir, title=title, extra_html=_rig_html(state, results_dir), progress=progress)
 
 
 def table_rows(state: dict[str, Any]) -> list[dict[str, Any]]:
@@ -264,13 +264,14 @@ def table_rows(state: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-def _rig_html(state: dict[str, Any]) -> str:
-    try:
-        from vastcal.rig_health import rig_health, rig_health_html
-    except ImportError:  # rig_health not available: the table still works
-        return ""
+def _rig_html(state: dict[str, Any], results_dir: Path) -> str:
+    """The rig-health section of the overview; also writes ``rig_health.json`` (what ``calibration.prior_from`` reads)."""
+    from vastcal.rig_health import HEALTH_FILE, rig_health, rig_health_dict, rig_health_html
+
     records = [e["row"].get("_rig") for e in state["sessions"].values() if e["row"].get("status") == "ok"]
-    return rig_health_html(rig_health([r for r in records if r]))
+    health = rig_health([r for r in records if r])
+    atomic_write_bytes(results_dir / HEALTH_FILE, json.dumps(rig_health_dict(health), indent=1).encode())
+    return rig_health_html(health)
 
 
 # ---------------------------------------------------------------- cluster

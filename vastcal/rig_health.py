@@ -20,15 +20,24 @@ What the data can and cannot determine — say it with every figure:
 from __future__ import annotations
 
 import html
+import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from datetime import datetime
+from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from vastcal.errors import ConfigError
+
 ANGLE_DECIMALS = 3
 """Commanded angles are grouped after rounding to 10⁻³ degree."""
+
+HEALTH_FILE = "rig_health.json"
+"""The rig's health as JSON in a batch's results folder (what ``calibration.prior_from`` reads)."""
+
+HEALTH_SCHEMA = "vastcal.rig_health/1"
 
 MIN_TREND_SPAN_DAYS = 1.0
 """A yaw/pitch trend (degrees per day) is fitted only over sessions spanning at least this many days."""
@@ -70,6 +79,8 @@ class RigHealth:
 
 
 def _rolls_informative(rec: Mapping[str, Any]) -> bool:
+    if rec.get("drift_status") == "measured":  # imported cameras: their own rolls (as good as those cameras)
+        return True
     free = rec.get("free") or ()
     if not ({"rolls", "all"} & set(free)):
         return False
@@ -190,3 +201,109 @@ def rig_health_html(h: RigHealth) -> str:
                                  f"{t.name} (deg) per session, in time order"))
     parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in h.notes) + "</ul>")
     return "\n".join(parts)
+
+
+# ---------------------------------------------------------------- as a file, and as the prior of the next calibration
+
+
+def rig_health_dict(h: RigHealth) -> dict[str, Any]:
+    """JSON-able form of :class:`RigHealth` (schema :data:`HEALTH_SCHEMA`; NaN standard errors become null)."""
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [clean(x) for x in v]
+        return v
+
+    return clean({"schema": HEALTH_SCHEMA, **asdict(h)})
+
+
+@dataclass
+class RigPrior:
+    """What an earlier batch says about the rig, as the centre of the next calibration's prior.
+
+    ``commanded_deg``/``error_deg``: the stage's mean calibrated − commanded angle (degrees, relative to the
+    error at 0°) at the commanded angles where it was determined; ``yaw_deg``/``pitch_deg``: the axis' mean
+    over the batch's sessions (``None`` when not available).
+    """
+
+    source: str
+    commanded_deg: np.ndarray
+    error_deg: np.ndarray
+    standard_error_deg: np.ndarray
+    yaw_deg: float | None
+    pitch_deg: float | None
+    n_sessions: int
+
+    def roll_shift_deg(self, commanded_deg: Sequence[float]) -> np.ndarray:
+        """Expected stage error (degrees) at each commanded angle, relative to the first view's (view 0 defines 0°).
+
+        Interpolated linearly and periodically (360°) between the angles where the error was determined; zeros
+        when it was determined nowhere.
+        """
+        c = np.asarray(commanded_deg, float)
+        if self.commanded_deg.size == 0 or c.size == 0:
+            return np.zeros(c.shape)
+        e = np.interp(c % 360.0, self.commanded_deg, self.error_deg, period=360.0)
+        return e - e[0]
+
+    def describe(self) -> str:
+        """One line for logs and the calibration's attributes."""
+        parts = [f"{self.source}: {self.n_sessions} session(s)"]
+        parts.append(f"stage error at {self.commanded_deg.size} commanded angle(s), max |e| {np.max(np.abs(self.error_deg)):.3f} deg"
+                     if self.error_deg.size else "stage error not determined (no roll shift)")
+        if self.yaw_deg is not None:
+            parts.append(f"yaw {self.yaw_deg:+.4f} deg")
+        if self.pitch_deg is not None:
+            parts.append(f"pitch {self.pitch_deg:+.4f} deg")
+        return "; ".join(parts)
+
+
+def load_rig_prior(results_dir: str | Path, *, key: str = "calibration.prior_from") -> RigPrior:
+    """The prior written by a batch into ``results_dir`` (:data:`HEALTH_FILE`).
+
+    Raises:
+        ConfigError: one line naming ``key``, the file and what was expected (missing folder or file, not
+            JSON, another schema, malformed entries).
+    """
+    expected = "a results folder written by vastcal batch (with rig_health.json)"
+    if not str(results_dir).strip():
+        raise ConfigError(f"{key}: empty; expected {expected}, or null for no prior")
+    folder = Path(results_dir).expanduser()
+    path = folder / HEALTH_FILE
+    if not folder.is_dir():
+        raise ConfigError(f"{key}: {folder}: no such folder; expected {expected}")
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{key}: {path}: no such file; expected {expected}") from None
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{key}: {path}: not readable JSON ({str(exc).splitlines()[0]}); expected {expected}") from None
+    if not isinstance(data, dict) or data.get("schema") != HEALTH_SCHEMA:
+        raise ConfigError(f"{key}: {path}: expected schema {HEALTH_SCHEMA}, got {_short(data.get('schema') if isinstance(data, dict) else data)}")
+    pts: list[tuple[float, float, float]] = []
+    try:
+        for a in data.get("angle_error") or []:
+            c, m = float(a["commanded_deg"]), float(a["mean_deg"])
+            se = a.get("standard_error_deg")
+            if math.isfinite(c) and math.isfinite(m):
+                pts.append((c % 360.0, m, float("nan") if se is None else float(se)))
+        axis = {}
+        for name in ("yaw", "pitch"):
+            t = data.get(name)
+            v = None if not isinstance(t, dict) or t.get("mean_deg") is None else float(t["mean_deg"])
+            axis[name] = v if v is not None and math.isfinite(v) else None
+        n = int(data.get("n_sessions") or 0)
+    except (TypeError, ValueError, KeyError) as exc:
+        raise ConfigError(f"{key}: {path}: malformed entry ({type(exc).__name__}: {exc}); expected {expected}") from None
+    pts.sort()
+    arr = np.array(pts, float).reshape(-1, 3)
+    return RigPrior(str(folder), arr[:, 0], arr[:, 1], arr[:, 2], axis["yaw"], axis["pitch"], n)
+
+
+def _short(v: Any) -> str:
+    text = repr(v)
+    return text if len(text) <= 60 else text[:57] + "..."

@@ -68,7 +68,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
                       use_masks: bool | None = None, settings: CalibrationSettings | None = None,
                       offset_scan_deg: float | None = None, progress: ProgressCallback | None = None,
                       fixed_views: str | Sequence[int] | None = None, starts: int | None = None,
-                      score_thetas: Sequence[np.ndarray] = ()) -> CalibrationResult:
+                      score_thetas: Sequence[np.ndarray] = (), prior_from: str | Path | None = None) -> CalibrationResult:
     """Calibrate a session and store the run (see the module docstring).
 
     Args:
@@ -86,6 +86,8 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         fixed_views: views whose roll stays at its commanded angle: ``"10-35"``, ``"0,3,5-7"`` or indices (0-based).
         starts: independent starts, the best kept (default ``settings.starts``, 1).
         score_thetas: θ vectors (degrees, the session's frame) only scored on the final cost (benchmarks: the truth).
+        prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default the rig
+            config's ``calibration.prior_from``): see :func:`apply_rig_prior`.
 
     Raises:
         SessionIncompleteError: incomplete session, fewer than 3 views, no angles.
@@ -111,6 +113,10 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
             scan = check_setting(CalibrationConfig, "offset_scan_deg", offset_scan_deg, "offset scan (--offset-scan)")
             settings = dataclasses.replace(settings, roll_offset_scan_deg=float(scan))
         K, d, theta0, notes = session_camera_model(session)
+        commanded0 = theta0.copy()
+        prior_src = cfg.prior_from if prior_from is None else str(prior_from)
+        if prior_src is not None:
+            theta0 = apply_rig_prior(theta0, prior_src, notes)
         fixed = parse_views(fixed_views, len(theta0) - 3)
         images = session.projections()
         masks = session.masks
@@ -126,6 +132,8 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
                                  score_thetas=score_thetas)
     except VastcalError as exc:  # name the session in errors found in its data
         raise exc.about(getattr(path_or_session, "path", path_or_session)) from None
+    if prior_src is not None:  # stored θ0 and delta_angle_deg stay "commanded"; the prior's centre is stored beside them
+        result.theta0_deg = commanded0
     target = Session.open(path_or_session, "a") if own else session
     try:
         group = target.new_result_group("calibration")
@@ -142,6 +150,34 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
             target.close()
     log.info("stored %s in %s", result.run_name, result.session_path)
     return result
+
+
+def apply_rig_prior(theta0: np.ndarray, results_dir: str | Path, notes: dict[str, Any]) -> np.ndarray:
+    """θ0 (degrees) moved to what an earlier batch on this rig expects: the start and the prior's centre.
+
+    The rolls get the stage's mean angle error at their commanded angles (relative to view 0,
+    :meth:`vastcal.rig_health.RigPrior.roll_shift_deg`); yaw and pitch the batch's means, but only when the axis
+    comes from the rig optics (imported cameras give their own, in their own frame). ``notes`` receives what was
+    applied (stored with the run). Angles are still *relative to the commanded ones* in ``delta_angle_deg``.
+
+    Raises:
+        ConfigError: ``calibration.prior_from`` names no usable results folder (one line).
+    """
+    from vastcal.rig_health import load_rig_prior
+
+    prior = load_rig_prior(results_dir)
+    out = np.asarray(theta0, float).copy()
+    shift = prior.roll_shift_deg(out[3:])
+    out[3:] += shift
+    rig_axis = str(notes.get("camera_source", "")).startswith("rig")
+    if rig_axis and prior.yaw_deg is not None:
+        out[0] = prior.yaw_deg
+    if rig_axis and prior.pitch_deg is not None:
+        out[1] = prior.pitch_deg
+    notes.update({"prior_from": str(results_dir), "prior": prior.describe(), "prior_theta_deg": out.tolist(),
+                  "theta0_cost_of": "the prior's centre (prior_theta_deg), not the commanded angles"})
+    log.info("calibration prior from %s", prior.describe())
+    return out
 
 
 def store_result(group: Any, r: CalibrationResult, notes: dict[str, Any], silhouettes: str) -> None:
