@@ -15,6 +15,10 @@ its report under ``RESULTS/reports/<name>/``; the rows are collected into ``RESU
 * Failures: an error inside one session becomes a failed row (reason, exit class, exit code) and never
   stops the others. A worker that dies is retried by Dask once (``retries=1``); rows are keyed by session,
   so a retried task never yields a second row.
+* Progress: the Dask dashboard's link and ``RESULTS/index.html`` are named at start; the page reloads itself
+  every :data:`REFRESH_S` seconds while the batch runs (the final page does not).
+* The rig's health (:mod:`vastcal.rig_health`) goes to the page and to ``RESULTS/rig_health.json``, which a
+  later batch (``prior_from``) or a rig file (``calibration.prior_from``) uses as the calibration's prior.
 """
 
 from __future__ import annotations
@@ -35,12 +39,14 @@ from typing import Any, Callable, Iterable, Sequence
 from vastcal.errors import OutputExistsError, UserInputError, VastcalError
 from vastcal.progress import ProgressLine, format_duration
 from vastcal.screen_table import atomic_write_bytes, write_index, write_table
-from vastcal.specimen import read_specimen
+from vastcal.specimen import read_specimen, session_specimen
 
 log = logging.getLogger(__name__)
 
 STATE_FILE = "batch_state.json"
 STATE_SCHEMA = "vastcal.batch_state/1"
+REFRESH_S = 10
+"""While a batch runs, ``index.html`` reloads itself every so many seconds."""
 
 
 @dataclass
@@ -148,8 +154,9 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
     row: dict[str, Any] = {"path": path, "worker": f"{socket.gethostname()}:{os.getpid()}",
                            "processed_at": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     try:
+        prior = {"prior_from": settings["prior_from"]} if settings.get("prior_from") else {}
         summary = run_session(path, report_dir, method=settings.get("method"), seed=settings.get("seed"),
-                              starts=int(settings.get("starts", 3)), quiet=True)
+                              starts=int(settings.get("starts", 3)), quiet=True, **prior)
         row.update(status="ok", report_dir=str(report_dir))
         row.update({f"t_{k}_s": v for k, v in summary.timings_s.items()})
     except VastcalError as exc:
@@ -162,6 +169,7 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
     row["cpu_s"] = time.process_time() - c0  # user + system CPU of the worker process during this session
     row["worker_peak_mb"] = _peak_rss_mb()
     row["fingerprint"] = file_fingerprint(Path(path))
+    row["_specimen"] = session_specimen(path)  # given at acquisition; a sidecar (vastcal annotate) overrides it in the table
     if row["status"] == "ok":
         row.update(_fields_from_report(Path(report_dir) / "report.json"))
     return row
@@ -248,17 +256,20 @@ def _save(results_dir: Path, state: dict[str, Any], title: str, progress: str = 
     atomic_write_bytes(results_dir / STATE_FILE, json.dumps(state, indent=1, default=str).encode())
     rows = table_rows(state)
     write_table(rows, results_dir)
-    write_index(rows, results_dir, title=title, extra_html=_rig_html(state, results_dir), progress=progress)
+    write_index(rows, results_dir, title=title, extra_html=_rig_html(state, results_dir), progress=progress,
+                refresh_s=REFRESH_S if progress else None)
 
 
 def table_rows(state: dict[str, Any]) -> list[dict[str, Any]]:
-    """One row per session of the state, with the specimen metadata read now from the sidecar files."""
+    """One row per session of the state, with its specimen metadata: the session's own (read when it was processed),
+    overridden by the sidecar files read now."""
     rows = []
     for name, entry in state["sessions"].items():
         row = {k: v for k, v in entry["row"].items() if not k.startswith("_")}
         row["session"] = name
         if row.get("status") == "ok":
             row["report"] = f"reports/{name}"
+        row.update(entry["row"].get("_specimen") or {})
         row.update(read_specimen(Path(row.get("path", ""))))
         rows.append(row)
     return rows
@@ -272,6 +283,20 @@ def _rig_html(state: dict[str, Any], results_dir: Path) -> str:
     health = rig_health([r for r in records if r])
     atomic_write_bytes(results_dir / HEALTH_FILE, json.dumps(rig_health_dict(health), indent=1).encode())
     return rig_health_html(health)
+
+
+def _prior_settings(prior_from: str | Path, out: Path) -> dict[str, Any]:
+    """``prior_from`` checked now (one-line errors before any work) as an absolute path (workers may run
+    elsewhere) with the hash of its ``rig_health.json`` (a changed prior is a changed setting)."""
+    from vastcal.rig_health import HEALTH_FILE, load_rig_prior
+
+    load_rig_prior(prior_from, key="--prior-from")
+    folder = Path(prior_from).expanduser().resolve()
+    if folder == out.resolve():
+        raise UserInputError(f"--prior-from {prior_from}: is this batch's own results folder (it changes as results arrive); "
+                             "give an earlier batch's folder")
+    digest = hashlib.sha256((folder / HEALTH_FILE).read_bytes()).hexdigest()[:16]
+    return {"prior_from": str(folder), "prior_sha256": digest}
 
 
 # ---------------------------------------------------------------- cluster
@@ -322,7 +347,8 @@ def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
 
 def run_batch(sessions: Iterable[str | Path], results_dir: str | Path, *, method: str | None = None, seed: int | None = None,
               starts: int = 3, force: bool = False, scheduler: str | None = None, n_workers: int | None = None,
-              quiet: bool = False, say: Callable[[str], None] | None = None, title: str = "vastcal screen") -> BatchResult:
+              quiet: bool = False, say: Callable[[str], None] | None = None, title: str = "vastcal screen",
+              prior_from: str | Path | None = None) -> BatchResult:
     """Process every session on Dask and write the screen's table (see the module docstring).
 
     Args:
@@ -335,6 +361,8 @@ def run_batch(sessions: Iterable[str | Path], results_dir: str | Path, *, method
             else an embedded LocalCluster).
         n_workers: workers of the embedded LocalCluster (default: one per core).
         quiet: no progress line; say: where start-up lines go (dashboard link; default ``log.info``).
+        prior_from: an earlier batch's results folder whose ``rig_health.json`` seeds every calibration (as the rig
+            file's ``calibration.prior_from``); part of the settings: a changed prior re-processes the sessions.
 
     Returns the rows of every session (also those skipped as done).
     """
@@ -353,7 +381,9 @@ def run_batch(sessions: Iterable[str | Path], results_dir: str | Path, *, method
     except OSError as exc:
         raise UserInputError(f"{out}: cannot create the results folder ({exc.strerror})") from None
     state = load_state(out)
-    settings = {"method": method, "seed": seed, "starts": int(starts)}
+    settings: dict[str, Any] = {"method": method, "seed": seed, "starts": int(starts)}
+    if prior_from is not None:
+        settings.update(_prior_settings(prior_from, out))
     shash = settings_hash(settings)
     names = session_names(paths)
     todo: list[Path] = []
@@ -386,6 +416,8 @@ def _run_on_dask(todo: list[Path], names: dict[Path, str], out: Path, settings: 
         info = client.scheduler_info()
         nw = len(info.get("workers", {}))
         say(f"Dask: {nw} worker(s) at {client.scheduler.address}; dashboard {res.dashboard or '(not available: install bokeh)'}")
+        say(f"progress: {out / 'index.html'} (reloads every {REFRESH_S} s while the batch runs)")
+        _save(out, state, title, progress=f"; running: 0/{len(todo)} of this run done")
         futures = {}
         for p in todo:
             name = names[p]

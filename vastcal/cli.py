@@ -136,6 +136,13 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
     check_output_file(out, force=args.force, option="--resume" if args.resume else "-o", existing=bool(args.resume))  # before the stage moves
     _check_views(args.views)
+    specimen: dict = {}
+    if args.specimen:  # checked before the stage moves; stored in the session's start record
+        if args.resume:
+            raise UserInputError("--specimen with --resume: the session's start record is already written; use 'vastcal annotate'")
+        from vastcal.specimen import specimen_for_session
+
+        specimen = specimen_for_session(args.specimen, out)
     from vastcal.session_files import PathLock
 
     probe = PathLock(Path(out))
@@ -148,7 +155,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     try:
         with connect_rig(cfg, truth_path=_truth_path(Path(out))) as rig:
             result = acquire(rig.stage, rig.camera, cfg, out, views=args.views, resume=bool(args.resume), force=args.force,
-                             cancel=cancel, progress=lambda d, t, e: bar.update(d, t, elapsed_s=e), start_info=rig.start_info,
+                             cancel=cancel, progress=lambda d, t, e: bar.update(d, t, elapsed_s=e), start_info={**(rig.start_info or {}), **({"specimen": specimen} if specimen else {})},
                              on_view=rig.on_view)
     finally:
         bar.close()
@@ -273,7 +280,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from vastcal.batch import run_batch
 
     res = run_batch(args.sessions, args.output, method=args.method, seed=args.seed, starts=args.starts, force=args.force,
-                    scheduler=args.scheduler, n_workers=args.workers, quiet=args.quiet, say=_say)
+                    scheduler=args.scheduler, n_workers=args.workers, quiet=args.quiet, say=_say, prior_from=args.prior_from)
     print(res.summary())
     return 1 if any(r.get("status") != "ok" for r in res.rows) else 0
 
@@ -329,6 +336,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--resume", metavar="S.h5", help="continue an incomplete session")
     s.add_argument("--views", type=int, help="number of views (default from the config)")
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    s.add_argument("--specimen", metavar="ID=…,age_dpf=…|FILE",
+                   help="specimen metadata stored in the session: ID=F12,age_dpf=5,strain=AB,treatment=…,plate=…,well=B3, "
+                        "or a YAML file of those fields, or a screen's manifest (YAML or CSV) with an entry for this session")
     s.set_defaults(func=cmd_acquire)
 
     s = sub.add_parser("import", help="make a session from a folder of images")
@@ -401,6 +411,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr")
     s.add_argument("--seed", type=int, default=None)
     s.add_argument("--starts", type=int, default=3, metavar="S", help="independent calibration starts per session (default 3)")
+    s.add_argument("--prior-from", default=None, metavar="RESULTS",
+                   help="an earlier batch's results folder: its rig health seeds every calibration (as calibration.prior_from)")
     s.set_defaults(func=cmd_batch)
 
     s = sub.add_parser("annotate", help="attach specimen metadata to sessions (S.specimen.json beside S.h5)")

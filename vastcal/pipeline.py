@@ -64,7 +64,7 @@ class RunSummary:
 
 
 def run_session(session: str | Path, report_dir: str | Path | None = None, *, method: str | None = None, seed: int | None = None,
-                quiet: bool = False, starts: int = 3) -> RunSummary:
+                quiet: bool = False, starts: int = 3, prior_from: str | Path | None = None) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
     Args:
@@ -75,6 +75,8 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
         starts: independent calibration starts (seeds seed, seed + 10, …); the one of lowest cost is kept,
             never a pose costlier than the commanded angles (one seed once kept the worse of two optima on a larva).
         quiet: no progress lines.
+        prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default: the stored rig
+            configuration's ``calibration.prior_from``).
     """
     from vastcal.calibrate import calibrate_session
     from vastcal.reconstruct import reconstruct_session
@@ -86,7 +88,7 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     bar = ProgressLine(f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})", "evaluations", enabled=not quiet)
     t = time.monotonic()
     try:
-        cal = calibrate_session(path, method=method, seed=seed, starts=starts,
+        cal = calibrate_session(path, method=method, seed=seed, starts=starts, prior_from=prior_from,
                                 progress=evaluations_callback(bar))
     finally:
         bar.close()

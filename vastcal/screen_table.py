@@ -169,15 +169,19 @@ def _link(row: Mapping[str, Any]) -> str:
     return name
 
 
-def index_html(rows: Sequence[Mapping[str, Any]], *, title: str = "vastcal screen", extra_html: str = "", progress: str = "") -> str:
+def index_html(rows: Sequence[Mapping[str, Any]], *, title: str = "vastcal screen", extra_html: str = "", progress: str = "",
+               refresh_s: int | None = None) -> str:
     """The screen overview: counts, histograms of volume and area, outliers, failed sessions, the table.
 
     Every value from the data is escaped with :func:`html.escape`; ``extra_html`` is trusted (built here).
+    ``refresh_s``: while a batch runs, the page reloads itself every so many seconds (a meta refresh: no script,
+    works from ``file://``); the final page has none.
     """
     rows = sorted(rows, key=lambda r: str(r.get("session", "")))
     ok = [r for r in rows if r.get("status") == "ok"]
     failed = [r for r in rows if r.get("status") != "ok"]
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+    reload = f"<meta http-equiv='refresh' content='{int(refresh_s)}'>" if refresh_s else ""
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'>{reload}<title>{html.escape(title)}</title>",
              "<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse;font-size:12px}"
              "td,th{border:1px solid #ccc;padding:2px 5px}.failed{background:#fdd}</style></head><body>",
              f"<h1>{html.escape(title)}</h1>",

@@ -1,10 +1,18 @@
-"""Specimen metadata of a session, in a sidecar file ``S.specimen.json`` beside ``S.h5``.
+"""Specimen metadata of a session: given at acquisition (in the session), or attached later (a sidecar).
 
 Fields (all optional): ``specimen_id``, ``age_dpf`` (days post fertilisation, a number), ``strain``,
-``treatment``, ``plate``, ``well``. The session file itself is not touched: the sidecar is written
-atomically (temporary file in the same folder, then one rename) and read into every batch table.
-A screen's manifest is a CSV with a ``session`` column (file name or path of the session; relative names are
-taken from the manifest's folder) and any of the fields as further columns.
+``treatment``, ``plate``, ``well``.
+
+* At acquisition (``vastcal acquire --specimen ID=F12,age_dpf=5,strain=AB`` or ``--specimen FILE``): stored in
+  the session's start record (attribute ``specimen``, JSON), written with the session's first bytes.
+* Later (``vastcal annotate``): the session file itself is not touched; the fields go to a sidecar
+  ``S.specimen.json`` beside ``S.h5``, written atomically (temporary file in the same folder, then one rename).
+  A sidecar's fields override the session's own.
+
+Both are read into every batch table. A screen's manifest is a CSV with a ``session`` column (file name or path
+of the session; relative names are taken from the manifest's folder) and any of the fields as further columns;
+as YAML, a mapping of session file names to field mappings. ``acquire --specimen MANIFEST`` takes the entry of
+the session it writes; a YAML file of fields alone describes one specimen.
 """
 
 from __future__ import annotations
@@ -17,6 +25,12 @@ from typing import Any, Mapping
 
 from vastcal.errors import UserInputError
 from vastcal.screen_table import SPECIMEN_FIELDS, atomic_write_bytes
+
+ALIASES: dict[str, str] = {"id": "specimen_id", "age": "age_dpf"}
+"""Short names accepted by ``--specimen`` and in YAML (case-insensitive)."""
+
+MAX_SPECIMEN_FILE_BYTES = 4 << 20
+"""A specimen file or manifest larger than this is refused (a screen of 10 000 rows is well under 1 MB)."""
 
 
 def sidecar_path(session: str | Path) -> Path:
@@ -94,3 +108,111 @@ def annotate_from_manifest(manifest: str | Path) -> list[Path]:
         _clean(fields, f"{mpath}: line {i}")
         plan.append((target, fields, f"{mpath}: line {i}"))
     return [annotate(t, f, source=src) for t, f, src in plan]
+
+
+# ---------------------------------------------------------------- at acquisition
+
+
+def _key(k: Any) -> str:
+    k = str(k).strip()
+    return ALIASES.get(k.lower(), k.lower() if k.lower() in SPECIMEN_FIELDS else k)
+
+
+def parse_specimen_text(text: str, source: str = "--specimen") -> dict[str, Any]:
+    """Fields from ``KEY=VALUE,KEY=VALUE`` (``ID=`` / ``id=`` for ``specimen_id``); checked as :func:`annotate` does.
+
+    Raises:
+        UserInputError: an item without ``=``, an unknown field, a bad age (one line naming ``source``).
+    """
+    fields: dict[str, Any] = {}
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        if "=" not in item:
+            raise UserInputError(f"{source}: {item.strip()!r}: expected KEY=VALUE (keys: ID, {', '.join(SPECIMEN_FIELDS[1:])}) or a YAML/CSV file")
+        k, v = item.split("=", 1)
+        fields[_key(k)] = v.strip()
+    out = _clean(fields, source)
+    if not out:
+        raise UserInputError(f"{source}: no fields given; expected KEY=VALUE pairs or a YAML/CSV file")
+    return out
+
+
+def _read_small(path: Path, source: str) -> str:
+    try:
+        with path.open("rb") as f:
+            raw = f.read(MAX_SPECIMEN_FILE_BYTES + 1)
+        if len(raw) > MAX_SPECIMEN_FILE_BYTES:
+            raise UserInputError(f"{source}: {path}: larger than {MAX_SPECIMEN_FILE_BYTES} bytes; expected a specimen file or manifest")
+        return raw.decode("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserInputError(f"{source}: {path}: cannot read it ({exc})") from None
+
+
+def specimen_for_session(spec: str, session: str | Path, source: str = "--specimen") -> dict[str, Any]:
+    """The specimen fields for the session being written to ``session``, from ``spec``.
+
+    ``spec`` is ``KEY=VALUE,…``; or a YAML file: either one specimen's fields, or a manifest mapping session
+    file names (``larva_001.h5`` or its stem) to fields; or a CSV manifest with a ``session`` column.
+
+    Raises:
+        UserInputError: unreadable file, no entry for this session in a manifest, bad fields (one line).
+    """
+    path = Path(spec)
+    if not path.is_file():
+        if path.suffix.lower() in (".yaml", ".yml", ".csv", ".json") and "=" not in spec:
+            raise UserInputError(f"{source}: {spec}: no such file")
+        return parse_specimen_text(spec, source)
+    name = Path(session).name
+    names = {name, Path(session).stem}
+    text = _read_small(path, source)
+    if path.suffix.lower() == ".csv":
+        try:
+            rows = list(csv.DictReader(text.splitlines()))
+        except csv.Error as exc:
+            raise UserInputError(f"{source}: {path}: cannot read the manifest ({exc})") from None
+        if not rows or "session" not in rows[0]:
+            raise UserInputError(f"{source}: {path}: expected a CSV with a 'session' column and one row per session")
+        for i, row in enumerate(rows, start=2):
+            if {Path((row.get("session") or "").strip()).name, Path((row.get("session") or "").strip()).stem} & names:
+                fields = {k: v for k, v in row.items() if k not in (None, "session")}
+                return _clean(fields, f"{source}: {path}: line {i}")
+        raise UserInputError(f"{source}: {path}: no row for session {name}; expected a 'session' cell {name}")
+    import yaml
+
+    from vastcal.config import _load_yaml, _TooLarge  # the rig file's bounded loader (nesting, alias expansion)
+
+    try:
+        data = _load_yaml(text)
+    except _TooLarge as exc:
+        raise UserInputError(f"{source}: {path}: refused: the YAML document {exc}") from None
+    except yaml.YAMLError as exc:
+        raise UserInputError(f"{source}: {path}: YAML syntax error ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict) or not data:
+        raise UserInputError(f"{source}: {path}: expected a mapping of specimen fields, or of session file names to fields")
+    if all(isinstance(v, dict) for v in data.values()):  # a manifest
+        for key, fields in data.items():
+            if {Path(str(key)).name, Path(str(key)).stem} & names:
+                return _clean({_key(k): v for k, v in fields.items()}, f"{source}: {path}: {key}")
+        raise UserInputError(f"{source}: {path}: no entry for session {name}; expected a key {name}")
+    return _clean({_key(k): v for k, v in data.items()}, f"{source}: {path}")
+
+
+def session_specimen(session: str | Path) -> dict[str, Any]:
+    """The fields stored in the session at acquisition (start record ``specimen``); ``{}`` when none or unreadable."""
+    from vastcal.errors import VastcalError
+    from vastcal.session import Session
+
+    try:
+        with Session.open(session) as s:
+            data = s.start_record.get("specimen")
+    except (VastcalError, OSError):
+        return {}
+    if isinstance(data, str):
+        try:
+            data = json.loads(data)
+        except ValueError:
+            return {}
+    if not isinstance(data, dict):
+        return {}
+    return {k: data[k] for k in SPECIMEN_FIELDS if data.get(k) not in (None, "")}

@@ -110,3 +110,19 @@ def test_prior_from_errors_are_one_line(tmp_path: Path, monkeypatch: pytest.Monk
     session = _session(tmp_path / "s.h5", str(tmp_path / "empty"))
     with pytest.raises(ConfigError, match="rig_health.json"):
         _seed_of(session, monkeypatch)
+
+
+def test_batch_prior_from_is_checked_before_any_work(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from vastcal.batch import _prior_settings
+    from vastcal.cli import main
+
+    (tmp_path / "a.h5").write_bytes(b"x")
+    results = _earlier_batch(tmp_path / "RESULTS")
+    capsys.readouterr()
+    assert main(["batch", str(tmp_path / "a.h5"), "-o", str(tmp_path / "r"), "--prior-from", str(tmp_path / "none")]) == 2
+    assert main(["batch", str(tmp_path / "a.h5"), "-o", str(results), "--prior-from", str(results)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("vastcal: error: --prior-from") for line in err), err
+    assert "no such folder" in err[0] and "own results folder" in err[1]
+    s = _prior_settings(results, tmp_path / "r")
+    assert Path(s["prior_from"]).is_absolute() and len(s["prior_sha256"]) == 16

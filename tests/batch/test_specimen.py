@@ -29,3 +29,37 @@ def test_annotate_fields_and_manifest(tmp_path: Path, capsys: pytest.CaptureFixt
     assert len(err) == 3 and "line 3" in err[0] and "age_dpf" in err[1]
     assert (tmp_path / "a.specimen.json").read_text() == before
     assert json.loads(before)["strain"] == "AB"
+
+
+def test_acquire_specimen_is_stored_in_the_session_and_reaches_the_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from vastcal.batch import table_rows
+    from vastcal.specimen import session_specimen
+
+    a = tmp_path / "larva_001.h5"
+    assert main(["acquire", "--simulate", "-o", str(a), "--views", "3", "-q", "--specimen", "ID=F1, age_dpf=5,strain=AB"]) == 0
+    assert session_specimen(a) == {"specimen_id": "F1", "age_dpf": 5.0, "strain": "AB"}
+    assert not (tmp_path / "larva_001.specimen.json").exists()  # in the session itself, not a sidecar
+
+    # a screen's manifest (YAML): acquire takes the entry of the session it writes
+    manifest = tmp_path / "screen.yaml"
+    manifest.write_text("larva_002.h5: {id: F2, age_dpf: 6, well: A2}\nlarva_003: {id: F3, treatment: DMSO}\n")
+    b = tmp_path / "larva_002.h5"
+    assert main(["acquire", "--simulate", "-o", str(b), "--views", "3", "-q", "--specimen", str(manifest)]) == 0
+    assert session_specimen(b) == {"specimen_id": "F2", "age_dpf": 6.0, "well": "A2"}
+
+    # the table: the session's own fields, a later sidecar (vastcal annotate) overriding them
+    assert main(["annotate", str(b), "--well", "C7"]) == 0
+    state = {"sessions": {p.stem: {"row": {"path": str(p), "status": "ok", "_specimen": session_specimen(p)}} for p in (a, b)}}
+    rows = {r["session"]: r for r in table_rows(state)}
+    assert rows["larva_001"]["specimen_id"] == "F1" and rows["larva_001"]["strain"] == "AB"
+    assert rows["larva_002"]["well"] == "C7" and rows["larva_002"]["age_dpf"] == 6.0
+
+    capsys.readouterr()
+    c = tmp_path / "larva_004.h5"
+    for spec in ("age_dpf=old", "colour=red", str(manifest), str(tmp_path / "none.yaml")):
+        assert main(["acquire", "--simulate", "-o", str(c), "--views", "3", "-q", "--specimen", spec]) == 2
+    assert main(["acquire", "--resume", str(a), "--specimen", "ID=F9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 5 and all(line.startswith("vastcal: error: ") and "--specimen" in line for line in err), err
+    assert "age_dpf" in err[0] and "colour" in err[1] and "larva_004.h5" in err[2] and "no such file" in err[3]
+    assert not c.exists()  # refused before the stage moved
