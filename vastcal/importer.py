@@ -29,7 +29,8 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
-from vastcal.config import CameraConfig, RigConfig, RoiConfig, check_setting, dump_config
+from vastcal import image_files
+from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError
 from vastcal.geometry import LENGTH_UNITS_UM, shift_pixels
 from vastcal.outputs import check_output_file
@@ -90,13 +91,15 @@ def image_size(path: Path) -> tuple[int, int] | None:
 
 
 def read_image(path: Path) -> np.ndarray:
-    """One image as stored (uint8/uint16; colour as RGB H×W×3, alpha dropped).
+    """One image as the file stores it (colour as RGB H×W×3, alpha dropped; any pixel type that
+    :func:`vastcal.image_files.check_pixel_type` accepts, floats finite).
 
     The header is checked first: an image claiming more than :data:`MAX_IMAGE_PIXELS` pixels
-    (or none) is refused before decoding.
+    (or none) is refused before decoding. TIFFs are read with ``tifffile``; a TIFF holding several
+    views (a stack) is refused here (import it as a stack: :func:`read_views`).
 
     Raises:
-        ImportDataError: unreadable, empty or implausibly large file.
+        ImportDataError: unreadable, empty, implausibly large, a stack, or NaN/inf pixels.
     """
     if not path.is_file():
         raise ImportDataError(f"{path}: cannot read this image: {'no such file' if not path.exists() else 'not a regular file'}")
@@ -104,19 +107,123 @@ def read_image(path: Path) -> np.ndarray:
     if size is not None and (size[0] * size[1] > MAX_IMAGE_PIXELS or min(size) < 1):
         raise ImportDataError(f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
                               f"(16384 x 16384); not decoded")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None or img.size == 0:
-        raise ImportDataError(f"{path}: cannot read this image (corrupt or unsupported format)")
-    if img.dtype not in (np.uint8, np.uint16):
-        raise ImportDataError(f"{path}: pixel type {img.dtype} not supported (expected 8- or 16-bit)")
-    if img.ndim == 3:
-        if img.shape[2] == 4:
-            img = img[:, :, :3]
-        if img.shape[2] == 1:
-            img = img[:, :, 0]
-        else:
-            img = np.ascontiguousarray(img[:, :, ::-1])
+    if image_files.is_tiff(path):
+        views, _ = image_files.read_tiff(path, MAX_IMAGE_PIXELS, _physical_memory_bytes())
+        if views.shape[0] != 1:
+            raise ImportDataError(f"{path}: a stack of {views.shape[0]} views; expected one image "
+                                  f"(import the stack on its own: vastcal import {path.name} -o S.h5)")
+        img = views[0]
+    else:
+        img = image_files.read_single(path)
+    image_files.check_pixel_type(img, path)
     return img
+
+
+@dataclasses.dataclass
+class ImageSet:
+    """The views of one import, checked: a folder of single images, or one stack file.
+
+    Attributes:
+        source: the folder or stack file.
+        names: one name per view (file names, or ``FILE[k]`` for the views of a stack).
+        files: one file per view (a folder), or ``None`` (a stack, held in ``stack``).
+        stack: (N, H, W[, 3]) views of a stack in the file's pixel type, or ``None``.
+        shape: (H, W[, 3]) of every view.
+        raw_dtype: pixel type in the files.
+        dtype: pixel type stored in the session (uint8 or uint16).
+        value_range: for float images, the values mapped onto 0..65535; else ``None``.
+        metadata: what the (first) file says about pixel size and angles.
+    """
+
+    source: Path
+    names: list[str]
+    files: list[Path] | None
+    stack: np.ndarray | None
+    shape: tuple[int, ...]
+    raw_dtype: np.dtype
+    dtype: np.dtype
+    value_range: tuple[float, float] | None
+    metadata: image_files.ImageMetadata
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def view(self, i: int) -> np.ndarray:
+        """View ``i`` in the stored pixel type."""
+        img = self.stack[i] if self.stack is not None else read_image(self.files[i])  # type: ignore[index]
+        return image_files.to_stored(img, self.dtype, self.value_range)
+
+
+def read_views(path: str | Path) -> ImageSet:
+    """The views to import from ``path``: a stack file (multi-page TIFF, OME-TIFF, ImageJ hyperstack; one
+    view per page/plane of its view axis), or a folder of single images in natural order. A folder that
+    holds one stack file and nothing else is that stack; a folder with several files of which one is a
+    stack is refused (one session per stack: import each file on its own).
+
+    Every view is read and checked (same size and pixel type, finite values) before anything is written;
+    float views are scaled to uint16 over :func:`vastcal.image_files.float_range` of all views.
+
+    Raises:
+        ImportDataError: naming the file and what was expected.
+    """
+    path = Path(path)
+    if path.is_file():
+        if path.suffix.lower() not in IMAGE_SUFFIXES:
+            raise ImportDataError(f"{path}: not an image file or folder (expected a folder of images or a "
+                                  f"{'/'.join(IMAGE_SUFFIXES)} file)")
+        if image_files.is_tiff(path):
+            return _stack_set(path)
+        return _folder_set(path, [path])
+    files = list_images(path)
+    if len(files) == 1 and image_files.is_tiff(files[0]) and _frame_count(files[0]) > 1:
+        log.info("%s: one stack file, %s: importing its views", path, files[0].name)
+        return _stack_set(files[0])
+    for f in files:
+        if image_files.is_tiff(f):
+            k = _frame_count(f)
+            if k > 1:
+                raise ImportDataError(f"{f}: a stack of {k} views among {len(files)} image files; import one stack per session "
+                                      f"(vastcal import {f.name} -o S.h5), or a folder of single images")
+    return _folder_set(path, files)
+
+
+def _frame_count(path: Path) -> int:
+    size = image_size(path)
+    if size is not None and (size[0] * size[1] > MAX_IMAGE_PIXELS or min(size) < 1):
+        raise ImportDataError(f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
+                              f"(16384 x 16384); not decoded")
+    if not path.is_file():
+        raise ImportDataError(f"{path}: cannot read this image: not a regular file")
+    return image_files.tiff_frame_count(path)
+
+
+def _stack_set(path: Path) -> ImageSet:
+    views, meta = image_files.read_tiff(path, MAX_IMAGE_PIXELS, _physical_memory_bytes())
+    image_files.check_pixel_type(views, path)
+    lo, hi = (float(views.min()), float(views.max())) if views.dtype not in image_files.STORED_DTYPES else (0.0, 0.0)
+    dtype = image_files.stored_dtype(views.dtype, lo, hi, path)
+    vr = image_files.float_range(lo, hi) if views.dtype.kind == "f" else None
+    names = [f"{path.name}[{k}]" for k in range(views.shape[0])]
+    return ImageSet(path, names, None, views, tuple(views.shape[1:]), views.dtype, dtype, vr, meta)
+
+
+def _folder_set(source: Path, files: list[Path]) -> ImageSet:
+    first = read_image(files[0])
+    lo, hi = np.inf, -np.inf
+    for f in files:
+        img = first if f == files[0] else read_image(f)
+        if img.shape != first.shape or img.dtype != first.dtype:
+            raise ImportDataError(f"{source}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, {f.name} is {img.shape} {img.dtype}")
+        if img.dtype not in image_files.STORED_DTYPES:
+            lo, hi = min(lo, float(img.min())), max(hi, float(img.max()))
+    dtype = image_files.stored_dtype(first.dtype, lo, hi, source)
+    vr = image_files.float_range(lo, hi) if first.dtype.kind == "f" else None
+    meta = image_files.ImageMetadata()
+    if image_files.is_tiff(files[0]):
+        meta = image_files.tiff_file_metadata(files[0])
+        meta = dataclasses.replace(meta, angles_deg=None, angles_source="")  # per-file angles are not read
+    _check_fits_in_memory(source, len(files), np.empty(first.shape, dtype))
+    return ImageSet(source, [f.name for f in files], files, None, tuple(first.shape), first.dtype, dtype, vr, meta)
 
 
 def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
@@ -245,6 +352,74 @@ def camera_length_unit(P: np.ndarray, given: str | None, working_distance_um: fl
     return "unknown", "no rig description; give --length-unit"
 
 
+UNKNOWN_PIXEL_SIZE = "unknown"
+"""``plan/pixel_size_source`` of a session whose pixel size nobody gave: its frames' pixel pitch is stored as
+1 (µm, nominal) and the world of its rig cameras is in specimen-plane pixels (:func:`pixel_size_known`)."""
+
+_DEFAULT_FOCAL_PX = OpticsConfig().working_distance_um * OpticsConfig().magnification / OpticsConfig().pixel_size_um
+"""Focal length (px) of the default optics, kept for sessions of unknown pixel size, whose world is in pixels:
+the same perspective as the VAST rig's 65 mm working distance and 5.5 µm pixels."""
+
+
+def pixel_size_known(plan: dict[str, object]) -> bool:
+    """False for an imported session whose pixel size is unknown (its measurements are in pixels)."""
+    return str(plan.get("pixel_size_source", "")) != UNKNOWN_PIXEL_SIZE
+
+
+def _differ(a: float, b: float) -> bool:
+    return abs(a - b) > 1e-3 * max(abs(a), abs(b))
+
+
+def _resolve_optics(cfg: RigConfig, config_given: bool, pixel_size_um: float | None, meta: image_files.ImageMetadata,
+                    source: Path) -> tuple[OpticsConfig, str]:
+    """(optics, where the pixel size came from): ``--pixel-size-um`` > ``--config`` > the file's metadata >
+    unknown. A disagreement between the sources is logged (warning)."""
+    optics = cfg.optics
+    cfg_px = optics.pixel_size_um / optics.magnification
+    meta_px = meta.pixel_size_um[0] if meta.pixel_size_um else None
+    if pixel_size_um is not None:
+        if not (np.isfinite(pixel_size_um) and 0 < pixel_size_um <= 1000):
+            raise ImportDataError(f"--pixel-size-um: expected the pixel pitch on the specimen in um (0 < value <= 1000), got {pixel_size_um}")
+        for what, other in (("--config", cfg_px if config_given else None), (f"{source.name}'s {meta.pixel_size_source}", meta_px)):
+            if other is not None and _differ(other, pixel_size_um):
+                log.warning("pixel size: --pixel-size-um %.6g um overrides %s (%.6g um)", pixel_size_um, what, other)
+        if config_given:  # keep the sensor pitch; the magnification is what the given pitch implies
+            return dataclasses.replace(optics, magnification=optics.pixel_size_um / pixel_size_um), "--pixel-size-um"
+        return dataclasses.replace(optics, pixel_size_um=pixel_size_um, magnification=1.0), "--pixel-size-um"
+    if config_given:
+        if meta_px is not None and _differ(meta_px, cfg_px):
+            log.warning("pixel size: --config's %.6g um (pixel %.6g um / magnification %.6g) overrides %s's %s (%.6g um)",
+                        cfg_px, optics.pixel_size_um, optics.magnification, source.name, meta.pixel_size_source, meta_px)
+        return optics, "config"
+    if meta.pixel_size_um is not None:
+        px, py = meta.pixel_size_um
+        if _differ(px, py):
+            log.warning("%s: pixels are %.6g x %.6g um; using %.6g um (square pixels)", source.name, px, py, px)
+        log.info("pixel size %.6g um from %s's %s", px, source.name, meta.pixel_size_source)
+        return dataclasses.replace(optics, pixel_size_um=px, magnification=1.0), meta.pixel_size_source
+    log.info("%s: pixel size unknown (no --pixel-size-um, --config or pixel size in the files) - measurements in pixels", source)
+    return dataclasses.replace(optics, pixel_size_um=1.0, magnification=1.0, working_distance_um=_DEFAULT_FOCAL_PX), UNKNOWN_PIXEL_SIZE
+
+
+def _principal_point(P: np.ndarray) -> np.ndarray:
+    """Principal points (N, 2) of cameras P (N, 3, 4), in their own pixels: M·m3 with M = P[:, :3], m3 its third row."""
+    M = P[:, :, :3]
+    pp = np.einsum("nij,nj->ni", M, M[:, 2])
+    return pp[:, :2] / pp[:, 2:3]
+
+
+def _check_crop(h: int, w: int, pp: np.ndarray, what: str) -> None:
+    """Refuse a principal point outside the stored frames: they are a crop whose offset was not given.
+
+    Raises:
+        ImportDataError: naming ``--roi-offset``.
+    """
+    cx, cy = float(np.median(pp[:, 0])), float(np.median(pp[:, 1]))
+    if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
+        raise ImportDataError(f"{what} put the principal point at ({cx:.1f}, {cy:.1f}) px, outside the {w} x {h} px images: they look like "
+                              "a crop of a larger sensor; give where they sit on it with --roi-offset X Y")
+
+
 def import_folder(
     folder: str | Path,
     output: str | Path,
@@ -258,24 +433,34 @@ def import_folder(
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
     length_unit: str | None = None,
+    pixel_size_um: float | None = None,
+    name: str | None = None,
 ) -> Path:
-    """Import a folder of images (and optional masks, angles, cameras) into a new session.
+    """Import a folder of images or one stack file (and optional masks, angles, cameras) into a new session.
 
     Args:
-        folder: folder of images, one per view, in natural sort order.
+        folder: folder of images, one per view, in natural sort order; or one stack file (multi-page TIFF,
+            OME-TIFF, ImageJ hyperstack), one view per page (:func:`read_views`).
         output: the session file to create.
-        masks: folder of silhouettes matching the images one to one.
-        angles: text file of commanded angles (degrees); default uniform over 360°.
+        masks: folder of silhouettes matching the images one to one, or a stack file of them.
+        angles: text file of commanded angles (degrees); default: the stack's OME angles when it has
+            them, else uniform over 360°.
         cameras: ``name + 12 numbers`` file or folder of ``.pa`` files.
         pixel_origin: 0, 0.5 or 1 — the coordinate ``cameras`` give to the first pixel's centre.
         roi_offset: (x, y) of the stored frames on the sensor (px, 0-based); default from
-            ``config.camera.roi`` or (0, 0).
-        config: rig description for the optics (pixel size, K); default: an "imported" rig.
+            ``config.camera.roi`` when its size is the images', (0, 0) when the images are the whole sensor.
+        config: rig description for the optics (pixel size, K); default: an "imported" rig whose sensor is
+            the images (principal point at their centre).
         force: overwrite ``output`` if it exists.
         progress: called with (views done, views total).
         length_unit: the cameras' world unit (nm, um, mm, cm, m); default: µm when their distance to the axis
             matches ``config``'s working distance, else unknown (:func:`camera_length_unit`); stored as the
             cameras' ``length_unit`` attribute for calibration and measurement.
+        pixel_size_um: pixel pitch on the specimen, µm; overrides ``config`` and the files' metadata (a
+            disagreement is logged). With none of the three the pixel size is stored as unknown
+            (``plan/pixel_size_source = "unknown"``) and measurements are in pixels.
+        name: the specimen's name (``/entry/title``: the report's and the screen CSV's ``specimen``);
+            default: the folder's or the stack file's name.
 
     Raises:
         ImportDataError: any input that cannot be imported (nothing is written).
@@ -283,29 +468,50 @@ def import_folder(
     """
     folder, out = Path(folder), Path(output)
     check_output_file(out, force=force)  # directories, devices, symlinks, read-only folders: refused before reading
-    check_output_file(out, force=force)
     if pixel_origin not in PIXEL_ORIGINS:
         raise ImportDataError(f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
                               f"(the coordinate of the first pixel's centre, --pixel-origin), got {pixel_origin}")
-    files = list_images(folder)
-    first = read_image(files[0])
-    n = len(files)
-    # Check every image before writing anything.
-    for f in files:
-        img = first if f == files[0] else read_image(f)
-        if img.shape != first.shape or img.dtype != first.dtype:
-            raise ImportDataError(f"{folder}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, {f.name} is {img.shape} {img.dtype}")
-    _check_fits_in_memory(folder, n, first)
-    mask_stack = _read_masks(Path(masks), n, first.shape[:2]) if masks is not None else None
-    angle_values = read_angles(Path(angles), n, [f.stem for f in files]) if angles is not None else np.arange(n) * 360.0 / n
-    cfg = config or RigConfig(name=f"imported from {folder.name}", camera=CameraConfig(driver="genicam"))
-    h, w = first.shape[:2]
+    if name is not None and (not name.strip() or len(name) > 200 or any(c in name for c in "\n\r\0")):
+        raise ImportDataError(f"--name: expected a specimen name of 1 to 200 characters on one line, got {name[:60]!r}")
+    views = read_views(folder)
+    n = len(views)
+    h, w = views.shape[:2]
+    mask_stack = _read_masks(Path(masks), n, (h, w)) if masks is not None else None
+    meta = views.metadata
+    if angles is not None:
+        angle_values = read_angles(Path(angles), n, views.names)
+        if meta.angles_deg is not None and not np.allclose(np.asarray(meta.angles_deg) % 360, angle_values % 360, atol=1e-6):
+            log.warning("angles: --angles %s overrides %s's %s", angles, views.source.name, meta.angles_source)
+        angle_source = str(angles)
+    elif meta.angles_deg is not None:
+        angle_values = np.asarray(meta.angles_deg, float)
+        if not np.all(np.isfinite(angle_values)) or len(np.unique(np.round(angle_values, 9))) != n:
+            raise ImportDataError(f"{views.source}: the {meta.angles_source} angles are not {n} distinct finite numbers of degrees; "
+                                  "give them with --angles")
+        angle_source = f"{views.source.name}: {meta.angles_source}"
+        log.info("angles from %s", angle_source)
+    else:
+        angle_values, angle_source = np.arange(n) * 360.0 / n, "uniform over 360 degrees"
+    cfg = config or RigConfig(name=f"imported from {views.source.name}", camera=CameraConfig(driver="genicam"))
+    roi_given = roi_offset is not None
     if roi_offset is None:
-        roi_offset = (cfg.camera.roi.x, cfg.camera.roi.y) if config is not None else (0, 0)
+        roi_offset = (0, 0)
+        if config is not None:
+            roi = cfg.camera.roi
+            if (roi.width, roi.height) == (w, h):
+                roi_offset = (roi.x, roi.y)
+            elif (cfg.optics.sensor_width_px, cfg.optics.sensor_height_px) != (w, h) and cameras is None:
+                raise ImportDataError(f"{views.source}: the images are {w} x {h} px, but the config's camera.roi is {roi.width} x {roi.height} "
+                                      f"and its sensor {cfg.optics.sensor_width_px} x {cfg.optics.sensor_height_px} px: give where the images "
+                                      "sit on the sensor with --roi-offset X Y")
     for axis, value in zip("xy", roi_offset):  # same range as camera.roi.x/y in a rig file
         check_setting(RoiConfig, axis, value, f"roi offset {axis} (--roi-offset)")
-    optics = dataclasses.replace(cfg.optics, sensor_width_px=max(cfg.optics.sensor_width_px, roi_offset[0] + w),
-                                 sensor_height_px=max(cfg.optics.sensor_height_px, roi_offset[1] + h))
+    optics, pixel_source = _resolve_optics(cfg, config is not None, pixel_size_um, meta, views.source)
+    if config is None and not roi_given:  # no rig description: the images are the sensor
+        optics = dataclasses.replace(optics, sensor_width_px=w, sensor_height_px=h)
+    else:
+        optics = dataclasses.replace(optics, sensor_width_px=max(optics.sensor_width_px, roi_offset[0] + w),
+                                     sensor_height_px=max(optics.sensor_height_px, roi_offset[1] + h))
     cfg = dataclasses.replace(cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h)))
     P_given = names = None
     if cameras is not None:
@@ -314,18 +520,36 @@ def import_folder(
         except UnicodeDecodeError:  # an image or other binary file given as --cameras
             raise ImportDataError(f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)") from None
         check_cameras(P_given, Path(cameras), names)
+        if not roi_given:
+            _check_crop(h, w, _principal_point(shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])),
+                        f"the cameras of {Path(cameras).name}")
         unit, unit_why = camera_length_unit(P_given, length_unit, cfg.optics.working_distance_um if config is not None else None)
         log.info("imported cameras: length unit %s (%s)", unit, unit_why)
     elif length_unit is not None:
         raise ImportDataError("--length-unit describes imported cameras; give --cameras too (without them the world is in um)")
+    else:
+        from vastcal.geometry import intrinsics_from_optics
+
+        K = intrinsics_from_optics(cfg.optics, cfg.camera.roi)
+        if not roi_given:
+            _check_crop(h, w, K[None, :2, 2], "the config's optics (principal point, sensor size, camera.roi)")
     pixel_um = cfg.optics.pixel_size_um / cfg.optics.magnification
-    plan = {"views": n, "source": "import", "folder": str(folder.resolve())}
-    with SessionWriter.create(out, frame_shape=first.shape, dtype=first.dtype, rig_yaml=dump_config(cfg), plan=plan,
-                              pixel_size_um=(pixel_um, pixel_um), roi_offset_px=roi_offset, title=f"import of {folder.name}",
-                              start_info={"source": "import", "files": [f.name for f in files]}, force=force, live=False) as writer:
-        for i, f in enumerate(files):
-            img = first if i == 0 else read_image(f)
-            writer.append_view(img, float(angle_values[i]))
+    plan = {"views": n, "source": "import", "folder": str(views.source.resolve()), "pixel_size_source": pixel_source,
+            "angle_source": angle_source}
+    start_info: dict[str, object] = {"source": "import", "files": views.names}
+    if views.raw_dtype != views.dtype:
+        start_info["pixel_conversion"] = (f"{views.raw_dtype} -> {views.dtype}"
+                                          + (f": values {views.value_range[0]:.6g}..{views.value_range[1]:.6g} mapped onto 0..65535"
+                                             if views.value_range is not None else ": values kept"))
+        log.info("%s: %s", views.source.name, start_info["pixel_conversion"])
+    title = name.strip() if name is not None else views.source.name.removesuffix(".ome.tiff").removesuffix(".ome.tif")
+    if name is None and views.stack is not None:
+        title = Path(title).stem if Path(title).suffix.lower() in image_files.TIFF_SUFFIXES else title
+    with SessionWriter.create(out, frame_shape=views.shape, dtype=views.dtype, rig_yaml=dump_config(cfg), plan=plan,
+                              pixel_size_um=(pixel_um, pixel_um), roi_offset_px=roi_offset, title=title,
+                              start_info=start_info, force=force, live=False) as writer:
+        for i in range(n):
+            writer.append_view(views.view(i), float(angle_values[i]))
             if progress:
                 progress(i + 1, n)
         if mask_stack is not None:
@@ -336,7 +560,7 @@ def import_folder(
                                  attrs={"pixel_origin": float(pixel_origin), "roi_offset": list(roi_offset), "names": names,
                                         "length_unit": unit, "length_unit_source": unit_why})
         writer.finish("success", views_planned=n)
-    log.info("imported %d views %s %s into %s", n, first.shape, first.dtype, out)
+    log.info("imported %d views %s %s of %r into %s", n, views.shape, views.dtype, title, out)
     return out
 
 
@@ -377,15 +601,16 @@ def check_cameras(P: np.ndarray, source: Path, names: Sequence[str]) -> None:
 
 
 def _read_masks(folder: Path, n: int, shape: tuple[int, int]) -> np.ndarray:
-    files = list_images(folder)
-    if len(files) != n:
-        raise ImportDataError(f"{folder}: {len(files)} masks for {n} images")
+    """Silhouettes (N, H, W) uint8 0/255 from a folder of masks or a stack file (nonzero = specimen)."""
+    views = read_views(folder)
+    if len(views) != n:
+        raise ImportDataError(f"{folder}: {len(views)} masks for {n} images")
     out = np.zeros((n,) + shape, np.uint8)
-    for i, f in enumerate(files):
-        m = read_image(f)
+    for i in range(n):
+        m = views.stack[i] if views.stack is not None else read_image(views.files[i])  # type: ignore[index]
         if m.ndim == 3:
             m = m.max(axis=2)
         if m.shape != shape:
-            raise ImportDataError(f"{f}: mask is {m.shape[1]} x {m.shape[0]} px, the images are {shape[1]} x {shape[0]} px")
+            raise ImportDataError(f"{views.names[i]}: mask is {m.shape[1]} x {m.shape[0]} px, the images are {shape[1]} x {shape[0]} px")
         out[i] = np.where(m > 0, 255, 0)
     return out

@@ -1,0 +1,405 @@
+"""Reading image files the way labs store them: single images, multi-page TIFF, OME-TIFF and ImageJ hyperstacks.
+
+* TIFF files (``.tif``/``.tiff``, OME-TIFF included) are read with ``tifffile``: every page of the file's
+  image series, never only the first. A stack's *view axis* is the one axis besides Y, X (and colour) with
+  more than one entry (ImageJ ``T``/``Z``, OME ``T``/``Z``, tifffile's ``I``/``Q``/``A``...); a stack
+  with two such axes (a time-lapse of z-stacks) is refused, naming them. A ``C`` axis of 3 (or RGB samples)
+  is colour; any other number of channels is refused.
+* PNG, PPM/PGM, JPEG and BMP are read with OpenCV (one image per file; colour as RGB, alpha dropped).
+* Pixel types: uint8 and uint16 are kept as they are; other integer types are stored as uint16 when
+  every value fits 0..65535 (lossless), else refused; float images are scaled to uint16
+  (:func:`float_range`, :func:`to_stored`) with the range stated; a NaN or infinite pixel is refused
+  naming the file.
+* Metadata (:class:`ImageMetadata`): the pixel size on the specimen plane from OME ``PhysicalSizeX/Y``
+  (+ unit), from an ImageJ file's ``XResolution`` in its ``unit`` (ImageJ's ``spacing`` is the z step
+  between slices, not a pixel size, and is not used), or from a baseline TIFF's ``XResolution`` with
+  ``ResolutionUnit`` centimetre or inch; and view angles from OME (see :func:`_ome_angles`).
+
+A baseline TIFF's resolution is usually a print resolution that no microscope wrote (72 dpi is 353 µm
+per pixel): a pixel size outside :data:`PLAUSIBLE_PIXEL_UM` is not taken as the specimen's (logged).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import warnings
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from vastcal.errors import ImportDataError
+from vastcal.geometry import LENGTH_UNITS_UM
+
+log = logging.getLogger(__name__)
+
+TIFF_SUFFIXES = (".tif", ".tiff")
+
+STORED_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
+"""Pixel types a session stores (vastcal.session: N x H x W[x 3] uint8 or uint16)."""
+
+PLAUSIBLE_PIXEL_UM = (1e-3, 1e3)
+"""Range of specimen-plane pixel sizes taken from a file's metadata, µm: from 1 nm (beyond any light
+microscope's resolution) to 1 mm (a macro lens at well under 0.01x on a 5 µm sensor). The resolution tags
+of files that were never given one (72, 96, 300 dpi: 85 to 353 µm) mostly fall outside it; an inch-based
+resolution is taken only inside it too."""
+
+_UNIT_ALIASES = {"micron": "um", "microns": "um", "micrometer": "um", "micrometre": "um", "µm": "um", "μm": "um",
+                 "\\u00b5m": "um", "nanometer": "nm", "nanometre": "nm", "millimeter": "mm", "millimetre": "mm",
+                 "centimeter": "cm", "centimetre": "cm", "meter": "m", "metre": "m", "å": "angstrom", "angstrom": "angstrom"}
+
+
+def length_unit_um(unit: str | None) -> float | None:
+    """µm per ``unit`` (``um``, ``µm``, ``micron``, ``nm``, ``mm``, ``cm``, ``m``, ``Å``); ``None`` when unknown."""
+    if unit is None:
+        return None
+    u = str(unit).strip().lower()
+    u = _UNIT_ALIASES.get(u, u).replace("µ", "u").replace("μ", "u")
+    if u == "angstrom":
+        return 1e-4
+    return LENGTH_UNITS_UM.get(u)
+
+
+@dataclass(frozen=True)
+class ImageMetadata:
+    """What a file says about its optics and views.
+
+    Attributes:
+        pixel_size_um: (x, y) pixel pitch on the specimen plane, µm; ``None`` when the file does not say.
+        pixel_size_source: where it came from (``"OME PhysicalSizeX/Y"``, ...), or why it was not taken.
+        angles_deg: one rotation angle per view, degrees, or ``None``.
+        angles_source: where the angles came from.
+    """
+
+    pixel_size_um: tuple[float, float] | None = None
+    pixel_size_source: str = ""
+    angles_deg: np.ndarray | None = None
+    angles_source: str = ""
+
+
+def is_tiff(path: Path) -> bool:
+    """True for ``.tif``/``.tiff`` names (OME-TIFF ``.ome.tif`` included)."""
+    return path.suffix.lower() in TIFF_SUFFIXES
+
+
+def _plausible(px: tuple[float, float], source: str, path: Path) -> ImageMetadata:
+    lo, hi = PLAUSIBLE_PIXEL_UM
+    if all(np.isfinite(v) and lo <= v <= hi for v in px):
+        return ImageMetadata(pixel_size_um=(float(px[0]), float(px[1])), pixel_size_source=source)
+    log.info("%s: %s says %.4g x %.4g um per pixel, outside %g..%g um: not taken as the specimen's pixel size",
+             path.name, source, px[0], px[1], lo, hi)
+    return ImageMetadata(pixel_size_source=f"{source} ignored ({px[0]:.4g} um: a display resolution)")
+
+
+def _ome_pixels(xml: str) -> ET.Element | None:
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return None
+    for el in root.iter():
+        if el.tag.rsplit("}", 1)[-1] == "Pixels":
+            return el
+    return None
+
+
+def _local(el: ET.Element) -> str:
+    return el.tag.rsplit("}", 1)[-1]
+
+
+def _ome_angles(xml: str, n: int) -> np.ndarray | None:
+    """View angles (degrees) from OME-XML, when the file carries them:
+
+    * a ``MapAnnotation`` whose key is ``angle``/``angles``/``rotation_angle(s)`` holding ``n`` numbers
+      (separated by commas, semicolons or blanks), or
+    * one ``MapAnnotation`` per Plane (referenced by the Plane's ``AnnotationRef``) with such a key.
+    """
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return None
+    key_re = re.compile(r"^(rotation[_ ]?)?angles?([_ ]?deg(rees)?)?$", re.I)
+    maps: dict[str, float | list[float]] = {}
+    lists: list[list[float]] = []
+    for el in root.iter():
+        if _local(el) != "MapAnnotation":
+            continue
+        for m in el.iter():
+            if _local(m) == "M" and key_re.match((m.get("K") or "").strip()):
+                try:
+                    vals = [float(v) for v in re.split(r"[,;\s]+", (m.text or "").strip()) if v]
+                except ValueError:
+                    continue
+                if len(vals) == 1:
+                    maps[el.get("ID", "")] = vals[0]
+                elif vals:
+                    lists.append(vals)
+    for vals in lists:
+        if len(vals) == n:
+            return np.asarray(vals, float)
+    if maps:
+        planes = [el for el in root.iter() if _local(el) == "Plane"]
+        per_plane = []
+        for p in planes:
+            refs = [r.get("ID") for r in p if _local(r) == "AnnotationRef"]
+            hit = [maps[r] for r in refs if r in maps]
+            if hit:
+                per_plane.append(hit[0])
+        if len(per_plane) == n:
+            return np.asarray(per_plane, float)
+    return None
+
+
+def tiff_metadata(tif: Any, path: Path, n_views: int) -> ImageMetadata:
+    """Pixel size and angles from an open ``tifffile.TiffFile`` (see the module docstring)."""
+    angles = None
+    if tif.is_ome and tif.ome_metadata:
+        angles = _ome_angles(tif.ome_metadata, n_views)
+        pixels = _ome_pixels(tif.ome_metadata)
+        if pixels is not None and pixels.get("PhysicalSizeX"):
+            try:
+                sx = float(pixels.get("PhysicalSizeX", "nan"))
+                sy = float(pixels.get("PhysicalSizeY") or sx)
+            except ValueError:
+                sx = sy = float("nan")
+            ux = length_unit_um(pixels.get("PhysicalSizeXUnit", "µm"))
+            uy = length_unit_um(pixels.get("PhysicalSizeYUnit", pixels.get("PhysicalSizeXUnit", "µm")))
+            if ux is not None and uy is not None:
+                meta = _plausible((sx * ux, sy * uy), "OME PhysicalSizeX/Y", path)
+                return ImageMetadata(meta.pixel_size_um, meta.pixel_size_source, angles, "OME MapAnnotation" if angles is not None else "")
+    page = tif.pages[0]
+    tags = page.tags
+    meta = ImageMetadata()
+    xr, yr = tags.get("XResolution"), tags.get("YResolution")
+    if xr is not None:
+        def per_px(tag: Any) -> float:
+            num, den = tag.value if isinstance(tag.value, tuple) else (tag.value, 1)
+            return float(den) / float(num) if num else float("nan")
+
+        px = per_px(xr)
+        py = per_px(yr) if yr is not None else px
+        unit_tag = tags.get("ResolutionUnit")
+        unit_code = int(unit_tag.value) if unit_tag is not None else 2
+        ij = tif.imagej_metadata if tif.is_imagej else None
+        if ij and ij.get("unit") is not None and length_unit_um(ij.get("unit")) is not None:
+            scale = float(length_unit_um(ij.get("unit")))  # type: ignore[arg-type]
+            meta = _plausible((px * scale, py * scale), f"ImageJ XResolution ({ij.get('unit')})", path)
+        elif unit_code == 3:
+            meta = _plausible((px * 1e4, py * 1e4), "TIFF XResolution (centimetre)", path)
+        elif unit_code == 2 and tags.get("ResolutionUnit") is not None:
+            meta = _plausible((px * 25400.0, py * 25400.0), "TIFF XResolution (inch)", path)
+    return ImageMetadata(meta.pixel_size_um, meta.pixel_size_source, angles, "OME MapAnnotation" if angles is not None else "")
+
+
+def _to_views(arr: np.ndarray, axes: str, path: Path, rgb_samples: bool) -> np.ndarray:
+    """(N, H, W[, 3]) from a tifffile series array with ``axes`` (see the module docstring)."""
+    axes = axes.upper()
+    if "Y" not in axes or "X" not in axes:
+        raise ImportDataError(f"{path}: image axes {axes!r}; expected Y and X among them")
+    colour = None
+    if "S" in axes and (rgb_samples or arr.shape[axes.index("S")] == 1):
+        colour = "S"
+    elif "C" in axes and arr.shape[axes.index("C")] in (3, 4):
+        colour = "C"
+    view_axes = [a for i, a in enumerate(axes) if a not in ("Y", "X", colour) and arr.shape[i] > 1]
+    if len(view_axes) > 1:
+        sizes = ", ".join(f"{a}={arr.shape[axes.index(a)]}" for a in view_axes)
+        raise ImportDataError(f"{path}: {len(view_axes)} stack axes ({sizes}); expected one axis of views "
+                              "(save one revolution per file)")
+    order = view_axes + ["Y", "X"] + ([colour] if colour else [])
+    rest = [a for a in axes if a not in order]
+    arr = np.transpose(arr, [axes.index(a) for a in rest + order])
+    arr = arr.reshape(arr.shape[len(rest):])
+    if not view_axes:
+        arr = arr[None]
+    if colour:
+        c = arr.shape[-1]
+        if c == 1:
+            arr = arr[..., 0]
+        elif c in (3, 4):
+            arr = arr[..., :3]
+        else:
+            raise ImportDataError(f"{path}: {c} colour channels; expected 1 (grey) or 3 (RGB)")
+    return np.ascontiguousarray(arr)
+
+
+def tiff_frame_count(path: Path) -> int:
+    """Number of views a TIFF file holds (its first image series), without decoding pixels.
+
+    Raises:
+        ImportDataError: not a readable TIFF.
+    """
+    import tifffile
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with tifffile.TiffFile(path) as tif:
+                s = tif.series[0]
+                rgb = _rgb_samples(s)
+                shape = dict(zip(s.axes.upper(), s.shape))
+                colour = "S" if "S" in shape and rgb else ("C" if shape.get("C") in (3, 4) else None)
+                n = 1
+                for a, v in shape.items():
+                    if a not in ("Y", "X", colour):
+                        n *= int(v)
+                return n
+    except ImportDataError:
+        raise
+    except Exception as exc:  # tifffile raises many types on damaged files
+        raise ImportDataError(f"{path}: cannot read this TIFF ({type(exc).__name__}: {str(exc)[:120]})") from None
+
+
+def _rgb_samples(series: Any) -> bool:
+    try:
+        photometric = int(series.pages[0].photometric)
+    except Exception:  # noqa: BLE001 - a missing tag is not RGB
+        return False
+    return photometric in (2, 6)  # RGB, YCbCr
+
+
+def read_tiff(path: Path, max_frame_pixels: int, max_bytes: int | None = None) -> tuple[np.ndarray, ImageMetadata]:
+    """Every view of a TIFF file (multi-page, OME-TIFF, ImageJ hyperstack): (N, H, W[, 3]) in the file's
+    pixel type, and its metadata.
+
+    Args:
+        max_frame_pixels: most pixels per frame (header checked before decoding).
+        max_bytes: most bytes the decoded stack may take (``None``: no limit).
+
+    Raises:
+        ImportDataError: unreadable file, more than one image series with several views, too large,
+            several stack axes, or an unsupported number of channels.
+    """
+    import tifffile
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with tifffile.TiffFile(path) as tif:
+                if not tif.series:
+                    raise ImportDataError(f"{path}: cannot read this TIFF (no image in it)")
+                big = [s for s in tif.series if int(np.prod(s.shape)) > 0]
+                if len(big) > 1 and not tif.is_ome:
+                    log.info("%s: %d image series; reading the first (%s %s)", path.name, len(big), big[0].axes, big[0].shape)
+                if tif.is_ome and len(big) > 1:
+                    raise ImportDataError(f"{path}: {len(big)} OME images in one file; expected one revolution per file")
+                s = tif.series[0]
+                shape = dict(zip(s.axes.upper(), s.shape))
+                h, w = int(shape.get("Y", 0)), int(shape.get("X", 0))
+                if h * w > max_frame_pixels or min(h, w) < 1:
+                    raise ImportDataError(f"{path}: the header claims {w} x {h} px; expected 1 to {max_frame_pixels} pixels "
+                                          f"(16384 x 16384); not decoded")
+                nbytes = int(np.prod(s.shape)) * np.dtype(s.dtype).itemsize
+                if max_bytes is not None and nbytes > max_bytes:
+                    raise ImportDataError(f"{path}: {s.shape} {s.dtype} need {nbytes / 2**30:.1f} GiB, more than this machine's "
+                                          f"{max_bytes / 2**30:.1f} GiB of memory (calibration loads every frame)")
+                arr = s.asarray()
+                views = _to_views(arr, s.axes, path, _rgb_samples(s))
+                meta = tiff_metadata(tif, path, views.shape[0])
+    except ImportDataError:
+        raise
+    except MemoryError:
+        raise ImportDataError(f"{path}: not enough memory to decode this TIFF") from None
+    except Exception as exc:  # tifffile raises many types on damaged files
+        raise ImportDataError(f"{path}: cannot read this TIFF ({type(exc).__name__}: {str(exc)[:120]})") from None
+    if views.size == 0:
+        raise ImportDataError(f"{path}: cannot read this TIFF (no pixels)")
+    return views, meta
+
+
+def read_single(path: Path) -> np.ndarray:
+    """One image from a PNG/PPM/PGM/JPEG/BMP file with OpenCV, in its own pixel type (colour RGB, alpha dropped).
+
+    Raises:
+        ImportDataError: unreadable or empty.
+    """
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise ImportDataError(f"{path}: cannot read this image (corrupt or unsupported format)")
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = img[:, :, :3]
+        if img.shape[2] == 1:
+            img = img[:, :, 0]
+        else:
+            img = np.ascontiguousarray(img[:, :, ::-1])
+    return img
+
+
+def check_pixel_type(img: np.ndarray, path: Path) -> None:
+    """Refuse pixel types that cannot be stored: complex, bool-free exotic types, and non-finite floats.
+
+    Raises:
+        ImportDataError: naming the file (a NaN/inf pixel: its count and the first position).
+    """
+    kind = img.dtype.kind
+    if kind == "f":
+        bad = ~np.isfinite(img)
+        if bad.any():
+            pos = np.unravel_index(int(np.argmax(bad)), img.shape)
+            raise ImportDataError(f"{path}: {int(bad.sum())} NaN or infinite pixel(s) (first at index {tuple(int(v) for v in pos)}); "
+                                  "expected finite values")
+    elif kind == "b":
+        return
+    elif kind not in "ui":
+        raise ImportDataError(f"{path}: pixel type {img.dtype} not supported (expected 8- or 16-bit integers or float)")
+
+
+def float_range(lo: float, hi: float) -> tuple[float, float]:
+    """The range of float pixels mapped onto 0..65535: [0, 1] when every value lies in it (the usual
+    convention of float images), else the data's own [min, max]."""
+    if lo >= 0.0 and hi <= 1.0:
+        return 0.0, 1.0
+    return float(lo), float(hi)
+
+
+def stored_dtype(dtype: np.dtype, lo: float, hi: float, path: Path) -> np.dtype:
+    """The session's pixel type for images of ``dtype`` whose values span [lo, hi] (see the module docstring).
+
+    Raises:
+        ImportDataError: integers outside 0..65535.
+    """
+    dtype = np.dtype(dtype)
+    if dtype in STORED_DTYPES:
+        return dtype
+    if dtype.kind == "b":
+        return np.dtype(np.uint8)
+    if dtype.kind in "ui":
+        if lo >= 0 and hi <= 65535:
+            return np.dtype(np.uint8) if hi <= 255 and dtype.itemsize == 1 else np.dtype(np.uint16)
+        raise ImportDataError(f"{path}: {dtype} pixels span {lo:g}..{hi:g}; expected 0..65535 (8- or 16-bit)")
+    return np.dtype(np.uint16)
+
+
+def to_stored(img: np.ndarray, dtype: np.dtype, value_range: tuple[float, float] | None = None) -> np.ndarray:
+    """``img`` in the stored pixel type ``dtype``: integers cast (their values fit), booleans as 0/255,
+    floats mapped linearly from ``value_range`` onto 0..65535 (rounded, clipped)."""
+    if img.dtype == dtype:
+        return img
+    if img.dtype.kind == "b":
+        return np.where(img, 255, 0).astype(dtype)
+    if img.dtype.kind == "f":
+        lo, hi = value_range if value_range is not None else (0.0, 1.0)
+        span = hi - lo
+        top = float(np.iinfo(dtype).max)
+        if span <= 0:
+            return np.zeros(img.shape, dtype)
+        out = (img.astype(np.float64) - lo) * (top / span)
+        return np.clip(np.rint(out), 0, top).astype(dtype)
+    return img.astype(dtype)
+
+
+def tiff_file_metadata(path: Path) -> ImageMetadata:
+    """:func:`tiff_metadata` of one TIFF file (an unreadable one says nothing: its pixels are read elsewhere)."""
+    import tifffile
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with tifffile.TiffFile(path) as tif:
+                return tiff_metadata(tif, path, 1)
+    except Exception:  # noqa: BLE001 - metadata is optional; read_tiff reports damage
+        return ImageMetadata()
