@@ -43,8 +43,7 @@ from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE as PHOTOMETRIC_SCHEDULE
 from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
 from vastcal.calibrate.region import specimen_region
-from vastcal.calibrate.silhouettes import specimen_maps
-from vastcal.calibrate.view_budget import photometric_views
+from vastcal.calibrate.view_budget import photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
@@ -564,7 +563,8 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     w_full = images.shape[2]
     finest = max(1.0, w_full / max(lv.width_px for lv in settings.levels))
     small = _area_resize(images, finest)
-    pf = specimen_maps(model, small, band_px=max(1.0, 3.0 / finest))  # the rim band is 3 px of the full frame
+    # the rim band is 3 px of the full frame; a sub-revolution at a time within memory_mb (all views at once up to ~190 views of 1024 x 320)
+    pf = specimen_maps_within(model, small, settings.memory_mb, band_px=max(1.0, 3.0 / finest))
     if silhouettes is not None:
         sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
         sil_src = np.stack([cv2.resize(s, (pf.shape[2], pf.shape[1]), interpolation=cv2.INTER_AREA) for s in sil_full])
@@ -639,7 +639,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         voxel_um = distance * w_full / (float(K[0, 0]) * min(w_full, PHOTOMETRIC_SCHEDULE[-1][0]))  # its finest voxel
         m_est = int(len(judge_region.voxels) * (judge_region.voxel_size / voxel_um) ** 3)
         sub = photometric_views(theta[3:], images.shape[1:], m_est, settings.memory_mb)
-        pf_full = pf[sub] if pf.shape[1:] == images.shape[1:3] else specimen_maps(model, images[sub])
+        pf_full = pf[sub] if pf.shape[1:] == images.shape[1:3] else specimen_maps_within(model, images[sub], settings.memory_mb)
         th_sub = np.concatenate([theta[:3], theta[3:][sub]])
         refined = refine_yaw(images[sub], pf_full, K, distance, th_sub, (float(space.lower[0]), float(space.upper[0])),
                              progress=lambda e, fy: clock.update(base + e, fy))

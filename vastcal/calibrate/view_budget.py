@@ -137,3 +137,16 @@ def grouped_specimen_maps(model: "ColourModel", read: Callable[[np.ndarray], np.
     for views in groups:
         store(views, specimen_maps(model, read(views), band_px=band_px))
     return len(groups)
+
+
+def specimen_maps_within(model: "ColourModel", images: np.ndarray, memory_mb: float, *, band_px: float = 3.0) -> np.ndarray:
+    """:func:`.silhouettes.specimen_maps` (N, H, W) float32 of a stack in memory, made one sub-revolution at a time
+    (:func:`grouped_specimen_maps`): exactly the same maps when the whole stack fits half of ``memory_mb``."""
+    images = np.asarray(images)
+    out = np.empty(images.shape[:3], np.float32)
+
+    def store(views: np.ndarray, maps: np.ndarray) -> None:
+        out[views] = maps
+
+    grouped_specimen_maps(model, lambda views: images[views], len(images), images.shape[1:], memory_mb, store, band_px=band_px)
+    return out
