@@ -1,4 +1,4 @@
-"""vastcal batch: three small phantom sessions and a broken one on a real 2-process LocalCluster."""
+"""vastcal batch on a real 2-process LocalCluster: small phantom sessions, a broken one, a killed worker, a killed batch."""
 
 from __future__ import annotations
 
@@ -108,6 +108,7 @@ def test_batch_cli_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureF
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(600)  # two cluster start-ups and 6 sessions; wall time grows with the machine's load
 def test_a_killed_worker_is_retried_and_no_row_is_duplicated(tmp_path: Path) -> None:
     """A real 2-process LocalCluster; one worker process is SIGKILLed while it runs a session."""
     import os
@@ -119,7 +120,7 @@ def test_a_killed_worker_is_retried_and_no_row_is_duplicated(tmp_path: Path) -> 
 
     from vastcal.batch import run_batch
 
-    screen = _screen(tmp_path / "screen", 4)
+    screen = _screen(tmp_path / "screen", 6)
     killed: list[int] = []
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=50) as cluster, \
             Client(cluster) as client:
@@ -141,6 +142,61 @@ def test_a_killed_worker_is_retried_and_no_row_is_duplicated(tmp_path: Path) -> 
         killer.join(5)
     assert killed, "no worker was killed (the batch ended before the killer found a running task)"
     rows = _rows(tmp_path / "out")
-    assert sorted(rows) == ["larva0", "larva1", "larva2", "larva3"]
+    assert sorted(rows) == [f"larva{i}" for i in range(6)]
     assert all(r["status"] == "ok" for r in rows.values()), rows
-    assert res.processed == 4 and len(res.rows) == 4
+    assert res.processed == 6 and len(res.rows) == 6
+    assert len({r["worker"] for r in rows.values()}) >= 2  # the killed worker's replacement took over
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)  # two cluster start-ups and 6 sessions; wall time grows with the machine's load
+def test_a_killed_batch_resumes_with_what_is_missing(tmp_path: Path) -> None:
+    """``vastcal batch`` (a real 2-process LocalCluster) SIGKILLed with all its processes mid-batch; the rerun
+    processes only the sessions without a row, and every session ends with exactly one row."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    from vastcal.batch import STATE_FILE, run_batch
+
+    screen = _screen(tmp_path / "screen", 6)
+    out = tmp_path / "out"
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, "-m", "vastcal", "batch", str(screen), "-o", str(out), "--workers", "2", "--starts", "1", "-q"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
+    done: dict = {}
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                done = json.loads((out / STATE_FILE).read_text())["sessions"]
+            except (OSError, ValueError, KeyError):
+                done = {}
+            if len(done) >= 2:
+                break
+            time.sleep(0.2)
+    finally:
+        family = psutil.Process(proc.pid).children(recursive=True) if proc.poll() is None else []
+        for p in [proc, *family]:  # the batch, its nannies and workers: nothing may finish the batch
+            try:
+                os.kill(p.pid, signal.SIGKILL)
+            except (ProcessLookupError, psutil.NoSuchProcess):
+                pass
+        proc.wait(30)
+        psutil.wait_procs(family, timeout=30)
+    state = json.loads((out / STATE_FILE).read_text())["sessions"]
+    assert 2 <= len(state) < 6, f"the batch was not killed mid-way ({len(state)} sessions done)"
+    assert all(e["row"]["status"] == "ok" for e in state.values())
+    assert "http-equiv='refresh'" in (out / "index.html").read_text()  # the page of a running batch reloads itself
+    before = {n: e["row"]["processed_at"] for n, e in state.items()}
+
+    res = run_batch([screen], out, starts=1, n_workers=2, quiet=True)
+    assert (res.processed, res.skipped, res.failed) == (6 - len(before), len(before), 0)
+    rows = _rows(out)
+    assert sorted(rows) == [f"larva{i}" for i in range(6)] and all(r["status"] == "ok" for r in rows.values())
+    assert all(rows[n]["processed_at"] == t for n, t in before.items())  # done once, never again
+    assert "http-equiv='refresh'" not in (out / "index.html").read_text()
+    assert json.loads((out / "rig_health.json").read_text())["n_sessions"] == 6
