@@ -64,7 +64,8 @@ class RunSummary:
 
 
 def run_session(session: str | Path, report_dir: str | Path | None = None, *, method: str | None = None, seed: int | None = None,
-                quiet: bool = False, starts: int = 3, prior_from: str | Path | None = None) -> RunSummary:
+                quiet: bool = False, starts: int = 3, prior_from: str | Path | None = None,
+                truth_path: Path | None = None) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
     Args:
@@ -77,6 +78,7 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
         quiet: no progress lines.
         prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default: the stored rig
             configuration's ``calibration.prior_from``).
+        truth_path: a simulated session's hidden truth: scored (:func:`score_against_truth`) and shown in the report.
     """
     from vastcal.calibrate import calibrate_session
     from vastcal.reconstruct import reconstruct_session
@@ -103,8 +105,10 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
         from vastcal.qc import QCResult
 
         res.verdict = QCResult.from_dict(m.qc).verdict_line()
+    if truth_path is not None:
+        res.truth = score_against_truth(path, truth_path)
     t = time.monotonic()
-    write_report(path, out)
+    write_report(path, out, truth=res.truth)
     res.timings_s["report"] = time.monotonic() - t
     return res
 
@@ -169,9 +173,8 @@ def demo(output_dir: str | Path = "vastcal-demo", *, views: int | None = None, f
     finally:
         bar.close()
     acquire_s = time.monotonic() - t
-    res = run_session(session, out / "report", quiet=quiet)
+    res = run_session(session, out / "report", quiet=quiet, truth_path=truth_path)
     res.timings_s = {"acquire": acquire_s, **res.timings_s}
-    res.truth = score_against_truth(session, truth_path)
     return res
 
 

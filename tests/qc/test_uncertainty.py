@@ -114,7 +114,7 @@ def test_report_carries_the_interval_budget_verdict_and_drift_status(assessed: t
     page = (out / "report.html").read_text()
     assert "calibration (open directions)" in page and "expanded U (k = 2)" in page and "undetermined" in page
     assert "verdict: ok" in page
-    assert ">evaluations</text>" in page  # the convergence plot: best cost against evaluations, not the raveled table
+    assert 'id="fig-convergence"' in page and "against the number of cost evaluations" in page  # best cost against evaluations, not the raveled table
 
 
 def test_imported_cameras_leave_the_calibration_term_not_evaluated(tmp_path: Path, qc_views: PhantomViews) -> None:

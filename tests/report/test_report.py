@@ -12,13 +12,14 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import cv2
+import h5py
 import numpy as np
 import pytest
 
 from vastcal.cli import main
 from vastcal.errors import MissingStageError, UserInputError
 from vastcal.report import CSV_COLUMNS, write_report
-from vastcal.report.figures import nice_ticks, render_mesh, svg_plot
+from vastcal.report.figures import agreement_plot, convergence_plot, drift_plot, outline_path, view_overlay
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
@@ -57,22 +58,120 @@ def test_csv_is_one_row_under_a_fixed_header(report_dir: Path) -> None:
     assert row["n_views"] == "9" and row["calibration_method"] == "pi" and float(row["drift_rms_deg"]) > 0
 
 
+def _blobs_removed(page: str) -> str:
+    """The page without its base64 payloads (data URIs) and script bodies (code, the embedded mesh): what a reader sees."""
+    page = re.sub(r"data:[a-z/+]+;base64,[A-Za-z0-9+/=]+", "data:", page)
+    return re.sub(r"(<script[^>]*>).*?(</script>)", r"\1\2", page, flags=re.S)
+
+
 def test_html_is_self_contained(report_dir: Path) -> None:
     page = (report_dir / "report.html").read_text()
-    assert not re.search(r"https?://(?!www\.w3\.org/2000/svg\")", page), "no network references (but the SVG namespace)"
-    assert "<script" not in page and "<link" not in page
-    srcs = re.findall(r"<img [^>]*src='([^']*)'", page)
-    assert len(srcs) == 3  # contact sheet, two mesh renderings
-    for src in srcs:
-        assert src.startswith("data:image/png;base64,")
+    assert not re.search(r"https?://(?!www\.w3\.org/)", page), "no network references (but XML namespaces)"
+    assert "<link" not in page and "<iframe" not in page
+    tags = re.findall(r"<script[^>]*>", page)
+    assert tags == ['<script type="application/octet-stream" id="mesh-vertices">', '<script type="application/octet-stream" id="mesh-faces">',
+                    "<script>", "<script>"], "only the page's own inline scripts, none loaded from a file"
+    srcs = re.findall(r'<img [^>]*src="([^"]*)"', page)
+    assert len(srcs) == 9 + 3  # every view, per-view agreement, drift, convergence
+    for src in srcs[:9]:  # the views at full resolution
+        assert src.startswith("data:image/jpeg;base64,")
         img = cv2.imdecode(np.frombuffer(base64.b64decode(src.split(",", 1)[1]), np.uint8), cv2.IMREAD_COLOR)
-        assert img is not None and img.size > 0
-    svgs = re.findall(r"<svg.*?</svg>", page, flags=re.S)
-    assert len(svgs) == 2  # drift and cost
-    for svg in svgs:
-        assert ET.fromstring(svg).tag.endswith("svg")
-    for text in ("mm³", "mm²", "µm"):
-        assert text in page
+        assert img is not None and img.shape[:2] == (160, 512)
+    for src in srcs[9:]:  # matplotlib plots, text drawn as paths (no font needed)
+        assert src.startswith("data:image/svg+xml;base64,")
+        svg = base64.b64decode(src.split(",", 1)[1])
+        assert ET.fromstring(svg).tag.endswith("svg") and b"<text" not in svg
+    text = _blobs_removed(page)
+    for unit in ("mm³", "mm²", "µm", "°"):
+        assert unit in text
+    assert not re.search(r"\bum\b", text), "micrometres are written µm"
+    outlines = re.findall(r'<path d="(M[^"]+)"', page)
+    assert len(outlines) == 9 and all(" Z" in d for d in outlines)  # one hull outline per view
+
+
+def test_mesh_is_embedded_for_the_3d_viewer(report_dir: Path, measured_session: Path) -> None:
+    from vastcal.measure import load_mesh
+    from vastcal.session import Session
+
+    page = (report_dir / "report.html").read_text()
+    v64 = re.search(r'id="mesh-vertices">([^<]*)<', page).group(1)  # type: ignore[union-attr]
+    f64 = re.search(r'id="mesh-faces">([^<]*)<', page).group(1)  # type: ignore[union-attr]
+    v = np.frombuffer(base64.b64decode(v64), "<f4").reshape(-1, 3)
+    f = np.frombuffer(base64.b64decode(f64), "<u4").reshape(-1, 3)
+    with Session.open(measured_session) as s:
+        mesh = load_mesh(s.latest_result("measurement"))
+    assert len(f) == min(len(mesh.faces), 60_000) and f.max() < len(v)
+    assert np.allclose(v.min(0), mesh.vertices.min(0), atol=1.0) and np.allclose(v.max(0), mesh.vertices.max(0), atol=1.0)
+    assert f'data-faces="{len(f)}"' in page
+
+
+def test_large_meshes_are_simplified_for_display_only() -> None:
+    from skimage.measure import marching_cubes
+
+    from vastcal.report.figures import cluster_decimate, mesh_payload
+
+    z, y, x = np.mgrid[-40:41, -40:41, -40:41].astype(float)
+    verts, faces, _, _ = marching_cubes((x / 38) ** 2 + (y / 20) ** 2 + (z / 20) ** 2, 1.0)
+    v, f = cluster_decimate(verts, faces, 8000)
+    assert len(faces) > 8000 >= len(f) > 2000
+    assert np.allclose(v.min(0), verts.min(0), atol=1.5) and np.allclose(v.max(0), verts.max(0), atol=1.5)
+    assert len(np.unique(np.sort(f, axis=1), axis=0)) == len(f) and (f[:, 0] != f[:, 1]).all()
+    p = mesh_payload(verts, faces, max_faces=8000)
+    assert p["n_faces"] == len(f) and p["n_faces_measured"] == len(faces)
+
+
+def _flag_view(session: Path, view: int) -> None:
+    """Test set-up: the stored QC says ``view`` disagrees with the hull (as a real disagreeing view would)."""
+    with h5py.File(session, "a") as f:
+        meas = f["/entry/vastcal/measurement/run_000"]
+        qc = json.loads(meas.attrs["qc"])
+        qc["verdict"] = "check"
+        qc["per_view"]["disagrees"][view] = True
+        qc["per_view"]["boundary_distance_px"][view] = 9.5
+        qc["flags"].append({"code": "view_disagrees", "severity": "check", "views": [view],
+                            "message": f"silhouette off the reprojected hull by more than 4.0 px in view(s) {view}"})
+        meas.attrs["qc"] = json.dumps(qc)
+
+
+def test_views_flagged_by_qc_are_marked_in_the_sheet_and_table(measured_session: Path, tmp_path: Path) -> None:
+    _flag_view(measured_session, 3)
+    write_report(measured_session, tmp_path / "r")
+    page = (tmp_path / "r" / "report.html").read_text()
+    flagged = re.findall(r'<figure class="view flagged" id="view-(\d+)"', page)
+    assert flagged == ["3"]
+    caption = re.search(r'id="view-3".*?<figcaption>(.*?)</figcaption>', page, flags=re.S).group(1)  # type: ignore[union-attr]
+    assert "FLAGGED: view_disagrees (check)" in caption
+    assert page.count('<tr class="flagged">') == 1 and "verdict: check" in page and "1 view(s) flagged by QC" in page
+
+
+def test_simulated_truth_comparison_is_in_the_report(measured_session: Path, tmp_path: Path) -> None:
+    truth = {"volume_vs_true_hull_pct": 0.42, "area_vs_true_hull_pct": -1.25, "angle_rms_error_deg": 0.031}
+    write_report(measured_session, tmp_path / "r", truth=truth)
+    page = (tmp_path / "r" / "report.html").read_text()
+    table = re.search(r'<table id="truth-table">(.*?)</table>', page, flags=re.S).group(1)  # type: ignore[union-attr]
+    assert "+0.42 %" in table and "-1.25 %" in table and "0.031 °" in table and "exact visual hull of the true body" in table
+    assert json.loads((tmp_path / "r" / "report.json").read_text())["simulated_truth"] == truth
+    write_report(measured_session, tmp_path / "plain")
+    assert "truth-table" not in (tmp_path / "plain" / "report.html").read_text()
+    assert "simulated_truth" not in json.loads((tmp_path / "plain" / "report.json").read_text())
+
+
+def test_a_run_with_a_truth_file_puts_the_comparison_in_its_report(measured_session: Path, tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """What the demo does (pipeline.run_session with the simulator's truth file), calibration stubbed: the fixture's run stays."""
+    import vastcal.calibrate
+    from vastcal.pipeline import run_session
+
+    monkeypatch.setattr(vastcal.calibrate, "calibrate_session", lambda *a, **k: object())
+    with h5py.File(measured_session, "r") as f:
+        vol = float(f["/entry/vastcal/measurement/run_000"].attrs["volume_mm3"])
+    doc = {"hull_volume_mm3": vol / 1.02, "hull_area_mm2": 1.0}
+    truth_path = tmp_path / "fish.truth.json"
+    truth_path.write_text(json.dumps(doc))
+    res = run_session(measured_session, tmp_path / "r", quiet=True, truth_path=truth_path)
+    assert res.truth["volume_vs_true_hull_pct"] == pytest.approx(2.0, abs=0.3)  # the new measurement is within 0.3 % of run_000's
+    page = (tmp_path / "r" / "report.html").read_text()
+    assert "Simulated truth" in page and f"{res.truth['volume_vs_true_hull_pct']:+.2f} %" in page
 
 
 def test_unwritable_folder_is_one_user_error(measured_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -106,35 +205,101 @@ def test_imported_cameras_report_drift_from_their_circular_fit(session_factory, 
     truth = np.asarray(small_views.angles_deg) - commanded  # type: ignore[attr-defined]
     assert np.allclose(c["delta_angle_deg"], truth, atol=0.05)
     page = (tmp_path / "r" / "report.html").read_text()
-    assert "No cost trace" in page and page.count("<svg") == 1
+    assert "No cost trace" in page and 'id="fig-drift"' in page and 'id="fig-convergence"' not in page
 
 
-def test_plots_and_renderings_on_their_own() -> None:
-    assert list(nice_ticks(0.0, 1.0)) == pytest.approx([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])
-    for kind in ("line", "bar", "points"):
-        ET.fromstring(svg_plot([1, 2, 3], [3.0, -1.0, 2.0], title="t <&>", xlabel="x", ylabel="y (deg)", kind=kind))
-    ET.fromstring(svg_plot([], [], title="empty", xlabel="x", ylabel="y"))
-    ET.fromstring(svg_plot([1, 2, 3], [100.0, 10.0, 1.0], title="log", xlabel="x", ylabel="y", log_y=True))
-    v = np.array([[0, 0, 0], [100, 0, 0], [0, 100, 0], [0, 0, 100]], float)
-    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-    img = render_mesh(v, f, width=200, scale_bar_um=None)
-    assert img.shape[1] == 200 and (img < 255).any()
+def test_plots_on_their_own() -> None:
+    def svg(uri: str) -> ET.Element:
+        assert uri.startswith("data:image/svg+xml;base64,")
+        return ET.fromstring(base64.b64decode(uri.split(",", 1)[1]))
+
+    svg(drift_plot([0.0, 0.3, -0.2, 0.1]))
+    svg(drift_plot([0.0, 0.01, -0.02], u_per_view_deg=1.0, status="undetermined"))
+    svg(convergence_plot([10, 20, 30, 40, 50, 60], [5.0, 1.0, 0.1, 4.0, 0.5, 0.05]))  # two starts
+    svg(convergence_plot([], []))
+    svg(agreement_plot([0.95, 0.4, None], [0.8, 6.0, None], disagree_px=4.0, fail_iou=0.5, flagged=[False, True, False]))
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (Debian package 'chromium'); the browser check is skipped")
-def test_every_figure_loads_in_headless_chromium(report_dir: Path, tmp_path: Path) -> None:
-    page = (report_dir / "report.html").read_text()
-    probe = ("<script>window.addEventListener('load',()=>{const im=[...document.images];"
-             "const ok=im.filter(i=>i.complete&&i.naturalWidth>0).length;"
-             "const sv=[...document.querySelectorAll('svg')].filter(s=>s.getBBox().width>0).length;"
-             "document.body.dataset.figuresLoaded=ok+'/'+im.length+' svg '+sv;});</script>")
-    checked = tmp_path / "probe.html"
-    checked.write_text(page.replace("</body>", probe + "</body>"))
+def test_view_overlay_outline_follows_the_hull_in_pixel_coordinates() -> None:
+    frame = np.full((60, 80), 200, np.uint8)
+    mask = np.zeros((60, 80), np.uint8)
+    mask[20:40, 10:50] = 255  # pixels 10..49 × 20..39: the SVG square from (10, 20) to (50, 40)
+    d = outline_path(mask)
+    xs = [float(t) for t in re.findall(r"[ML]([-\d.]+) ", d)]
+    assert d.startswith("M") and d.endswith("Z") and min(xs) == pytest.approx(10.5) and max(xs) == pytest.approx(49.5)
+    P = np.array([[1.0, 0, 0, 40], [0, 1.0, 0, 30], [0, 0, 0, 1]])  # orthographic, 1 px per µm, centre at (40, 30)
+    ov = view_overlay(frame, P, np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]), 3.0)
+    assert (ov.width, ov.height) == (80, 60) and ov.image_uri.startswith("data:image/jpeg;base64,") and ov.outline_path.startswith("M")
+
+
+def _chromium(url: str, profile: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    assert CHROMIUM is not None
     cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-           "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=5000",
-           "--dump-dom", checked.as_uri()]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
-    m = re.search(r'data-figures-loaded="(\d+)/(\d+) svg (\d+)"', out.stdout)
-    assert m, f"chromium did not run the probe: {out.stderr[-500:]}"
-    loaded, total, svgs = map(int, m.groups())
-    assert total == 3 and loaded == total and svgs == 2
+           "--disable-sync", "--no-first-run", "--hide-scrollbars", "--force-device-scale-factor=1", f"--user-data-dir={profile}",
+           "--virtual-time-budget=8000", *extra, url]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+
+
+PROBE = """<script>window.addEventListener('load',()=>{setTimeout(()=>{
+const rect=e=>{const r=e.getBoundingClientRect();return [r.left+scrollX,r.top+scrollY,r.width,r.height];};
+const im=[...document.images];
+const out={loaded:im.filter(i=>i.complete&&i.naturalWidth>0).length,total:im.length,height:document.documentElement.scrollHeight,
+ plots:[...document.querySelectorAll('figure.plot img')].map(rect),views:[...document.querySelectorAll('.view img')].map(rect),
+ canvas:rect(document.getElementById('mesh-canvas')),drawn:document.getElementById('mesh-canvas').dataset.drawn||'',
+ flagged:[...document.querySelectorAll('.view.flagged')].map(rect)};
+document.querySelectorAll('.view')[1].click();
+const box=document.getElementById('lightbox'),full=box.querySelector('.frame.full img');
+out.lightbox={open:!box.hidden,natural:full?full.naturalWidth:0,shown:full?full.getBoundingClientRect().width:0};
+document.dispatchEvent(new KeyboardEvent('keydown',{key:'Escape'}));out.lightbox.closed=box.hidden;
+document.body.dataset.probe=JSON.stringify(out);},300);});</script>"""
+"""Measures the laid-out page (where each figure is), then opens a view in the zoom box and closes it."""
+
+
+def _crop_is_a_picture(shot: np.ndarray, r: list[float]) -> tuple[float, float]:
+    """(grey-level standard deviation, fraction of pixels off the crop's most common colour) inside a rectangle of the screenshot."""
+    x, y, w, h = (int(round(v)) for v in r)
+    crop = shot[y + 2:y + h - 2, x + 2:x + w - 2].reshape(-1, 3).astype(int)
+    assert crop.size, f"empty crop {r}"
+    colours, counts = np.unique(crop, axis=0, return_counts=True)
+    background = colours[np.argmax(counts)]
+    return float(crop.std()), float(np.mean(np.abs(crop - background).sum(1) > 30))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (Debian package 'chromium'); the browser check is skipped")
+def test_report_in_headless_chromium_with_screenshot(measured_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The page as a reader gets it: every image loads, the 3D view draws, the zoom box opens; then a screenshot is checked."""
+    import html as _html
+
+    _flag_view(measured_session, 2)
+    out = tmp_path / "report"
+    write_report(measured_session, out)
+    page = (out / "report.html").read_text()
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.replace("</body>", PROBE + "</body>"))
+    res = _chromium(probe.as_uri(), tmp_path / "profile", "--window-size=1280,1000", "--dump-dom")
+    m = re.search(r'data-probe="([^"]*)"', res.stdout)
+    assert m, f"chromium did not run the probe: {res.stderr[-800:]}"
+    info = json.loads(_html.unescape(m.group(1)))
+    assert info["total"] == 12 and info["loaded"] == info["total"], info
+    assert len(info["views"]) == 9 and len(info["plots"]) == 3 and len(info["flagged"]) == 1
+    assert int(info["drawn"]) > 100, "the WebGL viewer drew the mesh"
+    lb = info["lightbox"]
+    assert lb["open"] and lb["natural"] == 512 and lb["shown"] > 0 and lb["closed"], lb
+
+    shot_path = tmp_path / "report-screenshot.png"
+    height = min(int(info["height"]), 16000)
+    res = _chromium((out / "report.html").as_uri(), tmp_path / "profile2", f"--window-size=1280,{height}", f"--screenshot={shot_path}")
+    shot = cv2.imread(str(shot_path), cv2.IMREAD_COLOR)
+    assert shot is not None, f"no screenshot: {res.stderr[-800:]}"
+    with capsys.disabled():
+        print(f"\nreport screenshot: {shot_path}")
+    assert shot.shape[1] == 1280
+    for r in info["plots"] + info["views"]:
+        std, off = _crop_is_a_picture(shot, r)
+        assert std > 8 and off > 0.01, f"figure at {r} looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
+    std, off = _crop_is_a_picture(shot, info["canvas"])
+    assert std > 4 and off > 0.01, f"the 3D view looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
+    x, y, w, h = (int(round(v)) for v in info["flagged"][0])
+    border = shot[y:y + 2, x + w // 4:x + 3 * w // 4].reshape(-1, 3).mean(0)  # the red frame of the flagged view, BGR
+    assert border[2] > 150 and border[1] < 120, f"the flagged view is not framed in red: {border}"

@@ -2,8 +2,10 @@
 
 Everything is read from the session file (the stored measurement, the reconstruction it came
 from, the calibration run or imported cameras it used, the frames); nothing is recomputed but
-the figures. The HTML needs no server and no network: figures are inline SVG or PNG data URIs,
-the CSS is inline, there is no script.
+the figures. The HTML is rendered from jinja2 templates (package data ``vastcal/report/templates``,
+every value autoescaped) and needs no server and no network: plots are matplotlib SVGs and the
+views full-resolution JPEGs, all as data URIs; the CSS and the two small scripts (overlay zoom,
+WebGL mesh viewer) are inline and the mesh is embedded as base64.
 
 Units are in the key names and column headers: ``_mm3`` cubic millimetres, ``_mm2`` square
 millimetres, ``_um`` micrometres, ``_deg`` degrees, ``_s`` seconds.
@@ -13,11 +15,11 @@ from __future__ import annotations
 
 import csv
 import datetime as _dt
-import html
 import io
 import json
 import logging
 import os
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,11 +53,16 @@ class ReportData:
     calibration: dict[str, Any]
     provenance: dict[str, Any]
     views: dict[str, list[Any]] = field(default_factory=dict)
+    truth: dict[str, Any] = field(default_factory=dict)
+    """A simulated session's comparison with its hidden truth (the demo), else empty."""
 
     def as_json(self) -> dict[str, Any]:
-        """The JSON document (schema :data:`REPORT_SCHEMA`)."""
-        return {"schema": REPORT_SCHEMA, "session": self.session, "measurement": self.measurement,
-                "calibration": self.calibration, "views": self.views, "provenance": self.provenance}
+        """The JSON document (schema :data:`REPORT_SCHEMA`); ``simulated_truth`` only when there is one."""
+        doc = {"schema": REPORT_SCHEMA, "session": self.session, "measurement": self.measurement,
+               "calibration": self.calibration, "views": self.views, "provenance": self.provenance}
+        if self.truth:
+            doc["simulated_truth"] = self.truth
+        return doc
 
     def csv_row(self) -> dict[str, Any]:
         """The one row of ``report.csv``."""
@@ -232,7 +239,11 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         "raw_surface_area_mm2": ma.get("raw_surface_area_mm2"),
         "units": ({"volume_mm3": "mm^3", "mesh_volume_mm3": "mm^3", "surface_area_mm2": "mm^2", "raw_surface_area_mm2": "mm^2",
                    "voxel_size_um": "um", "iso_level": "silhouettes"}
-                  if (ma.get("provenance") or {}).get("length_unit") != "unknown" else
+                  if (ma.get("provenance") or {}).get("length_unit") not in ("unknown", "px") else
+                  {"volume_mm3": "1e-9 px^3", "mesh_volume_mm3": "1e-9 px^3", "surface_area_mm2": "1e-6 px^2",
+                   "raw_surface_area_mm2": "1e-6 px^2", "voxel_size_um": "px", "iso_level": "silhouettes",
+                   "note": "pixel size unknown - measurements in pixels (vastcal import --pixel-size-um or --config)"}
+                  if (ma.get("provenance") or {}).get("length_unit") == "px" else
                   {"volume_mm3": "1e-9 (units of the cameras)^3", "mesh_volume_mm3": "1e-9 (units of the cameras)^3",
                    "surface_area_mm2": "1e-6 (units of the cameras)^2", "raw_surface_area_mm2": "1e-6 (units of the cameras)^2",
                    "voxel_size_um": "units of the cameras", "iso_level": "silhouettes",
@@ -329,17 +340,6 @@ def csv_text(data: ReportData) -> str:
     return buf.getvalue()
 
 
-_CSS = """
-body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:24px auto;max-width:1180px;color:#222;padding:0 16px}
-h1{font-size:22px;margin-bottom:4px}h2{font-size:17px;margin-top:28px;border-bottom:1px solid #ddd;padding-bottom:4px}
-.sub{color:#666;font-size:13px}.big{display:flex;gap:24px;flex-wrap:wrap;margin:16px 0}
-.card{border:1px solid #ddd;border-radius:6px;padding:12px 18px;min-width:200px}.card .v{font-size:26px;font-weight:600}
-.card .l{color:#666;font-size:12px}table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}
-th{background:#f5f5f5}td.k{text-align:left;color:#444}figure{margin:12px 0}figcaption{font-size:12px;color:#555;max-width:900px}
-img{max-width:100%;height:auto;border:1px solid #eee}.verdict{padding:6px 12px;margin:10px 0;background:#fafafa}.note{font-size:12px;color:#555}pre{font-size:11px;background:#f8f8f8;padding:8px;overflow:auto}
-"""
-
-
 def _num(v: Any, fmt: str) -> str:
     """A number formatted, or an en dash for anything else (never the raw value)."""
     if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
@@ -350,154 +350,189 @@ def _num(v: Any, fmt: str) -> str:
         return "–"
 
 
-def _e(v: Any) -> str:
-    """Any value as escaped HTML text (quotes too)."""
-    return html.escape("" if v is None else str(v), quote=True)
+TRUTH_LABELS = {
+    "volume_vs_true_hull_pct": ("volume − exact visual hull of the true body", "%", "+.2f"),
+    "area_vs_true_hull_pct": ("surface area − exact visual hull of the true body", "%", "+.2f"),
+    "volume_vs_solid_pct": ("volume − true solid body (includes the hull's bias at concavities)", "%", "+.2f"),
+    "area_vs_solid_pct": ("surface area − true solid body", "%", "+.2f"),
+    "angle_rms_error_deg": ("RMS error of the calibrated stage angles (views 1…N−1)", "°", ".3f"),
+    "yaw_error_deg": ("error of the calibrated axis yaw", "°", "+.3f"),
+    "pitch_error_deg": ("error of the calibrated axis pitch", "°", "+.3f"),
+}
+"""How the demo's comparison with the simulated truth (:func:`vastcal.pipeline.score_against_truth`) is labelled."""
 
 
-_VERDICT_COLOUR = {"ok": "#2e7d32", "check": "#b26a00", "fail": "#c62828"}
+def truth_rows(truth: dict[str, Any] | None) -> list[dict[str, str]]:
+    """Rows (label, value with unit) of the comparison with a simulated truth, known keys first, in a fixed order."""
+    rows = []
+    truth = truth or {}
+    for key, (label, unit, fmt) in TRUTH_LABELS.items():
+        if key in truth:
+            rows.append({"label": label, "value": f"{_num(truth[key], fmt)} {unit}"})
+    for key, value in truth.items():
+        if key not in TRUTH_LABELS:
+            rows.append({"label": key.replace("_", " "), "value": _num(value, ".4g") if not isinstance(value, str) else value})
+    return rows
 
 
-def _budget_table(u: dict[str, Any]) -> str:
-    """The uncertainty budget as an HTML table (escaped)."""
-    k = u.get("k", 2)
-    rows = ["<table><tr><th>component</th><th>u(volume) mm³</th><th>u(area) mm²</th><th class='k'>how</th></tr>"]
-    for c in u.get("components", []) or []:
-        ev = c.get("u_volume_mm3") is not None and c.get("u_area_mm2") is not None
-        rows.append(f"<tr><td class='k'>{_e(c.get('name'))}</td><td>{_num(c.get('u_volume_mm3'), '.5f') if ev else 'not evaluated'}</td>"
-                    f"<td>{_num(c.get('u_area_mm2'), '.4f') if ev else 'not evaluated'}</td>"
-                    f"<td class='k'>{_e(c.get('method'))}{(' — ' + _e(c.get('note'))) if c.get('note') else ''}</td></tr>")
-    rows.append(f"<tr><th class='k'>combined u</th><th>{_num(u.get('u_volume_mm3'), '.5f')}</th><th>{_num(u.get('u_area_mm2'), '.4f')}</th>"
-                "<th class='k'>root sum of squares of the evaluated components</th></tr>")
-    rows.append(f"<tr><th class='k'>expanded U (k = {_num(k, 'g')})</th><th>{_num(u.get('U_volume_mm3'), '.5f')}</th>"
-                f"<th>{_num(u.get('U_area_mm2'), '.4f')}</th><th class='k'>the ± of the headline values</th></tr></table>")
-    return "".join(rows)
+_PRETTY = (
+    (re.compile(r"(\d)\s*um\b"), "\\1 µm"), (re.compile(r"\bum\b"), "µm"),
+    (re.compile(r"\bmm\^3\b"), "mm³"), (re.compile(r"\bmm\^2\b"), "mm²"),
+    (re.compile(r"(\d)\s*deg\b"), "\\1°"), (re.compile(r"\bdeg\b"), "°"),
+    (re.compile(r"\+-\s*"), "±"), (re.compile(r"\bsigma\b"), "σ"), (re.compile(r"\bsigma_"), "σ_"), (re.compile(r" x "), " × "),
+)
+"""ASCII unit spellings of stored texts (written for consoles and logs) and how the page prints them."""
 
 
-def html_text(data: ReportData, arrays: dict[str, Any]) -> str:
-    """The self-contained HTML page (inline CSS, SVG plots, PNG data URIs, no script); every value escaped."""
+def pretty(text: Any) -> str:
+    """A stored text for the page: ``um`` → µm, ``mm^3`` → mm³, ``deg`` → °, ``+-`` → ±, ``sigma`` → σ, `` x `` → ×.
+
+    Only the page is prettified; report.json and report.csv keep the stored text.
+    """
+    out = "" if text is None else str(text)
+    for pattern, repl in _PRETTY:
+        out = pattern.sub(repl, out)
+    return out
+
+
+def _environment() -> Any:
+    """The jinja2 environment of the report's templates (package data ``vastcal/report/templates``), autoescaping every value."""
+    import jinja2
+
+    env = jinja2.Environment(loader=jinja2.PackageLoader("vastcal.report", "templates"), autoescape=True,
+                             undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
+    env.filters["pretty"] = pretty
+    return env
+
+
+def _flags_by_view(qc: dict[str, Any]) -> dict[int, list[str]]:
+    out: dict[int, list[str]] = {}
+    for f in qc.get("flags", []) or []:
+        for v in f.get("views", []) or []:
+            code = str(f.get("code", ""))
+            sev = str(f.get("severity", ""))
+            label = f"{code} ({sev})" if sev else code
+            if label not in out.setdefault(int(v), []):
+                out[int(v)].append(label)
+    return out
+
+
+def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Everything the template shows: numbers already formatted (strings), figures as data URIs."""
     m, c, s = data.measurement, data.calibration, data.session
-    n = len(arrays["frames"])
+    frames = arrays["frames"]
+    n = len(frames)
     qc = m.get("qc") or {}
     per_view = qc.get("per_view", {}) or {}
-    flagged = [bool(x) for x in per_view.get("disagrees", [])] or None
+    flags_by_view = _flags_by_view(qc)
+    disagrees = [bool(x) for x in per_view.get("disagrees", [])]
+    for i, bad in enumerate(disagrees):
+        if bad and not flags_by_view.get(i):
+            flags_by_view[i] = ["disagrees with the hull"]
     delta = arrays["delta"]
-    labels = [f"view {i}: commanded {a:.2f} deg" + (f", drift {d:+.2f} deg" if delta is not None else "")
-              + (" - DISAGREES WITH THE HULL" if flagged and i < len(flagged) and flagged[i] else "")
-              for i, (a, d) in enumerate(zip(arrays["commanded"], delta if delta is not None else [0.0] * n))]
-    sheet = figures.hull_outline_sheet(arrays["frames"], arrays["P"], arrays["points"], arrays["voxel_size_um"], labels, flagged=flagged)
-    mesh = arrays["mesh"]
-    side = figures.render_mesh(mesh.vertices, mesh.faces, azimuth_deg=0.0, elevation_deg=0.0)
-    oblique = figures.render_mesh(mesh.vertices, mesh.faces, azimuth_deg=-35.0, elevation_deg=20.0, scale_bar_um=None)
+    commanded = arrays["commanded"]
     u = m.get("uncertainty") or {}
-    k = u.get("k", 2)
+    k = u.get("k", m.get("coverage_factor_k") or 2)
     lower = " (lower bound)" if m.get("lower_bound") else ""
     pm_v = f" ± {_num(m.get('volume_U_mm3'), '.4f')}" if m.get("volume_U_mm3") is not None else ""
     pm_a = f" ± {_num(m.get('surface_area_U_mm2'), '.3f')}" if m.get("surface_area_U_mm2") is not None else ""
-    verdict = str(m.get("verdict", "not evaluated"))
-    reasons = m.get("verdict_reasons", []) or []
-    drift = c.get("drift") or {}
-    drift_state = str(drift.get("status", "not available"))
+    drift = dict(c.get("drift") or {})
+    drift.setdefault("status", "not available")
+    drift.setdefault("reason", "")
     drift_value = (f"{_num(c.get('drift_rms_deg'), '.3f')}° ± {_num(drift.get('u_per_view_deg'), 'g')}° per view"
-                   if drift_state == "undetermined" else f"{_num(c.get('drift_rms_deg'), '.3f')}°")
-    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>vastcal report: {_e(s.get('specimen', ''))}</title>"
-             f"<style>{_CSS}</style></head><body>",
-             f"<h1>Specimen {_e(s.get('specimen', ''))}</h1>",
-             f"<div class='sub'>session {_e(s.get('file', ''))} · uid {_e(s.get('uid', ''))} · {n} views · report "
-             f"{_e(data.provenance.get('report_time', ''))}</div>",
-             f"<div class='verdict' style='border-left:6px solid {_VERDICT_COLOUR.get(verdict, '#666')}'><b>verdict: {_e(verdict)}</b>"
-             + ("<ul>" + "".join(f"<li>{_e(r)}</li>" for r in reasons) + "</ul>" if reasons else
-                (" — every per-view check passed" if verdict == "ok" else "")) + "</div>",
-             "<div class='big'>",
-             f"<div class='card'><div class='v'>{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}</div><div class='l'>volume, k = {_num(k, 'g')} "
-             f"(voxels inside all {_e(m.get('n_views'))} silhouettes × voxel volume: the value to cite)</div></div>",
-             f"<div class='card'><div class='v'>{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}</div><div class='l'>surface area, "
-             f"k = {_num(k, 'g')} (smoothed marching-cubes mesh, {_e(m.get('n_mesh_faces'))} triangles)</div></div>",
-             f"<div class='card'><div class='v'>{drift_value}</div><div class='l'>RMS calibrated − commanded angle (views 1…N−1): "
-             f"<b>{_e(drift_state)}</b>{(' — ' + _e(drift.get('reason'))) if drift.get('reason') else ''}</div></div>",
-             "</div>",
-             "<h2>Uncertainty</h2>",
-             (_budget_table(u) if u.get("components") else "<p class='note'>No uncertainty budget was stored with this measurement "
-              "(measured by an older vastcal): the values carry no interval.</p>"),
-             f"<p class='note'>± is the expanded uncertainty U = k·u with k = {_num(k, 'g')} (about 95 % coverage for a normal distribution) of "
-             "the visual hull's volume and area. "
-             + (f"Not evaluated, hence not in the interval: {_e(', '.join(u.get('not_evaluated', [])))}. " if u.get("not_evaluated") else "")
-             + f"{_e(u.get('hull_bias', ''))}. {_e(m.get('volume_note', ''))}</p>",
-             "<h2>Reprojected hull on every view</h2>",
-             f"<figure><img alt='hull outline over every view' src='{figures.png_data_uri(sheet)}'>"
-             "<figcaption>Magenta: outline of the reconstructed visual hull projected through each view's camera. It should hug "
-             "the specimen in every view; views framed in red disagree with the hull by more than the QC threshold (see the "
-             "per-view table).</figcaption></figure>",
-             "<h2>Stage drift</h2>"]
-    if delta is not None:
-        parts.append("<figure>" + figures.svg_plot(np.arange(n), delta, title="Calibrated minus commanded angle per view",
-                                                   xlabel="view", ylabel="drift (deg)", kind="bar") +
-                     f"<figcaption>Per-view difference between the calibrated roll angle and the commanded stage angle, degrees "
-                     f"(view 0 defines 0°). Status: <b>{_e(drift_state)}</b>{(' — ' + _e(drift.get('reason'))) if drift.get('reason') else ''}"
-                     "</figcaption></figure>")
-    else:
-        parts.append("<p class='note'>No per-view angles: the cameras were imported and do not fit a circular motion.</p>")
-    parts.append("<h2>Calibration convergence</h2>")
-    cost = arrays["cost"]
-    if cost is not None and np.size(cost[1]):
-        ev, cv = cost
-        parts.append("<figure>" + figures.svg_plot(ev, cv, title="Best cost during calibration", xlabel="evaluations",
-                                                   ylabel="cost (best so far)") +
-                     f"<figcaption>Calibration cost of {_e(c.get('run', ''))} ({_e(c.get('method', ''))}) against the number of "
-                     f"cost evaluations, {_num(c.get('n_evaluations'), 'd')} evaluations, {_num(c.get('wall_time_s'), '.1f')} s.</figcaption></figure>")
-    else:
-        parts.append(f"<p class='note'>No cost trace: cameras from {_e(c.get('camera_source', ''))}.</p>")
-    parts += ["<h2>Surface</h2>",
-              f"<figure><img alt='mesh, side view' src='{figures.png_data_uri(side)}'><figcaption>Smoothed mesh seen along world z "
-              "(long axis = rotation axis horizontal), scale bar 500 µm.</figcaption></figure>",
-              f"<figure><img alt='mesh, oblique view' src='{figures.png_data_uri(oblique)}'><figcaption>The same mesh from an oblique "
-              "direction.</figcaption></figure>",
-              "<h2>Numbers</h2><table>"]
-    rows = [("volume (cite this)", f"{_num(m.get('volume_mm3'), '.5f')}{pm_v} mm³{lower}"),
-            ("surface area", f"{_num(m.get('surface_area_mm2'), '.4f')}{pm_a} mm²{lower}"),
-            ("mesh enclosed volume (diagnostic)", f"{_num(m.get('mesh_volume_mm3'), '.5f')} mm³"),
-            ("unsmoothed surface area", f"{_num(m.get('raw_surface_area_mm2'), '.4f')} mm²"),
-            ("voxel size", f"{_num(m.get('voxel_size_um'), '.2f')} µm"), ("voxels inside", str(m.get("n_inside_voxels"))),
-            ("iso-level", f"{_num(m.get('iso_level'), '.2f')} of {m.get('n_views')} silhouettes"),
-            ("silhouettes", str(m.get("silhouette_source", ""))), ("cameras", str(c.get("camera_source", ""))),
-            ("calibration method", str(c.get("method", ""))), ("seed", str(c.get("seed", "–"))),
-            ("yaw / pitch / γ", f"{_num(c.get('yaw_deg'), '.4f')}° / {_num(c.get('pitch_deg'), '.4f')}° / {_num(c.get('gamma_deg'), '.4f')}°"),
-            ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
-            ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s")]
-    parts += [f"<tr><td class='k'>{_e(k_)}</td><td>{_e(v)}</td></tr>" for k_, v in rows]
-    parts.append("</table><h2>Per view</h2><table><tr><th>view</th><th>commanded (deg)</th><th>drift (deg)</th><th>IoU</th>"
-                 "<th>boundary distance (px)</th><th>edge offset (px)</th><th>contrast / noise</th><th>flag</th></tr>")
-    flags_by_view: dict[int, list[str]] = {}
-    for f in qc.get("flags", []) or []:
-        for v in f.get("views", []) or []:
-            flags_by_view.setdefault(int(v), []).append(str(f.get("code", "")))
+                   if drift["status"] == "undetermined" else f"{_num(c.get('drift_rms_deg'), '.3f')}°")
 
     def col(name: str, i: int) -> Any:
         vals = per_view.get(name) or []
         return vals[i] if i < len(vals) else None
 
+    views, rows = [], []
     for i in range(n):
-        d = delta[i] if delta is not None else None
-        cn = col("contrast", i)
-        nz = col("noise", i)
+        ov = figures.view_overlay(frames[i], arrays["P"][i], arrays["points"], arrays["voxel_size_um"])
+        d = delta[i] if delta is not None and i < len(delta) else None
+        fl = ", ".join(flags_by_view.get(i, []))
+        caption = f"view {i}: commanded {_num(commanded[i], '.2f')}°" + (f", calibrated − commanded {_num(d, '+.2f')}°" if d is not None else "")
+        if col("iou", i) is not None:
+            caption += f", IoU {_num(col('iou', i), '.3f')}, boundary {_num(col('boundary_distance_px', i), '.2f')} px"
+        if fl:
+            caption += f" — FLAGGED: {fl}"
+        views.append({"index": i, "image_uri": ov.image_uri, "outline": ov.outline_path, "width": ov.width, "height": ov.height,
+                      "caption": caption, "flags": fl})
+        cn, nz = col("contrast", i), col("noise", i)
         cnr = (cn / nz) if isinstance(cn, (int, float)) and isinstance(nz, (int, float)) and nz else None
-        fl = ", ".join(sorted(set(flags_by_view.get(i, []))))
-        style = " style='background:#fde8e8'" if fl else ""
-        parts.append(f"<tr{style}><td>{i}</td><td>{_num(arrays['commanded'][i], '.3f')}</td>"
-                     f"<td>{_num(d, '+.3f')}</td><td>{_num(col('iou', i), '.3f')}</td><td>{_num(col('boundary_distance_px', i), '.2f')}</td>"
-                     f"<td>{_num(col('boundary_offset_px', i), '+.2f')}</td><td>{_num(cnr, '.0f')}</td><td class='k'>{_e(fl)}</td></tr>")
-    parts.append("</table>")
-    if qc.get("thresholds"):
-        parts.append("<p class='note'>QC thresholds: " + _e(", ".join(f"{k_} {v}" for k_, v in qc["thresholds"].items())) + "</p>")
-    parts.append("<h2>Provenance</h2><pre>" + _e(json.dumps(data.provenance, indent=1)) + "</pre>")
-    parts.append(f"<p class='note'>{_e(m.get('volume_method', ''))}. {_e(m.get('surface_method', ''))}.</p></body></html>")
-    return "".join(parts)
+        rows.append({"index": i, "commanded": _num(commanded[i], ".3f"), "drift": _num(d, "+.3f"), "iou": _num(col("iou", i), ".3f"),
+                     "distance": _num(col("boundary_distance_px", i), ".2f"), "offset": _num(col("boundary_offset_px", i), "+.2f"),
+                     "cnr": _num(cnr, ".0f"), "flags": fl})
+    thresholds = qc.get("thresholds") or {}
+    flagged = [bool(flags_by_view.get(i)) for i in range(n)]
+    agreement_uri = (figures.agreement_plot(per_view.get("iou", []), per_view.get("boundary_distance_px", []),
+                                            disagree_px=thresholds.get("disagree_px"), fail_iou=thresholds.get("fail_iou"), flagged=flagged)
+                     if per_view.get("iou") else None)
+    drift_uri = (figures.drift_plot(delta, u_per_view_deg=drift.get("u_per_view_deg") if drift["status"] == "undetermined" else None,
+                                    status=str(drift["status"])) if delta is not None and np.size(delta) else None)
+    cost = arrays["cost"]
+    convergence_uri = (figures.convergence_plot(cost[0], cost[1], title=f"Best cost during calibration ({c.get('method', '')})")
+                       if cost is not None and np.size(cost[1]) else None)
+    budget = None
+    if u.get("components"):
+        brows = []
+        for comp in u.get("components", []) or []:
+            ev = comp.get("u_volume_mm3") is not None and comp.get("u_area_mm2") is not None
+            brows.append({"name": comp.get("name", ""), "u_volume": _num(comp.get("u_volume_mm3"), ".5f") if ev else "not evaluated",
+                          "u_area": _num(comp.get("u_area_mm2"), ".4f") if ev else "not evaluated",
+                          "how": str(comp.get("method", "")) + ((" — " + str(comp["note"])) if comp.get("note") else "")})
+        budget = {"rows": brows, "u_volume": _num(u.get("u_volume_mm3"), ".5f"), "u_area": _num(u.get("u_area_mm2"), ".4f"),
+                  "U_volume": _num(u.get("U_volume_mm3"), ".5f"), "U_area": _num(u.get("U_area_mm2"), ".4f")}
+    mesh = arrays["mesh"]
+    payload = figures.mesh_payload(mesh.vertices, mesh.faces)
+    ext = payload["extent_um"]
+    numbers = [("volume (cite this)", f"{_num(m.get('volume_mm3'), '.5f')}{pm_v} mm³{lower}"),
+               ("surface area", f"{_num(m.get('surface_area_mm2'), '.4f')}{pm_a} mm²{lower}"),
+               ("mesh enclosed volume (diagnostic)", f"{_num(m.get('mesh_volume_mm3'), '.5f')} mm³"),
+               ("unsmoothed surface area", f"{_num(m.get('raw_surface_area_mm2'), '.4f')} mm²"),
+               ("voxel size", f"{_num(m.get('voxel_size_um'), '.2f')} µm"), ("voxels inside", _num(m.get("n_inside_voxels"), "d")),
+               ("iso-level", f"{_num(m.get('iso_level'), '.2f')} of {_num(m.get('n_views'), 'd')} silhouettes"),
+               ("silhouettes", str(m.get("silhouette_source", ""))), ("cameras", str(c.get("camera_source", ""))),
+               ("calibration method", str(c.get("method", ""))), ("seed", str(c.get("seed", "–"))),
+               ("yaw / pitch / γ", f"{_num(c.get('yaw_deg'), '.4f')}° / {_num(c.get('pitch_deg'), '.4f')}° / {_num(c.get('gamma_deg'), '.4f')}°"),
+               ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
+               ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s")]
+    units_note = (m.get("units") or {}).get("note", "")
+    return {
+        "session": s, "measurement": m, "calibration": c, "provenance": data.provenance, "n_views": n,
+        "verdict": str(m.get("verdict", "not evaluated")), "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
+        "lower_bound": bool(m.get("lower_bound")), "k_text": _num(k, "g"),
+        "volume_text": f"{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}", "area_text": f"{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}",
+        "drift": drift, "drift_value": drift_value, "units_note": units_note,
+        "truth": truth_rows(truth), "budget": budget, "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
+        "hull_bias": str(u.get("hull_bias", "")),
+        "views": views, "n_flagged": sum(flagged), "frame_width": views[0]["width"] if views else 0,
+        "frame_height": views[0]["height"] if views else 0, "agreement_uri": agreement_uri,
+        "mesh": payload, "extent_text": " × ".join(f"{_num(x / 1000.0, '.2f')}" for x in ext) + " mm",
+        "drift_uri": drift_uri, "convergence_uri": convergence_uri,
+        "n_evaluations_text": _num(c.get("n_evaluations"), "d"), "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
+        "numbers": numbers, "per_view": rows,
+        "thresholds": ", ".join(f"{k_} {v}" for k_, v in thresholds.items()),
+        "provenance_json": json.dumps(data.provenance, indent=1),
+    }
 
 
-def write_report(session_path: str | Path, out_dir: str | Path, *, measurement_run: str | None = None) -> Path:
+def html_text(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any] | None = None) -> str:
+    """The self-contained HTML page, rendered from ``templates/report.html.j2`` with every value autoescaped.
+
+    Inline CSS and scripts (the overlay zoom and the WebGL mesh viewer), figures as data URIs,
+    the mesh as base64 in the page: it opens from disk (file://) with no server and no network.
+    """
+    return _environment().get_template("report.html.j2").render(**page_context(data, arrays, truth))
+
+
+def write_report(session_path: str | Path, out_dir: str | Path, *, measurement_run: str | None = None,
+                 truth: dict[str, Any] | None = None) -> Path:
     """Write ``report.json``, ``report.csv`` and ``report.html`` of a session into ``out_dir``.
 
     ``vastcal report S.h5 -o DIR`` calls this. Uses the latest measurement (or ``measurement_run``).
+    ``truth``: the comparison with a simulated rig's hidden truth (the demo's
+    :func:`vastcal.pipeline.score_against_truth`), shown in the page and stored in report.json.
 
     Returns:
         The path of ``report.html``.
@@ -508,9 +543,11 @@ def write_report(session_path: str | Path, out_dir: str | Path, *, measurement_r
     """
     out = _prepare_out_dir(out_dir)
     data, arrays = collect(session_path, measurement_run=measurement_run)
+    if truth:
+        data.truth = _plain(truth)
     _write_text(out / "report.json", json.dumps(data.as_json(), indent=2, allow_nan=False) + "\n")
     _write_text(out / "report.csv", csv_text(data))
     page = out / "report.html"
-    _write_text(page, html_text(data, arrays))
+    _write_text(page, html_text(data, arrays, truth))
     log.info("report of %s written to %s", session_path, out)
     return page

@@ -1,34 +1,50 @@
-"""Figures of the report: inline SVG plots and PNG images (OpenCV), no matplotlib.
+"""Figures of the report: matplotlib plots (SVG), full-resolution view overlays and the mesh for the 3D viewer.
 
-* :func:`svg_plot` — a small line/bar plot as a standalone ``<svg>`` string (crisp, a few kB).
-* :func:`hull_outline_sheet` — every view's image with the reprojected hull outline (PNG).
-* :func:`render_mesh` — a flat-shaded software rendering of the mesh (PNG), z-buffered in numpy.
-* :func:`png_data_uri` — a PNG as a ``data:image/png;base64,…`` URI for a self-contained page.
+* :func:`drift_plot`, :func:`agreement_plot`, :func:`convergence_plot` — matplotlib (object API,
+  no pyplot state, Agg/SVG canvases) rendered to SVG with the text as paths, returned as a
+  ``data:image/svg+xml;base64,…`` URI: crisp at any zoom, µ ° ³ drawn by matplotlib's own font.
+* :func:`view_overlay` — one view at full resolution (JPEG data URI) and the reprojected hull
+  outline as an SVG path in that view's pixel coordinates (drawn over the image by the page,
+  so it stays one screen pixel wide at any zoom).
+* :func:`mesh_payload` — the mesh for the page's WebGL viewer: little-endian float32 vertices
+  and uint32 faces, base64, decimated by vertex clustering when it is large.
 
-Frames: world µm (x = rotation axis), cameras map world µm to 0-based pixels of the stored frames.
+Frames: world µm (x = rotation axis); cameras map world µm to 0-based pixels of the stored
+frames, whose pixel (u, v) covers [u − ½, u + ½] × [v − ½, v + ½].
 """
 
 from __future__ import annotations
 
 import base64
-import html
+import io
 import logging
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import cv2
 import numpy as np
+from matplotlib import rc_context
+from matplotlib.figure import Figure
 
 from vastcal.errors import AnalysisError
 
 log = logging.getLogger(__name__)
 
-OUTLINE_BGR = (255, 0, 255)
+OUTLINE_COLOUR = "#ff00ff"
 """Colour of the reprojected hull outline (magenta: visible on bright and dark)."""
+FLAG_COLOUR = "#c62828"
+"""Colour of what QC flagged (views, bars)."""
+BAR_COLOUR = "#3b6fb6"
+
+_RC = {"svg.fonttype": "path", "svg.hashsalt": "vastcal-report", "font.size": 9.0, "axes.titlesize": 10.0,
+       "axes.spines.top": False, "axes.spines.right": False, "axes.grid": True, "grid.color": "#e6e6e6", "grid.linewidth": 0.6,
+       "axes.axisbelow": True}
+"""matplotlib settings of every plot (text as paths: the page needs no font; a fixed hash salt: reproducible files)."""
 
 
 # ---------------------------------------------------------------------------------------------
-# PNG
+# Encoding
 # ---------------------------------------------------------------------------------------------
 
 
@@ -49,8 +65,28 @@ def png_data_uri(image: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(png_bytes(image)).decode("ascii")
 
 
+def jpeg_data_uri(image: np.ndarray, quality: int = 90) -> str:
+    """``data:image/jpeg;base64,…`` of an 8-bit gray or BGR image.
+
+    Raises:
+        AnalysisError: OpenCV cannot encode it.
+    """
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(image), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise AnalysisError("cannot encode a report view as JPEG")
+    return "data:image/jpeg;base64," + base64.b64encode(buf.tobytes()).decode("ascii")
+
+
+def svg_data_uri(fig: Figure) -> str:
+    """A matplotlib figure as ``data:image/svg+xml;base64,…`` (no metadata block, text as paths)."""
+    buf = io.BytesIO()
+    with rc_context(_RC):
+        fig.savefig(buf, format="svg", metadata={"Creator": None, "Date": None, "Format": None, "Type": None})
+    return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
 def to_display_bgr(frame: np.ndarray) -> np.ndarray:
-    """An 8-bit BGR picture of a stored frame (gray or RGB; uint8 or uint16 stretched to its 0.5–99.5 % range)."""
+    """An 8-bit BGR picture of a stored frame (gray or RGB; other depths stretched to their 0.5–99.5 % range)."""
     f = np.asarray(frame)
     if f.dtype != np.uint8:
         lo, hi = np.percentile(f, [0.5, 99.5])
@@ -61,7 +97,111 @@ def to_display_bgr(frame: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# Hull outlines
+# Plots
+# ---------------------------------------------------------------------------------------------
+
+
+def _figure(width_in: float = 7.2, height_in: float = 2.6) -> Figure:
+    with rc_context(_RC):
+        return Figure(figsize=(width_in, height_in), dpi=100, layout="constrained")
+
+
+def drift_plot(delta_deg: Sequence[float], *, u_per_view_deg: float | None = None, status: str = "") -> str:
+    """Bar plot of the calibrated − commanded angle per view (degrees); SVG data URI.
+
+    Args:
+        delta_deg: per view, degrees (view 0 defines 0°).
+        u_per_view_deg: when the data do not determine the rolls, the prior's width: drawn as a ± band.
+        status: the drift status (``measured``, ``undetermined``…), in the title.
+    """
+    d = np.asarray(delta_deg, float)
+    with rc_context(_RC):
+        fig = _figure()
+        ax = fig.add_subplot()
+        x = np.arange(d.size)
+        ax.bar(x, d, width=0.7, color=[BAR_COLOUR if v >= 0 else "#c0504d" for v in np.nan_to_num(d)])
+        if u_per_view_deg:
+            ax.axhspan(-u_per_view_deg, u_per_view_deg, color="#999999", alpha=0.18, lw=0,
+                       label=f"± {u_per_view_deg:g}° (roll prior: what the images cannot decide)")
+            ax.legend(loc="upper right", frameon=False)
+        ax.axhline(0.0, color="#444444", lw=0.8)
+        ax.set_xlabel("view")
+        ax.set_ylabel("calibrated − commanded (°)")
+        ax.set_title("Stage angle per view" + (f" — {status}" if status else ""))
+        ax.set_xlim(-0.6, max(d.size - 0.4, 0.6))
+        ax.xaxis.get_major_locator().set_params(integer=True)
+    return svg_data_uri(fig)
+
+
+def agreement_plot(iou: Sequence[float | None], distance_px: Sequence[float | None], *, disagree_px: float | None = None,
+                   fail_iou: float | None = None, flagged: Sequence[bool] = ()) -> str:
+    """Per-view agreement of silhouette and reprojected hull: IoU and mean boundary distance (px); SVG data URI.
+
+    Flagged views are drawn red; the QC thresholds as dashed lines.
+    """
+    n = max(len(iou), len(distance_px))
+    x = np.arange(n)
+    iou_a = np.array([np.nan if v is None else float(v) for v in iou] + [np.nan] * (n - len(iou)))
+    dist_a = np.array([np.nan if v is None else float(v) for v in distance_px] + [np.nan] * (n - len(distance_px)))
+    bad = np.array([bool(flagged[i]) if i < len(flagged) else False for i in range(n)])
+    colours = [FLAG_COLOUR if b else BAR_COLOUR for b in bad]
+    with rc_context(_RC):
+        fig = _figure(height_in=3.4)
+        a1, a2 = fig.subplots(2, 1, sharex=True)
+        a1.bar(x, dist_a, width=0.7, color=colours)
+        if disagree_px:
+            a1.axhline(disagree_px, color=FLAG_COLOUR, ls="--", lw=0.9, label=f"flag above {disagree_px:.2f} px")
+            a1.legend(loc="upper right", frameon=False)
+        a1.set_ylabel("boundary distance (px)")
+        a1.set_title("Silhouette against the reprojected hull, per view (red: flagged by QC)")
+        a2.scatter(x, iou_a, s=14, color=colours, zorder=3)
+        if fail_iou:
+            a2.axhline(fail_iou, color=FLAG_COLOUR, ls="--", lw=0.9, label=f"fail below IoU {fail_iou:g}")
+            a2.legend(loc="lower right", frameon=False)
+        lo = float(np.nanmin(iou_a)) if np.isfinite(iou_a).any() else 0.0
+        a2.set_ylim(min(lo - 0.02, fail_iou - 0.05 if fail_iou else 1.0), 1.005)
+        a2.set_ylabel("IoU")
+        a2.set_xlabel("view")
+        a2.set_xlim(-0.6, max(n - 0.4, 0.6))
+        a2.xaxis.get_major_locator().set_params(integer=True)
+    return svg_data_uri(fig)
+
+
+def convergence_plot(evaluations: Sequence[float], cost: Sequence[float], *, title: str = "Best cost during calibration") -> str:
+    """Best cost so far against the number of cost evaluations; SVG data URI.
+
+    Log scale when every cost is positive and they span more than a factor 20; a trace whose
+    best-so-far cost rises again holds several independent starts, drawn as one line each.
+    """
+    ev = np.asarray(evaluations, float)
+    c = np.asarray(cost, float)
+    ok = np.isfinite(ev) & np.isfinite(c)
+    ev, c = ev[ok], c[ok]
+    with rc_context(_RC):
+        fig = _figure()
+        ax = fig.add_subplot()
+        if c.size:
+            # a best-so-far cost that rises again is the next independent start: one line per start
+            cuts = np.flatnonzero(np.diff(c) > 0) + 1
+            segments = np.split(np.arange(c.size), cuts)
+            for j, seg in enumerate(segments):
+                ax.step(ev[seg], c[seg], where="post", lw=1.4, color=f"C{j % 10}",
+                        label=f"start {j + 1}" if len(segments) > 1 else None)
+            best = int(np.argmin(c))
+            ax.plot(ev[best:best + 1], c[best:best + 1], "o", color="#222222", ms=4, label="lowest cost")
+            ax.legend(loc="upper right", frameon=False, ncols=min(len(segments) + 1, 4))
+            if np.all(c > 0) and c.max() / c.min() > 20:
+                ax.set_yscale("log")
+        else:
+            ax.text(0.5, 0.5, "no data", ha="center", va="center", transform=ax.transAxes, color="#666666")
+        ax.set_xlabel("cost evaluations")
+        ax.set_ylabel("best cost so far")
+        ax.set_title(title)
+    return svg_data_uri(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+# View overlays
 # ---------------------------------------------------------------------------------------------
 
 
@@ -72,12 +212,17 @@ def hull_mask_in_view(P: np.ndarray, points: np.ndarray, voxel_size_um: float, s
     hull's silhouette at pixel accuracy.
     """
     h, w = shape
-    X = np.concatenate([points, np.ones((len(points), 1))], 1)
-    hom = X @ np.asarray(P, float).T
-    uv = hom[:, :2] / hom[:, 2:3]
-    depth = float(np.median(np.abs(hom[:, 2]))) / float(np.linalg.norm(P[2, :3]))
-    f_px = float(np.linalg.norm(P[0, :3]) / np.linalg.norm(P[2, :3]))
-    vox_px = voxel_size_um * f_px / max(depth, 1e-9)
+    P = np.asarray(P, float)
+
+    def project(xyz: np.ndarray) -> np.ndarray:
+        hom = np.concatenate([xyz, np.ones((len(xyz), 1))], 1) @ P.T
+        return hom[:, :2] / hom[:, 2:3]
+
+    uv = project(np.asarray(points, float))
+    # the voxel's image size: largest displacement of a voxel step along a world axis (any camera, affine too)
+    sample = np.asarray(points, float)[:: max(1, len(points) // 200)]
+    steps = [np.linalg.norm(project(sample + voxel_size_um * e) - project(sample), axis=1) for e in np.eye(3)]
+    vox_px = float(np.median(np.max(steps, axis=0))) if len(sample) else 1.0
     u = np.rint(uv[:, 0]).astype(np.int64)
     v = np.rint(uv[:, 1]).astype(np.int64)
     ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
@@ -88,246 +233,91 @@ def hull_mask_in_view(P: np.ndarray, points: np.ndarray, voxel_size_um: float, s
     return mask
 
 
-FLAG_BGR = (0, 0, 220)
-"""Colour of the frame drawn around a view that QC flagged (red)."""
+@dataclass(frozen=True)
+class ViewOverlay:
+    """One view for the overlay sheet: the frame at full resolution and the hull outline over it.
+
+    ``outline_path`` is an SVG path in the frame's pixel coordinates with the SVG convention
+    (pixel (u, v) is the unit square from (u, v) to (u + 1, v + 1)), so it overlays an
+    ``<svg viewBox="0 0 width height">`` laid exactly on the image.
+    """
+
+    image_uri: str
+    outline_path: str
+    width: int
+    height: int
 
 
-def hull_outline_sheet(frames: np.ndarray, P: np.ndarray, points: np.ndarray, voxel_size_um: float, labels: Sequence[str],
-                       *, columns: int = 3, tile_width: int = 480, flagged: Sequence[bool] | None = None) -> np.ndarray:
-    """Contact sheet (BGR uint8): every view's frame with the reprojected hull outline.
+def outline_path(mask: np.ndarray, *, tolerance_px: float = 0.5) -> str:
+    """SVG path ``d`` of a mask's outer contours (pixel centres at +½, polygons simplified to ``tolerance_px``)."""
+    contours, _ = cv2.findContours(np.ascontiguousarray(mask), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    parts = []
+    for c in contours:
+        c = cv2.approxPolyDP(c, tolerance_px, True).reshape(-1, 2).astype(float) + 0.5
+        if len(c) < 2:
+            continue
+        parts.append("M" + " L".join(f"{x:.1f} {y:.1f}" for x, y in c) + " Z")
+    return " ".join(parts)
+
+
+def view_overlay(frame: np.ndarray, P: np.ndarray, points: np.ndarray, voxel_size_um: float, *, quality: int = 90) -> ViewOverlay:
+    """One view's frame (full resolution, JPEG ``quality``) and the outline of the hull reprojected through ``P``.
 
     Args:
-        frames: (N, H, W[, 3]) stored frames.
-        P: (N, 3, 4) cameras, world µm → 0-based pixels of the frames.
+        frame: (H, W[, 3]) stored frame.
+        P: (3, 4) camera, world µm → 0-based pixels.
         points: (M, 3) world centres of hull voxels (boundary voxels suffice), µm.
         voxel_size_um: voxel edge, µm.
-        labels: one caption per view.
-        flagged: per view, whether QC flagged it (a red frame and a red caption).
     """
-    n = len(frames)
-    h, w = frames.shape[1:3]
-    scale = tile_width / w
-    th = max(1, int(round(h * scale)))
-    tiles = []
-    for i in range(n):
-        img = to_display_bgr(frames[i])
-        mask = hull_mask_in_view(P[i], points, voxel_size_um, (h, w))
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        small = cv2.resize(img, (tile_width, th), interpolation=cv2.INTER_AREA)
-        scaled = [np.rint(c.astype(np.float64) * scale).astype(np.int32) for c in contours]
-        cv2.polylines(small, scaled, True, OUTLINE_BGR, 1, cv2.LINE_AA)
-        bad = bool(flagged[i]) if flagged is not None and i < len(flagged) else False
-        if bad:
-            cv2.rectangle(small, (0, 0), (tile_width - 1, th - 1), FLAG_BGR, 3)
-        caption = np.full((18, tile_width, 3), 255, np.uint8)
-        cv2.putText(caption, str(labels[i]), (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, FLAG_BGR if bad else (40, 40, 40), 1, cv2.LINE_AA)
-        tiles.append(np.vstack([caption, small]))
-    rows = []
-    blank = np.full_like(tiles[0], 255)
-    gap = np.full((tiles[0].shape[0], 6, 3), 255, np.uint8)
-    for r in range(0, n, columns):
-        row = tiles[r:r + columns] + [blank] * (columns - len(tiles[r:r + columns]))
-        parts = []
-        for j, t in enumerate(row):
-            parts += ([gap] if j else []) + [t]
-        rows.append(np.hstack(parts))
-        rows.append(np.full((6, rows[-1].shape[1], 3), 255, np.uint8))
-    return np.vstack(rows[:-1])
+    img = to_display_bgr(frame)
+    h, w = img.shape[:2]
+    mask = hull_mask_in_view(P, points, voxel_size_um, (h, w))
+    return ViewOverlay(jpeg_data_uri(img, quality), outline_path(mask), int(w), int(h))
 
 
 # ---------------------------------------------------------------------------------------------
-# Mesh rendering
+# Mesh for the 3D viewer
 # ---------------------------------------------------------------------------------------------
 
 
-def _rotation(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
-    """Rows: image right, image down, view direction (into the screen), in world coordinates.
+def cluster_decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fewer than ``max_faces`` triangles by vertex clustering (display only: the measurement never uses it).
 
-    Azimuth turns the specimen about its long axis (world x); elevation tilts it toward the viewer.
+    Vertices are merged per cubic cell (their mean); faces that collapse are dropped. The cell
+    grows by 1.25× from 1/400 of the bounding box's largest side until the count fits.
     """
-    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
-    # Start: right = +x, down = +y, into the screen = +z; turn about x by azimuth, then about right by elevation.
-    Rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
-    Re = np.array([[math.cos(e), 0, math.sin(e)], [0, 1, 0], [-math.sin(e), 0, math.cos(e)]])
-    return Re @ Rx
-
-
-def render_mesh(vertices: np.ndarray, faces: np.ndarray, *, width: int = 900, azimuth_deg: float = 0.0, elevation_deg: float = 0.0,
-                colour_bgr: tuple[int, int, int] = (200, 170, 120), scale_bar_um: float | None = 500.0) -> np.ndarray:
-    """Flat-shaded orthographic rendering of a mesh (BGR uint8), white background.
-
-    Triangles are rasterised in numpy (barycentric tests on per-triangle pixel stencils) with
-    a z-buffer; shading is Lambert from a light over the viewer's shoulder plus ambient.
-
-    Args:
-        vertices: (V, 3) world µm.
-        faces: (F, 3) indices, outward normals.
-        width: image width, px (height follows the mesh's aspect).
-        azimuth_deg, elevation_deg: view direction (see :func:`_rotation`).
-        scale_bar_um: length of the scale bar drawn bottom-left, µm (None: no bar).
-    """
-    R = _rotation(azimuth_deg, elevation_deg)
-    v = (np.asarray(vertices, float) - np.mean(vertices, axis=0)) @ R.T
-    lo, hi = v[:, :2].min(0), v[:, :2].max(0)
-    margin = 0.06 * (hi[0] - lo[0]) + 1e-9
-    px_per_um = (width - 1) / (hi[0] - lo[0] + 2 * margin)
-    height = int(math.ceil((hi[1] - lo[1] + 2 * margin) * px_per_um)) + 1 + (30 if scale_bar_um else 0)
-    sx = (v[:, 0] - lo[0] + margin) * px_per_um
-    sy = (v[:, 1] - lo[1] + margin) * px_per_um
-    sz = v[:, 2]
+    v = np.asarray(vertices, float)
     f = np.asarray(faces, np.int64)
-    normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    front = normals[:, 2] < 0  # facing the viewer (view direction +z)
-    f, normals = f[front], normals[front]
-    light = np.array([-0.35, -0.5, -0.8])
-    light /= np.linalg.norm(light)
-    shade = 0.25 + 0.75 * np.clip(normals @ light, 0, 1)
-
-    x0, y0, z0 = sx[f[:, 0]], sy[f[:, 0]], sz[f[:, 0]]
-    x1, y1, z1 = sx[f[:, 1]], sy[f[:, 1]], sz[f[:, 1]]
-    x2, y2, z2 = sx[f[:, 2]], sy[f[:, 2]], sz[f[:, 2]]
-    bx0 = np.floor(np.minimum(np.minimum(x0, x1), x2)).astype(np.int64)
-    by0 = np.floor(np.minimum(np.minimum(y0, y1), y2)).astype(np.int64)
-    size = np.maximum(np.ceil(np.maximum(np.maximum(x0, x1), x2)) - bx0, np.ceil(np.maximum(np.maximum(y0, y1), y2)) - by0).astype(np.int64) + 1
-    pix_all, depth_all, tri_all = [], [], []
-    for k in (2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048):
-        sel = np.flatnonzero((size <= k) & (size > k // 2) if k > 2 else size <= k)
-        if sel.size == 0:
-            continue
-        oy, ox = np.mgrid[0:k, 0:k]
-        ox, oy = ox.ravel(), oy.ravel()
-        chunk = max(1, 4_000_000 // (k * k))
-        for s in range(0, sel.size, chunk):
-            t = sel[s:s + chunk]
-            px = bx0[t, None] + ox[None, :]  # pixel centres sit at integer coordinates
-            py = by0[t, None] + oy[None, :]
-            d = (y1[t] - y2[t]) * (x0[t] - x2[t]) + (x2[t] - x1[t]) * (y0[t] - y2[t])
-            d = np.where(np.abs(d) < 1e-12, 1e-12, d)[:, None]
-            l0 = ((y1[t] - y2[t])[:, None] * (px - x2[t][:, None]) + (x2[t] - x1[t])[:, None] * (py - y2[t][:, None])) / d
-            l1 = ((y2[t] - y0[t])[:, None] * (px - x2[t][:, None]) + (x0[t] - x2[t])[:, None] * (py - y2[t][:, None])) / d
-            l2 = 1.0 - l0 - l1
-            eps = -1e-6
-            inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & (px >= 0) & (px < width) & (py >= 0) & (py < height)
-            ti, si = np.nonzero(inside)
-            if ti.size == 0:
-                continue
-            z = l0[ti, si] * z0[t][ti] + l1[ti, si] * z1[t][ti] + l2[ti, si] * z2[t][ti]
-            pix_all.append((py[ti, si] * width + px[ti, si]).astype(np.int64))
-            depth_all.append(z)
-            tri_all.append(t[ti])
-    img = np.full((height, width, 3), 255, np.uint8)
-    if pix_all:
-        pix = np.concatenate(pix_all)
-        depth = np.concatenate(depth_all)
-        tri = np.concatenate(tri_all)
-        order = np.lexsort((depth, pix))  # by pixel, nearest first
-        first = np.r_[True, pix[order][1:] != pix[order][:-1]]
-        winners = order[first]
-        flat = img.reshape(-1, 3)
-        flat[pix[winners]] = (np.asarray(colour_bgr, float)[None, :] * shade[tri[winners], None]).clip(0, 255).astype(np.uint8)
-    if scale_bar_um:
-        bar = int(round(scale_bar_um * px_per_um))
-        yb = height - 14
-        cv2.line(img, (12, yb), (12 + bar, yb), (30, 30, 30), 2)
-        cv2.putText(img, f"{scale_bar_um:g} um", (18 + bar, yb + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (30, 30, 30), 1, cv2.LINE_AA)
-    return img
+    if len(f) <= max_faces or len(v) == 0:
+        return v, f
+    lo = v.min(0)
+    cell = float(np.ptp(v, axis=0).max()) / 400.0 or 1.0
+    while True:
+        key = np.floor((v - lo) / cell).astype(np.int64)
+        _, inverse = np.unique(key, axis=0, return_inverse=True)
+        inverse = inverse.ravel()
+        m = int(inverse.max()) + 1
+        counts = np.bincount(inverse, minlength=m).astype(float)
+        nv = np.stack([np.bincount(inverse, weights=v[:, k], minlength=m) for k in range(3)], 1) / counts[:, None]
+        nf = inverse[f]
+        keep = (nf[:, 0] != nf[:, 1]) & (nf[:, 1] != nf[:, 2]) & (nf[:, 0] != nf[:, 2])
+        nf = nf[keep]
+        first = np.unique(np.sort(nf, axis=1), axis=0, return_index=True)[1]
+        nf = nf[np.sort(first)]  # duplicates dropped, winding kept
+        if len(nf) <= max_faces:
+            return nv, nf
+        cell *= 1.25
 
 
-# ---------------------------------------------------------------------------------------------
-# SVG plots
-# ---------------------------------------------------------------------------------------------
+def mesh_payload(vertices: np.ndarray, faces: np.ndarray, *, max_faces: int = 60_000) -> dict[str, object]:
+    """The mesh for the page's viewer: base64 of little-endian float32 vertices (µm) and uint32 faces.
 
-
-def nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
-    """About ``n`` round tick values covering [lo, hi]."""
-    if not np.isfinite(lo) or not np.isfinite(hi):
-        return np.array([0.0])
-    if hi <= lo:
-        hi = lo + (abs(lo) if lo else 1.0)
-    raw = (hi - lo) / max(n, 1)
-    mag = 10 ** math.floor(math.log10(raw))
-    step = min((m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw), default=10 * mag)
-    start = math.floor(lo / step) * step
-    return np.arange(start, hi + step * 0.5, step)
-
-
-def _fmt(v: float) -> str:
-    return f"{v:.4g}" if v != 0 else "0"
-
-
-def svg_plot(x: Sequence[float], y: Sequence[float], *, title: str, xlabel: str, ylabel: str, kind: str = "line",
-             width: int = 640, height: int = 260, log_y: bool = False, zero_line: bool = False) -> str:
-    """A standalone SVG plot (``kind`` ``"line"``, ``"bar"`` or ``"points"``).
-
-    Args:
-        x, y: data (same length, finite values plotted).
-        title, xlabel, ylabel: texts (units belong in the labels).
-        log_y: plot log10(y) (positive values only), ticks labelled in y.
-        zero_line: draw y = 0.
+    Returns a dict with ``vertices_b64``, ``faces_b64``, ``n_vertices``, ``n_faces`` (shown),
+    ``n_faces_measured`` (the stored mesh) and ``extent_um`` (bounding box sides).
     """
-    xa = np.asarray(x, float)
-    ya = np.asarray(y, float)
-    ok = np.isfinite(xa) & np.isfinite(ya) & ((ya > 0) if log_y else True)
-    xa, ya = xa[ok], ya[ok]
-    ml, mr, mt, mb = 64, 16, 28, 42
-    pw, ph = width - ml - mr, height - mt - mb
-    esc = html.escape
-    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
-             f'font-family="sans-serif" font-size="11" role="img" aria-label="{esc(title)}">',
-             f'<rect width="{width}" height="{height}" fill="#fff"/>',
-             f'<text x="{width / 2:.1f}" y="16" text-anchor="middle" font-size="13" font-weight="bold">{esc(title)}</text>']
-    if xa.size == 0:
-        parts.append(f'<text x="{width / 2:.1f}" y="{height / 2:.1f}" text-anchor="middle" fill="#666">no data</text></svg>')
-        return "".join(parts)
-    yv = np.log10(ya) if log_y else ya
-    x_lo, x_hi = float(xa.min()), float(xa.max())
-    if kind == "bar":
-        x_lo, x_hi = x_lo - 0.6, x_hi + 0.6
-    if x_hi <= x_lo:
-        x_lo, x_hi = x_lo - 1, x_hi + 1
-    y_lo, y_hi = float(yv.min()), float(yv.max())
-    if kind == "bar" or zero_line:
-        y_lo, y_hi = min(y_lo, 0.0), max(y_hi, 0.0)
-    if y_hi <= y_lo:
-        y_lo, y_hi = y_lo - 1, y_hi + 1
-    pad = 0.06 * (y_hi - y_lo)
-    y_lo, y_hi = y_lo - pad, y_hi + pad
-    yt = nice_ticks(y_lo, y_hi)
-    y_lo, y_hi = min(y_lo, float(yt[0])), max(y_hi, float(yt[-1]))
-
-    def X(val: np.ndarray | float) -> np.ndarray:
-        return ml + (np.asarray(val, float) - x_lo) / (x_hi - x_lo) * pw
-
-    def Y(val: np.ndarray | float) -> np.ndarray:
-        return mt + ph - (np.asarray(val, float) - y_lo) / (y_hi - y_lo) * ph
-
-    parts.append(f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#999"/>')
-    for t in yt:
-        if y_lo - 1e-12 <= t <= y_hi + 1e-12:
-            yy = float(Y(t))
-            label = _fmt(10 ** t) if log_y else _fmt(float(t))
-            parts.append(f'<line x1="{ml}" y1="{yy:.1f}" x2="{ml + pw}" y2="{yy:.1f}" stroke="#eee"/>'
-                         f'<text x="{ml - 5}" y="{yy + 4:.1f}" text-anchor="end">{label}</text>')
-    for t in nice_ticks(x_lo, x_hi, 8):
-        if x_lo - 1e-12 <= t <= x_hi + 1e-12:
-            xx = float(X(t))
-            parts.append(f'<line x1="{xx:.1f}" y1="{mt + ph}" x2="{xx:.1f}" y2="{mt + ph + 4}" stroke="#999"/>'
-                         f'<text x="{xx:.1f}" y="{mt + ph + 16}" text-anchor="middle">{_fmt(float(t))}</text>')
-    if zero_line or kind == "bar":
-        parts.append(f'<line x1="{ml}" y1="{float(Y(0.0)):.1f}" x2="{ml + pw}" y2="{float(Y(0.0)):.1f}" stroke="#444"/>')
-    if kind == "bar":
-        bw = max(1.0, 0.7 * pw / max(len(xa), 1))
-        for xi, yi in zip(xa, yv):
-            y0, y1 = sorted((float(Y(0.0)), float(Y(yi))))
-            parts.append(f'<rect x="{float(X(xi)) - bw / 2:.1f}" y="{y0:.1f}" width="{bw:.1f}" height="{max(y1 - y0, 0.5):.1f}" '
-                         f'fill="{"#3b6fb6" if yi >= 0 else "#c0504d"}"/>')
-    elif kind == "points":
-        parts += [f'<circle cx="{float(X(a)):.1f}" cy="{float(Y(b)):.1f}" r="2.5" fill="#3b6fb6"/>' for a, b in zip(xa, yv)]
-    else:
-        pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(X(xa), Y(yv)))
-        parts.append(f'<polyline points="{pts}" fill="none" stroke="#3b6fb6" stroke-width="1.5"/>')
-    parts.append(f'<text x="{ml + pw / 2:.1f}" y="{height - 8}" text-anchor="middle">{esc(xlabel)}</text>')
-    parts.append(f'<text x="14" y="{mt + ph / 2:.1f}" text-anchor="middle" transform="rotate(-90 14 {mt + ph / 2:.1f})">{esc(ylabel)}</text>')
-    parts.append("</svg>")
-    return "".join(parts)
+    v, f = cluster_decimate(vertices, faces, max_faces)
+    v32 = np.ascontiguousarray(v, dtype="<f4")
+    f32 = np.ascontiguousarray(f, dtype="<u4")
+    return {"vertices_b64": base64.b64encode(v32.tobytes()).decode("ascii"), "faces_b64": base64.b64encode(f32.tobytes()).decode("ascii"),
+            "n_vertices": int(len(v32)), "n_faces": int(len(f32)), "n_faces_measured": int(len(faces)),
+            "extent_um": [float(x) for x in (np.ptp(v, axis=0) if len(v) else np.zeros(3))]}
