@@ -52,10 +52,17 @@ def cmd_import(args: argparse.Namespace) -> int:
     try:
         out = import_folder(args.folder, args.output, masks=args.masks, angles=args.angles, cameras=args.cameras,
                             pixel_origin=args.pixel_origin, roi_offset=tuple(args.roi_offset) if args.roi_offset else None,
-                            config=cfg, force=args.force, progress=lambda d, t: bar.update(d, t), length_unit=args.length_unit)
+                            config=cfg, force=args.force, progress=lambda d, t: bar.update(d, t), length_unit=args.length_unit,
+                            pixel_size_um=args.pixel_size_um, name=args.name)
     finally:
         bar.close()
     print(f"wrote {out}")
+    from vastcal.importer import pixel_size_known
+    from vastcal.session import Session
+
+    with Session.open(out) as s:
+        if not pixel_size_known(s.plan):
+            print("pixel size unknown - measurements in pixels (give --pixel-size-um UM or --config RIG.yaml to measure in mm)")
     return 0
 
 
@@ -341,10 +348,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "or a YAML file of those fields, or a screen's manifest (YAML or CSV) with an entry for this session")
     s.set_defaults(func=cmd_acquire)
 
-    s = sub.add_parser("import", help="make a session from a folder of images")
-    s.add_argument("folder", help="folder of images (tif, png, ppm, jpg), natural sort order")
+    s = sub.add_parser("import", help="make a session from a folder of images or a stack file (multi-page TIFF, OME-TIFF)")
+    s.add_argument("folder", help="folder of images (tif, png, ppm, jpg; natural sort order), or one stack file (multi-page TIFF, "
+                                  "OME-TIFF, ImageJ hyperstack: one view per page)")
     s.add_argument("-o", "--output", required=True, help="session file to create (.h5)")
-    s.add_argument("--masks", help="folder of silhouettes, one per image")
+    s.add_argument("--name", help="specimen name for the report and the screen table (default: the folder's or stack file's name)")
+    s.add_argument("--masks", help="folder of silhouettes, one per image, or a stack file of them")
     s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: uniform over 360)")
     s.add_argument("--cameras", help="known cameras: a 'name + 12 numbers (P)' or 'name + K(9) R(9) t(3)' file, or a folder of .pa files")
     s.add_argument("--length-unit", choices=("nm", "um", "mm", "cm", "m"), default=None,
@@ -352,7 +361,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "else unknown: measurements in units of the cameras)")
     s.add_argument("--pixel-origin", type=float, default=0.0,
                    help="coordinate --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at integers), 1 (1-based, MATLAB); default 0")
-    s.add_argument("--roi-offset", type=int, nargs=2, metavar=("X", "Y"), help="offset of the images on the sensor, px (default from --config, else 0 0)")
+    s.add_argument("--roi-offset", type=int, nargs=2, metavar=("X", "Y"),
+                   help="offset of cropped images on the sensor, px (default: --config's camera.roi when its size is the images', else 0 0)")
+    s.add_argument("--pixel-size-um", type=float, metavar="UM",
+                   help="pixel pitch on the specimen, um; overrides --config and the files' metadata (OME PhysicalSizeX, ImageJ/TIFF "
+                        "resolution). Without any of them the pixel size is unknown and measurements are in pixels")
     s.add_argument("--config", help="rig description YAML for the optics (pixel size, focal length, principal point)")
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")
     s.set_defaults(func=cmd_import)

@@ -16,7 +16,8 @@
   ``ResolutionUnit`` centimetre or inch; and view angles from OME (see :func:`_ome_angles`).
 
 A baseline TIFF's resolution is usually a print resolution that no microscope wrote (72 dpi is 353 µm
-per pixel): a pixel size outside :data:`PLAUSIBLE_PIXEL_UM` is not taken as the specimen's (logged).
+per pixel): a pixel size outside :data:`PLAUSIBLE_PIXEL_UM` (per inch: above :data:`MAX_INCH_PIXEL_UM`) is
+not taken as the specimen's (logged).
 """
 
 from __future__ import annotations
@@ -42,11 +43,15 @@ TIFF_SUFFIXES = (".tif", ".tiff")
 STORED_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
 """Pixel types a session stores (vastcal.session: N x H x W[x 3] uint8 or uint16)."""
 
-PLAUSIBLE_PIXEL_UM = (1e-3, 1e3)
+PLAUSIBLE_PIXEL_UM = (1e-3, 100.0)
 """Range of specimen-plane pixel sizes taken from a file's metadata, µm: from 1 nm (beyond any light
-microscope's resolution) to 1 mm (a macro lens at well under 0.01x on a 5 µm sensor). The resolution tags
-of files that were never given one (72, 96, 300 dpi: 85 to 353 µm) mostly fall outside it; an inch-based
-resolution is taken only inside it too."""
+microscope's resolution) to 100 µm (a 3.5 mm larva would span 35 pixels: no longer microscopy)."""
+
+MAX_INCH_PIXEL_UM = 20.0
+"""Largest pixel taken from a resolution given per *inch*, µm (1270 dpi). Software that was never told a pixel
+size writes a print or screen resolution in inches (72, 96, 300, 600, 1200 dpi: 353 to 21 µm); microscope
+software writes centimetres (or OME / ImageJ units), so an inch-based value is taken only beyond any print
+resolution."""
 
 _UNIT_ALIASES = {"micron": "um", "microns": "um", "micrometer": "um", "micrometre": "um", "µm": "um", "μm": "um",
                  "\\u00b5m": "um", "nanometer": "nm", "nanometre": "nm", "millimeter": "mm", "millimetre": "mm",
@@ -86,8 +91,8 @@ def is_tiff(path: Path) -> bool:
     return path.suffix.lower() in TIFF_SUFFIXES
 
 
-def _plausible(px: tuple[float, float], source: str, path: Path) -> ImageMetadata:
-    lo, hi = PLAUSIBLE_PIXEL_UM
+def _plausible(px: tuple[float, float], source: str, path: Path, hi: float = PLAUSIBLE_PIXEL_UM[1]) -> ImageMetadata:
+    lo = PLAUSIBLE_PIXEL_UM[0]
     if all(np.isfinite(v) and lo <= v <= hi for v in px):
         return ImageMetadata(pixel_size_um=(float(px[0]), float(px[1])), pixel_size_source=source)
     log.info("%s: %s says %.4g x %.4g um per pixel, outside %g..%g um: not taken as the specimen's pixel size",
@@ -190,7 +195,7 @@ def tiff_metadata(tif: Any, path: Path, n_views: int) -> ImageMetadata:
         elif unit_code == 3:
             meta = _plausible((px * 1e4, py * 1e4), "TIFF XResolution (centimetre)", path)
         elif unit_code == 2 and tags.get("ResolutionUnit") is not None:
-            meta = _plausible((px * 25400.0, py * 25400.0), "TIFF XResolution (inch)", path)
+            meta = _plausible((px * 25400.0, py * 25400.0), "TIFF XResolution (inch)", path, MAX_INCH_PIXEL_UM)
     return ImageMetadata(meta.pixel_size_um, meta.pixel_size_source, angles, "OME MapAnnotation" if angles is not None else "")
 
 

@@ -28,6 +28,8 @@ def session_summary(path: str | Path) -> dict[str, Any]:
             "frame_shape": list(s.frame_shape),
             "dtype": str(s.dtype),
             "pixel_size_um": list(s.pixel_size_um),
+            # images imported without a pixel size (vastcal.importer.UNKNOWN_PIXEL_SIZE): the stored 1 um is nominal
+            "pixel_size_known": str(s.plan.get("pixel_size_source", "")) != "unknown",
             "roi_offset_px": list(s.roi_offset_px),
             "angles_deg": [round(float(a), 4) for a in angles],
             "exit_status": s.exit_status,
@@ -80,8 +82,10 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"uid          {summary['uid']}",
         f"status       {status}",
         f"views        {summary['views']}" + (f" of {planned} planned" if planned is not None else ""),
-        f"frames       {shape} {summary['dtype']} (H x W[ x C]), pixel {summary['pixel_size_um'][0]:g} x {summary['pixel_size_um'][1]:g} um, "
-        f"ROI offset {summary['roi_offset_px'][0]}, {summary['roi_offset_px'][1]} px",
+        f"frames       {shape} {summary['dtype']} (H x W[ x C]), "
+        + (f"pixel {summary['pixel_size_um'][0]:g} x {summary['pixel_size_um'][1]:g} um, " if summary.get("pixel_size_known", True) else
+           "pixel size unknown - measurements in pixels (import again with --pixel-size-um or --config), ")
+        + f"ROI offset {summary['roi_offset_px'][0]}, {summary['roi_offset_px'][1]} px",
         "angles       " + (f"{len(a)} commanded, {a[0]:g} .. {a[-1]:g} deg" + (f", step {a[1] - a[0]:.4f} deg" if len(a) > 1 else "") if a else "none"),
         f"masks        {'yes' if summary['masks'] else 'no'}; known cameras {'yes' if summary['known_cameras'] else 'no'}",
     ]

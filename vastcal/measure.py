@@ -316,12 +316,14 @@ class Measurement:
         area_u = f" ± {u['U_area_mm2']:.3f}" if u.get("U_area_mm2") is not None else ""
         k = f" (k = {u.get('k', 2):g})" if u else ""
         lb = " - a LOWER BOUND (specimen cut by the frame)" if lower else ""
-        if self.provenance.get("length_unit") == "unknown":  # the cameras' world unit is not known: no mm, no µm
+        if self.provenance.get("length_unit") in ("unknown", "px"):  # the world's unit is not known: no mm, no µm
+            wu, why = (("px", "pixel size unknown - measurements in pixels: import with --pixel-size-um or --config")
+                       if self.provenance.get("length_unit") == "px" else
+                       ("(units of the cameras)", "the cameras' length unit is unknown: give it with 'vastcal import --length-unit'"))
             return "\n".join([
-                f"volume        {self.volume_mm3 * UM3_PER_MM3:.6g} (units of the cameras)^3{lb} (voxels inside all {self.n_views} silhouettes; "
-                "the cameras' length unit is unknown: give it with 'vastcal import --length-unit')",
-                f"surface area  {self.surface_area_mm2 * UM2_PER_MM2:.6g} (units of the cameras)^2{lb} (smoothed mesh)",
-                f"voxel size    {self.voxel_size_um:.6g} (units of the cameras), {self.n_inside_voxels} voxels inside"])
+                f"volume        {self.volume_mm3 * UM3_PER_MM3:.6g} {wu}^3{lb} (voxels inside all {self.n_views} silhouettes; {why})",
+                f"surface area  {self.surface_area_mm2 * UM2_PER_MM2:.6g} {wu}^2{lb} (smoothed mesh)",
+                f"voxel size    {self.voxel_size_um:.6g} {wu}, {self.n_inside_voxels} voxels inside"])
         lines = [f"volume        {self.volume_mm3:.4f}{vol_u} mm^3{k}{lb} (voxels inside all {self.n_views} silhouettes: the value to cite; "
                  f"the smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3, a diagnostic)",
                  f"surface area  {self.surface_area_mm2:.3f}{area_u} mm^2{k}{lb} (smoothed mesh, {self.mesh.n_faces} triangles)",

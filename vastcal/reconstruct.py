@@ -768,6 +768,8 @@ def cameras_in_um(P: np.ndarray, unit: str) -> tuple[np.ndarray, str]:
     then labels its numbers "(units of the cameras)".
     """
     scale = LENGTH_UNITS_UM.get(unit)
+    if unit == "px":  # images imported without a pixel size: the world is in specimen-plane pixels (measured in px)
+        return P, "px"
     if scale is None:
         return P, "unknown"
     return P @ np.diag([1.0 / scale, 1.0 / scale, 1.0 / scale, 1.0]), unit

@@ -31,7 +31,8 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
     """K (stored-frame pixels, 0-based), d (world units), θ0 (degrees) and notes for a session.
 
     ``notes["length_unit"]`` is the world's unit: ``um`` on a rig, the imported cameras' ``length_unit``
-    attribute otherwise (``unknown`` when the import could not tell; measurements are then in units of the cameras).
+    attribute otherwise (``unknown`` when the import could not tell; measurements are then in units of the cameras),
+    ``px`` for images imported without a pixel size (specimen-plane pixels; measured as an unknown unit).
 
     Imported known cameras are decomposed (:func:`vastcal.geometry.decompose_circular`): K, d, yaw,
     pitch and γ come from them; otherwise K comes from the rig optics shifted by the stored ROI
@@ -58,8 +59,11 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
     rx, ry = session.roi_offset_px
     h, w = session.frame_shape[:2]
     K = intrinsics_from_optics(cfg.optics, RoiConfig(rx, ry, w, h))
+    # An import whose pixel size nobody gave (plan pixel_size_source "unknown", vastcal.importer.UNKNOWN_PIXEL_SIZE) has
+    # optics in specimen-plane pixels: its world, and every measurement, is in pixels, not µm.
+    unit = "px" if str(session.plan.get("pixel_size_source", "")) == "unknown" else "um"
     return K, float(cfg.optics.working_distance_um), np.concatenate([[0.0, 0.0, 0.0], angles]), {"camera_source": "rig optics + ROI offset",
-                                                                                                  "length_unit": "um"}
+                                                                                                  "length_unit": unit}
 
 
 def calibrate_session(path_or_session: str | Path | Session, *, method: Method | None = None, seed: int | None = None,
