@@ -1,18 +1,28 @@
 """The ``vastcal`` command line: a thin shell over library functions.
 
-Every command maps to one function a Python user can call directly. Errors that are the
-user's or the device's (any :class:`~vastcal.errors.VastcalError`) end in one line on stderr and
-a non-zero exit code (2 for bad input); so do resources running out (memory: exit 1; disk
-space: exit 1). Only bugs show a traceback.
+Every command maps to one function a Python user can call directly. Every error ends in one line
+on stderr, never a traceback (``-v`` shows the traceback of an unanticipated one), and one exit-code
+table (:data:`vastcal.errors.EXIT_CODES`, printed by ``vastcal --help``) holds for every command:
+0 ok, 1 failure, 2 bad input, 3 incomplete, 130 interrupted (Ctrl-C).
 
 SIGINT (Ctrl-C), SIGTERM and SIGHUP all take the Ctrl-C path: ``acquire`` stops the motor and
-closes the session with status ``abort``; other commands stop at once. The exit code is
-128 + the signal number (130, 143, 129).
+closes the session with status ``abort``; other commands stop at once. Ctrl-C exits 130 in every
+phase of every command; SIGTERM and SIGHUP exit 128 + their number (143, 129), as a shell reports
+a process they ended, so that a scheduler can tell its own stop from an operator's Ctrl-C.
+
+A reader of stdout that goes away (``vastcal info S.h5 | head -1``) ends the command quietly with
+exit 0: the reader took what it wanted. (The code would otherwise depend on a race: whether the
+reader closed the pipe before or after the last write.)
+
+Arguments are checked before any device moves or long work starts; existing outputs are refused
+(exit 2, naming the file and ``--force``) unless ``--force`` is given. Third-party log lines
+(OpenCV, h5py, Dask) are silenced unless ``-vv`` (``-vvv`` for h5py's and OpenCV's own debug).
 """
 
 from __future__ import annotations
 
 import argparse
+import difflib
 import errno
 import json
 import logging
@@ -23,11 +33,11 @@ import sys
 import threading
 import traceback
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, NoReturn, Sequence
 
 from vastcal import __version__
 from vastcal.allocator import keep_large_blocks
-from vastcal.errors import UserInputError, VastcalError
+from vastcal.errors import EXIT_BAD_INPUT, EXIT_CODES, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, UserInputError, VastcalError
 from vastcal.outputs import check_output_file, check_output_folder
 from vastcal.progress import ProgressLine, evaluations_callback
 
@@ -245,24 +255,69 @@ def _view_image_arg(option: str, spec: str | None) -> Any:
     return int(view), read_image(Path(file))
 
 
+def _calibration_run_arg(args: argparse.Namespace) -> str | None:
+    """The calibration run a stage uses: ``run_NNN``, ``"imported"`` (the session's imported cameras) or None (the latest).
+
+    Raises:
+        UserInputError: both --calibration-run and --cameras imported, or a run that is not a number / run_NNN.
+    """
+    spec = getattr(args, "calibration_run", None)
+    if getattr(args, "cameras", "calibrated") == "imported":
+        if spec is not None:
+            raise UserInputError("give --calibration-run N or --cameras imported, not both")
+        return "imported"
+    if spec is None:
+        return None
+    m = re.fullmatch(r"(?:run_)?(\d+)", spec.strip())
+    if not m:
+        raise UserInputError(f"--calibration-run: expected a run number (e.g. 2) or run_NNN (e.g. run_002), got {spec!r}")
+    return f"run_{int(m.group(1)):03d}"
+
+
+REPORT_FILES = ("report.html", "report.json", "report.csv")
+"""Files of a report folder whose presence means an earlier report is there."""
+
+
+def check_report_folder(path: str | Path, *, force: bool, option: str = "-o") -> Path:
+    """A folder a report may be written into: writable, and holding no earlier report unless ``force``.
+
+    Raises:
+        UserInputError: not a folder, or not writable.
+        OutputExistsError: an earlier report's file is there and ``force`` is not given.
+    """
+    from vastcal.errors import OutputExistsError
+
+    out = check_output_folder(path, option=option)
+    if not force:
+        for name in REPORT_FILES:
+            if (out / name).exists():
+                raise OutputExistsError(f"{out / name}: file exists (an earlier report); pass --force to overwrite the report in {out}")
+    return out
+
+
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    """vastcal reconstruct S.h5 [--voxel-size UM] [--masks] [--mesh OUT.ply|.stl]"""
+    """vastcal reconstruct S.h5 [--voxel-size UM] [--masks] [--mesh OUT.ply|.stl [--force]] [--calibration-run N | --cameras imported]"""
     _check_session_arg(args.session)
+    run = _calibration_run_arg(args)
+    if args.mesh:
+        if Path(args.mesh).suffix.lower() not in (".ply", ".stl"):
+            raise UserInputError(f"{args.mesh}: --mesh: expected a file ending in .ply or .stl")
+        check_output_file(args.mesh, force=args.force, option="--mesh")
+    from vastcal.pipeline import check_camera_choice
     from vastcal.reconstruct import reconstruct_session
 
-    if args.mesh:
-        check_output_file(args.mesh, force=True, option="--mesh")
-    m = reconstruct_session(args.session, voxel_size_um=args.voxel_size, use_masks=args.masks, mesh_path=args.mesh)
+    check_camera_choice(args.session, run)
+    m = reconstruct_session(args.session, calibration_run=run, voxel_size_um=args.voxel_size, use_masks=args.masks, mesh_path=args.mesh)
     print(m.summary() if hasattr(m, "summary") else m)
     return 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    """vastcal report S.h5 -o DIR"""
+    """vastcal report S.h5 -o DIR [--force]"""
     _check_session_arg(args.session)
     from vastcal.report import write_report
 
-    check_output_folder(args.output)
+    check_report_folder(args.output, force=args.force)
     _check_session_opens(args.session)
     path = write_report(args.session, args.output)
     print(f"wrote {path}")
@@ -270,15 +325,29 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """vastcal run S.h5 [-o DIR]: calibrate → reconstruct → report on a recorded session."""
+    """vastcal run S.h5 [-o DIR] [--force] [--cameras imported] [--keep-runs N]: calibrate → reconstruct → report."""
     _check_session_arg(args.session)
-    from vastcal.pipeline import run_session
+    from vastcal.pipeline import check_camera_choice, default_report_dir, run_session
 
-    if args.output:
-        check_output_folder(args.output)
-        _check_session_opens(args.session)
-    out = run_session(args.session, args.output, method=args.method, seed=args.seed, quiet=args.quiet, starts=args.starts)
-    print(out.summary())
+    out = Path(args.output) if args.output else default_report_dir(args.session)
+    check_report_folder(out, force=args.force, option="-o" if args.output else "the default report folder")
+    _check_session_opens(args.session)
+    check_camera_choice(args.session, "imported" if args.cameras == "imported" else None)
+    res = run_session(args.session, out, method=args.method, seed=args.seed, quiet=args.quiet, starts=args.starts,
+                      cameras=args.cameras, keep_runs=args.keep_runs)
+    print(res.summary())
+    return 0
+
+
+def cmd_prune(args: argparse.Namespace) -> int:
+    """vastcal prune S.h5 --keep N [--dry-run]: delete all but the newest N runs of every stage (crash safe)."""
+    _check_session_arg(args.session)
+    from vastcal.pipeline import prune_runs
+
+    removed = prune_runs(args.session, keep=args.keep, dry_run=args.dry_run)
+    verb = "would delete" if args.dry_run else "deleted"
+    for stage, names in removed.items():
+        print(f"{stage:<15}{verb} {len(names)}" + (f": {', '.join(names)}" if names else ""))
     return 0
 
 
@@ -315,25 +384,103 @@ def cmd_demo(args: argparse.Namespace) -> int:
     """vastcal demo [-o DIR]: acquire from the simulated rig, then run."""
     from vastcal.pipeline import demo
 
-    check_output_folder(args.output)
+    out = check_output_folder(args.output)
     _check_views(args.views)
+    check_output_file(out / "demo.h5", force=args.force)
+    check_report_folder(out / "report", force=args.force, option="-o")
     out = demo(args.output, views=args.views, force=args.force, quiet=args.quiet)
     print(out.summary())
     return 0
 
 
+def _did_you_mean(word: str, choices: Sequence[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` (difflib), else ``""``."""
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors suggest the closest command, choice or option (difflib), and whose
+    unknown options are reported by the subcommand's parser (its usage, not the top-level one)."""
+
+    def error(self, message: str) -> "NoReturn":  # type: ignore[override]
+        m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if m:
+            message += _did_you_mean(m.group(1), re.findall(r"'([^']*)'", m.group(2)))
+        super().error(message)
+
+    def option_strings(self) -> list[str]:
+        """Every long and short option this parser accepts."""
+        return [o for a in self._actions for o in a.option_strings]
+
+    def reject_unknown(self, extras: Sequence[str]) -> "NoReturn":
+        """Exit 2 with this parser's usage, naming the unknown arguments and the closest option to the first."""
+        first = next((e for e in extras if e.startswith("-")), extras[0])
+        hint = _did_you_mean(first.split("=", 1)[0], self.option_strings()) if first.startswith("-") else ""
+        self.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+
+
+def _int_in(lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an integer in [lo, hi] (``hi`` None: no upper bound), checked before any work starts."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < lo or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"expected an integer >= {lo}" + (f" and <= {hi}" if hi is not None else "") + f", got {v}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def _float_in(lo: float, *, inclusive: bool) -> Callable[[str], float]:
+    """An argparse type: a finite number ``> lo`` (``>= lo`` when ``inclusive``)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (v == v and abs(v) != float("inf")) or v < lo or (v == lo and not inclusive):
+            raise argparse.ArgumentTypeError(f"expected a finite number {'>=' if inclusive else '>'} {lo:g}, got {text}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def _exit_code_epilog() -> str:
+    """The exit-code table, for ``vastcal --help``."""
+    rows = "\n".join(f"  {code:<4} {what}" for code, what in EXIT_CODES.items())
+    return ("exit codes (every command):\n" + rows + "\n  (a closed stdout pipe, e.g. `vastcal info S.h5 | head -1`, exits 0)\n\n"
+            "Existing outputs are refused unless --force. Run 'vastcal COMMAND -h' for a command's options.")
+
+
+def _add_camera_choice(s: argparse.ArgumentParser) -> None:
+    """``--calibration-run N`` and ``--cameras calibrated|imported`` of a stage that uses cameras."""
+    s.add_argument("--calibration-run", default=None, metavar="N",
+                   help="the calibration run to use: its number (as in 'vastcal info') or run_NNN (default: the latest)")
+    s.add_argument("--cameras", choices=("calibrated", "imported"), default="calibrated",
+                   help="calibrated: a calibration run (default; the imported cameras when the session has none); imported: "
+                        "the cameras imported with the session (e.g. ETH/Middlebury ground truth), even when calibration runs exist")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every command."""
-    p = argparse.ArgumentParser(prog="vastcal", description="Acquire, calibrate and measure rotating-capillary microscope sessions.")
+    p = _Parser(prog="vastcal", description="Acquire, calibrate and measure rotating-capillary microscope sessions.",
+                epilog=_exit_code_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"vastcal {__version__}")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_Parser)
 
     s = sub.add_parser("demo", help="acquire from the simulated rig, calibrate, reconstruct and report")
     s.add_argument("-o", "--output", default="vastcal-demo", help="output folder (default: vastcal-demo)")
     s.add_argument("--views", type=int, default=None, help="views in the revolution (default: from config/simulated.yaml)")
-    s.add_argument("--force", action="store_true", help="overwrite an existing demo session")
+    s.add_argument("--force", action="store_true", help="overwrite an existing demo session and its report")
     s.set_defaults(func=cmd_demo)
 
     s = sub.add_parser("acquire", help="acquire one revolution into a session file")
@@ -380,39 +527,54 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=METHOD_CHOICES, default=None,
                    help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's objective as "
                         "published; vr: voxel residual baseline")
-    s.add_argument("--seed", type=int, default=None, help="random seed of CMA-ES (default from the rig config)")
+    s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None, help="random seed of CMA-ES (default from the rig config)")
     s.add_argument("--free", nargs="+", default=None, help="parameters to optimise: yaw pitch gamma rolls | all (default from the rig config)")
     s.add_argument("--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)")
     s.add_argument("--scribbles", help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background")
-    s.add_argument("--offset-scan", type=float, default=None, metavar="DEG",
+    s.add_argument("--offset-scan", type=_float_in(0.0, inclusive=True), default=None, metavar="DEG",
                    help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
                         "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)")
     s.add_argument("--fixed-views", default=None, metavar="VIEWS",
                    help="views whose roll stays at its commanded angle, 0-based: e.g. 10-35 or 0,3,5-7 (default: none)")
-    s.add_argument("--starts", type=int, default=1, metavar="S",
+    s.add_argument("--starts", type=_int_in(1, 100), default=1, metavar="S",
                    help="independent CMA-ES starts (seeds seed, seed+10, ...); the one of lowest cost is kept (default 1)")
     s.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("reconstruct", help="visual hull, volume (mm3) and surface area (mm2)")
     s.add_argument("session")
-    s.add_argument("--voxel-size", type=float, help="voxel edge in um (default: from the specimen extent)")
+    s.add_argument("--voxel-size", type=_float_in(0.0, inclusive=False), help="voxel edge in um (default: from the specimen extent)")
     s.add_argument("--masks", action="store_true", help="use the imported masks instead of the probability maps")
     s.add_argument("--mesh", help="also write the mesh (.ply or .stl)")
+    s.add_argument("--force", action="store_true", help="overwrite an existing --mesh file")
+    _add_camera_choice(s)
     s.set_defaults(func=cmd_reconstruct)
 
     s = sub.add_parser("report", help="report.json, report.csv and report.html of a session")
     s.add_argument("session")
     s.add_argument("-o", "--output", required=True, help="output folder")
+    s.add_argument("--force", action="store_true", help="overwrite the report files of an earlier report in that folder")
     s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("run", help="replay a recorded session: calibrate, reconstruct, report")
     s.add_argument("session")
-    s.add_argument("-o", "--output", help="report folder (default: beside the session)")
+    s.add_argument("-o", "--output", help="report folder (default: S-report beside the session)")
+    s.add_argument("--force", action="store_true", help="overwrite the report files of an earlier run in the report folder")
     s.add_argument("--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr")
-    s.add_argument("--seed", type=int, default=None)
-    s.add_argument("--starts", type=int, default=3, metavar="S",
+    s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None)
+    s.add_argument("--starts", type=_int_in(1, 100), default=3, metavar="S",
                    help="independent calibration starts; the one of lowest cost is kept (default 3)")
+    s.add_argument("--cameras", choices=("calibrated", "imported"), default="calibrated",
+                   help="calibrated: calibrate, then reconstruct with that run (default); imported: skip calibration and "
+                        "reconstruct with the session's imported cameras (e.g. ETH/Middlebury ground truth)")
+    s.add_argument("--keep-runs", type=_int_in(1), default=None, metavar="N",
+                   help="afterwards, delete all but the newest N runs of every stage from the session (default: keep all)")
     s.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("prune", help="delete old calibration/reconstruction/measurement runs from a session")
+    s.add_argument("session")
+    s.add_argument("--keep", type=_int_in(1), required=True, metavar="N", help="newest runs to keep of every stage")
+    s.add_argument("--dry-run", action="store_true", help="only list what would be deleted")
+    s.set_defaults(func=cmd_prune)
 
     s = sub.add_parser("batch", help="run many sessions on Dask; one measurements table per screen")
     s.add_argument("sessions", nargs="+", metavar="SESSIONS", help="session files, folders (every *.h5 below) or glob patterns")
@@ -438,6 +600,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--plate", default=None)
     s.add_argument("--well", default=None)
     s.set_defaults(func=cmd_annotate)
+    p.set_defaults(_commands=sub.choices)
     for sp in sub.choices.values():  # the global flags are accepted after the command too
         sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
         sp.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)")
@@ -481,10 +644,30 @@ def _quiet_unraisable(unraisable: Any) -> None:
     log.debug("ignored while releasing %r: %s", unraisable.object, unraisable.exc_value)
 
 
-EXIT_DAMAGED = 2
+EXIT_DAMAGED = EXIT_BAD_INPUT
 """Exit code when a session's contents are not what vastcal wrote (as for any bad input)."""
-EXIT_INTERNAL = 70
-"""Exit code of an error vastcal did not anticipate (BSD sysexits EX_SOFTWARE)."""
+EXIT_INTERNAL = EXIT_FAILURE
+"""Exit code of an error vastcal did not anticipate: a failure like any other (the one table has no code of its own for bugs)."""
+
+THIRD_PARTY_LOGGERS = ("h5py", "distributed", "dask", "tornado", "asyncio", "matplotlib", "PIL", "numexpr", "urllib3", "bokeh", "fsspec")
+"""Libraries whose log lines (INFO chatter, h5py's DEBUG) stay out of stderr unless ``-vv`` (``-vvv`` for their DEBUG)."""
+
+
+def _silence_third_party(verbose: int) -> None:
+    """Third-party noise off unless asked for: OpenCV's own warnings (``OPENCV_LOG_LEVEL``, set before cv2 is
+    imported; ``cv2.setLogLevel`` if it already is) and the log lines of :data:`THIRD_PARTY_LOGGERS`.
+    A level the user set in the environment (``OPENCV_LOG_LEVEL``) is kept."""
+    user_set = "OPENCV_LOG_LEVEL" in os.environ
+    if not user_set:
+        os.environ["OPENCV_LOG_LEVEL"] = "DEBUG" if verbose >= 3 else "ERROR"
+    if "cv2" in sys.modules and not user_set:
+        try:
+            sys.modules["cv2"].setLogLevel(5 if verbose >= 3 else 2)  # cv2.utils.logging: 2 ERROR, 5 DEBUG
+        except (AttributeError, TypeError):
+            pass
+    level = logging.WARNING if verbose < 2 else (logging.INFO if verbose == 2 else logging.DEBUG)
+    for name in THIRD_PARTY_LOGGERS:
+        logging.getLogger(name).setLevel(level)
 
 
 def _unexpected(exc: BaseException, args: argparse.Namespace) -> int:
@@ -517,6 +700,14 @@ def _say(line: str) -> None:
         pass
 
 
+def _stdout_to_devnull() -> None:
+    """Point stdout at /dev/null, so that the flush at exit raises no second BrokenPipeError (the Python docs' recipe)."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vastcal`` console script; returns the exit code.
 
@@ -524,7 +715,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     installs its own, gentler handlers); the previous handlers are restored on return.
     """
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras:  # the subcommand's usage, not the top-level one, and the closest option
+        args._commands[args.command].reject_unknown(extras)
+    _silence_third_party(args.verbose)
     level = max(logging.WARNING - 10 * args.verbose, logging.DEBUG)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     func: Callable[[argparse.Namespace], int] = args.func
@@ -537,6 +731,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     RECEIVED.clear()
     try:
         code = func(args)
+        sys.stdout.flush()  # a closed pipe shows here, not as "Exception ignored" at exit
         return 128 + RECEIVED[0] if RECEIVED and code != 0 else code
     except VastcalError as exc:
         _say(f"vastcal: error: {exc}")
@@ -546,11 +741,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         _say("vastcal: interrupted" + (f" by {signal.Signals(signum).name}" if signum != signal.SIGINT else ""))
         return 128 + signum
     except BrokenPipeError:  # the reader of stdout went away (`vastcal info S.h5 | head -3`): not an error of ours
-        try:
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
-        except (OSError, ValueError):
-            pass
-        return 128 + getattr(signal, "SIGPIPE", 13)
+        _stdout_to_devnull()
+        return EXIT_OK
     except Exception as exc:  # noqa: BLE001 — resources running out, else the last resort: one line (-v shows the traceback)
         what = _resource_exhausted(exc)
         if what is None:

@@ -5,8 +5,19 @@ from the builtin that best describes it, so callers may catch either
 (``except TimeoutError`` works for a stage that stopped answering).
 
 The command line turns any :class:`VastcalError` into one line on stderr and the
-exit code given by :attr:`VastcalError.exit_code`; a traceback is shown only for
-bugs (anything else).
+exit code given by :attr:`VastcalError.exit_code`; anything else also ends in one line
+(exit 1; ``-v`` shows its traceback).
+
+Exit codes (one table for every command; :data:`EXIT_CODES`)::
+
+    0    ok
+    1    failure: the work could not be done (device fault, analysis failed, disk full, a bug)
+    2    bad input: arguments, rig file, image folder, a damaged or foreign session; existing output without --force
+    3    incomplete: the session (or the work) is incomplete (``info`` on an aborted session, a stage
+         refused because the session lacks frames)
+    130  interrupted by Ctrl-C (SIGINT), in every phase of every command
+    128+N  stopped by another signal N (SIGTERM 143, SIGHUP 129): kept as a shell reports it, so a batch
+         scheduler or a service manager can tell its own kill from the operator's Ctrl-C
 
 Tree::
 
@@ -16,10 +27,10 @@ Tree::
     │   ├── ImportDataError(ValueError)image folder / camera file that cannot be imported
     │   └── OutputExistsError(FileExistsError) refusing to overwrite without --force
     ├── SessionError                   a session file that is not ours or is damaged
-    │   ├── NotASessionError(ValueError)   not HDF5, truncated, or written by another program
-    │   ├── SessionIncompleteError         frames missing / acquisition did not finish
+    │   ├── NotASessionError(ValueError)   not HDF5, truncated, or written by another program: exit code 2
+    │   ├── SessionIncompleteError         frames missing / acquisition did not finish: exit code 3
     │   ├── SessionBusyError(BlockingIOError) another process is writing the same file
-    │   └── SessionCorruptError            a stored frame does not match its checksum
+    │   └── SessionCorruptError            a stored frame does not match its checksum: exit code 2
     ├── DeviceError                    hardware (or simulated hardware) misbehaved
     │   ├── DeviceTimeoutError(TimeoutError)  no (complete) answer within the finite wait
     │   ├── ProtocolError(IOError)     garbage, wrong checksum, reply that does not parse
@@ -38,6 +49,26 @@ Tree::
 
 from __future__ import annotations
 
+EXIT_OK = 0
+"""The command did what was asked."""
+EXIT_FAILURE = 1
+"""The work could not be done (a device fault, an analysis that cannot proceed, resources, a bug)."""
+EXIT_BAD_INPUT = 2
+"""Bad input: arguments, configuration, images, a damaged session, an existing output without ``--force``."""
+EXIT_INCOMPLETE = 3
+"""The session (or the work) is incomplete."""
+EXIT_INTERRUPTED = 130
+"""Interrupted by Ctrl-C (128 + SIGINT)."""
+
+EXIT_CODES: dict[int, str] = {
+    EXIT_OK: "ok",
+    EXIT_FAILURE: "failure",
+    EXIT_BAD_INPUT: "bad input (arguments, files, existing output without --force)",
+    EXIT_INCOMPLETE: "incomplete (session or work)",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C); another stop signal N gives 128+N (SIGTERM 143, SIGHUP 129)",
+}
+"""The exit-code table every command follows (printed in ``vastcal --help``)."""
+
 
 class VastcalError(Exception):
     """Base of every error vastcal raises on purpose.
@@ -45,7 +76,7 @@ class VastcalError(Exception):
     ``exit_code`` is what the command line exits with when this error ends a command.
     """
 
-    exit_code: int = 1
+    exit_code: int = EXIT_FAILURE
 
     def about(self, source: object) -> "VastcalError":
         """The same error, its message prefixed with ``source`` (e.g. the session file) unless it names it.
@@ -69,7 +100,7 @@ class VastcalError(Exception):
 class UserInputError(VastcalError):
     """The user gave input that cannot be used (raised before anything is written)."""
 
-    exit_code = 2
+    exit_code = EXIT_BAD_INPUT
 
 
 class ConfigError(UserInputError, ValueError):
@@ -94,9 +125,13 @@ class SessionError(VastcalError):
 class NotASessionError(SessionError, ValueError):
     """The file is not HDF5, is truncated, or is an HDF5 file that vastcal did not write."""
 
+    exit_code = EXIT_BAD_INPUT
+
 
 class SessionIncompleteError(SessionError):
     """The session lacks frames or metadata a stage needs (e.g. acquisition was interrupted)."""
+
+    exit_code = EXIT_INCOMPLETE
 
 
 class SessionBusyError(SessionError, BlockingIOError):
@@ -105,6 +140,8 @@ class SessionBusyError(SessionError, BlockingIOError):
 
 class SessionCorruptError(SessionError):
     """A committed frame no longer matches the CRC-32 recorded when it was written."""
+
+    exit_code = EXIT_BAD_INPUT
 
 
 class DeviceError(VastcalError):
@@ -154,7 +191,7 @@ class CameraError(DeviceError):
 class AcquisitionAborted(VastcalError):
     """The operator cancelled the acquisition (Ctrl-C); the session is closed with status abort."""
 
-    exit_code = 130
+    exit_code = EXIT_INTERRUPTED
 
 
 class AnalysisError(VastcalError, ValueError):

@@ -63,14 +63,89 @@ class RunSummary:
         return "\n".join(lines)
 
 
+def default_report_dir(session: str | Path) -> Path:
+    """Where ``vastcal run S.h5`` writes its report without ``-o``: ``S-report`` beside the session."""
+    path = Path(session)
+    return path.with_name(path.stem + "-report")
+
+
+def check_camera_choice(session: str | Path, calibration_run: str | None) -> None:
+    """Check, before any work, that the cameras a stage is asked to use exist in the session.
+
+    Args:
+        calibration_run: ``run_NNN``, ``"imported"`` (the imported cameras) or None (the latest run, else the imported cameras).
+
+    Raises:
+        UserInputError: no such calibration run (the message lists the runs), or no imported cameras.
+    """
+    from vastcal.errors import UserInputError
+    from vastcal.session import Session
+
+    if calibration_run is None:
+        return
+    with Session.open(session) as s:
+        if calibration_run == "imported":
+            if s.known_cameras is None:
+                raise UserInputError(f"{session}: --cameras imported: the session holds no imported cameras "
+                                     "(import them with 'vastcal import --cameras'), drop --cameras to use a calibration run")
+            return
+        runs = s.stages_run().get("calibration", [])
+        if calibration_run not in runs:
+            raise UserInputError(f"{session}: --calibration-run: no calibration run {calibration_run} (runs: {', '.join(runs) or 'none'})")
+
+
+def _run_number(name: str) -> int:
+    """The number of ``run_NNN`` (names sort by it, also past run_999)."""
+    digits = name.rsplit("_", 1)[-1]
+    return int(digits) if digits.isdigit() else -1
+
+
+def prune_runs(session: str | Path, *, keep: int, dry_run: bool = False) -> dict[str, list[str]]:
+    """Delete all but the newest ``keep`` runs of every stage (calibration, reconstruction, measurement).
+
+    Crash safe: the runs are deleted in the session's copy-on-write copy, which replaces the file in one
+    rename when the session closes (a kill before that leaves the file exactly as it was). The images are
+    never touched. HDF5 does not shrink a file in place; the copy holds the freed space as free space
+    (``h5repack`` compacts it).
+
+    Returns:
+        Per stage, the names of the deleted (``dry_run``: to be deleted) runs, oldest first.
+
+    Raises:
+        UserInputError: ``keep`` < 1.
+        NotASessionError, SessionBusyError: as :meth:`Session.open` and its writer lock.
+    """
+    from vastcal.errors import UserInputError
+    from vastcal.session import STAGE_GROUPS, VASTCAL, Session
+
+    if keep < 1:
+        raise UserInputError(f"--keep: expected at least 1 run to keep, got {keep}")
+    removed: dict[str, list[str]] = {}
+    with Session.open(session, mode="r" if dry_run else "a") as s:
+        runs = s.stages_run()
+        for stage in STAGE_GROUPS:
+            names = sorted(runs.get(stage, []), key=_run_number)
+            removed[stage] = names[:-keep] if len(names) > keep else []
+        if not dry_run and any(removed.values()):
+            f = s._staged()  # the copy-on-write path every stage stores its results through
+            for stage, names in removed.items():
+                for name in names:
+                    del f[VASTCAL][stage][name]
+            log.info("%s: pruned %s", session, {k: len(v) for k, v in removed.items()})
+    return removed
+
+
 def run_session(session: str | Path, report_dir: str | Path | None = None, *, method: str | None = None, seed: int | None = None,
-                quiet: bool = False, starts: int = 3, prior_from: str | Path | None = None,
-                truth_path: Path | None = None) -> RunSummary:
+                quiet: bool = False, starts: int = 3, cameras: str = "calibrated", keep_runs: int | None = None,
+                truth_path: Path | None = None, prior_from: str | Path | None = None) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
     Args:
         session: the session file (acquired or imported).
         report_dir: where the report goes (default: ``<session stem>-report`` beside the session).
+        cameras: ``calibrated`` (calibrate, then reconstruct with that new run) or ``imported`` (no
+            calibration: reconstruct with the session's imported cameras).
+        keep_runs: afterwards, delete all but the newest ``keep_runs`` runs of every stage (:func:`prune_runs`).
         method: ``coherence``, ``pi`` or ``vr`` (default: the stored rig configuration's, normally coherence).
         seed: CMA-ES seed of the first start (default from the stored rig configuration).
         starts: independent calibration starts (seeds seed, seed + 10, …); the one of lowest cost is kept,
@@ -84,20 +159,25 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     from vastcal.reconstruct import reconstruct_session
     from vastcal.report import write_report
 
+    if cameras not in ("calibrated", "imported"):
+        raise ValueError(f"cameras must be 'calibrated' or 'imported', got {cameras!r}")
     path = Path(session)
-    out = Path(report_dir) if report_dir is not None else path.with_name(path.stem + "-report")
+    out = Path(report_dir) if report_dir is not None else default_report_dir(path)
     res = RunSummary(path, out)
-    bar = ProgressLine(f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})", "evaluations", enabled=not quiet)
+    calibration_run: str | None = "imported"
+    if cameras == "calibrated":
+        bar = ProgressLine(f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})", "evaluations", enabled=not quiet)
+        t = time.monotonic()
+        try:
+            cal = calibrate_session(path, method=method, seed=seed, starts=starts, prior_from=prior_from,
+                                    progress=evaluations_callback(bar))
+        finally:
+            bar.close()
+        res.timings_s["calibrate"] = time.monotonic() - t
+        res.calibration = _calibration_digest(cal)
+        calibration_run = getattr(cal, "run", None)  # the run just stored, when the result names it; else the latest
     t = time.monotonic()
-    try:
-        cal = calibrate_session(path, method=method, seed=seed, starts=starts, prior_from=prior_from,
-                                progress=evaluations_callback(bar))
-    finally:
-        bar.close()
-    res.timings_s["calibrate"] = time.monotonic() - t
-    res.calibration = _calibration_digest(cal)
-    t = time.monotonic()
-    m = reconstruct_session(path)
+    m = reconstruct_session(path, calibration_run=calibration_run)
     res.timings_s["reconstruct"] = time.monotonic() - t
     res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)
     res.uncertainty = dict(getattr(m, "uncertainty", None) or {})
@@ -110,6 +190,8 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     t = time.monotonic()
     write_report(path, out, truth=res.truth)
     res.timings_s["report"] = time.monotonic() - t
+    if keep_runs is not None:
+        prune_runs(path, keep=keep_runs)
     return res
 
 

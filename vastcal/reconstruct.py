@@ -695,7 +695,8 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
     """Cameras and silhouettes of an open :class:`~vastcal.session.Session`.
 
     Cameras: the calibration run ``calibration_run`` (default: the latest), else the imported
-    known cameras. Silhouettes: the imported masks when ``use_masks``; otherwise the colour
+    known cameras; ``calibration_run="imported"``: the imported cameras, even when runs exist.
+    Silhouettes: the imported masks when ``use_masks``; otherwise the colour
     model's foreground probability maps of the calibration run (float32, soft: a voxel is inside
     when the bilinearly sampled p ≥ 0.5, :data:`FOREGROUND_THRESHOLD`; made within ``memory_mb`` and held
     compactly, :func:`session_specimen_maps`), falling back to imported masks when there is no colour model.
@@ -707,7 +708,10 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
     """
     path = session.path
     cal = None
-    if calibration_run is not None:
+    if calibration_run == "imported":  # the imported cameras even when calibration runs exist (``--cameras imported``)
+        if session.known_cameras is None:
+            raise UserInputError(f"{path}: the session holds no imported cameras (import them with 'vastcal import --cameras')")
+    elif calibration_run is not None:
         cal = session.result("calibration", calibration_run)
         if cal is None:
             runs = session.stages_run().get("calibration", [])

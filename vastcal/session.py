@@ -1021,9 +1021,8 @@ class Session:
         f = self._staged()
         g = f[VASTCAL].require_group(stage)
         g.attrs["schema_version"] = SCHEMA_VERSION
-        name = f"run_{len(g):03d}"
-        while name in g:
-            name = f"run_{int(name[4:]) + 1:03d}"
+        numbers = [int(k[4:]) for k in g if k.startswith("run_") and k[4:].isdigit()]
+        name = f"run_{max(numbers, default=-1) + 1:03d}"  # after the newest, also once older runs were pruned
         run = g.create_group(name)
         run.attrs["time"] = _now()
         run.attrs["versions"] = json.dumps(software_versions())

@@ -63,13 +63,13 @@ def test_resource_exhaustion_is_one_line_naming_what_ran_out(monkeypatch: pytest
     assert _one_line(capsys.readouterr().err).startswith(expected)
 
 
-def test_other_os_errors_are_bugs_one_line_exit_70_and_their_traceback_with_v(monkeypatch: pytest.MonkeyPatch,
+def test_other_os_errors_are_bugs_one_line_exit_1_and_their_traceback_with_v(monkeypatch: pytest.MonkeyPatch,
                                                                                capsys: pytest.CaptureFixture[str]) -> None:
     def failing(args: object) -> int:
         raise OSError(errno.EBADF, "Bad file descriptor")
 
     monkeypatch.setattr(cli, "cmd_info", failing)
-    assert cli.main(["info", "S.h5"]) == cli.EXIT_INTERNAL
+    assert cli.main(["info", "S.h5"]) == cli.EXIT_INTERNAL == 1
     err = capsys.readouterr().err
     assert "internal error" in err and "-v" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
     with pytest.raises(OSError):
@@ -156,12 +156,12 @@ def test_output_checks_accept_what_may_be_written(tmp_path: Path) -> None:
     assert (tmp_path / "S.h5").read_bytes() == b"old"
 
 
-def test_a_closed_stdout_pipe_ends_quietly_with_141(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_closed_stdout_pipe_ends_quietly_with_0(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     def reader_gone(args: object) -> int:
         raise BrokenPipeError(errno.EPIPE, "Broken pipe")  # as print() raises under `vastcal info S.h5 | head -1`
 
     monkeypatch.setattr(cli, "cmd_info", reader_gone)
-    assert cli.main(["info", "S.h5"]) == 128 + 13
+    assert cli.main(["info", "S.h5"]) == 0  # the reader took what it wanted (vastcal.cli's docstring)
     assert "Traceback" not in capsys.readouterr().err
 
 
