@@ -62,6 +62,49 @@ def _angle_errors(theta: np.ndarray, true_rolls: np.ndarray) -> tuple[float, flo
     return float(np.mean(np.abs(err))), float(np.max(np.abs(err)))
 
 
+SCAN_DEG = np.array([-0.4, -0.2, -0.1, 0.0, 0.1, 0.2, 0.4])
+
+
+def _view_scans(truth: np.ndarray) -> list[np.ndarray]:
+    """θ at the truth with one roll (views 1..N-1) moved by each nonzero offset of SCAN_DEG (degrees)."""
+    out = []
+    for v in range(1, truth.size - 3):
+        for o in SCAN_DEG[SCAN_DEG != 0]:
+            t = truth.copy()
+            t[3 + v] += o
+            out.append(t)
+    return out
+
+
+def _print_view_minima(costs: np.ndarray, at_truth: float, cut: np.ndarray | None) -> None:
+    """Each view's own 1-D cost minimum along its roll (the others at the truth), by a parabola through the lowest
+    scan sample and its neighbours: where the judge cost itself puts that view, relative to its true angle."""
+    full = np.insert(costs, int(np.flatnonzero(SCAN_DEG == 0)[0]), at_truth, axis=1)
+    mins = []
+    for c in full:
+        k = int(np.clip(np.argmin(c), 1, len(c) - 2))
+        x, y = SCAN_DEG[k - 1: k + 2], c[k - 1: k + 2]
+        a, b, _ = np.polyfit(x, y, 2)
+        mins.append(float(np.clip(-b / (2 * a), SCAN_DEG[0], SCAN_DEG[-1])) if a > 0 else float(SCAN_DEG[np.argmin(c)]))
+    m = np.abs(np.asarray(mins))
+    print(f"{'':15s} each view's own cost minimum (others at the truth), views 1..N-1: mean |offset| {m.mean():.3f}°, "
+          f"max {m.max():.3f}° (scan ±{SCAN_DEG[-1]}°); offsets {np.round(mins, 2).tolist()}")
+    if cut is not None:
+        c = cut[1:]
+        print(f"{'':15s} views cut by the frame: {np.flatnonzero(cut).tolist()}; mean |offset| cut {m[c].mean():.3f}°, "
+              f"whole {m[~c].mean():.3f}°")
+
+
+def _cut_views(session: Path) -> np.ndarray:
+    """(N,) bool: the object (max channel > 0.19 of full scale, Middlebury's threshold) reaches the frame edge."""
+    from vastcal.session import Session
+    with Session.open(session) as ss:
+        imgs = ss.projections()
+    fg = (imgs.max(axis=-1) if imgs.ndim == 4 else imgs) > 0.19 * 255
+    border = np.concatenate([fg[:, 0, :], fg[:, -1, :], fg[:, :, 0], fg[:, :, -1]], axis=1)
+    return border.sum(axis=1) > 20
+
+
 def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], starts: int, at_truth: bool = False) -> None:
     if name == "david":
         folder = DATA / "eth_david"
@@ -82,8 +125,9 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
         for seed in seeds:
             settings = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
             t = time.perf_counter()
+            scan = _view_scans(truth) if at_truth else []
             r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                                  settings=settings, starts=starts, score_thetas=[truth])
+                                  settings=settings, starts=starts, score_thetas=[truth] + scan)
             wall = time.perf_counter() - t
             mean, mx = _angle_errors(r.theta_deg, true_rolls)
             print(f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
@@ -92,6 +136,9 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
             e0 = (theta0[3:] - theta0[3]) - (true_rolls - true_rolls[0])  # the start's error (0 or 10°), view 0 the reference
             worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
             print(f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}")
+            if at_truth:
+                _print_view_minima(np.asarray(r.scored_costs[1:]).reshape(len(true_rolls) - 1, len(SCAN_DEG) - 1), r.scored_costs[0],
+                                   _cut_views(s) if name == "dino" else None)
 
 
 def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) -> None:

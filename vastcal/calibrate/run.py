@@ -133,7 +133,8 @@ class CalibrationSettings:
             judged cost is kept. Each costs a full run.
         restarts: CMA-ES restarts within every level (:func:`.optimise.minimise`): ``"none"``, ``"ipop"`` or
             ``"bipop"``; with restarts a level spends its whole ``max_evaluations`` (restarts until it is used).
-            Measured on ETH David (``benchmarks/calibrate_restarts.py``): see docs/calibration.md.
+            Off by default: on ETH David at equal evaluations (``benchmarks/calibrate_restarts.py``) it did not lower
+            the angle error — the levels' default budgets end on ``maxfevals``, so the first run takes them all.
         polish: after the starts, a per-view compass search of every free roll on the judge cost
             (:func:`polish_rolls`), steps ``polish_steps_deg`` (degrees, largest first).
         memory_mb: memory budget, MB: the photometric yaw uses as many views (evenly spread) as fit in it
@@ -621,7 +622,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     scored = judge(np.stack([np.asarray(t, float) for t in score_thetas])).tolist() if len(score_thetas) else []
     eval_time += time.monotonic() - t_j
     cma_stops = [rep["stop"] for r in runs for rep in r.reports]
-    level_converged = all(not any(k in ("maxfevals", "maxiter") for k in st) for st in cma_stops)
+    level_converged = all(not any(k.rsplit(": ", 1)[-1] in ("maxfevals", "maxiter") for k in st) for st in cma_stops)  # "run k (...): reason" with restarts
     converged = bool(polished["converged"])
     why = ("per-view polish: no roll move of ± the smallest step lowers the cost by 1e-4 of it" if converged and settings.polish
            else "per-view polish ran out of sweeps" if settings.polish else "no polish; CMA-ES stops " + "; ".join(",".join(s) for s in cma_stops))
