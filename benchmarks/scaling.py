@@ -6,7 +6,12 @@ and 360 views on the rig's 1024 × 320 ROI, and one full 1024 × 1024 frame case
 reconstructs them (``reconstruct_session``), each step in a fresh process so that its peak memory is
 its own. Prints wall time, evaluations, time per evaluation, peak memory (ru_maxrss of the process) and
 yaw / pitch errors against the simulator's truth (S.truth.json), then the growth exponent b of
-time ≈ a·N^b fitted over the ROI cases (b = 1: linear).
+time ≈ a·N^b (and of peak memory) fitted over the ROI cases (b = 1: linear), and issue 20's acceptance
+figures: time(81) / time(21) of calibration (≤ 4.5), the 360-view calibration's wall time (≤ 5 min) and
+peak memory (≤ 2 GB, calibration and reconstruction), yaw / pitch errors at 81 and 360 views against 21.
+The memory budgets are the rig file's ``calibration.memory_mb`` and ``reconstruction.memory_mb``.
+CPU is shared on the development machine: ``uptime`` is printed before and after; compare ratios within
+one run, and run with OPENBLAS_NUM_THREADS=1.
 
 Sessions are cached in ``--workdir`` (default /tmp/vastcal_scaling) and reused, each step's log is
 written next to its session (``*.calibrate.log``); the full run is long
@@ -14,6 +19,7 @@ written next to its session (``*.calibrate.log``); the full run is long
 
     python benchmarks/scaling.py --views 21 81            # the acceptance ratio time(81) / time(21)
     python benchmarks/scaling.py --views 21 41 81 161 360 --full-frame 21
+    python benchmarks/scaling.py --views --full-frame 360    # the 360-view full-frame session
     python benchmarks/scaling.py --views 360 --no-reconstruct
 """
 
@@ -120,6 +126,13 @@ def _run_step(step: str, views: int, full: bool, seed: int, workdir: Path) -> di
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _uptime() -> str:
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
+    except OSError:
+        return f"load average {os.getloadavg()[0]:.2f}"
+
+
 def _exponent(n: list[int], t: list[float]) -> float:
     if len(n) < 2:
         return float("nan")
@@ -147,7 +160,8 @@ def main() -> None:
         return
     cases = [(v, False) for v in a.views] + [(v, True) for v in a.full_frame]
     load = os.getloadavg()[0]
-    print(f"rig seed {a.seed}, {os.cpu_count()} CPUs, load average {load:.1f} at start", flush=True)
+    print(f"rig seed {a.seed}, {os.cpu_count()} CPUs, load average {load:.1f} at start; OPENBLAS_NUM_THREADS="
+          f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}\nuptime at start: {_uptime()}", flush=True)
     hdr = (f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} "
            f"{'pitch err':>9} {'roll rms':>8} | {'rec s':>6} {'rec cpu':>7} {'rec MB':>6} {'vol %':>6}")
     rows = []
@@ -172,7 +186,8 @@ def main() -> None:
     n = [r["views"] for r in roi]
     fits = []
     for key, name in (("cal_s", "calibration wall"), ("cal_cpu_s", "calibration CPU"), ("ms_per_eval", "per evaluation"),
-                      ("rec_s", "reconstruction wall"), ("rec_cpu_s", "reconstruction CPU")):
+                      ("cal_mb", "calibration memory"), ("rec_s", "reconstruction wall"), ("rec_cpu_s", "reconstruction CPU"),
+                      ("rec_mb", "reconstruction memory")):
         if roi and all(key in r for r in roi):
             fits.append(f"{name} b = {_exponent(n, [r[key] for r in roi]):.2f}")
     print(f"growth exponent (time ~ N^b over {n} views): " + ", ".join(fits))
@@ -180,8 +195,22 @@ def main() -> None:
     if 21 in by_n and 81 in by_n:
         ratios = [f"{name} {by_n[81][key] / by_n[21][key]:.2f}" for key, name in (("cal_s", "calibration wall"), ("cal_cpu_s", "calibration CPU"),
                                                                                   ("rec_s", "reconstruction wall")) if key in by_n[21]]
-        print("time(81) / time(21): " + ", ".join(ratios))
-    print(f"load average at end {os.getloadavg()[0]:.1f}")
+        print("time(81) / time(21): " + ", ".join(ratios) + " (acceptance: calibration <= 4.5)")
+    for r in rows:
+        if r["views"] != 360:
+            continue
+        frame = "full frame" if r["full"] else "ROI"
+        if "cal_s" in r:
+            print(f"360 views ({frame}): calibration {r['cal_s']:.0f} s wall (<= 300), {r['cal_mb']:.0f} MB peak (<= 2048)")
+        if "rec_s" in r:
+            print(f"360 views ({frame}): reconstruction {r['rec_s']:.0f} s wall, {r['rec_mb']:.0f} MB peak (<= 2048)")
+    if 21 in by_n and "cal_s" in by_n[21]:
+        for v in (81, 360):
+            if v in by_n and "cal_s" in by_n[v]:
+                ok = abs(by_n[v]["yaw_err"]) <= abs(by_n[21]["yaw_err"]) and abs(by_n[v]["pitch_err"]) <= abs(by_n[21]["pitch_err"])
+                print(f"|yaw|, |pitch| error at {v} views: {abs(by_n[v]['yaw_err']):.3f}°, {abs(by_n[v]['pitch_err']):.3f}° against "
+                      f"{abs(by_n[21]['yaw_err']):.3f}°, {abs(by_n[21]['pitch_err']):.3f}° at 21 ({'not larger' if ok else 'LARGER'})")
+    print(f"uptime at end: {_uptime()}")
 
 
 if __name__ == "__main__":
