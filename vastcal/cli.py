@@ -71,7 +71,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     from vastcal.session import Session
 
     with Session.open(out) as s:
-        if not pixel_size_known(s.plan):
+        if not pixel_size_known(s.plan) and s.known_cameras is None:
             print("pixel size unknown - measurements in pixels (give --pixel-size-um UM or --config RIG.yaml to measure in mm)")
     return 0
 

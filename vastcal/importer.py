@@ -362,7 +362,8 @@ the same perspective as the VAST rig's 65 mm working distance and 5.5 µm pixels
 
 
 def pixel_size_known(plan: dict[str, object]) -> bool:
-    """False for an imported session whose pixel size is unknown (its measurements are in pixels)."""
+    """False for an imported session whose pixel size is unknown: its measurements are in pixels, unless it was
+    imported with cameras (their world unit, ``length_unit``, then sets the scale)."""
     return str(plan.get("pixel_size_source", "")) != UNKNOWN_PIXEL_SIZE
 
 

@@ -84,6 +84,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"views        {summary['views']}" + (f" of {planned} planned" if planned is not None else ""),
         f"frames       {shape} {summary['dtype']} (H x W[ x C]), "
         + (f"pixel {summary['pixel_size_um'][0]:g} x {summary['pixel_size_um'][1]:g} um, " if summary.get("pixel_size_known", True) else
+           "pixel size unknown (the imported cameras set the scale), " if summary["known_cameras"] else
            "pixel size unknown - measurements in pixels (import again with --pixel-size-um or --config), ")
         + f"ROI offset {summary['roi_offset_px'][0]}, {summary['roi_offset_px'][1]} px",
         "angles       " + (f"{len(a)} commanded, {a[0]:g} .. {a[-1]:g} deg" + (f", step {a[1] - a[0]:.4f} deg" if len(a) > 1 else "") if a else "none"),

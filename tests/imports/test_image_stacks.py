@@ -210,6 +210,18 @@ def test_a_crop_without_its_offset_names_roi_offset(tmp_path: Path) -> None:
     import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt", roi_offset=(0, 490))
     with Session.open(tmp_path / "s.h5") as s:
         assert s.roi_offset_px == (0, 490)
+    assert "pixel size unknown (the imported cameras set the scale)" in format_summary(session_summary(tmp_path / "s.h5"))
+
+
+def test_zebrafish_crop_without_its_offset_names_roi_offset(zebrafish_dir: Path, tmp_path: Path) -> None:
+    """The zebrafish frames are rows 388-637 of the 1024 x 1024 sensor its cameras were given for."""
+    cams = zebrafish_dir / "authors_par_pi.txt"
+    with pytest.raises(ImportDataError, match=r"principal point at \(511.0, 511.0\) px, outside the 1024 x 250 px images.*--roi-offset X Y"):
+        import_folder(zebrafish_dir / "images", tmp_path / "a.h5", cameras=cams, pixel_origin=1)
+    import_folder(zebrafish_dir / "images", tmp_path / "b.h5", cameras=cams, pixel_origin=1,
+                  config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"), name="ZF1")
+    with Session.open(tmp_path / "b.h5") as s:
+        assert s.roi_offset_px == (0, 387) and s.pixel_size_um == pytest.approx((5.5, 5.5)) and _title(s) == "ZF1"
 
 
 def test_cli_import_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
