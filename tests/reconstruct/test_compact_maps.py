@@ -80,6 +80,7 @@ def test_sub_revolutions_are_interleaved_revolutions() -> None:
     assert len(groups) == 8 and all(len(g) == 45 and np.all(np.diff(g) == 8) for g in groups)
     assert np.array_equal(np.sort(np.concatenate(groups)), np.arange(360))
     assert [g.tolist() for g in sub_revolutions(21, 45)] == [list(range(21))]
+    assert [len(g) for g in sub_revolutions(360, 21, 21)] == [22] * 3 + [21] * 14  # 17 revolutions, none under 21 views
     assert map_group_views(21, 1024 * 1024, 256) == 21  # never fewer than a revolution of 21 views
     assert map_group_views(12, 1024 * 1024, 256) == 12
     assert 21 < map_group_views(360, 1024 * 320, 1536) < 360

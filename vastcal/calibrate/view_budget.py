@@ -104,11 +104,13 @@ def map_group_views(n_views: int, frame_pixels: int, memory_mb: float) -> int:
     return int(np.clip(k, min(n_views, MIN_MAP_VIEWS), max(n_views, 1)))
 
 
-def sub_revolutions(n_views: int, max_views: int) -> list[np.ndarray]:
+def sub_revolutions(n_views: int, max_views: int, min_views: int = 1) -> list[np.ndarray]:
     """Interleaved groups of view indices, each at most ``max_views`` long: views j, j + g, j + 2g, … for
-    j < g = ⌈N / max_views⌉. Views of a revolution stored in angle order make every group an evenly
-    spread revolution of its own; one group (all views) when they fit."""
+    j < g = ⌈N / max_views⌉ — but never so many groups that one holds fewer than ``min_views`` (when N has
+    them; the groups may then exceed ``max_views`` by less than ``min_views``). Views of a revolution stored
+    in angle order make every group an evenly spread revolution of its own; one group (all views) when they fit."""
     g = max(1, -(-int(n_views) // max(int(max_views), 1)))
+    g = max(1, min(g, int(n_views) // max(int(min_views), 1)))
     return [np.arange(j, n_views, g) for j in range(g)]
 
 
@@ -131,7 +133,7 @@ def grouped_specimen_maps(model: "ColourModel", read: Callable[[np.ndarray], np.
     from vastcal.calibrate.silhouettes import specimen_maps
 
     k = map_group_views(n_views, int(np.prod(frame_shape[:2])), memory_mb)
-    groups = sub_revolutions(n_views, k)
+    groups = sub_revolutions(n_views, k, min(n_views, MIN_MAP_VIEWS))
     if len(groups) > 1:
         log.info("specimen maps: %d views as %d interleaved revolutions of <= %d views (memory_mb %.0f)", n_views, len(groups), k, memory_mb)
     for views in groups:
