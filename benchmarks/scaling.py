@@ -21,6 +21,7 @@ written next to its session (``*.calibrate.log``); the full run is long
     python benchmarks/scaling.py --views 21 41 81 161 360 --full-frame 21
     python benchmarks/scaling.py --views --full-frame 360    # the 360-view full-frame session
     python benchmarks/scaling.py --views 360 --no-reconstruct
+    python benchmarks/scaling.py --map-bytes --views 21 --full-frame 21   # bytes per pixel of the specimen maps
 """
 
 from __future__ import annotations
@@ -114,6 +115,27 @@ def _step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[s
     raise SystemExit(f"unknown step {step}")
 
 
+def map_bytes_per_pixel(session: Path, views: int = 21) -> float:
+    """Peak bytes (tracemalloc: NumPy's and OpenCV's arrays) per frame pixel of one ``specimen_maps`` call on the
+    first ``views`` frames of a session, frames included: what view_budget.SPECIMEN_MAP_BYTES_PER_PIXEL states."""
+    import tracemalloc
+
+    from vastcal.calibrate.colour_model import fit_automatic
+    from vastcal.calibrate.silhouettes import specimen_maps
+    from vastcal.session import Session
+
+    with Session.open(session, "r") as s:
+        idx = s.projection_indices[:views]
+        frames = np.stack([s.frame(int(i)) for i in idx])
+    model = fit_automatic(frames)
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    specimen_maps(model, frames)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return (peak + frames.nbytes) / float(np.prod(frames.shape[:3]))
+
+
 def _run_step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[str, float]:
     cmd = [sys.executable, __file__, "--_step", step, "--_case", str(views), "--seed", str(seed), "--workdir", str(workdir)]
     if full:
@@ -147,6 +169,7 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/vastcal_scaling"))
     ap.add_argument("--no-reconstruct", action="store_true", help="calibrate only")
     ap.add_argument("--no-calibrate", action="store_true", help="reconstruct only (from the session's latest calibration)")
+    ap.add_argument("--map-bytes", action="store_true", help="only measure the specimen maps' bytes per frame pixel (21 views)")
     ap.add_argument("--_step")
     ap.add_argument("--_case", type=int)
     ap.add_argument("--_full", action="store_true")
@@ -159,6 +182,12 @@ def main() -> None:
         print(json.dumps(_step(a._step, a._case, a._full, a.seed, a.workdir)))
         return
     cases = [(v, False) for v in a.views] + [(v, True) for v in a.full_frame]
+    if a.map_bytes:
+        for views, full in cases or [(21, False)]:
+            _run_step("acquire", views, full, a.seed, a.workdir)
+            print(f"{views} views, {'full frame' if full else 'ROI'}: specimen maps hold {map_bytes_per_pixel(_session(a.workdir, views, full, a.seed)[0]):.1f} "
+                  "bytes per frame pixel at their peak (21 views)")
+        return
     load = os.getloadavg()[0]
     print(f"rig seed {a.seed}, {os.cpu_count()} CPUs, load average {load:.1f} at start; OPENBLAS_NUM_THREADS="
           f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}\nuptime at start: {_uptime()}", flush=True)

@@ -88,8 +88,10 @@ def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxe
 
 #: Bytes per frame pixel that :func:`.silhouettes.specimen_maps` holds while it maps a stack: features,
 #: contrast, log-posterior and posterior, the copies of its three clean-up rules (float32 each), their
-#: masks, and the frames themselves. Measured (benchmarks/scaling.py, tracemalloc peak of one call on the
-#: simulated rig's 1024 × 320 Mono12 frames): see the README's "Many views".
+#: masks, and the frames themselves. Measured: 36 bytes (tracemalloc peak of one call on 21 Mono12 frames of
+#: the simulated rig, 1024 × 320 and 1024 × 1024 alike: ``python benchmarks/scaling.py --map-bytes --views 21
+#: --full-frame 21``); 48 leaves room for OpenCV's own temporaries, which tracemalloc does not see (the
+#: process's resident memory grew by ~45 bytes a pixel mapping 45 views of a 360-view session).
 SPECIMEN_MAP_BYTES_PER_PIXEL = 48.0
 #: A sub-revolution never holds fewer views than this (when the session has them): the static-band and
 #: rigid-body rules of the specimen maps compare a revolution's views with each other.
