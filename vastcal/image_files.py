@@ -205,8 +205,11 @@ def _to_views(arr: np.ndarray, axes: str, path: Path, rgb_samples: bool) -> np.n
     if "Y" not in axes or "X" not in axes:
         raise ImportDataError(f"{path}: image axes {axes!r}; expected Y and X among them")
     colour = None
-    if "S" in axes and (rgb_samples or arr.shape[axes.index("S")] == 1):
+    if "S" in axes:  # samples of one pixel: colour (RGB) or grey with extra samples, never views
         colour = "S"
+        c = arr.shape[axes.index("S")]
+        if c > 1 and not rgb_samples:
+            raise ImportDataError(f"{path}: {c} samples per pixel that are not RGB (photometric interpretation); expected grey or RGB")
     elif "C" in axes and arr.shape[axes.index("C")] in (3, 4):
         colour = "C"
     view_axes = [a for i, a in enumerate(axes) if a not in ("Y", "X", colour) and arr.shape[i] > 1]
@@ -244,9 +247,8 @@ def tiff_frame_count(path: Path) -> int:
             warnings.simplefilter("ignore")
             with tifffile.TiffFile(path) as tif:
                 s = tif.series[0]
-                rgb = _rgb_samples(s)
                 shape = dict(zip(s.axes.upper(), s.shape))
-                colour = "S" if "S" in shape and rgb else ("C" if shape.get("C") in (3, 4) else None)
+                colour = "S" if "S" in shape else ("C" if shape.get("C") in (3, 4) else None)
                 n = 1
                 for a, v in shape.items():
                     if a not in ("Y", "X", colour):

@@ -1,12 +1,25 @@
-"""Make a session from a folder of images recorded elsewhere (``vastcal import``).
+"""Make a session from images recorded elsewhere (``vastcal import``).
 
 Inputs, all but the images optional:
 
-* images — ``.tif/.tiff/.png/.ppm/.pgm/.jpg/.jpeg/.bmp`` in *natural* sort order
-  (``img2.png`` before ``img10.png``); all the same size and type; colour images are stored RGB.
-* masks — a folder with one silhouette per image (same order and size), nonzero = specimen.
+* images — one session per stack file or per folder (:func:`read_views`): a multi-page TIFF, OME-TIFF or
+  ImageJ hyperstack (every page of its view axis, read with ``tifffile``), or a folder of single
+  ``.tif/.tiff/.png/.ppm/.pgm/.jpg/.jpeg/.bmp`` images in *natural* sort order (``img2.png`` before
+  ``img10.png``), all the same size and type; a folder that mixes a stack with other files is refused.
+  Colour is stored RGB; 8- and 16-bit pixels as they are, floats scaled to uint16 over the range stated in
+  the start record (:mod:`vastcal.image_files`); NaN/inf pixels are refused naming the file.
+* pixel size — ``pixel_size_um`` (``--pixel-size-um``), else the rig description (``--config``), else the
+  file's metadata (OME ``PhysicalSizeX/Y``, ImageJ or TIFF resolution); a disagreement is logged. With none
+  of them the pixel size is *unknown*: ``plan/pixel_size_source = "unknown"``, the stored pitch (1) is nominal,
+  the rig cameras' world is in pixels and every measurement says so (:func:`pixel_size_known`).
+* name — the specimen's name (``/entry/title``; the report's and the screen table's ``specimen``): ``name``
+  (``--name``), default the folder's or stack file's name.
+* masks — a folder with one silhouette per image (same order and size), or a stack file; nonzero = specimen.
 * angles — a text file with one commanded angle (degrees) per view, or ``name angle`` lines;
-  default: uniform over 360° starting at 0°.
+  default: the stack's OME angles when it has them, else uniform over 360° starting at 0°.
+* crops — frames cut from a larger sensor need their offset (``roi_offset``, ``--roi-offset``): from the
+  config's ``camera.roi`` when its size is the images'; an import whose principal point (the cameras' or
+  the config's) falls outside the images, or whose config ROI is another size, is refused naming ``--roi-offset``.
 * cameras — known projection matrices, either one text file with ``name p11 … p34`` per line
   (12 numbers, row-major 3 × 4; the zebrafish authors' format) or a folder of ``*.pa`` files
   with one 3 × 4 matrix each (ETH's format). ``pixel_origin`` is the coordinate those cameras give to the
