@@ -234,3 +234,18 @@ def test_cli_import_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
         assert s.pixel_size_um == pytest.approx((0.8, 0.8)) and _title(s) == "L7"
     assert main(["-q", "import", str(tmp_path / "rev.tif"), "-o", str(tmp_path / "c.h5"), "--pixel-size-um", "-1"]) == 2
     assert "--pixel-size-um" in capsys.readouterr().err
+
+
+def test_a_world_in_pixels_is_measured_and_labelled_in_pixels() -> None:
+    from vastcal.measure import Measurement, MeasureSettings, Mesh
+    from vastcal.reconstruct import cameras_in_um
+
+    P = np.arange(24, dtype=float).reshape(2, 3, 4)
+    same, unit = cameras_in_um(P, "px")
+    assert unit == "px" and np.array_equal(same, P)
+    mesh = Mesh(np.zeros((3, 3)), np.array([[0, 1, 2]], np.int32))
+    m = Measurement(volume_mm3=2e-3, mesh_volume_mm3=2e-3, surface_area_mm2=3e-2, raw_surface_area_mm2=3e-2, n_inside_voxels=10,
+                    voxel_size_um=1.5, n_views=12, iso_level=11.5, settings=MeasureSettings(), mesh=mesh, provenance={"length_unit": "px"})
+    text = m.summary()
+    assert "volume        2e+06 px^3" in text and "surface area  30000 px^2" in text and "mm^3" not in text
+    assert "pixel size unknown - measurements in pixels" in text and "--pixel-size-um" in text
