@@ -505,7 +505,7 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         "volume_text": f"{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}", "area_text": f"{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}",
         "drift": drift, "drift_value": drift_value, "units_note": units_note,
         "truth": truth_rows(truth), "budget": budget, "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
-        "hull_bias": str(u.get("hull_bias", "")),
+        "hull_bias": str(u.get("hull_bias", ""))[:1].upper() + str(u.get("hull_bias", ""))[1:],
         "views": views, "n_flagged": sum(flagged), "frame_width": views[0]["width"] if views else 0,
         "frame_height": views[0]["height"] if views else 0, "agreement_uri": agreement_uri,
         "mesh": payload, "extent_text": " × ".join(f"{_num(x / 1000.0, '.2f')}" for x in ext) + " mm",

@@ -248,12 +248,18 @@ class ViewOverlay:
     height: int
 
 
-def outline_path(mask: np.ndarray, *, tolerance_px: float = 0.5) -> str:
-    """SVG path ``d`` of a mask's outer contours (pixel centres at +½, polygons simplified to ``tolerance_px``)."""
+def outline_path(mask: np.ndarray, *, tolerance_px: float = 0.3) -> str:
+    """SVG path ``d`` of a mask's outer contours: through the boundary pixels' centres (+½ in SVG coordinates),
+    smoothed along the contour (σ = 1 px) and simplified to ``tolerance_px``."""
     contours, _ = cv2.findContours(np.ascontiguousarray(mask), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     parts = []
+    kernel = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # binomial, σ = 1 px along the contour: removes the pixel staircase
     for c in contours:
-        c = cv2.approxPolyDP(c, tolerance_px, True).reshape(-1, 2).astype(float) + 0.5
+        pts = c.reshape(-1, 2).astype(np.float32)
+        if len(pts) >= 8:
+            wrapped = np.concatenate([pts[-2:], pts, pts[:2]])
+            pts = np.stack([np.convolve(wrapped[:, k], kernel, mode="valid") for k in range(2)], 1).astype(np.float32)
+        c = cv2.approxPolyDP(pts.reshape(-1, 1, 2), tolerance_px, True).reshape(-1, 2).astype(float) + 0.5
         if len(c) < 2:
             continue
         parts.append("M" + " L".join(f"{x:.1f} {y:.1f}" for x, y in c) + " Z")

@@ -12,6 +12,7 @@
     if (!f) { return; }
     f.style.transform = "translate(" + tx + "px," + ty + "px) scale(" + sc + ")";
     f.querySelector("img").style.imageRendering = sc >= 2 ? "pixelated" : "auto";
+    f.querySelector("path").style.strokeWidth = String(1.5 / sc);  // 1.5 screen pixels at any zoom
     zoomLabel.textContent = Math.round(sc * 100) + " %";
   }
   function fit() {
