@@ -386,8 +386,10 @@ def store_measurement(group: "h5py.Group", m: Measurement) -> None:
     Attributes ``volume_mm3``, ``mesh_volume_mm3``, ``surface_area_mm2`` (plain floats, their
     units in ``<name>_units`` attributes and in the names), settings, timings and provenance;
     datasets ``volume_mm3`` and ``surface_area_mm2`` (scalars with a ``units`` attribute) and
-    the smoothed mesh ``mesh/vertices`` (µm, float32) and ``mesh/faces`` (int32).
+    the smoothed mesh ``mesh`` as an NXoff_geometry (:mod:`vastcal.nexus`): ``vertices`` (µm, float32),
+    ``winding_order`` (the triangles' vertex indices, int32) and ``faces`` (where each triangle starts in it).
     """
+    from vastcal.nexus import write_off_geometry
     from vastcal.session import write_attrs
 
     d = m.as_dict()
@@ -405,16 +407,15 @@ def store_measurement(group: "h5py.Group", m: Measurement) -> None:
                                ("surface_area_mm2", m.surface_area_mm2, "mm^2")):
         ds = group.create_dataset(name, data=float(value))
         ds.attrs["units"] = units
-    mg = group.create_group("mesh")
-    mg.create_dataset("vertices", data=m.mesh.vertices.astype(np.float32), compression="gzip", compression_opts=4)
-    mg["vertices"].attrs["units"] = "um"
-    mg.create_dataset("faces", data=m.mesh.faces.astype(np.int32), compression="gzip", compression_opts=4)
-    mg.attrs["orientation"] = "counter-clockwise seen from outside (outward normals)"
+    write_off_geometry(group.create_group("mesh"), m.mesh.vertices, m.mesh.faces,
+                       orientation="counter-clockwise seen from outside (outward normals)")
 
 
 def load_mesh(group: "h5py.Group") -> Mesh:
     """The mesh stored by :func:`store_measurement`."""
-    return Mesh(group["mesh"]["vertices"][...].astype(np.float64), group["mesh"]["faces"][...].astype(np.int32))
+    from vastcal.nexus import read_triangles
+
+    return Mesh(group["mesh"]["vertices"][...].astype(np.float64), read_triangles(group["mesh"]))
 
 
 # ---------------------------------------------------------------------------------------------

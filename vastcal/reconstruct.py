@@ -798,6 +798,7 @@ def store_reconstruction(group: "h5py.Group", hull: HullResult, inputs: Reconstr
     Stores the grid (origin µm, voxel size µm, shape), the counts volume (uint8 or uint16, gzip; see
     :class:`HullResult`), a summary and the settings; images are not touched.
     """
+    from vastcal.nexus import describe_hull
     from vastcal.session import write_attrs
 
     g = hull.grid
@@ -807,6 +808,7 @@ def store_reconstruction(group: "h5py.Group", hull: HullResult, inputs: Reconstr
     grid_ds = group.create_dataset("grid_origin_um", data=np.asarray(g.origin, float))
     grid_ds.attrs["units"] = "um"
     grid_ds.attrs["meaning"] = "world centre of voxel (0, 0, 0); voxel (i, j, k) at origin + (i, j, k) * voxel_size_um"
+    describe_hull(group, "counts", g.origin, g.size)  # NXdata: counts on x, y, z voxel-centre axes in µm
     hist = np.bincount(hull.counts.ravel(), minlength=hull.n_views + 1)
     write_attrs(group, {
         "voxel_size_um": float(g.size),

@@ -1,25 +1,31 @@
 """The session file: one HDF5 file per revolution, NeXus NXtomo core plus vastcal groups.
 
-Layout (``SCHEMA_VERSION`` 2)::
+Layout (``SCHEMA_VERSION`` 3)::
 
-    /                                 attrs: creator="vastcal", vastcal_session_version
-    /entry                 NXentry    definition="NXtomo", title, start_time, end_time
+    /                                 attrs: creator="vastcal", vastcal_session_version, default="entry"
+    /entry                 NXentry    definition="NXtomo", version=1.5 (NXtomo paths), title, start_time, end_time
       instrument/          NXinstrument
         detector/          NXdetector
-          data             (N, H, W[, 3]) uint8|uint16, one frame per chunk, growable
+          data             (N, H, W) uint8|uint16, one frame per chunk, growable; for RGB sessions the
+                           GREEN plane (attr channel="green"), red and blue in vastcal/colour
           image_key        (N,) int32   0 projection, 1 flat, 2 dark
           image_key_control(N,) int32   same (the nxtomo reader prefers it)
-          x_pixel_size     µm (attr units="um"), pixel pitch on the specimen (sensor pitch / magnification)
+          x_pixel_size     µm (attr units="um"): the sensor's own (physical) pixel pitch, when known
           y_pixel_size     µm
           count_time       (N,) s, exposure read back
       sample/              NXsample
         rotation_angle     (N,) degree — the **commanded** angle of every frame
-      data/                NXdata       links to data, rotation_angle, image_key
+        x_pixel_size       µm: the effective pixel on the specimen (sensor pitch / magnification);
+        y_pixel_size       µm  what reconstruction and measurement use
+      data/                NXdata       signal data, axes [rotation_angle, ., .]; links to data,
+                                        rotation_angle, image_key
       vastcal/             NXcollection attrs: schema_version
         rig                string: the resolved rig YAML
         plan               attrs: views, usteps_per_revolution, …
+        colour/            RGB sessions only: red, blue (N, H, W) planes like data; green = a hard
+                           link to the detector data (no byte stored twice)
         views/             per-view table, one growable column per quantity, each with units,
-                           including frame_crc32 (CRC-32 of the frame bytes)
+                           including frame_crc32 (CRC-32 of the frame bytes, H x W [x 3] interleaved)
         committed_views    (1,) int: views 0 .. n-1 are complete (the commit record)
         start              attrs: uid, time, host, versions, …
         stop_record        JSON: exit_status (success|abort|fail), reason, views_written, time;
@@ -29,6 +35,20 @@ Layout (``SCHEMA_VERSION`` 2)::
         cameras/           optional known cameras: P (N, 3, 4), 0-based pixels of the stored frames
         geometry           attrs: roi_x, roi_y (offset of the stored frames on the sensor, px)
         calibration/run_NNN, reconstruction/run_NNN, measurement/run_NNN   later stages
+                           (a reconstruction run is an NXdata of the silhouette counts on x, y, z
+                           axes in µm; a measurement's mesh is an NXoff_geometry, see vastcal.nexus)
+
+Why RGB frames are stored as three planes: NXtomo's detector data is N x H x W (NeXus readers such
+as ``nxtomo`` refuse N x H x W x 3), so the green plane is the detector data — the channel a Bayer
+sensor samples twice and the one that carries most of the luminance — and red and blue sit beside it
+with the same chunking. Nothing is stored twice (a luminance plane beside the RGB frames would add a
+third to the file), vastcal's readers (:meth:`Session.frame`, :meth:`Session.projections`) put the
+planes back together, and a view's three planes are written before its commit record like any frame.
+
+Schema 2 (RGB frames N x H x W x 3 in the detector data; the effective pixel in
+``detector/x_pixel_size``, the sensor pitch in ``detector/real_x_pixel_size``) and schema 1 (no commit
+record, stop record as group attributes) are read as before; ``--resume`` and the copy a stage makes
+of a killed session rewrite them in the current layout.
 
 Crash consistency — what a kill at any instant can and cannot lose:
 
@@ -45,8 +65,6 @@ Crash consistency — what a kill at any instant can and cannot lose:
   replaces it in one rename (copy-on-write), so a kill while a run is stored loses that run only;
   the images are copied bit for bit.
 * One writer per path: a lock (``flock`` on ``.NAME.lock``) makes a second writer fail at once.
-
-Schema-1 sessions (no commit record, stop record as group attributes) are read as before.
 """
 
 from __future__ import annotations
@@ -76,11 +94,14 @@ from vastcal.session_files import PathLock, place_atomically
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 CREATOR = "vastcal"
 ENTRY = "/entry"
 DETECTOR = "/entry/instrument/detector"
 VASTCAL = "/entry/vastcal"
+NXTOMO_PATHS_VERSION = 1.5
+"""NXtomo paths version (``/entry@version``, a float as the nxtomo package reads it): 1.5 is the first
+with both the detector pixel (``detector/x_pixel_size``) and the effective one (``sample/x_pixel_size``)."""
 STAGE_GROUPS = ("calibration", "reconstruction", "measurement")
 STOP_RECORD_BYTES = 8192
 RESULTS_LOCK_TIMEOUT_S = 60.0
@@ -233,6 +254,10 @@ class SessionWriter:
         det, views = h5[DETECTOR], h5[VASTCAL]["views"]
         # Growable 1-D datasets written once per view, looked up once (hot path of acquisition).
         self._data = det["data"]
+        colour = h5[VASTCAL].get("colour")
+        # RGB: the planes written for each view, red, green (the detector data) and blue; None for mono.
+        self._planes = (colour["red"], self._data, colour["blue"]) if colour is not None else None
+        self._frame_shape = tuple(self._data.shape[1:]) + ((3,) if colour is not None else ())
         self._columns = {c.name: views[c.name] for c in VIEW_COLUMNS}
         self._keys = (det["image_key"], det["image_key_control"])
         self._count_time = det["count_time"]
@@ -332,7 +357,7 @@ class SessionWriter:
         entry = h5.create_group(ENTRY)
         entry.attrs["NX_class"] = "NXentry"
         entry.attrs["default"] = "data"
-        entry.attrs["version"] = 1.3  # NXtomo paths version, as the nxtomo package reads it (a float)
+        entry.attrs["version"] = NXTOMO_PATHS_VERSION
         entry["definition"] = "NXtomo"
         entry["title"] = title or "vastcal session"
         entry["start_time"] = _now()
@@ -341,19 +366,25 @@ class SessionWriter:
         inst.attrs["NX_class"] = "NXinstrument"
         det = inst.create_group("detector")
         det.attrs["NX_class"] = "NXdetector"
-        chunk = (1,) + frame_shape
-        d = det.create_dataset("data", shape=(0,) + frame_shape, maxshape=(None,) + frame_shape, dtype=dtype, chunks=chunk)
-        d.attrs["interpretation"] = "image"
+        rgb = len(frame_shape) == 3
+        plane = tuple(frame_shape[:2])  # NXtomo detector data is N x H x W: RGB frames are stored as planes
+
+        def planes(group: h5py.Group, name: str) -> h5py.Dataset:
+            ds = group.create_dataset(name, shape=(0,) + plane, maxshape=(None,) + plane, dtype=dtype, chunks=(1,) + plane)
+            ds.attrs["interpretation"] = "image"
+            return ds
+
+        d = planes(det, "data")
+        if rgb:
+            d.attrs["channel"] = "green"
+            d.attrs["long_name"] = "green plane of RGB frames (red and blue in /entry/vastcal/colour)"
         for name in ("image_key", "image_key_control"):
             det.create_dataset(name, shape=(0,), maxshape=(None,), dtype="i4", chunks=(1024,))
         ct = det.create_dataset("count_time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
         ct.attrs["units"] = "s"
-        for name, v in (("x_pixel_size", pixel_size_um[0]), ("y_pixel_size", pixel_size_um[1])):
-            det[name] = float(v)  # on the specimen: what reconstruction uses (NXtomo tools read it here)
-            det[name].attrs["units"] = "um"
-        if sensor_pixel_um is not None:
-            for name, v in (("real_x_pixel_size", sensor_pixel_um[0]), ("real_y_pixel_size", sensor_pixel_um[1])):
-                det[name] = float(v)  # the sensor's own pitch
+        if sensor_pixel_um is not None:  # the detector's own pixel (NXtomo >= 1.5); absent when the optics are not known
+            for name, v in (("x_pixel_size", sensor_pixel_um[0]), ("y_pixel_size", sensor_pixel_um[1])):
+                det[name] = float(v)
                 det[name].attrs["units"] = "um"
         sample = entry.create_group("sample")
         sample.attrs["NX_class"] = "NXsample"
@@ -365,7 +396,7 @@ class SessionWriter:
         data = entry.create_group("data")
         data.attrs["NX_class"] = "NXdata"
         data.attrs["signal"] = "data"
-        data.attrs["axes"] = ["rotation_angle"] + ["."] * len(frame_shape)  # viewers show angle, not frame index
+        data.attrs["axes"] = ["rotation_angle", ".", "."]  # viewers show angle, not frame index
         data.attrs["rotation_angle_indices"] = 0
         data["data"] = d
         data["rotation_angle"] = ra
@@ -375,6 +406,13 @@ class SessionWriter:
         vc.attrs["NX_class"] = "NXcollection"
         vc.attrs["schema_version"] = SCHEMA_VERSION
         vc["rig"] = rig_yaml
+        if rgb:
+            colour = vc.create_group("colour")
+            colour.attrs["NX_class"] = "NXcollection"
+            colour.attrs["meaning"] = "RGB frames as planes: frame i = stack(red[i], green[i], blue[i]) on the last axis"
+            planes(colour, "red")
+            colour["green"] = d  # a hard link: the detector data is the green plane
+            planes(colour, "blue")
         g = vc.create_group("plan")
         _set_attrs(g, plan)
         geo = vc.create_group("geometry")
@@ -442,10 +480,8 @@ class SessionWriter:
         history = src.resume_history() + ([ending] if ending else [])
         out = h5py.File(tmp, "w", libver="latest")
         try:
-            det_real = [h5[DETECTOR][k][()] for k in ("real_x_pixel_size", "real_y_pixel_size") if k in h5[DETECTOR]]
             cls._layout(out, src.frame_shape, src.dtype, src.rig_yaml, src.plan_raw(), src.pixel_size_um, src.roi_offset_px,
-                        _attr_str(h5[ENTRY]["title"][()]), {}, start_record=src.start_record_raw(),
-                        sensor_pixel_um=(float(det_real[0]), float(det_real[1])) if len(det_real) == 2 else None)
+                        _attr_str(h5[ENTRY]["title"][()]), {}, start_record=src.start_record_raw(), sensor_pixel_um=src.sensor_pixel_um)
             if history:
                 res = out[VASTCAL].create_group("resumed")
                 for k, rec in enumerate(history):
@@ -458,8 +494,11 @@ class SessionWriter:
             keys = det["image_key"][:n]
             origin = (0,) * (det["data"].ndim - 1)
             for i in range(n):
-                raw = det["data"].id.read_direct_chunk((i,) + origin)[1]
-                frame = np.frombuffer(raw, dtype=src.dtype).reshape(src.frame_shape)
+                if src.colour_planes is not None:  # planes as stored, stacked (unfiltered chunks: bit for bit)
+                    frame = src.frame(i)
+                else:
+                    raw = det["data"].id.read_direct_chunk((i,) + origin)[1]
+                    frame = np.frombuffer(raw, dtype=src.dtype).reshape(src.frame_shape)
                 cols = {c.name: table[c.name][i] for c in VIEW_COLUMNS if c.name in table and c.name != "frame_crc32"}
                 writer._write_view(i, frame, float(cols.pop("commanded_angle_deg")), int(keys[i]), cols)
             writer._set_committed(n)
@@ -487,8 +526,8 @@ class SessionWriter:
         fill value, e.g. ``readback_usteps=-1`` for imported images). Unknown names raise.
         """
         data = self._data
-        if frame.shape != data.shape[1:] or frame.dtype != data.dtype:
-            raise SessionError(f"{self.path}: a {frame.shape} {frame.dtype} frame does not fit this session's {data.shape[1:]} {data.dtype} "
+        if frame.shape != self._frame_shape or frame.dtype != data.dtype:
+            raise SessionError(f"{self.path}: a {frame.shape} {frame.dtype} frame does not fit this session's {self._frame_shape} {data.dtype} "
                                "frames (was the rig's ROI or pixel format changed?)")
         unknown = set(columns) - set(self._columns) | ({"frame_crc32"} & set(columns))
         if unknown:
@@ -528,10 +567,12 @@ class SessionWriter:
             _put(ds, i, image_key)
         _put(self._count_time, i, values["exposure_us"] * 1e-6)
         _put(self._angle, i, angle_deg)
-        # One frame = one chunk, written directly (no selection machinery, no conversion).
-        if self._data.shape[0] < i + 1:
-            self._data.resize((i + 1,) + self._data.shape[1:])
-        self._data.id.write_direct_chunk((i,) + (0,) * frame.ndim, np.ascontiguousarray(frame).tobytes())
+        # One frame (or one colour plane) = one chunk, written directly (no selection machinery, no conversion).
+        if self._planes is None:
+            _put_chunk(self._data, i, frame)
+        else:
+            for c, ds in enumerate(self._planes):
+                _put_chunk(ds, i, frame[..., c])
 
     def _set_committed(self, n: int) -> None:
         self._committed[0] = n
@@ -672,6 +713,10 @@ class Session:
         self.live = live  # opened in SWMR mode: a writer is at work, or was killed
         self._writable = writable
         vc = h5[VASTCAL]
+        self.version = int(h5.attrs.get("vastcal_session_version", 0))  # schema version of the file
+        colour = vc.get("colour")
+        self._planes: tuple[h5py.Dataset, h5py.Dataset, h5py.Dataset] | None = (
+            (colour["red"], h5[DETECTOR]["data"], colour["blue"]) if colour is not None else None)
         if "committed_views" in vc:
             self._n = int(vc["committed_views"][0])
         else:  # schema 1: every frame counts
@@ -724,6 +769,12 @@ class Session:
         data = h5[DETECTOR]["data"]
         if data.ndim not in (3, 4) or (data.ndim == 4 and data.shape[3] != 3) or data.dtype not in (np.uint8, np.uint16):
             raise NotASessionError(f"{p}: damaged session: frames are {data.shape} {data.dtype}; expected N x H x W[x 3] uint8 or uint16")
+        for c, plane in enumerate(self._planes or ()):
+            if not isinstance(plane, h5py.Dataset) or data.ndim != 3 or plane.shape[1:] != data.shape[1:] or plane.dtype != data.dtype \
+                    or plane.shape[0] < n:
+                shape = getattr(plane, "shape", "?")
+                raise NotASessionError(f"{p}: damaged session: colour plane {'RGB'[c]} is {shape}; expected {n} x {data.shape[1]} x {data.shape[2]} "
+                                       f"{data.dtype} like the detector data")
         if n < 0 or data.shape[0] < n:
             raise NotASessionError(f"{p}: damaged session: {n} committed views but {data.shape[0]} frames")
         angles = h5[ENTRY]["sample"]["rotation_angle"]
@@ -773,9 +824,8 @@ class Session:
         if "frame_crc32" not in views:
             return
         crc = views["frame_crc32"][: self._n]
-        data = self._h5[DETECTOR]["data"]
         for i in range(self._n):
-            if _frame_crc(data[i]) != int(crc[i]):
+            if _frame_crc(self.frame(i)) != int(crc[i]):
                 raise SessionCorruptError(f"{self.path}: view {i}: the frame does not match the CRC-32 written with it")
 
     def close(self) -> None:
@@ -827,8 +877,16 @@ class Session:
 
     @property
     def frame_shape(self) -> tuple[int, ...]:
-        """(H, W) or (H, W, 3)."""
-        return tuple(self._h5[DETECTOR]["data"].shape[1:])
+        """(H, W) or (H, W, 3) of the frames as :meth:`frame` returns them."""
+        return tuple(self._h5[DETECTOR]["data"].shape[1:]) + ((3,) if self._planes is not None else ())
+
+    @property
+    def colour_planes(self) -> tuple[h5py.Dataset, h5py.Dataset, h5py.Dataset] | None:
+        """The red, green and blue (N, H, W) planes of an RGB session (schema 3), else None.
+
+        Green is the detector data. Schema-2 RGB sessions keep (N, H, W, 3) frames and give None.
+        """
+        return self._planes
 
     @property
     def dtype(self) -> np.dtype:
@@ -849,21 +907,31 @@ class Session:
         """Frame ``i`` as stored."""
         if not 0 <= i < self._n:
             raise IndexError(f"{self.path}: view {i} out of range (0..{self._n - 1})")
+        if self._planes is not None:
+            out = np.empty(self.frame_shape, self.dtype)
+            for c, ds in enumerate(self._planes):
+                out[..., c] = ds[i]
+            return out
         return self._h5[DETECTOR]["data"][i]
 
     def projections(self) -> np.ndarray:
         """All projection frames (image_key 0), (N, H, W[, 3])."""
         idx = self.projection_indices
         data = self._h5[DETECTOR]["data"]
+        if self._planes is not None:
+            out = np.empty((len(idx),) + self.frame_shape, self.dtype)
+            for c, ds in enumerate(self._planes):
+                for k, i in enumerate(idx):
+                    out[k, ..., c] = ds[i]
+            return out
         if len(idx) == self._n:
             return data[: self._n]
         return np.stack([data[i] for i in idx]) if len(idx) else np.empty((0,) + data.shape[1:], data.dtype)
 
     def iter_frames(self) -> Iterator[np.ndarray]:
         """Committed frames one at a time (for memory-light readers)."""
-        data = self._h5[DETECTOR]["data"]
         for i in range(self._n):
-            yield data[i]
+            yield self.frame(i)
 
     @property
     def angles_deg(self) -> np.ndarray:
@@ -872,9 +940,18 @@ class Session:
 
     @property
     def pixel_size_um(self) -> tuple[float, float]:
-        """(x, y) pixel pitch on the specimen, µm."""
+        """(x, y) effective pixel pitch on the specimen, µm (``sample/x_pixel_size``; schema <= 2: the detector's)."""
+        g = self._h5[ENTRY]["sample"] if self.version >= 3 else self._h5[DETECTOR]
+        return float(g["x_pixel_size"][()]), float(g["y_pixel_size"][()])
+
+    @property
+    def sensor_pixel_um(self) -> tuple[float, float] | None:
+        """(x, y) pitch of the sensor's own pixels, µm, or None when not recorded."""
         det = self._h5[DETECTOR]
-        return float(det["x_pixel_size"][()]), float(det["y_pixel_size"][()])
+        names = ("x_pixel_size", "y_pixel_size") if self.version >= 3 else ("real_x_pixel_size", "real_y_pixel_size")
+        if not all(k in det for k in names):
+            return None
+        return float(det[names[0]][()]), float(det[names[1]][()])
 
     @property
     def roi_offset_px(self) -> tuple[int, int]:
@@ -1021,6 +1098,7 @@ class Session:
         f = self._staged()
         g = f[VASTCAL].require_group(stage)
         g.attrs["schema_version"] = SCHEMA_VERSION
+        g.attrs["NX_class"] = "NXcollection"  # NeXus readers look inside for the runs (a hull run is an NXdata)
         numbers = [int(k[4:]) for k in g if k.startswith("run_") and k[4:].isdigit()]
         name = f"run_{max(numbers, default=-1) + 1:03d}"  # after the newest, also once older runs were pruned
         run = g.create_group(name)
@@ -1078,6 +1156,13 @@ def _check_cameras(p: Path, where: str, ds: Any, n: int) -> None:
         det = np.linalg.det(P[:, :, :3])
     if not np.all(np.isfinite(det)) or np.any(np.abs(det) < 1e-300):
         raise NotASessionError(f"{p}: damaged session: {where} holds a degenerate camera (singular 3 x 3 block)")
+
+
+def _put_chunk(ds: h5py.Dataset, i: int, image: np.ndarray) -> None:
+    """Write ``image`` as chunk ``i`` of a dataset chunked one image per chunk, growing it if needed."""
+    if ds.shape[0] < i + 1:
+        ds.resize((i + 1,) + ds.shape[1:])
+    ds.id.write_direct_chunk((i,) + (0,) * image.ndim, np.ascontiguousarray(image).tobytes())
 
 
 def _put(ds: h5py.Dataset, i: int, value: Any) -> None:
