@@ -376,7 +376,7 @@ def truth_rows(truth: dict[str, Any] | None) -> list[dict[str, str]]:
 
 
 _PRETTY = (
-    (re.compile(r"(\d)\s*um\b"), "\\1 µm"), (re.compile(r"\bum\b"), "µm"),
+    (re.compile(r"(\d)\s*um\b"), "\\1 µm"), (re.compile(r"(?<!-)\bum\b"), "µm"),
     (re.compile(r"\bmm\^3\b"), "mm³"), (re.compile(r"\bmm\^2\b"), "mm²"),
     (re.compile(r"(\d)\s*deg\b"), "\\1°"), (re.compile(r"\bdeg\b"), "°"),
     (re.compile(r"\+-\s*"), "±"), (re.compile(r"\bsigma\b"), "σ"), (re.compile(r"\bsigma_"), "σ_"), (re.compile(r" x "), " × "),
@@ -498,11 +498,27 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
                ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
                ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s")]
     units_note = (m.get("units") or {}).get("note", "")
+    volume_text = f"{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}"
+    area_text = f"{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}"
+    world = str((m.get("units") or {}).get("voxel_size_um", "um"))
+    if world != "um":  # pixels (pixel size unknown) or imported cameras of unknown unit: values in that unit, never mm
+
+        def _w(key: str, power: int) -> str:
+            v = m.get(key)
+            return _num(v * 1e3 ** power if isinstance(v, (int, float)) else v, ".6g")
+
+        exp = {3: "³", 2: "²"}
+        volume_text = f"{_w('volume_mm3', 3)}" + (f" ± {_w('volume_U_mm3', 3)}" if pm_v else "") + f" {world}³{lower}"
+        area_text = f"{_w('surface_area_mm2', 2)}" + (f" ± {_w('surface_area_U_mm2', 2)}" if pm_a else "") + f" {world}²{lower}"
+        numbers[:5] = [("volume (cite this)", volume_text), ("surface area", area_text),
+                       ("mesh enclosed volume (diagnostic)", f"{_w('mesh_volume_mm3', 3)} {world}{exp[3]}"),
+                       ("unsmoothed surface area", f"{_w('raw_surface_area_mm2', 2)} {world}{exp[2]}"),
+                       ("voxel size", f"{_num(m.get('voxel_size_um'), '.4g')} {world}")]
     return {
         "session": s, "measurement": m, "calibration": c, "provenance": data.provenance, "n_views": n,
         "verdict": str(m.get("verdict", "not evaluated")), "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
         "lower_bound": bool(m.get("lower_bound")), "k_text": _num(k, "g"),
-        "volume_text": f"{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}", "area_text": f"{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}",
+        "volume_text": volume_text, "area_text": area_text,
         "drift": drift, "drift_value": drift_value, "units_note": units_note,
         "truth": truth_rows(truth), "budget": budget, "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
         "hull_bias": str(u.get("hull_bias", ""))[:1].upper() + str(u.get("hull_bias", ""))[1:],
