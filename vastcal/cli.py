@@ -501,8 +501,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="session file to create (.h5)")
     s.add_argument("--name", help="specimen name for the report and the screen table (default: the folder's or stack file's name)")
     s.add_argument("--masks", help="folder of silhouettes, one per image, or a stack file of them")
-    s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: a stack's OME 'angle' annotations, "
-                                    "else uniform over 360)")
+    s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: a stack's own angles - OME 'angle' "
+                                    "annotations, ImageJ slice labels 'angle=12.5' - else uniform over 360)")
     s.add_argument("--cameras", help="known cameras: a 'name + 12 numbers (P)' or 'name + K(9) R(9) t(3)' file, or a folder of .pa files")
     s.add_argument("--length-unit", choices=("nm", "um", "mm", "cm", "m"), default=None,
                    help="world unit of --cameras (default: um when their distance to the axis matches --config's working distance, "

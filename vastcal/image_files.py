@@ -13,7 +13,8 @@
 * Metadata (:class:`ImageMetadata`): the pixel size on the specimen plane from OME ``PhysicalSizeX/Y``
   (+ unit), from an ImageJ file's ``XResolution`` in its ``unit`` (ImageJ's ``spacing`` is the z step
   between slices, not a pixel size, and is not used), or from a baseline TIFF's ``XResolution`` with
-  ``ResolutionUnit`` centimetre or inch; and view angles from OME (see :func:`_ome_angles`).
+  ``ResolutionUnit`` centimetre or inch; and view angles from OME (see :func:`_ome_angles`) or from an ImageJ
+  stack's slice labels (:func:`_imagej_angles`).
 
 A baseline TIFF's resolution is usually a print resolution that no microscope wrote (72 dpi is 353 µm
 per pixel): a pixel size outside :data:`PLAUSIBLE_PIXEL_UM` (per inch: above :data:`MAX_INCH_PIXEL_UM`) is
@@ -158,11 +159,34 @@ def _ome_angles(xml: str, n: int) -> np.ndarray | None:
     return None
 
 
+_LABEL_ANGLE = re.compile(r"(?:angle|rotation)\w*\s*[=:]?\s*([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)|"
+                          r"([-+]?\d+(?:\.\d*)?)\s*(?:deg\w*|°)", re.I)
+
+
+def _imagej_angles(ij: dict[str, Any] | None, n: int) -> np.ndarray | None:
+    """View angles (degrees) from an ImageJ stack's slice labels, when every one of the ``n`` labels names one
+    (``angle=12.5``, ``rotation: 12.5``, ``12.5 deg``, ``12.5°``)."""
+    labels = (ij or {}).get("Labels")
+    if not isinstance(labels, (list, tuple)) or len(labels) != n:
+        return None
+    out = []
+    for lab in labels:
+        m = _LABEL_ANGLE.search(str(lab))
+        if m is None:
+            return None
+        out.append(float(m.group(1) or m.group(2)))
+    return np.asarray(out, float)
+
+
 def tiff_metadata(tif: Any, path: Path, n_views: int) -> ImageMetadata:
     """Pixel size and angles from an open ``tifffile.TiffFile`` (see the module docstring)."""
-    angles = None
+    angles, angles_source = None, ""
+    if tif.is_imagej:
+        angles = _imagej_angles(tif.imagej_metadata, n_views)
+        angles_source = "ImageJ slice labels" if angles is not None else ""
     if tif.is_ome and tif.ome_metadata:
         angles = _ome_angles(tif.ome_metadata, n_views)
+        angles_source = "OME MapAnnotation" if angles is not None else ""
         pixels = _ome_pixels(tif.ome_metadata)
         if pixels is not None and pixels.get("PhysicalSizeX"):
             try:
@@ -174,7 +198,7 @@ def tiff_metadata(tif: Any, path: Path, n_views: int) -> ImageMetadata:
             uy = length_unit_um(pixels.get("PhysicalSizeYUnit", pixels.get("PhysicalSizeXUnit", "µm")))
             if ux is not None and uy is not None:
                 meta = _plausible((sx * ux, sy * uy), "OME PhysicalSizeX/Y", path)
-                return ImageMetadata(meta.pixel_size_um, meta.pixel_size_source, angles, "OME MapAnnotation" if angles is not None else "")
+                return ImageMetadata(meta.pixel_size_um, meta.pixel_size_source, angles, angles_source)
     page = tif.pages[0]
     tags = page.tags
     meta = ImageMetadata()
@@ -196,7 +220,7 @@ def tiff_metadata(tif: Any, path: Path, n_views: int) -> ImageMetadata:
             meta = _plausible((px * 1e4, py * 1e4), "TIFF XResolution (centimetre)", path)
         elif unit_code == 2 and tags.get("ResolutionUnit") is not None:
             meta = _plausible((px * 25400.0, py * 25400.0), "TIFF XResolution (inch)", path, MAX_INCH_PIXEL_UM)
-    return ImageMetadata(meta.pixel_size_um, meta.pixel_size_source, angles, "OME MapAnnotation" if angles is not None else "")
+    return ImageMetadata(meta.pixel_size_um, meta.pixel_size_source, angles, angles_source)
 
 
 def _to_views(arr: np.ndarray, axes: str, path: Path, rgb_samples: bool) -> np.ndarray:

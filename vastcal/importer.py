@@ -16,7 +16,8 @@ Inputs, all but the images optional:
   (``--name``), default the folder's or stack file's name.
 * masks — a folder with one silhouette per image (same order and size), or a stack file; nonzero = specimen.
 * angles — a text file with one commanded angle (degrees) per view, or ``name angle`` lines;
-  default: the stack's OME angles when it has them, else uniform over 360° starting at 0°.
+  default: the stack's own angles when it has them (OME ``angle`` annotations, ImageJ slice labels such as
+  ``angle=12.5``), else uniform over 360° starting at 0°.
 * crops — frames cut from a larger sensor need their offset (``roi_offset``, ``--roi-offset``): from the
   config's ``camera.roi`` when its size is the images'; an import whose principal point (the cameras' or
   the config's) falls outside the images, or whose config ROI is another size, is refused naming ``--roi-offset``.
@@ -457,8 +458,8 @@ def import_folder(
             OME-TIFF, ImageJ hyperstack), one view per page (:func:`read_views`).
         output: the session file to create.
         masks: folder of silhouettes matching the images one to one, or a stack file of them.
-        angles: text file of commanded angles (degrees); default: the stack's OME angles when it has
-            them, else uniform over 360°.
+        angles: text file of commanded angles (degrees); default: the stack's own angles (OME annotations,
+            ImageJ slice labels) when it has them, else uniform over 360°.
         cameras: ``name + 12 numbers`` file or folder of ``.pa`` files.
         pixel_origin: 0, 0.5 or 1 — the coordinate ``cameras`` give to the first pixel's centre.
         roi_offset: (x, y) of the stored frames on the sensor (px, 0-based); default from

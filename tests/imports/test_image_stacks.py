@@ -124,6 +124,15 @@ def test_imagej_hyperstack_resolution_and_two_stack_axes(tmp_path: Path) -> None
         import_folder(tmp_path / "tz.tif", tmp_path / "t.h5")
 
 
+def test_imagej_slice_labels_give_the_angles(tmp_path: Path) -> None:
+    labels = ["view 0: angle=0", "view 1: angle=117.5", "view 2: angle=241"]
+    tifffile.imwrite(tmp_path / "lab.tif", _frames(3, (12, 18)), imagej=True, metadata={"axes": "TYX", "Labels": labels})
+    import_folder(tmp_path / "lab.tif", tmp_path / "s.h5")
+    with Session.open(tmp_path / "s.h5") as s:
+        np.testing.assert_allclose(s.angles_deg, [0.0, 117.5, 241.0])
+        assert s.plan["angle_source"] == "lab.tif: ImageJ slice labels"
+
+
 def test_rgb_stack_is_stored_rgb(tmp_path: Path) -> None:
     frames = _frames(3, (10, 14, 3), np.uint8)
     tifffile.imwrite(tmp_path / "rgb.tif", frames, photometric="rgb")
