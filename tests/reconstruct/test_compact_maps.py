@@ -148,3 +148,23 @@ def test_posteriors_in_chunks_equal_one_pass(spheroid_views: PhantomViews, monke
     one = model.log_foreground_probability(frames)
     monkeypatch.setattr(cm, "PIXEL_CHUNK", 4099)
     assert np.array_equal(model.log_foreground_probability(frames), one)
+
+
+def test_session_frames_are_read_when_asked(spheroid_views: PhantomViews, tmp_path: Path) -> None:
+    from vastcal.calibrate.colour_model import check_images
+    from vastcal.calibrate.view_budget import SessionFrames
+
+    path = make_session(tmp_path / "s.h5", spheroid_views, masks=False, cameras=False)
+    frames = SessionFrames(path)
+    with Session.open(path, "r") as s:
+        every = s.projections()
+        assert np.array_equal(SessionFrames(s)[4], every[4])  # an open session's own handle
+    assert frames.shape == every.shape and frames.dtype == every.dtype and len(frames) == 21 and frames.ndim == 3
+    assert np.array_equal(frames[3], every[3]) and np.array_equal(frames[-1], every[-1])
+    assert np.array_equal(frames[[5, 1]], every[[5, 1]]) and np.array_equal(frames[2:9:3], every[2:9:3])
+    assert np.array_equal(np.stack(list(frames)), every)
+    with pytest.raises(IndexError):
+        frames[21]
+    check_images(frames)
+    lazy, eager = fit_automatic(frames), fit_automatic(every)
+    assert np.array_equal(lazy.fg.mean, eager.fg.mean) and np.array_equal(lazy.bg.cov, eager.bg.cov) and lazy.prior_fg == eager.prior_fg

@@ -100,13 +100,26 @@ def scaled_values(images: np.ndarray) -> np.ndarray:
 def value_scale(images: np.ndarray) -> float:
     """The full scale that :func:`scaled_values` divides by (1 for float images)."""
     a = np.asarray(images)
+    return _scale_of(a.dtype, float(a.max()) if a.size and np.issubdtype(a.dtype, np.integer) and a.dtype.itemsize > 1 else None)
+
+
+def _scale_of(dtype: np.dtype, maximum: float | None) -> float:
+    """:func:`value_scale` of images of ``dtype`` whose largest value is ``maximum`` (None: none, or not needed)."""
     scale = 1.0
-    if np.issubdtype(a.dtype, np.integer):
-        scale = float(np.iinfo(a.dtype).max)
-        if a.dtype.itemsize > 1 and a.size:
-            bits = max(8, int(np.ceil(np.log2(float(a.max()) + 1.0))))
+    if np.issubdtype(dtype, np.integer):
+        scale = float(np.iinfo(dtype).max)
+        if np.dtype(dtype).itemsize > 1 and maximum is not None:
+            bits = max(8, int(np.ceil(np.log2(maximum + 1.0))))
             scale = float(2**bits - 1)
     return scale
+
+
+def _stack(images: object) -> np.ndarray:
+    """``images`` as they are when they are a lazy stack of frames (:class:`.view_budget.SessionFrames`: read
+    when indexed or iterated), else as an array."""
+    from vastcal.calibrate.view_budget import SessionFrames
+
+    return images if isinstance(images, SessionFrames) else np.asarray(images)  # type: ignore[return-value]
 
 
 def flatten_background(f: np.ndarray, *, inplace: bool = False) -> np.ndarray:
@@ -151,12 +164,18 @@ def check_images(images: np.ndarray) -> None:
     Raises:
         ColourModelError: a view whose pixels barely vary, or that is mostly saturated/black.
     """
-    a = np.asarray(images)
-    scale = np.float32(value_scale(a))  # raw values: saturation is a property of the sensor's output
-    c = 3 if image_space(a) == "rgb" else 1
-    for i in range(a.shape[0]):  # one view at a time: no float copy of the whole stack
-        v = a[i].reshape(-1, c)
-        sub = v[:: max(1, v.shape[0] // 20000)].astype(np.float32) / scale
+    a = _stack(images)
+    c = 3 if len(a.shape) >= 3 and a.shape[-1] == 3 else 1
+    subs, top = [], None
+    for frame in a:  # one view at a time (read one at a time from a session): no float copy of the whole stack
+        v = np.asarray(frame).reshape(-1, c)
+        subs.append(v[:: max(1, v.shape[0] // 20000)].copy())  # a copy: a view of the frame would keep it alive
+        if v.size:
+            m = float(v.max())
+            top = m if top is None else max(top, m)
+    scale = np.float32(_scale_of(a.dtype, top))  # raw values: saturation is a property of the sensor's output
+    for i, raw in enumerate(subs):
+        sub = raw.astype(np.float32) / scale
         sat = float(np.mean(np.all(sub >= 0.999, axis=1)))
         if sat > 0.9:
             raise ColourModelError(f"view {i} is saturated ({100 * sat:.0f}% of pixels at full scale): reduce the exposure")
@@ -412,7 +431,7 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
     """Colour models with no user input (assumptions in the module docstring).
 
     Args:
-        images: (N, H, W[, 3]) views.
+        images: (N, H, W[, 3]) views (or a :class:`.view_budget.SessionFrames`: only the views used are read).
         border_frac: fraction of rows/columns at each edge taken as mostly background.
         min_separation: least Bhattacharyya distance accepted between the two Gaussians.
         max_samples: pixels drawn (reproducibly, from ``seed``) for each fit.
@@ -422,13 +441,15 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
     Raises:
         ColourModelError: blank or saturated views, nothing unlike the background, or no separation.
     """
-    images = np.asarray(images)
-    check_images(images)
+    stack = _stack(images)
+    check_images(stack)
     rng = np.random.default_rng(seed)
-    views = fit_views(images.shape[0], int(np.prod(images.shape[1:3])), max_pixels)
-    if views.size < images.shape[0]:
-        log.info("colour model: fitted on %d of %d views (evenly spread, at most %d pixels)", views.size, images.shape[0], max_pixels)
-        images = images[views]
+    views = fit_views(stack.shape[0], int(np.prod(stack.shape[1:3])), max_pixels)
+    if views.size < stack.shape[0]:
+        log.info("colour model: fitted on %d of %d views (evenly spread, at most %d pixels)", views.size, stack.shape[0], max_pixels)
+        images = np.asarray(stack[views])
+    else:
+        images = np.asarray(stack)
     f = features(images)  # once: the background flattening is the costly part
     border = _border_of(f, border_frac)
     if border.shape[0] > max_samples:

@@ -43,7 +43,7 @@ from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE as PHOTOMETRIC_SCHEDULE
 from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
 from vastcal.calibrate.region import specimen_region
-from vastcal.calibrate.view_budget import photometric_views, specimen_maps_within
+from vastcal.calibrate.view_budget import SessionFrames, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
@@ -510,7 +510,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     """Calibrate θ from the views themselves (pure function of arrays).
 
     Args:
-        images: (N, H, W[, 3]) views, as stored.
+        images: (N, H, W[, 3]) views, as stored, or a session's :class:`.view_budget.SessionFrames` (read when needed).
         K: 3×3 intrinsics, 0-based pixels of ``images``.
         distance: camera-to-axis distance d, world units (µm on the rig).
         theta0_deg: (3 + N,) start [yaw, pitch, γ, commanded rolls], degrees.
@@ -539,7 +539,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     t0 = time.monotonic()
     settings = settings or CalibrationSettings()
     bounds = bounds or CalibrationBounds()
-    images = np.asarray(images)
+    images = images if isinstance(images, SessionFrames) else np.asarray(images)  # a session's frames: read when needed
     n = images.shape[0]
     if n < 3:
         raise AnalysisError(f"calibration needs at least 3 views, got {n}")

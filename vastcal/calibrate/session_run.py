@@ -19,6 +19,7 @@ from vastcal.calibrate.colour_model import ColourModel
 from vastcal.calibrate.optimise import ProgressCallback
 from vastcal.calibrate.parameters import parse_views
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method, calibrate_views
+from vastcal.calibrate.view_budget import SessionFrames
 from vastcal.config import CalibrationBounds, CalibrationConfig, RoiConfig, check_setting
 from vastcal.errors import SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import decompose_circular, intrinsics_from_optics
@@ -122,7 +123,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         if prior_src is not None:
             theta0 = apply_rig_prior(theta0, prior_src, notes)
         fixed = parse_views(fixed_views, len(theta0) - 3)
-        images = session.projections()
+        images = SessionFrames(session.path if own else session)  # read when needed, never the whole revolution at once
         masks = session.masks
         sil = masks if (method == "vr" and masks is not None and use_masks is not False) else None
         if use_masks and masks is None:

@@ -14,6 +14,9 @@ view — and hold ~48 bytes a frame pixel while they are made. :func:`grouped_sp
 makes them for interleaved *sub-revolutions* (views j, j + g, j + 2g, …), each itself an evenly spread
 revolution of at least 21 views (the paper's), as many views at once as ``memory_mb`` leaves room for:
 a 360-view session is mapped as 8 revolutions of 45 views, a 21-view one exactly as before.
+
+:class:`SessionFrames` is a session's projection frames as a read-only stack that reads them when they are
+asked for (one at a time when iterated): calibration never decodes a whole revolution at once.
 """
 
 from __future__ import annotations
@@ -21,12 +24,15 @@ from __future__ import annotations
 import logging
 import os
 import resource
-from typing import TYPE_CHECKING, Callable
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
     from vastcal.calibrate.colour_model import ColourModel
+    from vastcal.session import Session
 
 log = logging.getLogger(__name__)
 
@@ -143,14 +149,84 @@ def grouped_specimen_maps(model: "ColourModel", read: Callable[[np.ndarray], np.
     return len(groups)
 
 
-def specimen_maps_within(model: "ColourModel", images: np.ndarray, memory_mb: float, *, band_px: float = 3.0) -> np.ndarray:
+def specimen_maps_within(model: "ColourModel", images: "np.ndarray | SessionFrames", memory_mb: float, *, band_px: float = 3.0) -> np.ndarray:
     """:func:`.silhouettes.specimen_maps` (N, H, W) float32 of a stack in memory, made one sub-revolution at a time
     (:func:`grouped_specimen_maps`): exactly the same maps when the whole stack fits half of ``memory_mb``."""
-    images = np.asarray(images)
+    if not isinstance(images, SessionFrames):
+        images = np.asarray(images)
     out = np.empty(images.shape[:3], np.float32)
 
     def store(views: np.ndarray, maps: np.ndarray) -> None:
         out[views] = maps
 
-    grouped_specimen_maps(model, lambda views: images[views], len(images), images.shape[1:], memory_mb, store, band_px=band_px)
+    grouped_specimen_maps(model, lambda views: np.asarray(images[views]), len(images), images.shape[1:], memory_mb, store, band_px=band_px)
     return out
+
+
+class SessionFrames:
+    """The projection frames (image_key 0) of a session as a lazy, read-only (N, H, W[, 3]) stack.
+
+    ``frames[i]`` and ``frames[views]`` (an index array or slice) read those frames; iterating reads one frame at
+    a time; ``len``, ``shape``, ``dtype`` and ``ndim`` need no frame. Given a path, the session is opened
+    read-only for each access and closed again (a later writer of the same file is not blocked); given an open
+    :class:`~vastcal.session.Session`, its handle is used. ``np.asarray(frames)`` reads them all: avoid it.
+    """
+
+    def __init__(self, session: "Session | str | Path") -> None:
+        from vastcal.session import Session
+
+        self._session = session if isinstance(session, Session) else None
+        self.path = Path(session.path if isinstance(session, Session) else session)
+        with self._open() as s:
+            self._index = np.asarray(s.projection_indices, np.intp)
+            self.shape: tuple[int, ...] = (len(self._index),) + tuple(s.frame_shape)
+            self.dtype = np.dtype(s.dtype)
+
+    @contextmanager
+    def _open(self) -> Iterator["Session"]:
+        from vastcal.session import Session
+
+        if self._session is not None:
+            yield self._session
+            return
+        s = Session.open(self.path, "r")
+        try:
+            yield s
+        finally:
+            s.close()
+
+    @property
+    def ndim(self) -> int:
+        """4 for RGB frames, 3 for grey."""
+        return len(self.shape)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        n = len(self)
+        if isinstance(key, (int, np.integer)):
+            i = int(key) + (n if int(key) < 0 else 0)
+            if not 0 <= i < n:
+                raise IndexError(f"view {int(key)} out of range (0..{n - 1})")
+            with self._open() as s:
+                return np.asarray(s.frame(int(self._index[i])))
+        views = np.arange(n)[key] if isinstance(key, slice) else np.asarray(key)
+        if views.dtype == bool:
+            views = np.flatnonzero(views)
+        views = np.where(views < 0, views + n, views).astype(np.intp)
+        if views.size and (views.min() < 0 or views.max() >= n):
+            raise IndexError(f"views out of range (0..{n - 1})")
+        with self._open() as s:
+            if views.size == 0:
+                return np.empty((0,) + self.shape[1:], self.dtype)
+            return np.stack([np.asarray(s.frame(int(self._index[v]))) for v in views.ravel()]).reshape(views.shape + self.shape[1:])
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        with self._open() as s:
+            for i in self._index:
+                yield np.asarray(s.frame(int(i)))
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        a = self[np.arange(len(self))]
+        return a if dtype is None else a.astype(dtype)
