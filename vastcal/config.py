@@ -256,6 +256,9 @@ class SimulationConfig:
     """Two thin translucent pectoral fins beside the yolk (not part of the measured body)."""
     melanophores: float = field(default=0.0, metadata=_range(0.0, 1000.0))
     """Mean number of melanophores (dark specks just under the skin, mostly dorsal/ventral), Poisson."""
+    refractive_index: tuple[float, float] = (1.0, 1.0)
+    """Range of the tissue's refractive index relative to the medium: refraction at the body's surface
+    deviates grazing rays out of the objective's aperture, a dark outline (1 = none)."""
     wall_contact_probability: float = field(default=0.0, metadata=_range(0.0, 1.0))
     """Chance that the larva lies against the capillary wall (its edge 0.5-3 µm from the wall)."""
     tail_out_of_frame_probability: float = field(default=0.0, metadata=_range(0.0, 1.0))

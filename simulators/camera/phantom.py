@@ -85,6 +85,8 @@ class Phantom:
         edge_transmission: transmission of the body's boundary (refraction/scatter loss), 0–1;
             it gives the silhouette a sharp step even where the chord length tends to 0.
         colour_scale: relative attenuation in (R, G, B) for colour frames.
+        refractive_index: the tissue's refractive index relative to the medium (1 = no refraction:
+            no dark outline; see :func:`vastcal.simulators.camera.render.refraction_collected`).
     """
 
     profile: RevolutionProfile
@@ -94,6 +96,7 @@ class Phantom:
     colour_scale: tuple[float, float, float] = (1.5, 0.6, 1.0)
     name: str = field(default="")
     lateral_scale: float = 1.0
+    refractive_index: float = 1.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.lateral_scale <= 1.0:

@@ -91,6 +91,28 @@ class Sensor:
     tint_rgb: tuple[float, float, float] = (0.985, 1.0, 0.99)
 
 
+DEFAULT_ACCEPTANCE_RAD = 0.1
+"""Half-angle of the illumination and collection cones (rad): NA ≈ 0.1, a low-magnification brightfield objective."""
+
+
+def refraction_collected(sin_incidence: np.ndarray, n_rel: float, acceptance_rad: float) -> np.ndarray:
+    """Fraction of a ray bundle the objective still collects after refraction through the body's surface.
+
+    A ray meeting a cylinder of relative refractive index ``n_rel`` (tissue / medium) at incidence
+    θ_i (sin θ_i = impact parameter / radius) leaves it deviated by D = 2(θ_i − θ_t), sin θ_t =
+    sin θ_i / n (Snell's law at entry and exit). The illumination fills a cone of half-angle α and the
+    objective accepts the same half-angle, so a bundle deviated by D keeps the fraction
+    max(0, 1 − D / 2α) of its light (one-dimensional overlap of two cones). D grows steeply towards
+    grazing incidence: the outline of a transparent body is dark over a rim a few per cent of its
+    radius wide — the dark outline of unstained larvae in brightfield.
+    """
+    s = np.clip(np.asarray(sin_incidence, np.float32), 0.0, 1.0)
+    theta_i = np.arcsin(s)
+    theta_t = np.arcsin(np.clip(s / np.float32(n_rel), -1.0, 1.0))
+    deviation = 2.0 * np.abs(theta_i - theta_t)
+    return np.clip(1.0 - deviation / np.float32(2.0 * acceptance_rad), 0.0, 1.0).astype(np.float32)
+
+
 @dataclass
 class RayGeometry:
     """Per-pixel quantities of one view (internal; float32 H×W unless noted).
@@ -104,6 +126,10 @@ class RayGeometry:
     tau_features: np.ndarray
     tau_extra: np.ndarray | None = None
     """Optical depth of the fins outside the body (not measured), or ``None`` without fins."""
+    collected: np.ndarray | None = None
+    """Fraction of the light through the body that refraction leaves inside the objective's aperture
+    (:func:`refraction_collected`), averaged over the part of the pixel the body covers; ``None``
+    without refraction."""
 
 
 class BrightfieldRenderer:
@@ -118,8 +144,10 @@ class BrightfieldRenderer:
     """
 
     def __init__(self, phantom: Phantom, capillary: Capillary | None = None, sensor: Sensor | None = None, *,
-                 fin_fold: FinFold | None = None, fins: tuple[EllipsoidFeature, ...] = ()) -> None:
+                 fin_fold: FinFold | None = None, fins: tuple[EllipsoidFeature, ...] = (),
+                 acceptance_half_angle_rad: float = DEFAULT_ACCEPTANCE_RAD) -> None:
         self.phantom = phantom
+        self.acceptance_half_angle_rad = float(acceptance_half_angle_rad)
         self.capillary = capillary or Capillary()
         self.sensor = sensor or Sensor()
         self.fin_fold = fin_fold
@@ -231,10 +259,37 @@ class BrightfieldRenderer:
                 disc = B * B - 4.0 * A * (p @ p - 1.0)
                 tf[near] += feat.attenuation_per_um * np.sqrt(np.maximum(disc, 0.0)) / A * dnorm[near]
             tau_feat[iy, ix] = tf
+            if self.phantom.refractive_index != 1.0:
+                collected = np.ones((height, width), np.float32)
+                collected[iy, ix] = self._collected_over_pixel(m, q, delta)
         tau_extra = None
+        if self.phantom.refractive_index == 1.0 or not cand_rows.size:
+            collected = None
         if self.fin_fold is not None or self.fins:
             tau_extra = self._extra_depth(C_phantom, R, du, dv, dy_w, dz_w, body_offset_um, footprint_um)
-        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra)
+        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra, collected)
+
+    def _collected_over_pixel(self, m: np.ndarray, q: np.ndarray, delta: np.ndarray, samples: int = 8) -> np.ndarray:
+        """:func:`refraction_collected` averaged over the part of each pixel the body covers.
+
+        The ray's impact parameter in the local cross-section is b = √(m + q) of radius √q (scaled
+        frame), so sin θ_i = √(1 + m/q). Across one pixel m changes by |∇m| per px (δ = m/|∇m| is the
+        signed distance to the outline, px), so the pixel is sampled at ``samples`` depths across its
+        width and the samples inside the body (δ_k < 0) averaged: the loss is concentrated in a rim
+        that can be narrower than a pixel, and the pixel's centre alone would alias it.
+        """
+        grad = np.where(np.abs(delta) > 0, m / np.where(delta == 0, 1.0, delta), 0.0)
+        qq = np.maximum(q, 1e-12)
+        total = np.zeros(m.shape, np.float64)
+        count = np.zeros(m.shape, np.float64)
+        for k in range(samples):
+            dk = delta + (k + 0.5) / samples - 0.5
+            inside = dk < 0
+            mk = m + (dk - delta) * grad
+            f = refraction_collected(np.sqrt(np.clip(1.0 + mk / qq, 0.0, 1.0)), self.phantom.refractive_index, self.acceptance_half_angle_rad)
+            total += np.where(inside, f, 0.0)
+            count += inside
+        return np.where(count > 0, total / np.maximum(count, 1.0), 1.0).astype(np.float32)
 
     def _extra_depth(self, Cp: np.ndarray, R: np.ndarray, du: np.ndarray, dv: np.ndarray, dy_w: np.ndarray, dz_w: np.ndarray,
                      body_offset_um: tuple[float, float], footprint_um: float) -> np.ndarray:
@@ -276,6 +331,8 @@ class BrightfieldRenderer:
         """Noise-free transmission 0–1 of each pixel (background = capillary lumen)."""
         ph = self.phantom
         body = np.float32(ph.edge_transmission) * np.exp(-(channel_scale * geom.tau_body + geom.tau_features))
+        if geom.collected is not None:
+            body = body * geom.collected
         T = 1.0 - geom.coverage * (1.0 - body)
         if geom.tau_extra is not None:
             T = T * np.exp(-channel_scale * geom.tau_extra)

@@ -12,7 +12,7 @@ from scipy.optimize import brentq, minimize_scalar
 
 from vastcal.simulators.camera.phantom import Phantom, spheroid_phantom, zebrafish_phantom
 from vastcal.simulators.camera.profiles import SpheroidProfile
-from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary
+from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary, refraction_collected
 from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
 from vastcal.config import OpticsConfig, RoiConfig
 from vastcal.errors import CameraError
@@ -151,3 +151,27 @@ def test_zebrafish_eyes_and_yolk_are_darker_than_the_body() -> None:
     body = img[px((500.0, 0.0, 0.0))]
     bg = img[5, 5]
     assert eye < yolk < body < bg
+
+
+def test_refraction_darkens_the_outline_and_spares_normal_incidence() -> None:
+    """Snell's law at a cylinder: no deviation at normal incidence, light lost towards grazing incidence;
+    a rendered clear body with n > 1 has a dark outline whose width grows with n, and its silhouette stays put."""
+    s = np.linspace(0.0, 1.0, 201)
+    f = refraction_collected(s, 1.02, 0.1)
+    assert f[0] == pytest.approx(1.0) and f[-1] == pytest.approx(0.0)
+    assert np.all(np.diff(f) <= 1e-7)  # monotone: more loss nearer grazing incidence
+    assert np.all(refraction_collected(s, 1.0, 0.1) == 1.0)
+    K = PinholeIntrinsics.from_optics(OPTICS, (ROI.x, ROI.y)).K
+    R, t = camera_pose(TRUTH, 30.0)
+    dark_widths = []
+    for n in (1.0, 1.01, 1.03):
+        ph = Phantom(SpheroidProfile(1500.0, 280.0), body_attenuation_per_um=0.0, edge_transmission=1.0, refractive_index=n)
+        r = BrightfieldRenderer(ph, Capillary(line_depth=0.0, lumen_transmission=1.0))
+        img = r.render(K, R, t, ROI.width, ROI.height, "Mono12", noise=0.0).astype(float)
+        geom = r.last_geometry
+        col = 1.0 - img[:, 512] / img[0, 512]
+        inside = geom.coverage[:, 512] >= 1.0
+        dark_widths.append(int(np.count_nonzero(col[inside] > 0.5)))
+        if n == 1.0:
+            assert np.abs(col[inside]).max() < 1e-3  # a clear body without refraction is invisible inside
+    assert dark_widths[0] == 0 < dark_widths[1] < dark_widths[2]
