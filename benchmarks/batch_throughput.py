@@ -1,6 +1,6 @@
 """Throughput of `vastcal batch` on a local Dask cluster against sequential `vastcal run` (issue 19).
 
-    python benchmarks/batch_throughput.py [N] [--workdir DIR] [--views V] [--starts S] [--workers W]
+    python benchmarks/batch_throughput.py [N] [--workdir DIR] [--views V] [--starts S] [--workers W] [--sequential K]
 
 1. Writes N varied simulated larvae with ``benchmarks/make_battery.py`` (seeds 0 … N−1; reused when present
    in ``DIR/battery``).
@@ -13,6 +13,13 @@
 
 Wall times on a shared machine are noisy (a batch of 2 processes also gets a larger share of a machine
 loaded by others than one sequential process does); the load average is printed beside them.
+
+5. The stage's periodic error (issue 19, item 4): every battery larva's simulated stage has its own seeded
+   periodic drift (``simulators/stage/mechanics.py``), known from its truth file. The slope β of the
+   calibrated − commanded angle (``report.json``) on the true drift, over all views of all sessions, says what
+   averaging n sessions of *one* rig could recover: β·e(θ) ± σ/√n. β ≈ 1 would recover the error; β ≈ 0 means
+   the calibrations do not see it (the rolls follow the prior), and the batch's ``rig_health.json`` says
+   "not determined" — printed beside it.
 """
 
 from __future__ import annotations
@@ -42,6 +49,8 @@ def main() -> int:
     ap.add_argument("--starts", type=int, default=3, help="calibration starts per session (vastcal default 3)")
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster workers (default: one per core)")
     ap.add_argument("--skip-sequential", action="store_true")
+    ap.add_argument("--sequential", type=int, default=None, metavar="K",
+                    help="time sequential vastcal run on the first K sessions only and extrapolate to N (said in the output)")
     a = ap.parse_args()
 
     battery = a.workdir / "battery"
@@ -62,7 +71,7 @@ def main() -> int:
         shutil.rmtree(seq, ignore_errors=True)
         seq.mkdir()
         t0 = time.monotonic()
-        for s in sessions:
+        for s in sessions[: a.sequential or len(sessions)]:
             copy = Path(shutil.copy(s, seq / s.name))
             t = time.monotonic()
             c = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -73,6 +82,10 @@ def main() -> int:
             cpu_seq.append(c2.ru_utime + c2.ru_stime - c.ru_utime - c.ru_stime)
             print(f"  sequential {s.name}: {per_session[-1]:.1f} s wall, {cpu_seq[-1]:.1f} s CPU", flush=True)
         seq_s = time.monotonic() - t0
+        if len(per_session) < len(sessions):
+            print(f"  sequential timed on {len(per_session)} of {len(sessions)} sessions; extrapolated: "
+                  f"{seq_s:.1f} s x {len(sessions)}/{len(per_session)}", flush=True)
+            seq_s *= len(sessions) / len(per_session)
 
     par = a.workdir / "batch-input"
     res = a.workdir / "batch-results"
@@ -82,6 +95,7 @@ def main() -> int:
     for s in sessions:
         shutil.copy(s, par / s.name)
     cmd = _vastcal("batch", str(par), "-o", str(res), "--starts", str(a.starts), "-q") + (["--workers", str(a.workers)] if a.workers else [])
+    print(f"load average before the batch: {os.getloadavg()}", flush=True)
     t0 = time.monotonic()
     proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
     batch_s = time.monotonic() - t0
@@ -114,7 +128,48 @@ def main() -> int:
     for n in (1, 2, 8, 32, 128):
         hours = 10_000 * per / n / 3600
         print(f"  {n:4d} workers: {hours:8.1f} h  ({hours * n:.0f} worker-hours)")
+    stage_error_recovery(battery, res, [s.stem for s in sessions])
     return 0
+
+
+def stage_error_recovery(battery: Path, results: Path, names: list[str]) -> None:
+    """Print β (calibrated delta on true drift, through 0), its SE, the residual σ, and the batch's rig health."""
+    import json
+
+    import numpy as np
+
+    xs, ys = [], []
+    for name in names:
+        try:
+            truth = json.loads((battery / f"{name}.truth.json").read_text())
+            rep = json.loads((results / "reports" / name / "report.json").read_text())
+        except (OSError, ValueError):
+            continue
+        actual = np.asarray(truth.get("actual_angles_deg") or [], float)
+        commanded = np.asarray(rep.get("views", {}).get("commanded_angle_deg") or [], float)
+        delta = np.asarray(rep.get("views", {}).get("delta_angle_deg") or [], float)
+        if not (actual.size == commanded.size == delta.size) or actual.size < 2:
+            continue
+        true = (actual - actual[0]) - (commanded - commanded[0])
+        xs.append(true[1:])
+        ys.append(delta[1:])
+    if not xs:
+        print("stage error: no session with a truth file and per-view deltas")
+        return
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    beta = float(x @ y / (x @ x)) if x @ x > 0 else float("nan")
+    resid = y - beta * x
+    sigma = float(np.sqrt(resid @ resid / max(1, x.size - 1)))
+    se = sigma / float(np.sqrt(x @ x)) if x @ x > 0 else float("nan")
+    print(f"stage error ({len(xs)} sessions, {x.size} views): true drift RMS {np.sqrt(np.mean(x ** 2)):.3f} deg; calibrated - commanded "
+          f"RMS {np.sqrt(np.mean(y ** 2)):.3f} deg; slope beta = {beta:.3f} +- {se:.3f} (1 = recovered, 0 = not seen); "
+          f"residual sigma {sigma:.3f} deg per view")
+    try:
+        h = json.loads((results / "rig_health.json").read_text())
+        print(f"rig_health.json: {h.get('n_sessions')} sessions, {h.get('n_rolls_informative')} with informative rolls, "
+              f"angle error at {len(h.get('angle_error') or [])} commanded angles; notes: {' | '.join(h.get('notes') or [])}")
+    except (OSError, ValueError):
+        print("rig_health.json: missing")
 
 
 if __name__ == "__main__":

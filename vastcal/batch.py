@@ -448,6 +448,8 @@ def _run_on_dask(todo: list[Path], names: dict[Path, str], out: Path, settings: 
         finally:
             bar.close()
     finally:
+        if not logging.getLogger("vastcal").isEnabledFor(logging.DEBUG):  # "worker process still alive … killing" at
+            logging.getLogger("distributed.nanny").setLevel(logging.ERROR)  # shutdown of a loaded machine: only with -vv
         client.close()
         if cluster is not None:
             cluster.close()
