@@ -69,7 +69,7 @@ def test_html_is_self_contained(report_dir: Path) -> None:
     assert not re.search(r"https?://(?!www\.w3\.org/)", page), "no network references (but XML namespaces)"
     assert "<link" not in page and "<iframe" not in page
     tags = re.findall(r"<script[^>]*>", page)
-    assert tags == ['<script type="application/octet-stream" id="mesh-vertices">', '<script type="application/octet-stream" id="mesh-faces">',
+    assert tags == ['<script type="application/octet-stream" id="mesh-vertices">', '<script type="application/octet-stream" id="mesh-faces" data-index-type="u2">',
                     "<script>", "<script>"], "only the page's own inline scripts, none loaded from a file"
     srcs = re.findall(r'<img [^>]*src="([^"]*)"', page)
     assert len(srcs) == 9 + 3  # every view, per-view agreement, drift, convergence
@@ -95,9 +95,10 @@ def test_mesh_is_embedded_for_the_3d_viewer(report_dir: Path, measured_session: 
 
     page = (report_dir / "report.html").read_text()
     v64 = re.search(r'id="mesh-vertices">([^<]*)<', page).group(1)  # type: ignore[union-attr]
-    f64 = re.search(r'id="mesh-faces">([^<]*)<', page).group(1)  # type: ignore[union-attr]
+    index_type, f64 = re.search(r'id="mesh-faces" data-index-type="(u[24])">([^<]*)<', page).groups()  # type: ignore[union-attr]
     v = np.frombuffer(base64.b64decode(v64), "<f4").reshape(-1, 3)
-    f = np.frombuffer(base64.b64decode(f64), "<u4").reshape(-1, 3)
+    f = np.frombuffer(base64.b64decode(f64), "<" + index_type).reshape(-1, 3)
+    assert index_type == ("u2" if len(v) <= 65536 else "u4")
     with Session.open(measured_session) as s:
         mesh = load_mesh(s.latest_result("measurement"))
     assert len(f) == min(len(mesh.faces), 60_000) and f.max() < len(v)
@@ -117,7 +118,9 @@ def test_large_meshes_are_simplified_for_display_only() -> None:
     assert np.allclose(v.min(0), verts.min(0), atol=1.5) and np.allclose(v.max(0), verts.max(0), atol=1.5)
     assert len(np.unique(np.sort(f, axis=1), axis=0)) == len(f) and (f[:, 0] != f[:, 1]).all()
     p = mesh_payload(verts, faces, max_faces=8000)
-    assert p["n_faces"] == len(f) and p["n_faces_measured"] == len(faces)
+    assert p["n_faces"] == len(f) and p["n_faces_measured"] == len(faces) and p["index_type"] == "u2"
+    big = mesh_payload(np.zeros((70_000, 3)), np.array([[0, 1, 69_999]]))
+    assert big["index_type"] == "u4" and np.frombuffer(base64.b64decode(big["faces_b64"]), "<u4").tolist() == [0, 1, 69_999]
 
 
 def _flag_view(session: Path, view: int) -> None:

@@ -15,7 +15,7 @@ from vastcal.report.document import csv_cell
 
 HOSTILE = "<script>alert('x')</script>"
 FORMULA = "=HYPERLINK(\"http://evil\",\"click\")"
-OWN_SCRIPTS = ('<script type="application/octet-stream" id="mesh-vertices">', '<script type="application/octet-stream" id="mesh-faces">')
+OWN_SCRIPTS = ('<script type="application/octet-stream" id="mesh-vertices">', '<script type="application/octet-stream" id="mesh-faces" data-index-type="u2">')
 """The page's own script elements besides its two inline programs (overlay zoom, 3D viewer): the mesh's data."""
 
 

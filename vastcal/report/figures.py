@@ -7,7 +7,7 @@
   outline as an SVG path in that view's pixel coordinates (drawn over the image by the page,
   so it stays one screen pixel wide at any zoom).
 * :func:`mesh_payload` — the mesh for the page's WebGL viewer: little-endian float32 vertices
-  and uint32 faces, base64, decimated by vertex clustering when it is large.
+  and uint16/uint32 faces, base64, decimated by vertex clustering when it is large.
 
 Frames: world µm (x = rotation axis); cameras map world µm to 0-based pixels of the stored
 frames, whose pixel (u, v) covers [u − ½, u + ½] × [v − ½, v + ½].
@@ -316,14 +316,15 @@ def cluster_decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) ->
 
 
 def mesh_payload(vertices: np.ndarray, faces: np.ndarray, *, max_faces: int = 60_000) -> dict[str, object]:
-    """The mesh for the page's viewer: base64 of little-endian float32 vertices (µm) and uint32 faces.
+    """The mesh for the page's viewer: base64 of little-endian float32 vertices (µm) and uint16 (≤ 65536 vertices) or uint32 faces.
 
-    Returns a dict with ``vertices_b64``, ``faces_b64``, ``n_vertices``, ``n_faces`` (shown),
+    Returns a dict with ``vertices_b64``, ``faces_b64``, ``index_type`` (``u2`` or ``u4``), ``n_vertices``, ``n_faces`` (shown),
     ``n_faces_measured`` (the stored mesh) and ``extent_um`` (bounding box sides).
     """
     v, f = cluster_decimate(vertices, faces, max_faces)
     v32 = np.ascontiguousarray(v, dtype="<f4")
-    f32 = np.ascontiguousarray(f, dtype="<u4")
-    return {"vertices_b64": base64.b64encode(v32.tobytes()).decode("ascii"), "faces_b64": base64.b64encode(f32.tobytes()).decode("ascii"),
-            "n_vertices": int(len(v32)), "n_faces": int(len(f32)), "n_faces_measured": int(len(faces)),
+    index_type = "u2" if len(v32) <= 65536 else "u4"  # 16-bit indices halve the faces when they can
+    fi = np.ascontiguousarray(f, dtype="<" + index_type)
+    return {"vertices_b64": base64.b64encode(v32.tobytes()).decode("ascii"), "faces_b64": base64.b64encode(fi.tobytes()).decode("ascii"),
+            "index_type": index_type, "n_vertices": int(len(v32)), "n_faces": int(len(fi)), "n_faces_measured": int(len(faces)),
             "extent_um": [float(x) for x in (np.ptp(v, axis=0) if len(v) else np.zeros(3))]}

@@ -11,7 +11,8 @@
     for (var i = 0; i < bin.length; i++) { u[i] = bin.charCodeAt(i); }
     return u.buffer;
   }
-  var V = new Float32Array(bytes("mesh-vertices")), F = new Uint32Array(bytes("mesh-faces"));
+  var V = new Float32Array(bytes("mesh-vertices"));
+  var F = document.getElementById("mesh-faces").dataset.indexType === "u2" ? new Uint16Array(bytes("mesh-faces")) : new Uint32Array(bytes("mesh-faces"));
   var nv = V.length / 3, nf = F.length / 3;
   // centre and radius (µm)
   var lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity], i, k;
