@@ -593,7 +593,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("annotate", help="attach specimen metadata to sessions (S.specimen.json beside S.h5)")
     s.add_argument("sessions", nargs="*", metavar="S.h5")
-    s.add_argument("--manifest", metavar="CSV", help="CSV with a 'session' column and specimen_id, age_dpf, strain, treatment, plate, well")
+    s.add_argument("--manifest", metavar="CSV", help="CSV with a 'session' column and specimen_id, age_dpf, strain, treatment, plate, well; "
+                        "or YAML mapping session file names to those fields")
     s.add_argument("--id", default=None, help="specimen ID")
     s.add_argument("--age-dpf", default=None, help="age, days post fertilisation")
     s.add_argument("--strain", default=None)

@@ -87,8 +87,24 @@ def annotate(session: str | Path, fields: Mapping[str, Any], *, source: str = "a
 
 
 def annotate_from_manifest(manifest: str | Path) -> list[Path]:
-    """Annotate every session listed in a CSV manifest (see the module docstring); returns the sidecars."""
+    """Annotate every session listed in a CSV or YAML manifest (see the module docstring); returns the sidecars.
+
+    Every entry is checked before anything is written.
+    """
     mpath = Path(manifest)
+    if mpath.suffix.lower() in (".yaml", ".yml"):
+        data = _yaml(_read_small(mpath, "--manifest"), str(mpath)) if mpath.is_file() else None
+        if not isinstance(data, dict) or not data or not all(isinstance(v, dict) for v in data.values()):
+            raise UserInputError(f"{mpath}: expected a YAML mapping of session file names to specimen fields"
+                                 + ("" if mpath.is_file() else " (no such file)"))
+        plan = []
+        for key, fields in data.items():
+            target = Path(str(key)) if Path(str(key)).is_absolute() else mpath.parent / str(key)
+            if not target.is_file():
+                raise UserInputError(f"{mpath}: {key}: no such session file {target}")
+            clean = _clean({_key(k): v for k, v in fields.items()}, f"{mpath}: {key}")
+            plan.append((target, clean, f"{mpath}: {key}"))
+        return [annotate(t, f, source=src) for t, f, src in plan]
     try:
         with mpath.open(newline="") as f:
             rows = list(csv.DictReader(f))
@@ -178,16 +194,7 @@ def specimen_for_session(spec: str, session: str | Path, source: str = "--specim
                 fields = {k: v for k, v in row.items() if k not in (None, "session")}
                 return _clean(fields, f"{source}: {path}: line {i}")
         raise UserInputError(f"{source}: {path}: no row for session {name}; expected a 'session' cell {name}")
-    import yaml
-
-    from vastcal.config import _load_yaml, _TooLarge  # the rig file's bounded loader (nesting, alias expansion)
-
-    try:
-        data = _load_yaml(text)
-    except _TooLarge as exc:
-        raise UserInputError(f"{source}: {path}: refused: the YAML document {exc}") from None
-    except yaml.YAMLError as exc:
-        raise UserInputError(f"{source}: {path}: YAML syntax error ({str(exc).splitlines()[0]})") from None
+    data = _yaml(text, f"{source}: {path}")
     if not isinstance(data, dict) or not data:
         raise UserInputError(f"{source}: {path}: expected a mapping of specimen fields, or of session file names to fields")
     if all(isinstance(v, dict) for v in data.values()):  # a manifest
@@ -196,6 +203,20 @@ def specimen_for_session(spec: str, session: str | Path, source: str = "--specim
                 return _clean({_key(k): v for k, v in fields.items()}, f"{source}: {path}: {key}")
         raise UserInputError(f"{source}: {path}: no entry for session {name}; expected a key {name}")
     return _clean({_key(k): v for k, v in data.items()}, f"{source}: {path}")
+
+
+def _yaml(text: str, source: str) -> Any:
+    """YAML through the rig file's bounded loader (nesting, alias expansion); one-line errors naming ``source``."""
+    import yaml
+
+    from vastcal.config import _load_yaml, _TooLarge
+
+    try:
+        return _load_yaml(text)
+    except _TooLarge as exc:
+        raise UserInputError(f"{source}: refused: the YAML document {exc}") from None
+    except yaml.YAMLError as exc:
+        raise UserInputError(f"{source}: YAML syntax error ({str(exc).splitlines()[0]})") from None
 
 
 def session_specimen(session: str | Path) -> dict[str, Any]:

@@ -63,3 +63,19 @@ def test_acquire_specimen_is_stored_in_the_session_and_reaches_the_table(tmp_pat
     assert len(err) == 5 and all(line.startswith("vastcal: error: ") and "--specimen" in line for line in err), err
     assert "age_dpf" in err[0] and "colour" in err[1] and "larva_004.h5" in err[2] and "no such file" in err[3]
     assert not c.exists()  # refused before the stage moved
+
+
+def test_annotate_from_a_yaml_manifest(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for n in ("a", "b"):
+        (tmp_path / f"{n}.h5").write_bytes(b"session bytes")
+    (tmp_path / "screen.yaml").write_text("a.h5: {ID: F1, age: 4}\nb.h5: {strain: TL, well: H12}\n")
+    assert main(["annotate", "--manifest", str(tmp_path / "screen.yaml")]) == 0
+    assert read_specimen(tmp_path / "a.h5") == {"specimen_id": "F1", "age_dpf": 4.0}
+    assert read_specimen(tmp_path / "b.h5") == {"strain": "TL", "well": "H12"}
+    (tmp_path / "bad.yaml").write_text("a.h5: {strain: AB}\nc.h5: {strain: AB}\n")
+    capsys.readouterr()
+    assert main(["annotate", "--manifest", str(tmp_path / "bad.yaml")]) == 2
+    assert main(["annotate", "--manifest", str(tmp_path / "none.yaml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "c.h5" in err[0] and "no such file" in err[1], err
+    assert "strain" not in read_specimen(tmp_path / "a.h5")  # nothing written when an entry is bad
