@@ -249,6 +249,7 @@ const im=[...document.images];
 const out={loaded:im.filter(i=>i.complete&&i.naturalWidth>0).length,total:im.length,height:document.documentElement.scrollHeight,
  plots:[...document.querySelectorAll('figure.plot img')].map(rect),views:[...document.querySelectorAll('.view img')].map(rect),
  canvas:rect(document.getElementById('mesh-canvas')),drawn:document.getElementById('mesh-canvas').dataset.drawn||'',
+ renderer:document.getElementById('mesh-canvas').dataset.renderer||'',
  flagged:[...document.querySelectorAll('.view.flagged')].map(rect)};
 document.querySelectorAll('.view')[1].click();
 const box=document.getElementById('lightbox'),full=box.querySelector('.frame.full img');
@@ -286,7 +287,7 @@ def test_report_in_headless_chromium_with_screenshot(measured_session: Path, tmp
     info = json.loads(_html.unescape(m.group(1)))
     assert info["total"] == 12 and info["loaded"] == info["total"], info
     assert len(info["views"]) == 9 and len(info["plots"]) == 3 and len(info["flagged"]) == 1
-    assert int(info["drawn"]) > 100, "the WebGL viewer drew the mesh"
+    assert int(info["drawn"]) > 100 and info["renderer"] == "webgl", "the WebGL viewer drew the mesh"
     lb = info["lightbox"]
     assert lb["open"] and lb["natural"] == 512 and lb["shown"] > 0 and lb["closed"], lb
 
@@ -296,13 +297,23 @@ def test_report_in_headless_chromium_with_screenshot(measured_session: Path, tmp
     shot = cv2.imread(str(shot_path), cv2.IMREAD_COLOR)
     assert shot is not None, f"no screenshot: {res.stderr[-800:]}"
     with capsys.disabled():
-        print(f"\nreport screenshot: {shot_path}")
+        print(f"\nreport screenshots: {shot_path} and {shot_path.with_name('report-screenshot-canvas2d.png')}")
     assert shot.shape[1] == 1280
     for r in info["plots"] + info["views"]:
         std, off = _crop_is_a_picture(shot, r)
         assert std > 8 and off > 0.01, f"figure at {r} looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
-    std, off = _crop_is_a_picture(shot, info["canvas"])
+    cx, cy, cw, ch = info["canvas"]
+    centre = [cx + 0.2 * cw, cy + 0.2 * ch, 0.6 * cw, 0.6 * ch]  # the middle of the 3D view: not its buttons or scale bar
+    std, off = _crop_is_a_picture(shot, centre)
     assert std > 4 and off > 0.01, f"the 3D view looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
+    # without WebGL the same view is drawn on a 2D canvas (#no-webgl forces it)
+    x, y, w, h = (int(round(v)) for v in info["canvas"])
+    shot2d_path = tmp_path / "report-screenshot-canvas2d.png"
+    _chromium((out / "report.html").as_uri() + "#no-webgl", tmp_path / "profile3", f"--window-size=1280,{y + h + 20}", f"--screenshot={shot2d_path}")
+    shot2d = cv2.imread(str(shot2d_path), cv2.IMREAD_COLOR)
+    assert shot2d is not None
+    std2d, off2d = _crop_is_a_picture(shot2d, centre)
+    assert std2d > 4 and off2d > 0.01, f"the 2D-canvas fallback looks blank (std {std2d:.1f}, {off2d:.1%} off background)"
     x, y, w, h = (int(round(v)) for v in info["flagged"][0])
     border = shot[y:y + 2, x + w // 4:x + 3 * w // 4].reshape(-1, 3).mean(0)  # the red frame of the flagged view, BGR
     assert border[2] > 150 and border[1] < 120, f"the flagged view is not framed in red: {border}"
