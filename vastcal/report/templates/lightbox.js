@@ -35,8 +35,11 @@
     box.hidden = false;
     fit();
   }
-  function close() { box.hidden = true; stage.textContent = ""; }
-  views.forEach(function (v, i) { v.addEventListener("click", function () { show(i); }); });
+  function close() { box.hidden = true; stage.textContent = ""; if (views[cur]) { views[cur].focus(); } }
+  views.forEach(function (v, i) {
+    v.addEventListener("click", function () { show(i); });
+    v.addEventListener("keydown", function (e) { if (e.key === "Enter" || e.key === " ") { e.preventDefault(); show(i); } });
+  });
   box.querySelector(".lb-close").addEventListener("click", close);
   box.querySelector(".lb-prev").addEventListener("click", function () { show(cur - 1); });
   box.querySelector(".lb-next").addEventListener("click", function () { show(cur + 1); });
