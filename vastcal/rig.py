@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 import os
 import urllib.parse
 import uuid
@@ -120,20 +119,13 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
     stack.enter_context(_closing(camera))
 
     earlier: list[dict[str, Any]] | None = None
+    view_snaps: list[dict[str, Any]] = []
 
     def full_record() -> dict[str, Any]:
-        """The camera's whole truth record (phantom, hull for the actual angles), with earlier runs' views."""
-        record = camera.truth_record()
-        if earlier:
-            record["snaps"] = earlier + record["snaps"]
-            known = [s["actual_angle_deg"] for s in record["snaps"] if s.get("actual_angle_deg") is not None]
-            for key, hull in (("hull_volume_mm3", camera.phantom.hull_volume_mm3), ("hull_area_mm2", camera.phantom.hull_area_mm2)):
-                value = hull(known) if known else float("inf")
-                record[key] = value if math.isfinite(value) else None
+        """The camera's whole truth record (phantom, hulls and frame cuts for the actual angles of every view, earlier runs' too)."""
+        record = camera.truth_record((earlier or []) + view_snaps)
         record["actual_angles_deg"] = [s["actual_angle_deg"] for s in record["snaps"]]
         return record
-
-    angles: list[float] = []
 
     def write_truth(k: int) -> None:
         """After each view: the actual angles so far and the hidden geometry (cheap; the hull comes at the end)."""
@@ -142,13 +134,13 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
             return
         if earlier is None:  # first view of this run: a resumed run keeps the truth of views 0..k-1
             earlier = _earlier_snaps(truth_path, k)
-        angles.append(float(angle_source()))
-        prior = [s.get("actual_angle_deg") for s in earlier]
-        _write_json_atomically(truth_path, {"partial": True, **camera.truth.to_dict(), "actual_angles_deg": prior + angles,
-                                            "snaps": earlier + [{"actual_angle_deg": a} for a in angles]})
+        view_snaps.append(camera.snaps[-1])  # this view's frame: the angle it was rendered at, whether the frame cut the body
+        snaps = earlier + view_snaps
+        _write_json_atomically(truth_path, {"partial": True, **camera.truth.to_dict(), "actual_angles_deg": [s.get("actual_angle_deg") for s in snaps],
+                                            "snaps": snaps})
 
     def finish_truth() -> None:
-        if truth_path is not None and angles:
+        if truth_path is not None and view_snaps:
             _write_json_atomically(truth_path, full_record())
 
     stack.callback(finish_truth)

@@ -218,8 +218,18 @@ class SimulatedCamera(Camera):
         x, y, _, _ = self._roi()
         return truth_projection_matrix(PinholeIntrinsics.from_optics(self._optics, (x, y)), self._truth, angle_deg)
 
-    def truth_record(self) -> dict[str, Any]:
+    @property
+    def snaps(self) -> list[dict[str, Any]]:
+        """One ``{"frame_id", "actual_angle_deg", "host_time_s", "body_cut_by_frame"}`` per frame delivered (copies)."""
+        return [dict(s) for s in self._snaps]
+
+    def truth_record(self, views: list[dict[str, Any]] | None = None) -> dict[str, Any]:
         """The hidden truth as JSON-able data, to be written APART from the session.
+
+        ``views``: the snaps of the session's views in view order (default: every frame this camera
+        delivered) — a resumed acquisition passes the earlier run's views first and only the frames
+        that became views; the hulls and ``frame_cut_views`` are of those (a snap whose angle is
+        unknown, ``None``, is left out of the hulls).
 
         Keys: ``schema``; ``phantom``, ``true_volume_mm3``, ``true_area_mm2``; ``yaw_deg``,
         ``pitch_deg``, ``gamma_deg``, ``axis_offset_um``, ``distance_um``, ``specimen_offset_um`` (y, z); ``seed``; ``roi``
@@ -234,11 +244,12 @@ class SimulatedCamera(Camera):
         frame sees) and ``hull_in_frame_volume_mm3`` / ``hull_in_frame_area_mm2`` — the body's hull
         cut to it (cut faces included): what a hull carved by every frame can at most measure.
         """
-        angles = [s["actual_angle_deg"] for s in self._snaps]
+        snaps = [dict(s) for s in views] if views is not None else self.snaps
+        angles = [s["actual_angle_deg"] for s in snaps if s.get("actual_angle_deg") is not None]
         hv = self.phantom.hull_volume_mm3(angles) if angles else float("inf")
         ha = self.phantom.hull_area_mm2(angles) if angles else float("inf")
         x, y, w, h = self._roi()
-        cut_views = [i for i, s in enumerate(self._snaps) if s.get("body_cut_by_frame")]
+        cut_views = [i for i, s in enumerate(snaps) if s.get("body_cut_by_frame")]
         extra: dict[str, Any] = {"specimen": {**self.specimen.features, **self._particles.describe(), **self._illumination_record},
                                  "frame_cut_views": cut_views}
         if cut_views and np.isfinite(hv):
@@ -253,7 +264,7 @@ class SimulatedCamera(Camera):
             "seed": self._sim.seed,
             "roi": [x, y, w, h],
             "K": PinholeIntrinsics.from_optics(self._optics, (x, y)).K.tolist(),
-            "snaps": [dict(s) for s in self._snaps],
+            "snaps": snaps,
             "hull_volume_mm3": hv if np.isfinite(hv) else None,
             "hull_area_mm2": ha if np.isfinite(ha) else None,
             **extra,

@@ -64,6 +64,10 @@ def test_resume_continues_an_interrupted_session_to_completion_keeping_its_histo
         assert history["stop_000"].attrs["views_written"] == 3
     truth = acq.read_truth(out)["actual_angles_deg"]
     assert len(truth) == VIEWS and truth[:3] == truth_before, "the truth of the earlier views survives the resume"
+    record = acq.read_truth(out)
+    cut = [i for i, snap in enumerate(record["snaps"]) if snap["body_cut_by_frame"]]
+    assert len(record["snaps"]) == VIEWS and record["frame_cut_views"] == cut == list(range(VIEWS)), \
+        "the 128-px frame cuts the 3-mm body in every view, earlier run's views included"
     assert cli.main(["info", str(out)]) == 0
     assert "status       success" in capsys.readouterr().out
 
