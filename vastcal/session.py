@@ -571,8 +571,9 @@ class SessionWriter:
         if self._planes is None:
             _put_chunk(self._data, i, frame)
         else:
-            for c, ds in enumerate(self._planes):
-                _put_chunk(ds, i, frame[..., c])
+            planes = np.ascontiguousarray(np.moveaxis(frame, -1, 0))  # (3, H, W): one transposing copy
+            for ds, image in zip(self._planes, planes):
+                _put_chunk(ds, i, image)
 
     def _set_committed(self, n: int) -> None:
         self._committed[0] = n
@@ -1162,7 +1163,7 @@ def _put_chunk(ds: h5py.Dataset, i: int, image: np.ndarray) -> None:
     """Write ``image`` as chunk ``i`` of a dataset chunked one image per chunk, growing it if needed."""
     if ds.shape[0] < i + 1:
         ds.resize((i + 1,) + ds.shape[1:])
-    ds.id.write_direct_chunk((i,) + (0,) * image.ndim, np.ascontiguousarray(image).tobytes())
+    ds.id.write_direct_chunk((i,) + (0,) * image.ndim, np.ascontiguousarray(image))  # the array's buffer: no copy
 
 
 def _put(ds: h5py.Dataset, i: int, value: Any) -> None:
