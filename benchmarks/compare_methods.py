@@ -105,6 +105,14 @@ def _cut_views(session: Path) -> np.ndarray:
     return border.sum(axis=1) > 20
 
 
+def _measure(session: Path, r: object) -> tuple[float, float]:
+    """Volume and area of the visual hull under the run's cameras (automatic silhouettes, the rig file's grid;
+    mm³/mm² — in (units of the cameras) for ETH David, whose unit is unknown)."""
+    from vastcal.reconstruct import reconstruct_session
+    m = reconstruct_session(session, calibration_run=getattr(r, "run_name"))
+    return float(m.volume_mm3), float(m.surface_area_mm2)
+
+
 def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], starts: int, at_truth: bool = False) -> None:
     if name == "david":
         folder = DATA / "eth_david"
@@ -120,7 +128,8 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
     truth[3:] = true_rolls
     start_mean, start_max = _angle_errors(theta0, true_rolls)
     print(f"\n== {name}{' started at the truth' if at_truth else ''}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)")
-    print(f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s}")
+    print(f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+          f"{'volume':>9s} {'area':>9s}")
     for method in methods:
         for seed in seeds:
             settings = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
@@ -130,8 +139,9 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
                                   settings=settings, starts=starts, score_thetas=[truth] + scan)
             wall = time.perf_counter() - t
             mean, mx = _angle_errors(r.theta_deg, true_rolls)
+            vol, area = _measure(s, r)
             print(f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
-                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f}", flush=True)
+                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}", flush=True)
             e = _gauge_free(r.theta_deg, true_rolls)
             e0 = (theta0[3:] - theta0[3]) - (true_rolls - true_rolls[0])  # the start's error (0 or 10°), view 0 the reference
             worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
@@ -146,7 +156,8 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
     s = tmp / "zf.h5"
     import_folder(folder / "images", s, masks=folder / "silhouettes", config=load_config(ROOT / "config" / "guo2019-zebrafish.yaml"))
     print("\n== ZF1 (no truth): all of θ free as in config/guo2019-zebrafish.yaml")
-    print(f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s}")
+    print(f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+          f"{'mm³':>9s} {'mm²':>9s}")
     for method in methods:
         rolls = []
         for seed in seeds:
@@ -155,8 +166,9 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
             wall = time.perf_counter() - t
             th = r.theta_deg
             rolls.append(th[3:])
+            vol, area = _measure(s, r)
             print(f"{method:10s} {seed:4d} {th[0]:+8.4f} {th[1]:+8.4f} {th[2]:+8.4f} {r.final_cost:9.5g} {r.theta0_cost:9.5g} "
-                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f}", flush=True)
+                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}", flush=True)
         if len(rolls) > 1:
             R = np.array(rolls)
             spread = np.sqrt(np.mean((R - R.mean(axis=0)) ** 2, axis=0))
