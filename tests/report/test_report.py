@@ -136,6 +136,33 @@ def _flag_view(session: Path, view: int) -> None:
         meas.attrs["qc"] = json.dumps(qc)
 
 
+def test_outlines_sit_on_the_specimen_when_the_cameras_are_in_millimetres(session_factory, tmp_path: Path, small_views: object) -> None:  # type: ignore[no-untyped-def]
+    """Imported cameras in mm: the hull is built in µm, and the report projects it through the same µm cameras
+    (the outlines are those of the same session with cameras in µm)."""
+    from vastcal.reconstruct import reconstruct_session
+
+    def outlines(mm: bool) -> list[np.ndarray]:
+        path = session_factory(masks=True, cameras=True)
+        if mm:
+            with h5py.File(path, "a") as f:
+                cams = f["/entry/vastcal/cameras"]
+                P_mm = cams["P"][...] @ np.diag([1000.0, 1000.0, 1000.0, 1.0])  # world in mm: X_mm = X_um / 1000
+                del cams["P"]
+                cams["P"] = P_mm
+                cams.attrs["length_unit"] = "mm"
+        reconstruct_session(path, target_voxels=200_000)
+        write_report(path, tmp_path / f"r{mm}")
+        page = (tmp_path / f"r{mm}" / "report.html").read_text()
+        return [np.array([[float(x), float(y)] for x, y in re.findall(r"[ML]([-\d.]+) ([-\d.]+)", d)])
+                for d in re.findall(r'<path d="(M[^"]+)"', page)]
+
+    sil = np.asarray(small_views.silhouettes)  # type: ignore[attr-defined]
+    for i, (um, mm) in enumerate(zip(outlines(False), outlines(True), strict=True)):
+        assert np.allclose(um.min(0), mm.min(0), atol=1.0) and np.allclose(um.max(0), mm.max(0), atol=1.0), f"view {i}"
+        rows = np.nonzero(sil[i])[0]
+        assert abs(mm[:, 1].min() - rows.min()) < 3 and abs(mm[:, 1].max() - rows.max()) < 3, f"view {i} is off the specimen"
+
+
 def test_views_flagged_by_qc_are_marked_in_the_sheet_and_table(measured_session: Path, tmp_path: Path) -> None:
     _flag_view(measured_session, 3)
     write_report(measured_session, tmp_path / "r")

@@ -185,7 +185,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         MissingStageError: no measurement (run ``vastcal reconstruct S.h5`` first).
     """
     from vastcal.measure import load_mesh
-    from vastcal.reconstruct import hull_boundary, load_reconstruction
+    from vastcal.reconstruct import _world_length_unit, cameras_in_um, hull_boundary, load_reconstruction
     from vastcal.session import Session, read_attrs, software_versions
 
     path = Path(session_path)
@@ -214,6 +214,8 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
             P = np.asarray(s.known_cameras, float)
         if P is None:
             raise MissingStageError(f"{path}: the cameras of {mrun} are missing: run 'vastcal calibrate {path}' first")
+        # the world of the hull is µm: the cameras re-expressed the way the reconstruction did (nm, mm, m … → µm)
+        P = cameras_in_um(P, _world_length_unit(s, s.result("calibration", cal_run) if cal_run else None))[0]
         commanded = np.asarray(s.angles_deg, float)
         cal, delta, cost = _calibration_summary(s, cal_run, P, commanded)
         frames = s.projections()

@@ -228,6 +228,9 @@ def hull_mask_in_view(P: np.ndarray, points: np.ndarray, voxel_size_um: float, s
     ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     mask = np.zeros((h, w), np.uint8)
     mask[v[ok], u[ok]] = 255
+    if vox_px > 64:  # a voxel this large in the image: a very coarse grid (or cameras in another unit than the hull)
+        log.warning("a hull voxel spans %.0f px in a view: the outline is drawn with 64 px discs", vox_px)
+        vox_px = 64.0
     k = int(max(3, 2 * math.ceil(vox_px / 2) + 1))
     mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
     return mask
