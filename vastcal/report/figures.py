@@ -170,8 +170,9 @@ def agreement_plot(iou: Sequence[float | None], distance_px: Sequence[float | No
 def convergence_plot(evaluations: Sequence[float], cost: Sequence[float], *, title: str = "Best cost during calibration") -> str:
     """Best cost so far against the number of cost evaluations; SVG data URI.
 
-    Log scale when every cost is positive and they span more than a factor 20; a trace whose
-    best-so-far cost rises again holds several independent starts, drawn as one line each.
+    Log scale when every cost is positive and they span more than a factor 20. The stored trace
+    concatenates the optimiser's runs (every resolution level of every start): where the best-so-far
+    cost rises a new run begins, drawn as its own line; the last point is the stored pose's cost.
     """
     ev = np.asarray(evaluations, float)
     c = np.asarray(cost, float)
@@ -181,14 +182,14 @@ def convergence_plot(evaluations: Sequence[float], cost: Sequence[float], *, tit
         fig = _figure()
         ax = fig.add_subplot()
         if c.size:
-            # a best-so-far cost that rises again is the next independent start: one line per start
+            # a best-so-far cost that rises again starts the next optimiser run (another start, or the next
+            # resolution level, whose costs are not comparable with the previous level's): one line per run
             cuts = np.flatnonzero(np.diff(c) > 0) + 1
             segments = np.split(np.arange(c.size), cuts)
             for j, seg in enumerate(segments):
                 ax.step(ev[seg], c[seg], where="post", lw=1.4, color=f"C{j % 10}",
-                        label=f"start {j + 1}" if len(segments) > 1 else None)
-            best = int(np.argmin(c))
-            ax.plot(ev[best:best + 1], c[best:best + 1], "o", color="#222222", ms=4, label="lowest cost")
+                        label=f"run {j + 1}" if len(segments) > 1 else None)
+            ax.plot(ev[-1:], c[-1:], "o", color="#222222", ms=4, label="final (stored pose)")
             ax.legend(loc="upper right", frameon=False, ncols=min(len(segments) + 1, 4))
             if np.all(c > 0) and c.max() / c.min() > 20:
                 ax.set_yscale("log")

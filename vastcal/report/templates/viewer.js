@@ -44,8 +44,17 @@
   }
   function rotX(t) { var co = Math.cos(t), si = Math.sin(t); return [1, 0, 0, 0, co, -si, 0, si, co]; }
   function rotY(t) { var co = Math.cos(t), si = Math.sin(t); return [co, 0, si, 0, 1, 0, -si, 0, co]; }
-  function halfExtents(w, h) {  // µm from the centre to the canvas edges
-    var halfW = Math.max(1.02 * radius, 1.02 * radius * 0.5 * w / h) / zoom;
+  var fit = [radius, radius];  // half-extents (µm) of the mesh seen along the current preset direction
+  function fitView() {
+    var mx = 0, my = 0;
+    for (var j = 0; j < nv; j++) {
+      var x = V[3 * j], y = V[3 * j + 1], z = V[3 * j + 2];
+      mx = Math.max(mx, Math.abs(R[0] * x + R[1] * y + R[2] * z)); my = Math.max(my, Math.abs(R[3] * x + R[4] * y + R[5] * z));
+    }
+    fit = [mx || radius, my || radius];
+  }
+  function halfExtents(w, h) {  // µm from the centre to the canvas edges: the fitted view with a margin, over the zoom
+    var halfW = 1.1 * Math.max(fit[0], fit[1] * w / h) / zoom;
     return [halfW, halfW * h / w];
   }
 
@@ -168,13 +177,14 @@
   canvas.addEventListener("pointerup", function () { drag = null; });
   canvas.addEventListener("contextmenu", function (e) { e.preventDefault(); });
   canvas.addEventListener("wheel", function (e) { e.preventDefault(); zoom *= Math.exp(-e.deltaY * 0.0015); redraw(); }, { passive: false });
-  function preset(name) { R = PRESETS[name].slice(); zoom = 1; pan = [0, 0]; redraw(); }
+  function preset(name) { R = PRESETS[name].slice(); zoom = 1; pan = [0, 0]; fitView(); redraw(); }
   canvas.addEventListener("dblclick", function () { preset("side"); });
   Array.prototype.forEach.call(wrap.querySelectorAll("button[data-view]"), function (b) {
     b.addEventListener("click", function () { preset(b.dataset.view); });
   });
   window.addEventListener("resize", redraw);
   R = mul(mul(rotY(-0.5), rotX(0.45)), R);  // open on an oblique view: depth visible at once
+  fitView();
   draw();
   canvas.dataset.drawn = String(nf);
   canvas.dataset.renderer = mode;
