@@ -39,7 +39,7 @@ from vastcal import __version__
 from vastcal.allocator import keep_large_blocks
 from vastcal.errors import EXIT_BAD_INPUT, EXIT_CODES, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, UserInputError, VastcalError
 from vastcal.outputs import check_output_file, check_output_folder
-from vastcal.progress import ProgressLine, evaluations_callback
+from vastcal.progress import CalibrationProgress, PhaseProgress, ProgressLine
 
 #: calibration methods (vastcal.calibrate.run.METHODS; not imported here to keep the CLI start-up light)
 METHOD_CHOICES = ("coherence", "pi", "vr")
@@ -232,11 +232,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     if args.mask and args.scribbles:
         raise UserInputError("give either --mask or --scribbles for the colour models, not both")
-    bar = _progress(args, f"calibrate ({args.method or 'rig config method'})", "evaluations")
+    bar = PhaseProgress(f"calibrate ({args.method or 'rig config method'})", enabled=not args.quiet)
     try:
+        bar.phase("colour model and specimen maps")
         res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
                                 fixed_views=args.fixed_views, starts=args.starts,
-                                mask=_view_image_arg("--mask", args.mask), scribbles=_view_image_arg("--scribbles", args.scribbles), progress=evaluations_callback(bar))
+                                mask=_view_image_arg("--mask", args.mask), scribbles=_view_image_arg("--scribbles", args.scribbles), progress=CalibrationProgress(bar))
     finally:
         bar.close()
     print(res.summary() if hasattr(res, "summary") else f"stored calibration run in {args.session}")

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from vastcal.errors import VastcalError
-from vastcal.progress import ProgressLine, evaluations_callback, format_duration
+from vastcal.progress import CalibrationProgress, PhaseProgress, ProgressLine, format_duration
 
 log = logging.getLogger(__name__)
 
@@ -166,11 +166,12 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     res = RunSummary(path, out)
     calibration_run: str | None = "imported"
     if cameras == "calibrated":
-        bar = ProgressLine(f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})", "evaluations", enabled=not quiet)
+        bar = PhaseProgress(f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})", enabled=not quiet)
         t = time.monotonic()
         try:
+            bar.phase("colour model and specimen maps")
             cal = calibrate_session(path, method=method, seed=seed, starts=starts, prior_from=prior_from,
-                                    progress=evaluations_callback(bar))
+                                    progress=CalibrationProgress(bar))
         finally:
             bar.close()
         res.timings_s["calibrate"] = time.monotonic() - t

@@ -1,19 +1,32 @@
-"""Progress lines with an ETA for long work, on stderr.
+"""Progress of long work on stderr: named phases, each with its own fraction done and ETA.
 
-On a terminal one line is rewritten in place; elsewhere (CI logs, pipes) a line is written
-every ``every_s`` seconds and at the end, so logs stay short.
+:class:`PhaseProgress` draws with ``rich`` on a terminal (one live line per phase: name, bar, percent,
+elapsed, ETA) and writes plain lines elsewhere (CI logs, pipes, ``2> log``): one when a phase starts,
+one at every ``step_pct`` percent and one when it ends — no carriage returns, no escape codes.
+
+The ETA of a phase is its remaining fraction over the rate measured in the recent half of the phase
+(:class:`PhaseEta`): a phase whose first part is slower or faster (one-off set-up, a search that
+first wanders and then converges geometrically) is judged by how it goes now. Calibration phases
+report a fraction that is linear in time where the evaluation count is not: a CMA-ES level's
+convergence (log σ from its start to the tolerance, :mod:`vastcal.calibrate.optimise`), the
+photometric yaw's share of its reconstructions.
+
+``benchmarks/progress_eta.py`` measures the ETA's error over the second half of every phase.
+:class:`ProgressLine` (a single counted task: import, acquire, batch) is kept for simple loops.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 import time
-from typing import Callable, TextIO
+from dataclasses import dataclass, field
+from typing import Any, Callable, TextIO
 
 
 def format_duration(seconds: float) -> str:
-    """``12.3 s``, ``4 min 05 s`` or ``1 h 02 min``."""
-    if seconds != seconds or seconds < 0:  # NaN or negative: unknown
+    """``12.3 s``, ``4 min 05 s`` or ``1 h 02 min``; ``?`` when unknown (NaN, negative, infinite)."""
+    if seconds != seconds or seconds < 0 or math.isinf(seconds):
         return "?"
     if seconds < 60:
         return f"{seconds:.1f} s"
@@ -22,8 +35,228 @@ def format_duration(seconds: float) -> str:
     return f"{int(seconds // 3600)} h {int(seconds % 3600 // 60):02d} min"
 
 
+class PhaseEta:
+    """ETA of one phase from (time, fraction done) samples.
+
+    The rate is the fraction gained over the recent half of the time since the first report, so a
+    slow start (one-off set-up before the first report, a search that first explores) does not
+    inflate the estimate once the phase runs steadily. Before two reports with progress: unknown (NaN).
+    """
+
+    def __init__(self, t0: float) -> None:
+        self.t0 = t0
+        self.samples: list[tuple[float, float]] = [(t0, 0.0)]
+
+    def add(self, t: float, fraction: float) -> None:
+        """Record that ``fraction`` (0..1; never decreasing: a lower value is ignored) was done at ``t``."""
+        f = min(max(float(fraction), self.samples[-1][1]), 1.0)
+        self.samples.append((t, f))
+
+    def eta(self, now: float | None = None) -> float:
+        """Seconds left (NaN: no rate yet), measured at the latest sample (or ``now``)."""
+        t, f = self.samples[-1]
+        if f >= 1.0:
+            return 0.0
+        # From the first report on: the time before it (set-up, a first evaluation that pays one-off work) says nothing of the rate.
+        if len(self.samples) < 3:  # fewer than two reports: no rate yet
+            return float("nan")
+        first = self.samples[1]
+        window_start = t - 0.5 * (t - first[0])
+        older = [s for s in self.samples[1:-1] if s[0] <= window_start]
+        ref = older[-1] if older else first
+        if t - ref[0] <= 0 or f - ref[1] <= 0:
+            ref = first
+        if t - ref[0] <= 0 or f - ref[1] <= 0:
+            return float("nan")
+        rate = (f - ref[1]) / (t - ref[0])
+        left = (1.0 - f) / rate
+        if now is not None:
+            left = max(0.0, left - (now - t))
+        return left
+
+
+@dataclass
+class PhaseRecord:
+    """What one phase showed: its name, start and end (monotonic s) and every (time, fraction, ETA) drawn."""
+
+    name: str
+    t0: float
+    t1: float = float("nan")
+    points: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def eta_errors(self) -> list[float]:
+        """Relative ETA errors |ETA − true remaining| / true remaining over the second half of the phase
+        (samples whose true remaining time is at least 1 % of the phase, so the last instant does not divide by 0)."""
+        total = self.t1 - self.t0
+        out = []
+        for t, _, eta in self.points:
+            left = self.t1 - t
+            if t - self.t0 >= 0.5 * total and left > 0.01 * total and eta == eta:
+                out.append(abs(eta - left) / left)
+        return out
+
+
+class PhaseProgress:
+    """Named phases of one task, each with a fraction done and an ETA of its own.
+
+    Args:
+        label: the task (``calibrate``); every phase line starts with it.
+        stream: where to draw (default stderr).
+        enabled: False draws nothing (``-q``); the records are kept all the same.
+        step_pct: on a non-terminal, one line per this many percent of a phase.
+        tty: force terminal (True) or plain-line (False) mode; default: ``stream.isatty()``.
+        clock: time source (monotonic seconds; tests pass their own).
+    """
+
+    def __init__(self, label: str, stream: TextIO | None = None, *, enabled: bool = True, step_pct: int = 10, tty: bool | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.step_pct = max(1, int(step_pct))
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)()) if tty is None else tty
+        self.clock = clock
+        self.records: list[PhaseRecord] = []
+        self._eta: PhaseEta | None = None
+        self._step = -1
+        self._rich: Any = None
+        self._task: Any = None
+
+    # -- phases ---------------------------------------------------------------------------------
+    @property
+    def current(self) -> PhaseRecord | None:
+        """The phase under way (None before the first and after :meth:`close`)."""
+        return self.records[-1] if self.records and self.records[-1].t1 != self.records[-1].t1 else None
+
+    def phase(self, name: str) -> None:
+        """End the phase under way (if any) and start ``name``."""
+        now = self.clock()
+        self._end(now)
+        self.records.append(PhaseRecord(name, now))
+        self._eta = PhaseEta(now)
+        self._step = -1
+        if not self.enabled:
+            return
+        if self.tty:
+            self._rich_start(name)
+        else:
+            self._line(f"{self.label}: {name} ...")
+
+    def update(self, fraction: float, extra: str = "") -> None:
+        """Report the fraction (0..1) of the current phase done; ``extra`` is shown beside it (terminal only)."""
+        if self.current is None or self._eta is None:
+            self.phase(self.label)
+        assert self._eta is not None
+        now = self.clock()
+        self._eta.add(now, fraction)
+        f = self._eta.samples[-1][1]
+        eta = self._eta.eta()
+        self.records[-1].points.append((now, f, eta))
+        if not self.enabled:
+            return
+        if self.tty:
+            self._rich_update(f, eta, extra)
+            return
+        step = int(100 * f) // self.step_pct
+        if step > self._step and f < 1.0:
+            self._step = step
+            if step > 0:
+                self._line(f"{self.label}: {self.current.name}  {100 * f:3.0f} %  "  # type: ignore[union-attr]
+                           f"{format_duration(now - self.records[-1].t0)} elapsed  ETA {format_duration(eta)}")
+
+    def close(self) -> None:
+        """End the phase under way and the live display (call once, also on error)."""
+        self._end(self.clock())
+        if self._rich is not None:
+            try:
+                self._rich.stop()
+            finally:
+                self._rich = None
+
+    def __enter__(self) -> "PhaseProgress":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- drawing --------------------------------------------------------------------------------
+    def _end(self, now: float) -> None:
+        cur = self.current
+        if cur is None:
+            return
+        cur.t1 = now
+        if not self.enabled:
+            return
+        if self.tty and self._rich is not None and self._task is not None:
+            self._rich.update(self._task, completed=1.0, eta="done")
+        elif not self.tty:
+            self._line(f"{self.label}: {cur.name}  done in {format_duration(now - cur.t0)}")
+
+    def _line(self, text: str) -> None:
+        try:
+            self.stream.write(text + "\n")
+            self.stream.flush()
+        except (OSError, ValueError):  # a log that went away must not end the work
+            pass
+
+    def _rich_start(self, name: str) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        if self._rich is None:
+            self._rich = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f} %"),
+                                  TimeElapsedColumn(), TextColumn("ETA {task.fields[eta]}"), TextColumn("{task.fields[extra]}"),
+                                  console=Console(file=self.stream, force_terminal=True), transient=False, refresh_per_second=4)
+            self._rich.start()
+        self._task = self._rich.add_task(f"{self.label}: {name}", total=1.0, eta="?", extra="")
+
+    def _rich_update(self, f: float, eta: float, extra: str) -> None:
+        if self._rich is not None and self._task is not None:
+            self._rich.update(self._task, completed=f, eta=format_duration(eta), extra=extra)
+
+
+class CalibrationProgress:
+    """A calibration progress callback drawing named phases on a :class:`PhaseProgress`.
+
+    Called as the optimiser's ``progress(evaluations, best cost, elapsed s, ETA s)``; the calibration's
+    :class:`~vastcal.calibrate.optimise.ProgressClock` also calls :meth:`phase` when a phase begins
+    (a CMA-ES level, the per-view polish, the photometric yaw) and :meth:`phase_fraction` with the
+    fraction of it done. The best silhouette cost is shown only in the phases that minimise it (the
+    photometric yaw minimises a different quantity: its name is shown, not a "cost" that jumps).
+    """
+
+    def __init__(self, bar: PhaseProgress) -> None:
+        self.bar = bar
+        self._name = ""
+        self._best = float("nan")
+        self._fraction: float | None = None
+
+    def phase(self, name: str) -> None:
+        self._name = name
+        self._fraction = None
+        self.bar.phase(name)
+
+    def phase_fraction(self, fraction: float) -> None:
+        self._fraction = fraction
+
+    def __call__(self, evaluations: int, best: float, elapsed_s: float, eta_s: float) -> None:
+        if not self._name:  # an optimiser that names no phases: one phase, the evaluation budget's share
+            self.phase("optimisation")
+        if "yaw" not in self._name:
+            self._best = best
+        extra = f"{evaluations} evaluations" + (f", cost {self._best:.5g}" if "yaw" not in self._name and best == best else "")
+        f = self._fraction
+        if f is None:  # no fraction from the clock: the optimiser's own ETA turned into one
+            f = elapsed_s / (elapsed_s + eta_s) if eta_s == eta_s and elapsed_s + eta_s > 0 else 0.0
+        self.bar.update(f, extra)
+
+
 class ProgressLine:
-    """Reports ``label  done/total unit  elapsed  ETA`` for a task of known size."""
+    """Reports ``label  done/total unit  elapsed  ETA`` for a task of known size.
+
+    On a terminal one line is rewritten in place; elsewhere (CI logs, pipes) a line is written
+    every ``every_s`` seconds and at the end, so logs stay short.
+    """
 
     def __init__(self, label: str, unit: str = "", stream: TextIO | None = None, every_s: float = 2.0, enabled: bool = True) -> None:
         self.label, self.unit = label, unit

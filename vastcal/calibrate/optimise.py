@@ -15,10 +15,11 @@ is where the speed comes from (no Python loop over candidates or views).
 from __future__ import annotations
 
 import logging
+import math
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -52,11 +53,23 @@ class CMAResult:
 RESTARTS = ("none", "ipop", "bipop")
 
 
+def _convergence(es: Any, s0: float, tolx: float, maxfevals: float, n_evaluations: int) -> float:
+    """How far (0..1) a CMA-ES run is towards its stop: the larger of the budget spent and the step's way
+    down from its start ``s0`` to ``tolx`` on a log scale (σ shrinks about geometrically per generation once
+    the search converges, so this is close to linear in time; a progress bar's fraction)."""
+    s = float(np.max(es.stds))
+    by_step = math.log(s0 / s) / math.log(s0 / tolx) if s0 > tolx and s > 0 else 0.0
+    return float(min(1.0, max(0.0, by_step, n_evaluations / maxfevals if maxfevals else 0.0)))
+
+
 def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, opts: dict,
-             progress: Callable[[int, float], None] | None, evals_before: int) -> CMAResult:
-    """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept."""
+             progress: Callable[[int, float], None] | None, evals_before: int,
+             convergence: Callable[[float], None] | None = None) -> CMAResult:
+    """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept.
+    ``convergence`` (optional) is told the run's fraction done (:func:`_convergence`) every generation."""
     res = CMAResult(x0.copy(), float("inf"), 0, 0, {})
     es = cma.CMAEvolutionStrategy(list(x0), float(sigma0), opts)
+    s0 = float(np.max(es.stds))
     while not es.stop():
         X = np.asarray(es.ask())
         f = np.asarray(objective(X), float)
@@ -68,6 +81,8 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
             res.f_best, res.x_best = float(f[i]), X[i].copy()
         res.trace_evals.append(evals_before + res.n_evaluations)
         res.trace_best.append(res.f_best)
+        if convergence is not None:
+            convergence(_convergence(es, s0, float(opts["tolx"]), float(opts.get("maxfevals", 0)), res.n_evaluations))
         if progress is not None:
             progress(evals_before + res.n_evaluations, res.f_best)
     res.stop = dict(es.stop())
@@ -88,7 +103,8 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
 
 def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, stds: np.ndarray, *, seed: int,
              max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
-             progress: Callable[[int, float], None] | None = None, restarts: str = "none") -> CMAResult:
+             progress: Callable[[int, float], None] | None = None, restarts: str = "none",
+             convergence: Callable[[float], None] | None = None) -> CMAResult:
     """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
 
     Args:
@@ -104,6 +120,8 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             (Hansen 2009: IPOP's large-population regime interleaved with short local runs of small random
             populations and σ0 × 10^(−2u), u ~ U(0, 1), while the small regime has used less budget than the
             large). The best run (re-scored alone) is returned; ``stop`` holds every run's reasons.
+        convergence: told the fraction (0..1) of the current run done, every generation, before ``progress``
+            (for a progress bar's ETA; see :class:`ProgressClock`).
     """
     cma = _cma()
     if restarts not in RESTARTS:
@@ -111,7 +129,8 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
     if np.size(x0) == 1:  # cma needs at least two dimensions: add an inert one
         inner = objective
         r = minimise(lambda X: inner(np.asarray(X)[:, :1]), np.r_[np.ravel(x0), 0.0], sigma0, np.r_[np.ravel(stds), 1.0], seed=seed,
-                     max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress, restarts=restarts)
+                     max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress, restarts=restarts,
+                     convergence=convergence)
         r.x_best = r.x_best[:1]
         return r
     base = {"bounds": [-1.0, 1.0], "CMA_stds": list(np.asarray(stds, float)), "tolx": float(tolx), "tolfun": float(tolfun),
@@ -142,7 +161,7 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
                 opts["popsize"] = lam_large
             elif lam0:
                 opts["popsize"] = lam0
-            r = _one_run(cma, objective, x0, sig, opts, progress, total)
+            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence)
             if k == 0:
                 lam0 = lam_large = r.popsize  # type: ignore[attr-defined]
             used[regime] += r.n_evaluations
@@ -182,6 +201,17 @@ class ProgressClock:
         self.every_s = every_s
         self._last_log = self.t0
         self._first: tuple[float, int] | None = None
+        self._phase_start, self._phase_budget = 0, self.budget
+        self._converged: float | None = None
+
+    def converged(self, fraction: float) -> None:
+        """The current phase's own measure of its progress (e.g. a CMA-ES run's convergence), 0..1."""
+        self._converged = float(fraction)
+
+    def phase_fraction(self) -> float:
+        """Fraction (0..1) of the current phase done: its own measure when it gives one, else its evaluations' share."""
+        by_count = (self.done - self._phase_start) / self._phase_budget
+        return float(min(1.0, max(by_count, self._converged or 0.0)))
 
     def update(self, evals_total: int, best: float) -> None:
         """Report progress; ``evals_total`` counts every level so far."""
@@ -196,13 +226,25 @@ class ProgressClock:
             t1, n1 = self._first
             eta = (now - t1) / (evals_total - n1) * remaining
         if self.callback is not None:
+            if hasattr(self.callback, "phase_fraction"):  # vastcal.progress.CalibrationProgress: named phases
+                self.callback.phase_fraction(self.phase_fraction())
             self.callback(evals_total, best, el, eta)
         if now - self._last_log >= self.every_s:
             self._last_log = now
             log.info("calibration: %d evaluations, best cost %.6g, %.1f s elapsed", evals_total, best, el)
 
-    def start_phase(self, evaluations: int) -> None:
+    def start_phase(self, evaluations: int, name: str | None = None) -> None:
         """A new phase of ``evaluations`` more evaluations at a rate of its own (e.g. reconstructions after
-        the CMA-ES levels): the budget becomes what is done plus that, and the rate is measured afresh."""
+        the CMA-ES levels): the budget becomes what is done plus that, and the rate is measured afresh.
+        ``name`` is shown by a callback that draws named phases (one with a ``phase`` method)."""
         self.budget = self.done + max(1, int(evaluations))
         self._first = None
+        self.name_phase(evaluations, name)
+
+    def name_phase(self, evaluations: int, name: str | None) -> None:
+        """A named part (e.g. one CMA-ES level) of up to ``evaluations`` evaluations for a callback that draws
+        named phases, each with its own fraction done; the overall budget and rate are kept."""
+        self._phase_start, self._phase_budget = self.done, max(1, int(evaluations))
+        self._converged = None
+        if name is not None and hasattr(self.callback, "phase"):
+            self.callback.phase(name)

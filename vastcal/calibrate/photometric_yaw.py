@@ -253,7 +253,8 @@ def expected_evaluations(schedule: tuple[tuple[int, float, int], ...] = SCHEDULE
 
 def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: float, theta: np.ndarray,
                yaw_range_deg: tuple[float, float], *, schedule: tuple[tuple[int, float, int], ...] = SCHEDULE,
-               sirt_iterations: int = 100, progress: Callable[[int, float], None] | None = None) -> YawRefinement | None:
+               sirt_iterations: int = 100, progress: Callable[[int, float], None] | None = None,
+               stage: Callable[[int, int], None] | None = None) -> YawRefinement | None:
     """The yaw that minimises E(θ) with every other entry of θ held (see the module docstring).
 
     Args:
@@ -269,6 +270,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             samples. The reconstruction's voxel is one map pixel at the axis.
         sirt_iterations: iterations of the inner reconstruction.
         progress: called with (evaluations so far, cost of the latest).
+        stage: called when the search moves to maps of a new width, with (width px, the evaluations expected
+            there: its samples, plus the final vertex at the last width) — a progress bar's phases.
 
     Returns:
         The refinement, or None when the images show no absorption contrast (specimen not darker
@@ -301,6 +304,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             if wd == width and abs(y - yaw) < 1e-9:
                 return e
         if width not in matches:
+            if stage is not None:
+                stage(width, sum(2 * hf + 1 for wd, _, hf in schedule if wd == width) + (1 if width == schedule[-1][0] else 0))
             factor = max(1.0, w / float(width))
             a_small, S = resize_stack(a_full, factor)
             pf_small, _ = resize_stack(pf_full, factor)

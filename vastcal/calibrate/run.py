@@ -413,7 +413,10 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
     reports: list[dict[str, Any]] = []
     evals_done, eval_time, n_vox = 0, 0.0, 0
     for li, lv in enumerate(settings.levels):
+        name = f"level {li + 1}/{len(settings.levels)} ({lv.width_px} px), seed {seed}"
+        clock.name_phase(1, f"{name}: region and maps")  # set-up: no progress of its own to report
         obj, region, K_lv, shape = problem.level_objective(li, x)
+        clock.name_phase(lv.max_evaluations, name)
         t_lv = time.monotonic()
         base = evals_before + evals_done
         sel = space.level_selection(lv.groups)  # which free coordinates this level moves
@@ -434,7 +437,7 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
                 stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
         res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
                        tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize, restarts=settings.restarts,
-                       progress=lambda e, f, _b=base: clock.update(_b + e, f))
+                       progress=lambda e, f, _b=base: clock.update(_b + e, f), convergence=clock.converged)
         x = x.copy()
         x[sel] = res.x_best
         dt = time.monotonic() - t_lv
@@ -588,6 +591,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     # The judge: the finest level's cost, batch-independent, on a region around the first start's result.
     t_j = time.monotonic()
     last = len(settings.levels) - 1
+    clock.name_phase(1, "judging the starts")
     judge_obj, judge_region, _, _ = problem.level_objective(last, runs[0].x, exact=True)
     judge = problem.cost_fn(judge_obj)
     X = np.stack([r.x for r in runs])
@@ -601,9 +605,18 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     polished = {"converged": True, "evaluations": 0}
     if settings.polish and np.any(space.free_mask[4:]):
         n_rolls = int(np.sum(space.free_mask[4:]))
-        clock.start_phase((2 * n_rolls + 3) * 2 * len(settings.polish_steps_deg))
+        clock.name_phase(1, "per-view polish: region")
         fast, _, _, _ = problem.level_objective(last, x)
-        xp, _, n_pol, conv = polish_rolls(problem.cost_fn(fast), space, x, steps_deg=settings.polish_steps_deg)
+        clock.start_phase((2 * n_rolls + 3) * 2 * len(settings.polish_steps_deg), "per-view polish")
+        polish_cost, seen = problem.cost_fn(fast), [evals_done]
+
+        def counted(th: np.ndarray) -> np.ndarray:  # the polish's batches move the progress bar
+            out = polish_cost(th)
+            seen[0] += len(th)
+            clock.update(seen[0], f)
+            return out
+
+        xp, _, n_pol, conv = polish_rolls(counted, space, x, steps_deg=settings.polish_steps_deg)
         fp = float(judge(space.theta(xp))[0])
         evals_done += n_pol + 1
         clock.update(evals_done, min(f, fp))
@@ -636,14 +649,15 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
 
     if settings.photometric_yaw and method == "coherence" and space.free_mask[0]:
         base = evals_done
-        clock.start_phase(expected_evaluations())
+        clock.start_phase(expected_evaluations(), "photometric yaw: absorption maps")
         voxel_um = distance * w_full / (float(K[0, 0]) * min(w_full, PHOTOMETRIC_SCHEDULE[-1][0]))  # its finest voxel
         m_est = int(len(judge_region.voxels) * (judge_region.voxel_size / voxel_um) ** 3)
         sub = photometric_views(theta[3:], images.shape[1:], m_est, settings.memory_mb)
         pf_full = pf[sub] if pf.shape[1:] == images.shape[1:3] else specimen_maps_within(model, images[sub], settings.memory_mb)
         th_sub = np.concatenate([theta[:3], theta[3:][sub]])
         refined = refine_yaw(images[sub], pf_full, K, distance, th_sub, (float(space.lower[0]), float(space.upper[0])),
-                             progress=lambda e, fy: clock.update(base + e, fy))
+                             progress=lambda e, fy: clock.update(base + e, fy),
+                             stage=lambda width, n: clock.name_phase(n, f"photometric yaw ({width} px)"))
         if refined is not None:
             theta[0] = refined.yaw_deg
             evals_done += refined.n_evaluations
