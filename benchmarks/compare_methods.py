@@ -107,9 +107,12 @@ def _cut_views(session: Path) -> np.ndarray:
 
 def _measure(session: Path, r: object) -> tuple[float, float]:
     """Volume and area of the visual hull under the run's cameras (automatic silhouettes, the rig file's grid;
-    mm³/mm² — in (units of the cameras) for ETH David, whose unit is unknown)."""
+    mm³/mm², or units³/units² of the cameras for ETH David, whose unit is unknown)."""
+    from vastcal.measure import UM2_PER_MM2, UM3_PER_MM3
     from vastcal.reconstruct import reconstruct_session
     m = reconstruct_session(session, calibration_run=getattr(r, "run_name"))
+    if m.provenance.get("length_unit") in ("unknown", "px"):
+        return float(m.volume_mm3 * UM3_PER_MM3), float(m.surface_area_mm2 * UM2_PER_MM2)
     return float(m.volume_mm3), float(m.surface_area_mm2)
 
 
