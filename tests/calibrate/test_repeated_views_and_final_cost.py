@@ -70,7 +70,7 @@ def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(views: np.ndarr
     theta0[3:] = np.arange(len(views)) * 360.0 / len(views)
     settings = dataclasses.replace(FAST, polish=False)
 
-    def moved_yaw(images, pf, K, d, theta, box, progress=None):  # noqa: ANN001, ANN202 - refine_yaw's signature
+    def moved_yaw(images, pf, K, d, theta, box, **_):  # noqa: ANN001, ANN003, ANN202 - refine_yaw's signature
         return SimpleNamespace(yaw_deg=float(theta[0]) + 0.4, n_evaluations=1, time_s=0.0, report=lambda: {"stage": "photometric yaw"})
 
     monkeypatch.setattr(run_module, "refine_yaw", moved_yaw)

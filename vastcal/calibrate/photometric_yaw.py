@@ -254,7 +254,7 @@ def expected_evaluations(schedule: tuple[tuple[int, float, int], ...] = SCHEDULE
 def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: float, theta: np.ndarray,
                yaw_range_deg: tuple[float, float], *, schedule: tuple[tuple[int, float, int], ...] = SCHEDULE,
                sirt_iterations: int = 100, progress: Callable[[int, float], None] | None = None,
-               stage: Callable[[int, int], None] | None = None) -> YawRefinement | None:
+               stage: Callable[[int, int], None] | None = None, recarve: bool = False) -> YawRefinement | None:
     """The yaw that minimises E(θ) with every other entry of θ held (see the module docstring).
 
     Args:
@@ -272,6 +272,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         progress: called with (evaluations so far, cost of the latest).
         stage: called when the search moves to maps of a new width, with (width px, the evaluations expected
             there: its samples, plus the final vertex at the last width) — a progress bar's phases.
+        recarve: carve the voxel support anew at every stage's start yaw (default: once per map width, at the
+            yaw where that width is first used — the silhouettes' yaw for the coarse maps).
 
     Returns:
         The refinement, or None when the images show no absorption contrast (specimen not darker
@@ -296,33 +298,37 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                     "background noise %.3g): no absorption contrast; yaw kept at the silhouette solution", contrast, noise)
         return None
     lo, hi = yaw_range_deg
-    matches: dict[int, AbsorptionMatch] = {}
+    matches: dict[tuple[int, int], AbsorptionMatch] = {}
     evaluations: list[tuple[float, int, float]] = []  # (yaw °, width px, E)
+    keys: list[tuple[int, int]] = []  # (width, support) of each evaluation: costs on different supports are not compared
 
     def cost_at(yaw: float, width: int) -> float:
-        for y, wd, e in evaluations:
-            if wd == width and abs(y - yaw) < 1e-9:
+        key = (width, si if recarve else 0)
+        for (y, _, e), k in zip(evaluations, keys):
+            if k == key and abs(y - yaw) < 1e-9:
                 return e
-        if width not in matches:
-            if stage is not None:
+        if key not in matches:
+            if stage is not None and all(k[0] != width for k in matches):
                 stage(width, sum(2 * hf + 1 for wd, _, hf in schedule if wd == width) + (1 if width == schedule[-1][0] else 0))
             factor = max(1.0, w / float(width))
             a_small, S = resize_stack(a_full, factor)
             pf_small, _ = resize_stack(pf_full, factor)
             th_support = theta.copy()
             th_support[0] = centre
-            matches[width] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations)
+            matches[key] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations)
         th = theta.copy()
         th[0] = yaw
-        e = matches[width](th)
+        e = matches[key](th)
         evaluations.append((yaw, width, e))
+        keys.append(key)
         if progress is not None:
             progress(len(evaluations), e)
         log.debug("photometric yaw %+.4f° at width %d: E = %.6g", yaw, width, e)
         return e
 
     centre = float(theta[0])
-    for width, step, half in schedule:
+    si = 0
+    for si, (width, step, half) in enumerate(schedule):
         ks = list(range(-half, half + 1))
         for _ in range(3):  # the samples, extended while the lowest lies at an end (inside the box)
             ys = np.unique(np.clip(centre + step * np.array(ks, float), lo, hi))
@@ -335,13 +341,14 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         vertex = _parabola_vertex(ys[near], es[near]) if ys[near].size >= 3 else None
         centre = float(ys[j]) if vertex is None or not ys[near][0] <= vertex <= ys[near][-1] else vertex
     last = schedule[-1][0]
-    samples = [(y, e) for y, wd, e in evaluations if wd == last]
+    last_key = (last, si if recarve else 0)
+    samples = [(y, e) for (y, _, e), k in zip(evaluations, keys) if k == last_key]
     y_best, e_best = min(samples, key=lambda t: t[1])
     if cost_at(centre, last) > e_best:  # the parabola's vertex must not be worse than a sample
         centre = y_best
     ev = np.array(evaluations, float)
-    result = YawRefinement(float(centre), float(theta[0]), ev[:, 0], ev[:, 2], ev[:, 1].astype(int), matches[last].n_voxels,
-                           (matches[last].shape[1], matches[last].shape[2]), time.monotonic() - t0)
+    result = YawRefinement(float(centre), float(theta[0]), ev[:, 0], ev[:, 2], ev[:, 1].astype(int), matches[last_key].n_voxels,
+                           (matches[last_key].shape[1], matches[last_key].shape[2]), time.monotonic() - t0)
     if centre in (lo, hi):
         log.warning("photometric yaw: the best yaw %+.3f° lies on the search box's edge", centre)
     log.info("photometric yaw: %+.4f° → %+.4f° (%d reconstructions, %d voxels at the finest, %.1f s)", result.start_yaw_deg,
