@@ -1,0 +1,74 @@
+"""Ctrl-C ends ``vastcal demo`` with exit 130 and one line in every phase: during the acquisition and
+during the calibration (real subprocesses, a real SIGINT)."""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+
+
+def _spawn_demo(tmp_path: Path) -> tuple[subprocess.Popen[str], "queue.Queue[str]"]:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "vastcal.cli", "demo", "-o", "D", "--views", "8"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: "queue.Queue[str]" = queue.Queue()
+
+    def pump() -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            lines.put(line)
+
+    threading.Thread(target=pump, daemon=True).start()
+    return proc, lines
+
+
+def _interrupt_when(proc: subprocess.Popen[str], lines: "queue.Queue[str]", seen: list[str], ready: "callable[[list[str]], bool]",  # type: ignore[valid-type]
+                    what: str) -> tuple[str, str]:
+    deadline = time.monotonic() + 240
+    while not ready(seen):
+        assert proc.poll() is None, f"the demo ended before {what}: {''.join(seen)}"
+        assert time.monotonic() < deadline, f"no {what} within 240 s: {''.join(seen)}"
+        try:
+            seen.append(lines.get(timeout=0.02))
+        except queue.Empty:
+            pass
+    proc.send_signal(signal.SIGINT)
+    stdout, _ = proc.communicate(timeout=60)
+    time.sleep(0.1)  # the pump thread drains what is left
+    while not lines.empty():
+        seen.append(lines.get())
+    return stdout, "".join(seen)
+
+
+def _check(proc: subprocess.Popen[str], stdout: str, stderr: str) -> None:
+    assert proc.returncode == 130, (proc.returncode, stderr)
+    assert "Traceback" not in stderr and stdout == "", stderr
+    last = stderr.strip().splitlines()[-1]
+    assert last.startswith("vastcal: ") and ("interrupted" in last or "abort" in last), stderr
+
+
+def test_ctrl_c_during_the_demo_acquisition_exits_130(tmp_path: Path) -> None:
+    proc, lines = _spawn_demo(tmp_path)
+    seen: list[str] = []
+    stdout, stderr = _interrupt_when(proc, lines, seen, lambda s: any((tmp_path / "D").glob("*.h5")), "session file")
+    assert not any("calibrate" in line for line in seen[:-1] if not line.startswith("vastcal:")), "interrupted in the acquisition"
+    _check(proc, stdout, stderr)
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_the_demo_calibration_exits_130(tmp_path: Path) -> None:
+    proc, lines = _spawn_demo(tmp_path)
+    seen: list[str] = []
+    stdout, stderr = _interrupt_when(proc, lines, seen, lambda s: any(line.startswith("calibrate (") and "level 1/2" in line for line in s),
+                                     "calibration phase")
+    _check(proc, stdout, stderr)
