@@ -224,6 +224,9 @@ class SilhouetteMaps:
                                 f"{self.frame_shape[1]} x {self.frame_shape[0]}")
         if self.soft and not np.isfinite(m).all():
             raise AnalysisError("soft silhouettes contain non-finite values")
+        quantised = self.soft and self.scale != 1.0
+        if quantised:  # levels first: the clamped posteriors' floor (p = 1e-4 over the whole background) is level 0
+            m = np.rint(np.clip(m, 0.0, 1.0) * 255.0).astype(np.uint8)
         nz = m != 0
         rows, cols = np.flatnonzero(nz.any(axis=1)), np.flatnonzero(nz.any(axis=0))
         if rows.size == 0:
@@ -233,10 +236,8 @@ class SilhouetteMaps:
         crop = m[y0:y1, x0:x1]
         if not self.soft:
             c = crop != 0
-        elif self.scale == 1.0:
-            c = np.pad(crop.astype(np.float32), 1)
         else:
-            c = np.pad(np.rint(np.clip(crop, 0.0, 1.0) * 255.0).astype(np.uint8), 1)
+            c = np.pad(crop if quantised else crop.astype(np.float32), 1)
         self._crops.append(np.ascontiguousarray(c))
         self._origins.append((x0, y0))
 

@@ -52,6 +52,8 @@ def test_cropped_maps_read_back_as_the_full_frames(spheroid_views: PhantomViews)
     q = SilhouetteMaps.from_stack(cov, quantise=True)
     assert q.nbytes < 0.15 * cov.nbytes
     assert float(np.abs(np.asarray(q) - cov).max()) <= 0.5 / 255 + 1e-6
+    floor = SilhouetteMaps.from_stack(np.maximum(cov, 1e-4), quantise=True)  # clamped posteriors: p = 1e-4 over the background
+    assert floor.nbytes == q.nbytes
     binary = SilhouetteMaps.from_stack(sil)
     assert not binary.soft and np.array_equal(np.asarray(binary), sil) and np.array_equal(binary[3], sil[3])
     assert np.array_equal(q.mask(5), np.asarray(q)[5] >= 0.5)
