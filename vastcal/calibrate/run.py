@@ -569,11 +569,12 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     small = _area_resize(images, finest)
     # the rim band is 3 px of the full frame; a sub-revolution at a time within memory_mb (all views at once up to ~190 views of 1024 x 320)
     pf = specimen_maps_within(model, small, settings.memory_mb, band_px=max(1.0, 3.0 / finest))
+    del small  # the maps are all that is kept of the resized frames
     if silhouettes is not None:
         sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
         sil_src = np.stack([cv2.resize(s, (pf.shape[2], pf.shape[1]), interpolation=cv2.INTER_AREA) for s in sil_full])
     else:
-        sil_src = (pf > settings.threshold).astype(np.float32)
+        sil_src = (pf > settings.threshold).astype(np.uint8)  # 0/1: resize_stack averages it in float32 one map at a time
     S_small = np.diag([pf.shape[2] / w_full, pf.shape[1] / images.shape[1], 1.0])
     S_small[:2, 2] = 0.5 * np.diag(S_small)[:2] - 0.5
     K_small = S_small @ np.asarray(K, float)
