@@ -28,7 +28,9 @@ def _spawn_demo(tmp_path: Path) -> tuple[subprocess.Popen[str], "queue.Queue[str
         for line in proc.stderr:
             lines.put(line)
 
-    threading.Thread(target=pump, daemon=True).start()
+    pump_thread = threading.Thread(target=pump, daemon=True)
+    pump_thread.start()
+    proc.pump_thread = pump_thread  # type: ignore[attr-defined]
     return proc, lines
 
 
@@ -43,8 +45,13 @@ def _interrupt_when(proc: subprocess.Popen[str], lines: "queue.Queue[str]", seen
         except queue.Empty:
             pass
     proc.send_signal(signal.SIGINT)
-    stdout, _ = proc.communicate(timeout=60)
-    time.sleep(0.1)  # the pump thread drains what is left
+    proc.wait(timeout=60)  # not communicate(): it would read stderr too, taking lines from the pump
+    assert proc.stdout is not None
+    stdout = proc.stdout.read()
+    proc.stdout.close()
+    proc.pump_thread.join(timeout=10)  # type: ignore[attr-defined]
+    assert proc.stderr is not None
+    proc.stderr.close()
     while not lines.empty():
         seen.append(lines.get())
     return stdout, "".join(seen)
