@@ -131,6 +131,10 @@ class CalibrationSettings:
             (absorption contrast) only, skipped with a warning otherwise.
         starts: independent coarse-to-fine CMA-ES runs (seeds seed, seed + 10, …); the one of lowest
             judged cost is kept. Each costs a full run.
+        photometric_sirt_iterations: SIRT iterations of each reconstruction of the photometric yaw. The early-stopped
+            reconstruction biases the yaw: simulated rig 8, 100 → 300 iterations moved its error from −0.091° to +0.038°
+            (``benchmarks/calibrate_yaw_vs_rolls.py``), at about 3× the photometric phase's time; not yet measured on
+            all 8 rigs, so the default stays 100.
         restarts: CMA-ES restarts within every level (:func:`.optimise.minimise`): ``"none"``, ``"ipop"`` or
             ``"bipop"``; with restarts a level spends its whole ``max_evaluations`` (restarts until it is used).
             Off by default: on ETH David at equal evaluations (``benchmarks/calibrate_restarts.py``) it did not lower
@@ -161,6 +165,7 @@ class CalibrationSettings:
     refine_tolerance_px: float = 2.0
     roll_offset_scan_deg: float = 0.0
     photometric_yaw: bool = False
+    photometric_sirt_iterations: int = 100
     starts: int = 1
     restarts: str = "none"
     polish: bool = True
@@ -657,7 +662,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         pf_full = pf[sub] if pf.shape[1:] == images.shape[1:3] else specimen_maps_within(model, images[sub], settings.memory_mb)
         th_sub = np.concatenate([theta[:3], theta[3:][sub]])
         refined = refine_yaw(images[sub], pf_full, K, distance, th_sub, (float(space.lower[0]), float(space.upper[0])),
-                             progress=lambda e, fy: clock.update(base + e, fy),
+                             sirt_iterations=settings.photometric_sirt_iterations, progress=lambda e, fy: clock.update(base + e, fy),
                              stage=lambda width, n: clock.name_phase(n, f"photometric yaw ({width} px)"))
         if refined is not None:
             theta[0] = refined.yaw_deg
