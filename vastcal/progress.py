@@ -202,17 +202,26 @@ class PhaseProgress:
     def _rich_start(self, name: str) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+        from rich.table import Column
 
         if self._rich is None:
-            self._rich = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f} %"),
-                                  TimeElapsedColumn(), TextColumn("ETA {task.fields[eta]}"), TextColumn("{task.fields[extra]}"),
-                                  console=Console(file=self.stream, force_terminal=True), transient=False, refresh_per_second=4)
+            console = Console(file=self.stream, force_terminal=True)
+            console.print(f"{self.label}:")  # once; each phase's line then starts with its own name
+            fixed = {"no_wrap": True, "overflow": "ellipsis"}
+            self._rich = Progress(TextColumn("  {task.description}", table_column=Column(width=34, **fixed)),
+                                  BarColumn(bar_width=12, table_column=Column(width=12, no_wrap=True)),
+                                  TextColumn("{task.percentage:>3.0f} %", table_column=Column(width=5, **fixed)),
+                                  TimeElapsedColumn(table_column=Column(width=7, **fixed)),
+                                  TextColumn("ETA {task.fields[eta]}", table_column=Column(width=14, **fixed)),
+                                  TextColumn("{task.fields[extra]}", table_column=Column(min_width=0, **fixed)),
+                                  console=console, transient=False, refresh_per_second=4)
             self._rich.start()
-        self._task = self._rich.add_task(f"{self.label}: {name}", total=1.0, eta="?", extra="")
+        self._task = self._rich.add_task(name, total=1.0, eta="?", extra="")
 
     def _rich_update(self, f: float, eta: float, extra: str) -> None:
         if self._rich is not None and self._task is not None:
-            self._rich.update(self._task, completed=f, eta=format_duration(eta), extra=extra)
+            room = self._rich.console.width - 80  # the fixed columns take 80; the extra text only where there is room
+            self._rich.update(self._task, completed=f, eta=format_duration(eta), extra=extra if len(extra) <= room else extra[:max(room - 1, 0)] + "…" * (room > 0))
 
 
 class CalibrationProgress:
