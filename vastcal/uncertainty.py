@@ -280,13 +280,14 @@ def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[
 
 def is_hard(silhouettes: np.ndarray) -> bool:
     """Whether silhouettes are hard masks: binary, or maps with < 20 % of their boundary band graded (0.05 < p < 0.95)."""
-    s = np.asarray(silhouettes)
-    if not np.issubdtype(s.dtype, np.floating):
-        return True
     import cv2
 
+    n = len(silhouettes)  # a stack or a lazy one (reconstruct.SilhouetteMaps): five views are read, one at a time
     graded = band = 0
-    for m in s[:: max(1, len(s) // 5)]:
+    for i in range(0, n, max(1, n // 5)):
+        m = np.asarray(silhouettes[i])
+        if not np.issubdtype(m.dtype, np.floating):
+            return True
         b = m >= 0.5
         ring = cv2.dilate(b.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) ^ cv2.erode(
             b.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
@@ -579,8 +580,10 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
     """The uncertainty budget and the per-view QC of one measurement.
 
     Args:
-        frames: (N, H, W[, 3]) stored frames.
-        silhouettes: (N, H, W) the silhouettes the hull was carved from (bool or soft maps).
+        frames: (N, H, W[, 3]) stored frames, an array or a lazy stack read one view at a time
+            (:class:`vastcal.calibrate.view_budget.SessionFrames`).
+        silhouettes: (N, H, W) the silhouettes the hull was carved from (bool or soft maps; an array
+            or :class:`vastcal.reconstruct.SilhouetteMaps`).
         P: (N, 3, 4) the cameras used.
         hull: the :class:`~vastcal.reconstruct.HullResult` measured.
         measurement: its :class:`~vastcal.measure.Measurement`.
@@ -640,6 +643,7 @@ def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement
     import cv2
 
     from vastcal import qc
+    from vastcal.calibrate.view_budget import SessionFrames
     from vastcal.errors import VastcalError
     from vastcal.session import read_attrs
 
@@ -652,7 +656,7 @@ def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement
         a = read_attrs(cal)
         flags += qc.calibration_bound_flags(np.asarray(cal["theta_deg"][...], float), a.get("bounds"))
     try:
-        budget, result = assess(session.projections(), inputs.silhouettes, inputs.P, hull, measurement, spread, extra_flags=flags,
+        budget, result = assess(SessionFrames(session), inputs.silhouettes, inputs.P, hull, measurement, spread, extra_flags=flags,
                                 samples=samples, missing_note=note)
     except (VastcalError, ValueError, np.linalg.LinAlgError, cv2.error) as exc:
         log.warning("%s: uncertainty and QC not evaluated (%s)", session.path, exc)
