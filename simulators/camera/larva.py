@@ -34,11 +34,9 @@ change the others.
 
 from __future__ import annotations
 
-import dataclasses
-
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -383,12 +381,12 @@ def draw_specimen(sim: SimulationConfig, optics: OpticsConfig | None = None, cam
 
     mel = _melanophores(profile, phantom.lateral_scale, sim.melanophores, _stream(sim, 0x3E1))
     if mel:
-        phantom = dataclasses.replace(phantom, features=phantom.features + tuple(mel))
+        phantom = replace(phantom, features=phantom.features + tuple(mel))
     features["melanophores"] = len(mel)
     n0, n1 = _check_range("refractive_index", sim.refractive_index, 1.0, 1.2)
     if n1 > 1.0:
         n_rel = float(_stream(sim, 0x4EF).uniform(n0, n1))
-        phantom = dataclasses.replace(phantom, refractive_index=n_rel)
+        phantom = replace(phantom, refractive_index=n_rel)
         features["refractive_index"] = n_rel
 
     fold = None
@@ -441,4 +439,4 @@ def _shift(ph: Phantom, x_centre: float) -> Phantom:
     new = LarvaProfile(prof.length, prof.max_diameter, prof.c0, prof.k, prof.bumps, prof.name, x_centre)
     feats = tuple(EllipsoidFeature(f.name, (f.centre_um[0] + dx, f.centre_um[1], f.centre_um[2]), f.semi_axes_um, f.attenuation_per_um)
                   for f in ph.features)
-    return dataclasses.replace(ph, profile=new, features=feats)
+    return replace(ph, profile=new, features=feats)

@@ -202,6 +202,7 @@ class BrightfieldRenderer:
         coverage = np.zeros((height, width), np.float32)
         tau_body = np.zeros((height, width), np.float32)
         tau_feat = np.zeros((height, width), np.float32)
+        collected: np.ndarray | None = None
 
         footprint_um = float(np.linalg.norm(t)) / f  # one pixel at the axis, µm
         lo, hi = self.phantom.profile.x_range
@@ -232,7 +233,8 @@ class BrightfieldRenderer:
             hz = 2.0 * s * (C[2] + s * dz_)
             mu = (hx * Rs[0, 0] + hy * Rs[0, 1] + hz * Rs[0, 2]) / f
             mv = (hx * Rs[1, 0] + hy * Rs[1, 1] + hz * Rs[1, 2]) / f
-            delta = m / np.maximum(np.sqrt(mu * mu + mv * mv), 1e-30)
+            grad_m = np.sqrt(mu * mu + mv * mv)  # |∇m| per px
+            delta = m / np.maximum(grad_m, 1e-30)
             cov = np.clip(0.5 - delta, 0.0, 1.0)
             coverage[iy, ix] = cov
             inside = cov > 0
@@ -261,31 +263,29 @@ class BrightfieldRenderer:
             tau_feat[iy, ix] = tf
             if self.phantom.refractive_index != 1.0:
                 collected = np.ones((height, width), np.float32)
-                collected[iy, ix] = self._collected_over_pixel(m, q, delta)
+                collected[iy, ix] = self._collected_over_pixel(m, q, delta, grad_m)
         tau_extra = None
-        if self.phantom.refractive_index == 1.0 or not cand_rows.size:
-            collected = None
         if self.fin_fold is not None or self.fins:
             tau_extra = self._extra_depth(C_phantom, R, du, dv, dy_w, dz_w, body_offset_um, footprint_um)
         return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra, collected)
 
-    def _collected_over_pixel(self, m: np.ndarray, q: np.ndarray, delta: np.ndarray, samples: int = 8) -> np.ndarray:
+    def _collected_over_pixel(self, m: np.ndarray, q: np.ndarray, delta: np.ndarray, grad_m: np.ndarray,
+                              samples: int = 8) -> np.ndarray:
         """:func:`refraction_collected` averaged over the part of each pixel the body covers.
 
         The ray's impact parameter in the local cross-section is b = √(m + q) of radius √q (scaled
-        frame), so sin θ_i = √(1 + m/q). Across one pixel m changes by |∇m| per px (δ = m/|∇m| is the
-        signed distance to the outline, px), so the pixel is sampled at ``samples`` depths across its
+        frame), so sin θ_i = √(1 + m/q). Across one pixel m changes by ``grad_m`` = |∇m| per px (δ = m/|∇m|
+        is the signed distance to the outline, px), so the pixel is sampled at ``samples`` depths across its
         width and the samples inside the body (δ_k < 0) averaged: the loss is concentrated in a rim
         that can be narrower than a pixel, and the pixel's centre alone would alias it.
         """
-        grad = np.where(np.abs(delta) > 0, m / np.where(delta == 0, 1.0, delta), 0.0)
         qq = np.maximum(q, 1e-12)
         total = np.zeros(m.shape, np.float64)
         count = np.zeros(m.shape, np.float64)
         for k in range(samples):
             dk = delta + (k + 0.5) / samples - 0.5
             inside = dk < 0
-            mk = m + (dk - delta) * grad
+            mk = m + (dk - delta) * grad_m
             f = refraction_collected(np.sqrt(np.clip(1.0 + mk / qq, 0.0, 1.0)), self.phantom.refractive_index, self.acceptance_half_angle_rad)
             total += np.where(inside, f, 0.0)
             count += inside
