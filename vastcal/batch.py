@@ -147,6 +147,7 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
     ``_rig`` holds what :mod:`vastcal.rig_health` needs (not a table column).
     """
     from vastcal.allocator import keep_large_blocks
+    from vastcal.calibrate.view_budget import peak_resident_mb
     from vastcal.pipeline import run_session
 
     keep_large_blocks()  # as the vastcal command does: reuse the calibration's large temporaries
@@ -167,24 +168,12 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
         row.update(status="failed", exit_class=type(exc).__name__, reason=f"unexpected error: {exc}".splitlines()[0], exit_code=1)
     row["t_total_s"] = time.monotonic() - t0
     row["cpu_s"] = time.process_time() - c0  # user + system CPU of the worker process during this session
-    row["worker_peak_mb"] = _peak_rss_mb()
+    row["worker_peak_mb"] = peak_resident_mb()
     row["fingerprint"] = file_fingerprint(Path(path))
     row["_specimen"] = session_specimen(path)  # given at acquisition; a sidecar (vastcal annotate) overrides it in the table
     if row["status"] == "ok":
         row.update(_fields_from_report(Path(report_dir) / "report.json"))
     return row
-
-
-def _peak_rss_mb() -> float | None:
-    """Peak resident memory of this (worker) process so far, MB (Linux/macOS; None elsewhere)."""
-    try:
-        import resource
-        import sys
-
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
-    except (ImportError, OSError):
-        return None
 
 
 def _get(d: Any, *keys: str) -> Any:

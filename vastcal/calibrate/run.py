@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import resource
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +42,7 @@ from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE as PHOTOMETRIC_SCHEDULE
 from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
 from vastcal.calibrate.region import specimen_region
-from vastcal.calibrate.view_budget import SessionFrames, photometric_views, specimen_maps_within
+from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
@@ -285,10 +284,6 @@ def _common_roll_offset_scan(cost: Callable[[np.ndarray], np.ndarray], space: Pa
         x = x.copy()
         x[rolls] = np.clip(x[rolls] + offsets[best] / h, -1.0, 1.0)
     return x, len(offsets)
-
-
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _area_resize(images: np.ndarray, factor: float) -> np.ndarray:
@@ -683,6 +678,6 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     start_thetas = space.theta(X)
     return CalibrationResult(method, theta, theta0, np.asarray(K, float), float(distance), P, model, int(seed), space.free,
                              space.bounds_dict(), settings, evals_done, wall, eval_time / max(evals_done, 1), len(judge_region.voxels),
-                             _peak_rss_mb(), np.array(trace, float).reshape(-1, 2), reports, final_cost=f, converged=converged,
+                             peak_resident_mb(), np.array(trace, float).reshape(-1, 2), reports, final_cost=f, converged=converged,
                              stop_reason=why, start_thetas=start_thetas, start_costs=np.asarray(start_costs, float),
                              theta0_cost=float(ref_costs[0]), scored_costs=scored, fixed_views=tuple(sorted({int(v) for v in fixed_views})))

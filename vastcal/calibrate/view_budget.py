@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import os
 import resource
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator
@@ -62,13 +63,19 @@ def evenly_spread_views(angles_deg: np.ndarray, max_views: int) -> np.ndarray:
     return np.sort(order[np.floor(np.arange(k) * n / k).astype(np.intp)])
 
 
+def peak_resident_mb() -> float:
+    """Peak resident memory of this process so far, MB (ru_maxrss: kB on Linux, bytes on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
+
+
 def resident_mb() -> float:
     """Resident memory of this process now, MB (the peak so far where /proc is not available)."""
     try:
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
     except (OSError, ValueError, IndexError):
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        return peak_resident_mb()
 
 
 def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxels: int, memory_mb: float,
