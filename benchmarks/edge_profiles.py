@@ -30,6 +30,8 @@ import cv2
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "benchmarks"))
+from measure_battery import reference, true_cameras  # noqa: E402
 
 
 def coverage_stack(seed: int, session: Path, refractive_index: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -80,17 +82,12 @@ def one_larva(seed: int, outdir: Path, refractive_index: tuple[float, float]) ->
     from vastcal.pipeline import acquire_simulated
     from vastcal.reconstruct import choose_grid, visual_hull_in_grid
     from vastcal.simulators.camera.battery import battery_config
-    from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
 
     session = outdir / f"larva_{seed:03d}.h5"
     acquire_simulated(battery_config(seed, refractive_index=refractive_index), session, force=True)
     images, cov, tr = coverage_stack(seed, session, refractive_index)
-    rig = RigTruth(tr["yaw_deg"], tr["pitch_deg"], tr["axis_offset_um"], tr["distance_um"], tuple(tr["specimen_offset_um"]))
-    K = np.asarray(tr["K"], float)
-    P = np.stack([truth_projection_matrix(PinholeIntrinsics(K[0, 0], K[0, 2], K[1, 2]), rig, a) for a in tr["actual_angles_deg"]])
-    cut = bool(tr.get("frame_cut_views"))
-    ref_v = tr["hull_in_frame_volume_mm3"] if cut else tr["hull_volume_mm3"]
-    ref_a = tr["hull_in_frame_area_mm2"] if cut else tr["hull_area_mm2"]
+    P = true_cameras(tr)
+    ref_v, ref_a, cut = reference(tr)
     model = fit_automatic(images)
     maps = specimen_maps(model, images)
     st = MeasureSettings()

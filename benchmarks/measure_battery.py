@@ -61,6 +61,16 @@ def reference(truth: dict[str, Any]) -> tuple[float, float, bool]:
     return float(truth["hull_volume_mm3"]), float(truth["hull_area_mm2"]), False
 
 
+def true_cameras(truth: dict[str, Any]) -> np.ndarray:
+    """(N, 3, 4) the simulator's true cameras of a truth record, at the actual angles (µm → 0-based px)."""
+    from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
+
+    rig = RigTruth(truth["yaw_deg"], truth["pitch_deg"], truth["axis_offset_um"], truth["distance_um"], tuple(truth["specimen_offset_um"]))
+    K = np.asarray(truth["K"], float)
+    intr = PinholeIntrinsics(K[0, 0], K[0, 2], K[1, 2])
+    return np.stack([truth_projection_matrix(intr, rig, a) for a in truth["actual_angles_deg"]])
+
+
 def run_end_to_end(session: Path) -> dict[str, Any]:
     """``vastcal run`` in a subprocess; volume, area, k = 2 half-widths, verdict and flags from report.json."""
     report = session.with_name(session.stem + "-report")
@@ -91,18 +101,13 @@ def run_true_cameras(session: Path) -> dict[str, Any]:
     """Automatic silhouettes carved with the simulator's true cameras (no calibration), in this process."""
     import h5py
 
-    from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
     from vastcal.calibrate.colour_model import fit_automatic
     from vastcal.calibrate.silhouettes import specimen_maps, touches_frame_edge
     from vastcal.measure import MeasureSettings, measure_hull
     from vastcal.reconstruct import choose_grid, visual_hull_in_grid
 
     t = time.monotonic()
-    tr = truth_of(session)
-    rig = RigTruth(tr["yaw_deg"], tr["pitch_deg"], tr["axis_offset_um"], tr["distance_um"], tuple(tr["specimen_offset_um"]))
-    K = np.asarray(tr["K"], float)
-    intr = PinholeIntrinsics(K[0, 0], K[0, 2], K[1, 2])
-    P = np.stack([truth_projection_matrix(intr, rig, a) for a in tr["actual_angles_deg"]])
+    P = true_cameras(truth_of(session))
     with h5py.File(session, "r") as f:
         images = f["/entry/instrument/detector/data"][...]
     maps = specimen_maps(fit_automatic(images), images)
