@@ -74,9 +74,60 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[str, float]:
-    """One step in this (fresh) process; returns its figures."""
+class _MemorySampler:
+    """Samples this process's resident memory every ``every_s`` seconds in a thread and keeps, whenever it has moved
+    by more than ``step_mb`` since the last mark (up or down), the main thread's innermost vastcal frames: where the
+    peak is reached and what is still held, measured rather than guessed (``--profile-memory``; written to
+    ``<session>.<step>.memory.log``)."""
+
+    def __init__(self, every_s: float = 0.05, step_mb: float = 16.0) -> None:
+        import threading
+
+        self.every_s, self.step_mb = every_s, step_mb
+        self.marks: list[tuple[float, float, str]] = []
+        self._main = threading.main_thread().ident
+        self._stop = threading.Event()
+        self._t0 = time.perf_counter()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _where(self) -> str:
+        import traceback
+
+        frame = sys._current_frames().get(self._main)
+        if frame is None:
+            return "?"
+        stack = [f for f in traceback.extract_stack(frame) if "vastcal" in f.filename and "benchmarks" not in f.filename]
+        return " < ".join(f"{Path(f.filename).stem}:{f.lineno} {f.name}" for f in reversed(stack[-5:]))
+
+    def _run(self) -> None:
+        from vastcal.calibrate.view_budget import resident_mb
+
+        top = last = 0.0
+        while not self._stop.wait(self.every_s):
+            mb = resident_mb()
+            if abs(mb - last) > self.step_mb:  # the resident memory's course, falls included
+                last = mb
+                self.marks.append((time.perf_counter() - self._t0, mb, ("* " if mb > top else "  ") + self._where()))
+                top = max(top, mb)
+
+    def stop(self) -> str:
+        """Stops sampling; the marks as text lines (time s, resident MB, ``*`` at a new high, where)."""
+        self._stop.set()
+        self._thread.join()
+        return "\n".join(f"{t:8.1f} s {mb:7.0f} MB {where}" for t, mb, where in self.marks)
+
+
+def _step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_memory: bool = False) -> dict[str, float]:
+    """One step in this (fresh) process; returns its figures (``profile_memory``: writes the resident memory's
+    high-water marks and where they were reached to ``<session>.<step>.memory.log``)."""
     session, truth = _session(workdir, views, full, seed)
+    if profile_memory and step != "acquire":
+        sampler = _MemorySampler()
+        try:
+            return _step(step, views, full, seed, workdir)
+        finally:
+            session.with_name(f"{session.stem}.{step}.memory.log").write_text(sampler.stop() + "\n")
     if step == "acquire":
         from vastcal.acquire import acquire
         from vastcal.rig import connect_rig
@@ -136,10 +187,12 @@ def map_bytes_per_pixel(session: Path, views: int = 21) -> float:
     return (peak + frames.nbytes) / float(np.prod(frames.shape[:3]))
 
 
-def _run_step(step: str, views: int, full: bool, seed: int, workdir: Path) -> dict[str, float]:
+def _run_step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_memory: bool = False) -> dict[str, float]:
     cmd = [sys.executable, __file__, "--_step", step, "--_case", str(views), "--seed", str(seed), "--workdir", str(workdir)]
     if full:
         cmd.append("--_full")
+    if profile_memory:
+        cmd.append("--profile-memory")
     out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
     session, _ = _session(workdir, views, full, seed)
     session.with_name(f"{session.stem}.{step}.log").write_text(out.stderr)  # the step's INFO log
@@ -170,6 +223,8 @@ def main() -> None:
     ap.add_argument("--no-reconstruct", action="store_true", help="calibrate only")
     ap.add_argument("--no-calibrate", action="store_true", help="reconstruct only (from the session's latest calibration)")
     ap.add_argument("--map-bytes", action="store_true", help="only measure the specimen maps' bytes per frame pixel (21 views)")
+    ap.add_argument("--profile-memory", action="store_true",
+                    help="also write where each step's resident memory reached its high-water marks (<session>.<step>.memory.log)")
     ap.add_argument("--_step")
     ap.add_argument("--_case", type=int)
     ap.add_argument("--_full", action="store_true")
@@ -179,7 +234,7 @@ def main() -> None:
         import logging
 
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-        print(json.dumps(_step(a._step, a._case, a._full, a.seed, a.workdir)))
+        print(json.dumps(_step(a._step, a._case, a._full, a.seed, a.workdir, a.profile_memory)))
         return
     cases = [(v, False) for v in a.views] + [(v, True) for v in a.full_frame]
     if a.map_bytes:
@@ -198,9 +253,9 @@ def main() -> None:
         _run_step("acquire", views, full, a.seed, a.workdir)
         r: dict = {"views": views, "full": full}
         if not a.no_calibrate:
-            r.update(_run_step("calibrate", views, full, a.seed, a.workdir))
+            r.update(_run_step("calibrate", views, full, a.seed, a.workdir, a.profile_memory))
         if not a.no_reconstruct:
-            r.update(_run_step("reconstruct", views, full, a.seed, a.workdir))
+            r.update(_run_step("reconstruct", views, full, a.seed, a.workdir, a.profile_memory))
         rows.append(r)
         print(json.dumps(r), flush=True)
     print(hdr)

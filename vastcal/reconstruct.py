@@ -218,6 +218,15 @@ class SilhouetteMaps:
         Raises:
             AnalysisError: a map of another size, or a soft map with non-finite values.
         """
+        self.append_compact(*self.compact(m))
+
+    def compact(self, m: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
+        """One view's full-frame map (H, W) as this stack holds it: (the crop, its (x0, y0) in the frame); for
+        :meth:`append_compact` (maps made out of order wait compactly for their turn).
+
+        Raises:
+            AnalysisError: a map of another size, or a soft map with non-finite values.
+        """
         m = np.asarray(m)
         if m.shape != self.frame_shape:
             raise AnalysisError(f"silhouette of {m.shape[1] if m.ndim == 2 else '?'} x {m.shape[0]} px in a stack of "
@@ -238,8 +247,12 @@ class SilhouetteMaps:
             c = crop != 0
         else:
             c = np.pad(crop if quantised else crop.astype(np.float32), 1)
-        self._crops.append(np.ascontiguousarray(c))
-        self._origins.append((x0, y0))
+        return np.ascontiguousarray(c), (x0, y0)
+
+    def append_compact(self, crop: np.ndarray, origin: tuple[int, int]) -> None:
+        """Add one view as :meth:`compact` made it."""
+        self._crops.append(crop)
+        self._origins.append((int(origin[0]), int(origin[1])))
 
     # -- the stack ---------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -673,7 +686,7 @@ def session_specimen_maps(session: Any, model: Any, *, memory_mb: float = DEFAUL
     idx = session.projection_indices
     n = len(idx)
     shape = tuple(session.frame_shape)
-    pending: dict[int, np.ndarray] = {}
+    pending: dict[int, tuple[np.ndarray, tuple[int, int]]] = {}
     maps = SilhouetteMaps(shape[:2], soft=True, scale=1.0 / 255.0)  # type: ignore[arg-type]
 
     def read(views: np.ndarray) -> np.ndarray:
@@ -682,9 +695,9 @@ def session_specimen_maps(session: Any, model: Any, *, memory_mb: float = DEFAUL
     def store(views: np.ndarray, pf: np.ndarray) -> None:
         np.clip(np.nan_to_num(pf, copy=False), 0.0, 1.0, out=pf)
         for v, m in zip(views, pf):
-            pending[int(v)] = m
+            pending[int(v)] = maps.compact(m)  # compact at once: a full float32 frame per waiting view was 1.4 GB at 360 x 1 Mpx
         while len(maps) in pending:  # views are added in order; a sub-revolution's maps wait for their turn
-            maps.append(pending.pop(len(maps)))
+            maps.append_compact(*pending.pop(len(maps)))
 
     grouped_specimen_maps(model, read, n, shape, memory_mb, store)
     log.info("specimen maps of %d views: %.0f MB compact (%.0f MB as float32 frames)", n, maps.nbytes / 2**20, 4.0 * n * np.prod(shape[:2]) / 2**20)
