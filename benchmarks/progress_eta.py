@@ -3,11 +3,19 @@
 Acquires a revolution from the simulated rig (config/simulated.yaml; --views, default 12), calibrates it
 with the progress callback the CLI uses (vastcal.progress.CalibrationProgress on a PhaseProgress that
 draws nothing), and for every phase (each CMA-ES level of each start, the per-view polish, the
-photometric yaw) prints its duration and the relative ETA error |ETA − true remaining| / true remaining
-over the updates in the second half of the phase (updates with less than 1 % of the phase left are
-skipped: the ratio divides by ~0 there). The issue's target: every phase within 30 %.
+photometric yaw) prints its duration and the ETA's error.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 1
+The criterion (issue 18: "an ETA that is right within 30 % over the second half of every phase"): at every
+progress update in the second half of the phase's wall time, the relative error |ETA − true remaining| /
+true remaining, where the true remaining time runs to the phase's end as the same run measured it. An
+update with no ETA yet counts as 100 %; updates with less than 1 % of the phase left are skipped (the
+ratio divides by ~0 there). A phase meets it when every such update is within 30 % ("max" column), or,
+the stated relaxation, every one but the last two ("max but last 2"): at those the true remaining is at
+most two updates' work (two CMA-ES generations, two polish sweeps: tens of milliseconds, below the 0.1 s
+the ETA is shown with) plus the phase's tail, and one unit of work more or less is already 50 %.
+Set-up phases that report no progress (maps, regions, judging) show no ETA and are listed with "-".
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3
 
 Timings on a shared machine are noisy; the ETA is judged against the same run's own clock.
 """
@@ -32,7 +40,7 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0, help="calibration seed")
     ap.add_argument("--sim-seed", type=int, default=None, help="simulator seed (default: the config's)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the per-phase figures here")
+    ap.add_argument("--json", type=Path, default=None, help="also write the per-phase figures and every update (time, fraction, ETA, true time left) here")
     args = ap.parse_args()
 
     from vastcal.calibrate import calibrate_session
@@ -49,21 +57,26 @@ def main() -> None:
         with bar:
             calibrate_session(session, seed=args.seed, starts=args.starts, progress=CalibrationProgress(bar))
     rows = []
-    print(f"{'phase':<42} {'time s':>7} {'updates':>8} {'median err':>10} {'max err':>8} {'within 30%':>10}")
+    print(f"{'phase':<44} {'time s':>7} {'updates':>7} {'median':>7} {'max':>7} {'max but last 2':>14} {'within 30%':>10}")
     for r in bar.records:
-        errs = r.eta_errors()
+        errs, relaxed = r.eta_errors(), r.eta_errors(excuse_last=2)
         row = {"phase": r.name, "duration_s": r.t1 - r.t0, "updates_second_half": len(errs),
                "median_error": float(np.median(errs)) if errs else None, "max_error": float(np.max(errs)) if errs else None,
-               "share_within_30pct": float(np.mean(np.asarray(errs) <= 0.3)) if errs else None}
+               "max_error_but_last_2": float(np.max(relaxed)) if relaxed else (0.0 if errs else None),
+               "share_within_30pct": float(np.mean(np.asarray(errs) <= 0.3)) if errs else None,
+               "updates": [{"t_s": t - r.t0, "fraction": f, "eta_s": eta if eta == eta else None, "true_left_s": r.t1 - t}
+                           for t, f, eta in r.points]}
         rows.append(row)
-        fmt = (lambda v: f"{100 * v:9.0f}%" if v is not None else f"{'-':>10}")
-        print(f"{r.name:<42} {row['duration_s']:7.2f} {len(errs):8d} {fmt(row['median_error'])} "
-              f"{fmt(row['max_error'])[1:]} {fmt(row['share_within_30pct'])}")
+        fmt = (lambda v, w=7: f"{100 * v:{w - 1}.0f}%" if v is not None else f"{'-':>{w}}")
+        print(f"{r.name:<44} {row['duration_s']:7.2f} {len(errs):7d} {fmt(row['median_error'])} {fmt(row['max_error'])} "
+              f"{fmt(row['max_error_but_last_2'], 14)} {fmt(row['share_within_30pct'], 10)}")
     timed = [r for r in rows if r["max_error"] is not None]
-    worst = max(timed, key=lambda r: r["max_error"]) if timed else None
-    if worst:
-        print(f"worst phase: {worst['phase']} (max error {100 * worst['max_error']:.0f} %); "
-              f"phases with every second-half ETA within 30 %: {sum(r['max_error'] <= 0.3 for r in timed)}/{len(timed)}")
+    if timed:
+        worst = max(timed, key=lambda r: r["max_error"])
+        print(f"worst phase: {worst['phase']} (max error {100 * worst['max_error']:.0f} %); phases with every second-half ETA "
+              f"within 30 %: {sum(r['max_error'] <= 0.3 for r in timed)}/{len(timed)}, all but the last 2 updates: "
+              f"{sum(r['max_error_but_last_2'] <= 0.3 for r in timed)}/{len(timed)}; median of the phases' medians "
+              f"{100 * float(np.median([r['median_error'] for r in timed])):.0f} %")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
 

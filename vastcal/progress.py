@@ -4,14 +4,15 @@
 elapsed, ETA) and writes plain lines elsewhere (CI logs, pipes, ``2> log``): one when a phase starts,
 one at every ``step_pct`` percent and one when it ends — no carriage returns, no escape codes.
 
-The ETA of a phase is its remaining fraction over the rate measured in the recent half of the phase
-(:class:`PhaseEta`): a phase whose first part is slower or faster (one-off set-up, a search that
-first wanders and then converges geometrically) is judged by how it goes now. Calibration phases
-report a fraction that is linear in time where the evaluation count is not: a CMA-ES level's
-convergence (log σ from its start to the tolerance, :mod:`vastcal.calibrate.optimise`), the
-photometric yaw's share of its reconstructions.
+The ETA of a phase (:class:`PhaseEta`) is its forecast work left times the time per unit of work
+measured over the recent half of the phase (a phase that reports ``work=(done, left)``: a CMA-ES
+level's evaluations, forecast from its step's way down to ``tolx`` and its budget; the polish's sweeps;
+:mod:`vastcal.calibrate.forecast`), or else its remaining fraction over the rate of the recent half (the
+photometric yaw's share of its reconstructions). One-off set-up before a phase's first report does not
+count in its rate.
 
-``benchmarks/progress_eta.py`` measures the ETA's error over the second half of every phase.
+``benchmarks/progress_eta.py`` measures the ETA's error at every update over the second half of every
+phase (its docstring states the criterion).
 :class:`ProgressLine` (a single counted task: import, acquire, batch) is kept for simple loops.
 """
 
@@ -36,40 +37,63 @@ def format_duration(seconds: float) -> str:
 
 
 class PhaseEta:
-    """ETA of one phase from (time, fraction done) samples.
+    """ETA of one phase from (time, fraction done) samples, or from its work done and forecast left.
 
-    The rate is the fraction gained over the recent half of the time since the first report, so a
-    slow start (one-off set-up before the first report, a search that first explores) does not
-    inflate the estimate once the phase runs steadily. Before two reports with progress: unknown (NaN).
+    A phase that knows its work in units of about equal time (a CMA-ES level's evaluations, the polish's sweeps,
+    files, views) reports ``work=(done, left)``: the ETA is ``left`` × the time per unit measured over the recent
+    half of the time since the phase's first report. Otherwise the rate is the fraction gained over that
+    recent half. Either way a slow start (one-off set-up before the first report, a search that first
+    explores) does not inflate the estimate once the phase runs steadily, and the ETA is the raw estimate
+    of the latest report (no smoothing that could freeze it). Before two reports with progress: unknown (NaN).
     """
 
     def __init__(self, t0: float) -> None:
         self.t0 = t0
         self.samples: list[tuple[float, float]] = [(t0, 0.0)]
+        self.work: list[tuple[float, float, float]] = []  # (time, units done, units forecast left)
 
-    def add(self, t: float, fraction: float) -> None:
-        """Record that ``fraction`` (0..1; never decreasing: a lower value is ignored) was done at ``t``."""
+    def add(self, t: float, fraction: float, work: tuple[float, float] | None = None) -> None:
+        """Record that ``fraction`` (0..1; never decreasing: a lower value is ignored) was done at ``t``, and
+        optionally the phase's ``work`` (units done, units forecast left)."""
         f = min(max(float(fraction), self.samples[-1][1]), 1.0)
         self.samples.append((t, f))
+        if work is not None:
+            self.work.append((t, float(work[0]), max(float(work[1]), 0.0)))
+
+    @staticmethod
+    def _reference(points: list[tuple[float, float]]) -> tuple[float, float] | None:
+        """The (time, amount) the rate is measured from: the last point at or before the middle of the time
+        since the first, or the first (None: no time or no progress since the first)."""
+        t, v = points[-1]
+        first = points[0]
+        window_start = t - 0.5 * (t - first[0])
+        older = [p for p in points[:-1] if p[0] <= window_start]
+        ref = older[-1] if older else first
+        if t - ref[0] <= 0 or v - ref[1] <= 0:
+            ref = first
+        return None if t - ref[0] <= 0 or v - ref[1] <= 0 else ref
 
     def eta(self, now: float | None = None) -> float:
         """Seconds left (NaN: no rate yet), measured at the latest sample (or ``now``)."""
         t, f = self.samples[-1]
         if f >= 1.0:
             return 0.0
-        # From the first report on: the time before it (set-up, a first evaluation that pays one-off work) says nothing of the rate.
-        if len(self.samples) < 3:  # fewer than two reports: no rate yet
-            return float("nan")
-        first = self.samples[1]
-        window_start = t - 0.5 * (t - first[0])
-        older = [s for s in self.samples[1:-1] if s[0] <= window_start]
-        ref = older[-1] if older else first
-        if t - ref[0] <= 0 or f - ref[1] <= 0:
-            ref = first
-        if t - ref[0] <= 0 or f - ref[1] <= 0:
-            return float("nan")
-        rate = (f - ref[1]) / (t - ref[0])
-        left = (1.0 - f) / rate
+        if self.work and self.work[-1][0] == t:  # the latest report gave its work: left × time per unit
+            left = self.work[-1][2]
+            ref = self._reference([(w[0], w[1]) for w in self.work])
+            if left <= 0:
+                return 0.0
+            if ref is None:
+                return float("nan")
+            left = left * (t - ref[0]) / (self.work[-1][1] - ref[1])
+        else:
+            # From the first report on: the time before it (set-up, a first evaluation that pays one-off work) says nothing of the rate.
+            if len(self.samples) < 3:  # fewer than two reports: no rate yet
+                return float("nan")
+            ref = self._reference(self.samples[1:])
+            if ref is None:
+                return float("nan")
+            left = (1.0 - f) / ((f - ref[1]) / (t - ref[0]))
         if now is not None:
             left = max(0.0, left - (now - t))
         return left
@@ -84,16 +108,18 @@ class PhaseRecord:
     t1: float = float("nan")
     points: list[tuple[float, float, float]] = field(default_factory=list)
 
-    def eta_errors(self) -> list[float]:
-        """Relative ETA errors |ETA − true remaining| / true remaining over the second half of the phase
-        (samples whose true remaining time is at least 1 % of the phase, so the last instant does not divide by 0)."""
+    def eta_errors(self, excuse_last: int = 0) -> list[float]:
+        """Relative ETA errors |ETA − true remaining| / true remaining at every update in the second half of the
+        phase's wall time (updates whose true remaining time is at least 1 % of the phase: the instant of the
+        end divides by ~0), leaving out the last ``excuse_last`` of them. An update with no ETA yet counts as
+        an error of 1 (100 %)."""
         total = self.t1 - self.t0
         out = []
         for t, _, eta in self.points:
             left = self.t1 - t
-            if t - self.t0 >= 0.5 * total and left > 0.01 * total and eta == eta:
-                out.append(abs(eta - left) / left)
-        return out
+            if t - self.t0 >= 0.5 * total and left > 0.01 * total:
+                out.append(abs(eta - left) / left if eta == eta else 1.0)
+        return out[:len(out) - excuse_last] if excuse_last else out
 
 
 class PhaseProgress:
@@ -142,13 +168,16 @@ class PhaseProgress:
         else:
             self._line(f"{self.label}: {name} ...")
 
-    def update(self, fraction: float, extra: str = "") -> None:
-        """Report the fraction (0..1) of the current phase done; ``extra`` is shown beside it (terminal only)."""
+    def update(self, fraction: float | None = None, extra: str = "", *, work: tuple[float, float] | None = None) -> None:
+        """Report the fraction (0..1) of the current phase done, or its ``work`` (units done, units forecast
+        left; the fraction is then done / (done + left) unless given); ``extra`` is shown beside it (terminal only)."""
         if self.current is None or self._eta is None:
             self.phase(self.label)
         assert self._eta is not None
         now = self.clock()
-        self._eta.add(now, fraction)
+        if fraction is None:
+            fraction = work[0] / (work[0] + work[1]) if work is not None and work[0] + work[1] > 0 else 0.0
+        self._eta.add(now, fraction, work)
         f = self._eta.samples[-1][1]
         eta = self._eta.eta()
         self.records[-1].points.append((now, f, eta))
@@ -239,14 +268,20 @@ class CalibrationProgress:
         self._name = ""
         self._best = float("nan")
         self._fraction: float | None = None
+        self._work: tuple[float, float] | None = None
 
     def phase(self, name: str) -> None:
         self._name = name
         self._fraction = None
+        self._work = None
         self.bar.phase(name)
 
     def phase_fraction(self, fraction: float) -> None:
         self._fraction = fraction
+
+    def phase_work(self, work: tuple[float, float] | None) -> None:
+        """The phase's (units done, units forecast left), or None: its ETA is then from its fraction's rate."""
+        self._work = work
 
     def __call__(self, evaluations: int, best: float, elapsed_s: float, eta_s: float) -> None:
         if not self._name:  # an optimiser that names no phases: one phase, the evaluation budget's share
@@ -257,7 +292,7 @@ class CalibrationProgress:
         f = self._fraction
         if f is None:  # no fraction from the clock: the optimiser's own ETA turned into one
             f = elapsed_s / (elapsed_s + eta_s) if eta_s == eta_s and elapsed_s + eta_s > 0 else 0.0
-        self.bar.update(f, extra)
+        self.bar.update(f, extra, work=self._work)
 
 
 class ProgressLine:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import math
 
+import numpy as np
 import pytest
 
 from vastcal.calibrate.optimise import ProgressClock
@@ -81,4 +82,97 @@ def test_the_calibration_clock_names_its_phases_and_the_yaw_shows_no_silhouette_
     pc.update(25, 99.0)
     assert bar.records[-1].name == "photometric yaw (256 px)" and bar.records[-1].points[-1][1] == pytest.approx(0.5)
     assert "cost 0.07" in seen[0] and "cost" not in seen[1]
+    bar.close()
+
+
+def test_a_phase_with_work_forecast_gets_left_times_its_measured_time_per_unit() -> None:
+    eta = PhaseEta(0.0)
+    eta.add(3.0, 0.0, work=(0, 100))  # 3 s of set-up before the first report: not part of the rate
+    assert math.isnan(eta.eta())
+    for k in range(1, 5):  # 10 units per second; the forecast of what is left changes freely (no smoothing)
+        eta.add(3.0 + k, 0.1 * k, work=(10 * k, 50 - 5 * k))
+    assert eta.eta() == pytest.approx(30 / 10)
+    assert eta.eta(now=8.0) == pytest.approx(2.0)
+    eta.add(8.0, 0.99, work=(50, 0))
+    assert eta.eta() == 0.0
+
+
+def test_cma_stop_forecast_follows_the_step_down_to_tolx_and_is_bounded_by_the_budget() -> None:
+    from vastcal.calibrate.forecast import CMAStopForecast
+
+    fc = CMAStopForecast(tolx=1e-4, max_evaluations=10_000, popsize=10)
+    for g in range(1, 31):  # σ falls a decade every 10 generations from 1e-1: tolx after 30 more
+        left = fc.add(10.0 ** (-1 - g / 10), 10 * g)
+    assert left == pytest.approx(10, abs=1)  # at tolx: only the re-scores (about one generation) are left
+    fc = CMAStopForecast(tolx=1e-4, max_evaluations=10_000, popsize=10)
+    for g in range(1, 16):
+        left = fc.add(10.0 ** (-1 - g / 10), 10 * g)
+    assert left == pytest.approx(10 * 15 + 10, rel=0.05)  # 1.5 decades left at 0.1 decade per generation, plus the re-scores
+    tight = CMAStopForecast(tolx=1e-4, max_evaluations=200, popsize=10)
+    for g in range(1, 16):
+        left = tight.add(10.0 ** (-1 - g / 10), 10 * g)
+    assert left == pytest.approx(200 - 150 + 10)  # the budget ends it first
+    flat = CMAStopForecast(tolx=1e-4, max_evaluations=1000, popsize=10)
+    for g in range(1, 16):
+        left = flat.add(0.1 * (1 + 0.1 * (g % 2)), 10 * g)
+    assert left == pytest.approx(1000 - 150 + 10)  # not converging: only the budget bounds it
+
+
+def test_polish_forecast_expects_more_sweeps_after_a_move_and_none_after_the_last() -> None:
+    from vastcal.calibrate.forecast import PolishForecast
+
+    fc = PolishForecast(n_steps=4, max_sweeps=3)
+    assert fc.left() == pytest.approx(4 * (1 + 0.5 + 0.25) + fc.TAIL)  # no sweep yet: a move is a coin toss
+    assert fc.add(0, 1, False) == pytest.approx(3 * (1 + 1 / 3 + 1 / 9) + fc.TAIL)  # step 0 done; p = 1/3
+    left = fc.add(1, 1, True)  # step 1 moved: one more sweep certain, another with p = 2/4
+    assert left == pytest.approx((1 + 0.5) + 2 * (1 + 0.5 + 0.25) + fc.TAIL)
+    fc.add(1, 2, True)
+    p = 4 / 6
+    assert fc.add(1, 3, True) == pytest.approx(2 * (1 + p + p * p) + fc.TAIL)  # out of sweeps at step 1: the next step
+    assert fc.add(3, 1, False) == pytest.approx(fc.TAIL)
+
+
+def test_polish_rolls_reports_every_sweep() -> None:
+    from vastcal.calibrate.parameters import CalibrationBounds, ParameterSpace
+    from vastcal.calibrate.run import polish_rolls
+
+    theta0 = np.zeros(3 + 5)
+    space = ParameterSpace.build(theta0, ["rolls"], CalibrationBounds(), fixed_views=[0])
+    target = np.array([0.0, 0.0, 0.0, 0.0, 0.13, -0.31, 0.05, 0.22])
+
+    def cost(th: np.ndarray) -> np.ndarray:
+        return np.sum((np.atleast_2d(th) - target) ** 2, axis=1) + 1.0
+
+    seen: list[tuple[int, int, bool]] = []
+    x, f, evals, converged = polish_rolls(cost, space, np.zeros(space.n_free), on_sweep=lambda *a: seen.append(a))
+    n = 4  # free rolls
+    moved = sum(m for _, _, m in seen)
+    assert evals == 1 + len(seen) * (2 * n + 1) + 2 * moved + 1
+    assert [s for s, _, _ in seen] == sorted(s for s, _, _ in seen) and {s for s, _, _ in seen} == {0, 1, 2, 3}
+    assert all(k == 1 or seen[i - 1][:2] == (s, k - 1) and seen[i - 1][2] for i, (s, k, _) in enumerate(seen))
+    assert all(not m or k == 3 or seen[i + 1][:2] == (s, k + 1) for i, (s, k, m) in enumerate(seen[:-1]))
+
+
+def test_a_cma_level_reports_its_forecast_and_the_clock_turns_it_into_the_bar_fraction() -> None:
+    from vastcal.calibrate.optimise import minimise
+
+    told: list[tuple[int, float]] = []
+    r = minimise(lambda X: np.sum(np.asarray(X) ** 2, axis=1), np.full(3, 0.5), 0.3, np.ones(3), seed=1, max_evaluations=3000,
+                 tolx=1e-5, tolfun=1e-14, popsize=8, convergence=lambda d, left: told.append((d, left)))
+    assert "tolx" in r.stop and len(told) == r.n_generations
+    gens_left = [left / 8 - 1 for _, left in told]  # less the re-scores' generation
+    late = [abs(g - (len(told) - 1 - i)) / (len(told) - i) for i, g in enumerate(gens_left) if i >= len(told) // 2]
+    assert np.median(late) < 0.3  # a clean quadratic converges geometrically: the forecast tracks the generations left
+    clock, out = Clock(), io.StringIO()
+    bar = PhaseProgress("calibrate", out, tty=False, clock=clock)
+    pc = ProgressClock(CalibrationProgress(bar), budget=100)
+    pc.name_phase(100, "level 1/1")
+    for k, (d, left) in enumerate(told[:5]):
+        clock.now += 0.5
+        pc.forecast(d, left)
+        pc.update(d, 1.0)
+    rec = bar.records[-1]
+    d, left = told[4]
+    assert rec.points[-1][1] == pytest.approx(d / (d + left))
+    assert rec.points[-1][2] == pytest.approx(left * 1.0 / (told[4][0] - told[2][0]))  # the recent half: reports 3 to 5, 1 s
     bar.close()

@@ -15,13 +15,14 @@ is where the speed comes from (no Python loop over candidates or views).
 from __future__ import annotations
 
 import logging
-import math
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
+
+from vastcal.calibrate.forecast import CMAStopForecast, tolx_quantity
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +36,11 @@ def _cma():  # type: ignore[no-untyped-def]
         warnings.simplefilter("ignore")
         import cma
     return cma
+
+
+def preload() -> None:
+    """Import cma now: its first import takes about a second, which belongs to a caller's set-up, not to a search's time."""
+    _cma()
 
 
 @dataclass
@@ -53,23 +59,16 @@ class CMAResult:
 RESTARTS = ("none", "ipop", "bipop")
 
 
-def _convergence(es: Any, s0: float, tolx: float, maxfevals: float, n_evaluations: int) -> float:
-    """How far (0..1) a CMA-ES run is towards its stop: the larger of the budget spent and the step's way
-    down from its start ``s0`` to ``tolx`` on a log scale (σ shrinks about geometrically per generation once
-    the search converges, so this is close to linear in time; a progress bar's fraction)."""
-    s = float(np.max(es.stds))
-    by_step = math.log(s0 / s) / math.log(s0 / tolx) if s0 > tolx and s > 0 else 0.0
-    return float(min(1.0, max(0.0, by_step, n_evaluations / maxfevals if maxfevals else 0.0)))
-
-
 def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, opts: dict,
              progress: Callable[[int, float], None] | None, evals_before: int,
-             convergence: Callable[[float], None] | None = None) -> CMAResult:
+             convergence: Callable[[int, float], None] | None = None, spend_budget: bool = False) -> CMAResult:
     """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept.
-    ``convergence`` (optional) is told the run's fraction done (:func:`_convergence`) every generation."""
+    ``convergence`` (optional) is told every generation (evaluations so far, counting ``evals_before``; the
+    evaluations forecast left, :class:`.forecast.CMAStopForecast`; ``spend_budget``: restarts follow until the
+    budget is spent, so the budget left is the forecast)."""
     res = CMAResult(x0.copy(), float("inf"), 0, 0, {})
     es = cma.CMAEvolutionStrategy(list(x0), float(sigma0), opts)
-    s0 = float(np.max(es.stds))
+    forecast = CMAStopForecast(float(opts["tolx"]), float(opts.get("maxfevals", 0)), int(es.popsize), spend_budget=spend_budget)
     while not es.stop():
         X = np.asarray(es.ask())
         f = np.asarray(objective(X), float)
@@ -82,7 +81,7 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
         res.trace_evals.append(evals_before + res.n_evaluations)
         res.trace_best.append(res.f_best)
         if convergence is not None:
-            convergence(_convergence(es, s0, float(opts["tolx"]), float(opts.get("maxfevals", 0)), res.n_evaluations))
+            convergence(evals_before + res.n_evaluations, forecast.add(tolx_quantity(es), res.n_evaluations))
         if progress is not None:
             progress(evals_before + res.n_evaluations, res.f_best)
     res.stop = dict(es.stop())
@@ -104,7 +103,7 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
 def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, stds: np.ndarray, *, seed: int,
              max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
              progress: Callable[[int, float], None] | None = None, restarts: str = "none",
-             convergence: Callable[[float], None] | None = None) -> CMAResult:
+             convergence: Callable[[int, float], None] | None = None) -> CMAResult:
     """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
 
     Args:
@@ -120,8 +119,8 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             (Hansen 2009: IPOP's large-population regime interleaved with short local runs of small random
             populations and σ0 × 10^(−2u), u ~ U(0, 1), while the small regime has used less budget than the
             large). The best run (re-scored alone) is returned; ``stop`` holds every run's reasons.
-        convergence: told the fraction (0..1) of the current run done, every generation, before ``progress``
-            (for a progress bar's ETA; see :class:`ProgressClock`).
+        convergence: told (evaluations so far, evaluations forecast left) every generation, before ``progress``
+            (for a progress bar's ETA: :class:`.forecast.CMAStopForecast`, :meth:`ProgressClock.forecast`).
     """
     cma = _cma()
     if restarts not in RESTARTS:
@@ -161,7 +160,7 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
                 opts["popsize"] = lam_large
             elif lam0:
                 opts["popsize"] = lam0
-            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence)
+            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence, spend_budget=restarts != "none")
             if k == 0:
                 lam0 = lam_large = r.popsize  # type: ignore[attr-defined]
             used[regime] += r.n_evaluations
@@ -203,13 +202,22 @@ class ProgressClock:
         self._first: tuple[float, int] | None = None
         self._phase_start, self._phase_budget = 0, self.budget
         self._converged: float | None = None
+        self._work: tuple[float, float] | None = None
 
     def converged(self, fraction: float) -> None:
         """The current phase's own measure of its progress (e.g. a CMA-ES run's convergence), 0..1."""
         self._converged = float(fraction)
 
+    def forecast(self, done: float, left: float) -> None:
+        """The current phase's work done and forecast left, in units of about equal time each (a CMA-ES level's
+        evaluations, the polish's sweeps; :mod:`.forecast`): the ETA is ``left`` × the time per unit measured in the phase."""
+        self._work = (float(done), max(float(left), 0.0))
+
     def phase_fraction(self) -> float:
-        """Fraction (0..1) of the current phase done: its own measure when it gives one, else its evaluations' share."""
+        """Fraction (0..1) of the current phase done: its forecast's share done, else its own measure, else its evaluations' share."""
+        if self._work is not None:
+            done, left = self._work
+            return float(done / (done + left)) if done + left > 0 else 0.0
         by_count = (self.done - self._phase_start) / self._phase_budget
         return float(min(1.0, max(by_count, self._converged or 0.0)))
 
@@ -228,6 +236,8 @@ class ProgressClock:
         if self.callback is not None:
             if hasattr(self.callback, "phase_fraction"):  # vastcal.progress.CalibrationProgress: named phases
                 self.callback.phase_fraction(self.phase_fraction())
+                if hasattr(self.callback, "phase_work"):
+                    self.callback.phase_work(self._work)
             self.callback(evals_total, best, el, eta)
         if now - self._last_log >= self.every_s:
             self._last_log = now
@@ -246,5 +256,6 @@ class ProgressClock:
         named phases, each with its own fraction done; the overall budget and rate are kept."""
         self._phase_start, self._phase_budget = self.done, max(1, int(evaluations))
         self._converged = None
+        self._work = None
         if name is not None and hasattr(self.callback, "phase"):
             self.callback.phase(name)

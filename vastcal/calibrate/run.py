@@ -37,7 +37,8 @@ from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObject
                                                    signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
-from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock, minimise
+from vastcal.calibrate.forecast import PolishForecast
+from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock, minimise, preload
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE as PHOTOMETRIC_SCHEDULE
 from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
@@ -416,8 +417,8 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
     for li, lv in enumerate(settings.levels):
         name = f"level {li + 1}/{len(settings.levels)} ({lv.width_px} px), seed {seed}"
         clock.name_phase(1, f"{name}: region and maps")  # set-up: no progress of its own to report
+        preload()  # cma's first import (~1 s) is set-up too, not the search's time
         obj, region, K_lv, shape = problem.level_objective(li, x)
-        clock.name_phase(lv.max_evaluations, name)
         t_lv = time.monotonic()
         base = evals_before + evals_done
         sel = space.level_selection(lv.groups)  # which free coordinates this level moves
@@ -436,9 +437,10 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
                 stds = np.clip(motion.min() / motion, 1e-3, 1.0)
             if lv.max_initial_step_px:
                 stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
+        clock.name_phase(lv.max_evaluations, name)  # the search: its ETA from the CMA-ES stop forecast
         res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
                        tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize, restarts=settings.restarts,
-                       progress=lambda e, f, _b=base: clock.update(_b + e, f), convergence=clock.converged)
+                       progress=lambda e, f, _b=base: clock.update(_b + e, f), convergence=clock.forecast)
         x = x.copy()
         x[sel] = res.x_best
         dt = time.monotonic() - t_lv
@@ -446,6 +448,7 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
         evals_done += res.n_evaluations
         trace += [(base + e, f) for e, f in zip(res.trace_evals, res.trace_best)]
         if li == 0 and settings.roll_offset_scan_deg > 0:
+            clock.name_phase(1, f"{name}: common roll offset scan")  # not the search's time
             x, n_scan = _common_roll_offset_scan(cost, space, x, settings.roll_offset_scan_deg)
             evals_done += n_scan
         n_vox = len(region.voxels)
@@ -460,7 +463,7 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
 
 def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray, *,
                  steps_deg: Sequence[float] = (0.2, 0.1, 0.05, 0.025), max_sweeps: int = 3,
-                 rtol: float = 1e-4) -> tuple[np.ndarray, float, int, bool]:
+                 rtol: float = 1e-4, on_sweep: Callable[[int, int, bool], None] | None = None) -> tuple[np.ndarray, float, int, bool]:
     """Per-view coordinate polish of every free roll (compass search, all views' trials in one batch).
 
     For each step h (degrees, largest first) every free roll is tried at ω ± h with the others fixed, in one
@@ -470,6 +473,8 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
     the cost by more than ``rtol`` × cost, then h halves. ``cost`` maps θ (B, 3 + N) degrees to (B,).
     Returns (x, cost of x, evaluations, converged): converged when the smallest step's sweep found no
     improving move (a minimum along every roll to ± that step) before ``max_sweeps`` ran out.
+    ``on_sweep`` (a progress bar's forecast, :class:`.forecast.PolishForecast`) is told (step index, sweeps done at
+    that step, whether the sweep moved a roll) after every sweep.
     """
     rolls = np.flatnonzero(np.flatnonzero(space.free_mask) >= 4)  # positions of the free rolls in x
     f = float(cost(space.theta(x))[0])
@@ -479,9 +484,9 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
     evals = 1
     converged = False
     k = np.arange(rolls.size)
-    for h in steps_deg:
+    for si, h in enumerate(steps_deg):
         converged = False
-        for _ in range(max_sweeps):
+        for sweep in range(max_sweeps):
             X = np.repeat(x[None], 2 * rolls.size + 1, axis=0)
             X[1 + k, rolls] = np.clip(x[rolls] + h / hw, -1.0, 1.0)
             X[1 + rolls.size + k, rolls] = np.clip(x[rolls] - h / hw, -1.0, 1.0)
@@ -493,6 +498,8 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
             better = gain > rtol * max(abs(f), 1e-12)
             if not better.any():
                 converged = True
+                if on_sweep is not None:
+                    on_sweep(si, sweep + 1, False)
                 break
             pick = np.where(plus <= minus, 1 + k, 1 + rolls.size + k)
             xc = x.copy()
@@ -501,6 +508,8 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
             fc, fj = cost(space.theta(np.stack([xc, X[pick[j]]])))
             evals += 2
             x = xc if fc <= fj else X[pick[j]].copy()
+            if on_sweep is not None:
+                on_sweep(si, sweep + 1, True)
     return x, float(cost(space.theta(x))[0]), evals + 1, converged
 
 
@@ -611,16 +620,24 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         fast, _, _, _ = problem.level_objective(last, x)
         clock.start_phase((2 * n_rolls + 3) * 2 * len(settings.polish_steps_deg), "per-view polish")
         polish_cost, seen = problem.cost_fn(fast), [evals_done]
+        sweeps = PolishForecast(len(settings.polish_steps_deg), polish_rolls.__kwdefaults__["max_sweeps"])
+        clock.forecast(0, sweeps.left())
+        clock.update(evals_done, f)  # its ETA: the sweeps forecast left × the time per sweep measured here
 
-        def counted(th: np.ndarray) -> np.ndarray:  # the polish's batches move the progress bar
+        def counted(th: np.ndarray) -> np.ndarray:
             out = polish_cost(th)
             seen[0] += len(th)
-            clock.update(seen[0], f)
             return out
 
-        xp, _, n_pol, conv = polish_rolls(counted, space, x, steps_deg=settings.polish_steps_deg)
+        def swept(step: int, n: int, moved: bool) -> None:  # every sweep moves the progress bar
+            left = sweeps.add(step, n, moved)
+            clock.forecast(sweeps.sweeps, left)
+            clock.update(seen[0], f)
+
+        xp, _, n_pol, conv = polish_rolls(counted, space, x, steps_deg=settings.polish_steps_deg, on_sweep=swept)
         fp = float(judge(space.theta(xp))[0])
         evals_done += n_pol + 1
+        clock.forecast(sweeps.sweeps, 0.0)
         clock.update(evals_done, min(f, fp))
         polished = {"converged": bool(conv), "evaluations": n_pol, "judged_before": f, "judged_after": fp}
         if fp <= f:

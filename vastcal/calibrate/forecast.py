@@ -1,0 +1,113 @@
+"""How much work an iterative search has left: forecasts behind the progress bar's ETA.
+
+A phase's ETA is its forecast work left times the time per unit of work measured in the phase itself
+(:class:`vastcal.progress.PhaseEta`). This module holds the forecasts of the two searches whose length is
+not known in advance:
+
+* :class:`CMAStopForecast` — evaluations left in one CMA-ES run. The run stops on ``tolx`` (every coordinate's
+  step, σ·√diag C, and its evolution path below the tolerance), on ``maxfevals``, or later on other criteria.
+  Once a run converges, the step shrinks about geometrically per generation, so the logarithm of the ``tolx``
+  quantity falls about linearly: the generations left are the distance from its recent low (the criterion fires
+  on a dip) to log ``tolx``, over the slope fitted to the recent half of the run (the first generations
+  explore and say nothing of the convergence rate), bounded by the evaluations the budget still allows.
+  Measured limit (``benchmarks/progress_eta.py``): on the simulated rig the step often settles on the
+  cost's noise floor a few times above ``tolx`` and the run ends when it happens to dip below; that moment
+  is random and no forecast from the run's history gets it to within 30 % near the end.
+* :class:`PolishForecast` — sweeps left in the per-view polish (:func:`vastcal.calibrate.run.polish_rolls`):
+  every step size takes 1 to ``max_sweeps`` sweeps, one more after every sweep that moved a roll. The
+  chance that a sweep moves a roll is estimated from the sweeps so far (Laplace's rule); the sweeps left are
+  their expectation: the current step's (certain next sweep, then each further one with that chance) plus
+  every smaller step's.
+
+Both count a small tail: the work after the last reported unit (a CMA-ES run's two single-candidate
+re-scores, about one generation's call; the polish's final evaluation and the judge's, about half a sweep).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class CMAStopForecast:
+    """Evaluations left in one CMA-ES run, from its ``tolx`` criterion's quantity per generation.
+
+    Args:
+        tolx: the run's ``tolx`` (box units).
+        max_evaluations: the run's evaluation budget (``maxfevals``).
+        popsize: evaluations per generation (λ).
+        spend_budget: the caller restarts until the budget is spent (IPOP/BIPOP): the budget left is the forecast.
+    """
+
+    #: fewest generations the slope is fitted over (the slope's error grows as w^-1.5 with the window w)
+    MIN_WINDOW = 8
+    #: generations whose lowest value is the quantity's level now (the criterion fires on a dip)
+    LOW_OF = 5
+
+    def __init__(self, tolx: float, max_evaluations: float, popsize: int, *, spend_budget: bool = False) -> None:
+        self.log_tolx = math.log(float(tolx))
+        self.max_evaluations = float(max_evaluations) if max_evaluations else math.inf
+        self.popsize = max(1, int(popsize))
+        self.spend_budget = spend_budget
+        self.logs: list[float] = []
+
+    def generations_to_tolx(self) -> float:
+        """Generations until the fitted trend's recent low reaches ``tolx`` (inf: not converging yet)."""
+        n = len(self.logs)
+        if n < self.MIN_WINDOW:
+            return math.inf
+        y = np.asarray(self.logs[-max(self.MIN_WINDOW, n // 2):])
+        x = np.arange(len(y), dtype=float)
+        slope = float(np.polyfit(x, y, 1)[0])
+        if not slope < 0:
+            return math.inf
+        low = min(self.logs[-self.LOW_OF:])
+        return max(0.0, (low - self.log_tolx) / -slope)
+
+    def add(self, quantity: float, evaluations: int) -> float:
+        """Record one generation: the ``tolx`` quantity (box units) and the run's evaluations so far.
+        Returns the evaluations left (the budget's bound and the tail included)."""
+        self.logs.append(math.log(max(float(quantity), 1e-300)))
+        budget_left = max(self.max_evaluations - evaluations, 0.0)
+        gens = math.inf if self.spend_budget else self.generations_to_tolx()
+        return min(gens * self.popsize, budget_left) + self.popsize  # + the re-scores: about one generation's call
+
+
+def tolx_quantity(es: object) -> float:
+    """The larger of what a ``cma.CMAEvolutionStrategy``'s ``tolx`` stop compares with its tolerance: every
+    coordinate's step σ·√(diag C) and evolution path σ·|p_c| (box units)."""
+    s = es.sigma * np.asarray(es.sigma_vec.scaling)  # type: ignore[attr-defined]
+    return float(max(np.max(s * np.sqrt(es.dC)), np.max(np.abs(s * es.pc))))  # type: ignore[attr-defined]
+
+
+class PolishForecast:
+    """Sweeps left in the per-view polish of ``n_steps`` step sizes, each of at most ``max_sweeps`` sweeps."""
+
+    #: the work after the last sweep (a single-candidate evaluation and the judge's), in sweeps
+    TAIL = 0.5
+
+    def __init__(self, n_steps: int, max_sweeps: int) -> None:
+        self.n_steps, self.max_sweeps = int(n_steps), int(max_sweeps)
+        self.sweeps = 0
+        self.moved = 0
+
+    def _expected(self, p: float, at_most: int) -> float:
+        """Expected sweeps of a step with at most ``at_most`` of them, each after the first run with chance p."""
+        return float(sum(p ** k for k in range(max(at_most, 0))))
+
+    def left(self, step: int = 0, sweeps_in_step: int = 0, moved: bool = False) -> float:
+        """Sweeps left (tail included) after sweep ``sweeps_in_step`` (0: none yet) of step ``step`` (0-based)
+        that ``moved`` a roll or not; the sweeps so far must have been told with :meth:`add`."""
+        p = (self.moved + 1) / (self.sweeps + 2)
+        if sweeps_in_step == 0:
+            now = self._expected(p, self.max_sweeps)
+        else:
+            now = self._expected(p, self.max_sweeps - sweeps_in_step) if moved else 0.0
+        return now + (self.n_steps - step - 1) * self._expected(p, self.max_sweeps) + self.TAIL
+
+    def add(self, step: int, sweeps_in_step: int, moved: bool) -> float:
+        """Record a sweep (``sweeps_in_step`` ≥ 1 of step ``step``; ``moved``: it moved a roll); returns the sweeps left."""
+        self.sweeps += 1
+        self.moved += int(bool(moved))
+        return self.left(step, sweeps_in_step, moved)
