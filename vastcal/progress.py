@@ -13,7 +13,8 @@ count in its rate.
 
 ``benchmarks/progress_eta.py`` measures the ETA's error at every update over the second half of every
 phase (its docstring states the criterion).
-:class:`ProgressLine` (a single counted task: import, acquire, batch) is kept for simple loops.
+:class:`CountProgress` draws a counted task (import: files, acquire: views) the same way, with its ETA from
+the time per item measured. :class:`ProgressLine` (a single counted line) is kept for the batch's sessions.
 """
 
 from __future__ import annotations
@@ -154,12 +155,14 @@ class PhaseProgress:
         """The phase under way (None before the first and after :meth:`close`)."""
         return self.records[-1] if self.records and self.records[-1].t1 != self.records[-1].t1 else None
 
-    def phase(self, name: str) -> None:
-        """End the phase under way (if any) and start ``name``."""
+    def phase(self, name: str, *, since: float | None = None) -> None:
+        """End the phase under way (if any) and start ``name`` (at ``since``, a time of :attr:`clock` before now,
+        when its work began before it could be named)."""
         now = self.clock()
         self._end(now)
-        self.records.append(PhaseRecord(name, now))
-        self._eta = PhaseEta(now)
+        t0 = now if since is None else min(float(since), now)
+        self.records.append(PhaseRecord(name, t0))
+        self._eta = PhaseEta(t0)
         self._step = -1
         if not self.enabled:
             return
@@ -293,6 +296,52 @@ class CalibrationProgress:
         if f is None:  # no fraction from the clock: the optimiser's own ETA turned into one
             f = elapsed_s / (elapsed_s + eta_s) if eta_s == eta_s and elapsed_s + eta_s > 0 else 0.0
         self.bar.update(f, extra, work=self._work)
+
+
+class CountProgress:
+    """A counted task (``vastcal import``: files; ``vastcal acquire``: views) as a named phase of a
+    :class:`PhaseProgress`: ``rich`` on a terminal, plain lines in logs (phase start, every ``step_pct`` percent,
+    end). Its ETA is the items left × the time per item measured over the recent half of the time since the
+    first item: the first item's one-off work (opening files, homing the stage, the camera's first frame) is
+    not counted, a rate that changes midway is followed. Same calls as :class:`ProgressLine`.
+
+    Args:
+        label: the task (``import``, ``acquire``); unit: what is counted (``views``).
+        stream, enabled, tty, step_pct, clock: as :class:`PhaseProgress`.
+    """
+
+    def __init__(self, label: str, unit: str = "", stream: TextIO | None = None, *, enabled: bool = True, tty: bool | None = None,
+                 step_pct: int = 10, clock: Callable[[], float] = time.monotonic) -> None:
+        self.bar = PhaseProgress(label, stream, enabled=enabled, step_pct=step_pct, tty=tty, clock=clock)
+        self.unit = unit
+        self._t0 = clock()  # the task's time runs from here (its first item's set-up included in "elapsed", not in the rate)
+
+    def phase(self, name: str) -> None:
+        """Start a named phase (default: the first update names one after the count, e.g. ``36 views``)."""
+        self.bar.phase(name)
+
+    def update(self, done: float, total: float, extra: str = "", elapsed_s: float | None = None, eta_s: float | None = None) -> None:
+        """Report ``done`` of ``total`` items (NaN: open-ended, no ETA). ``elapsed_s`` and ``eta_s`` (a caller's own
+        estimate) are ignored: the phase measures its own time per item."""
+        known = total == total and total > 0
+        if self.bar.current is None:
+            self.bar.phase(f"{total:g} {self.unit}".strip() if known else (self.unit or self.bar.label), since=self._t0)
+        count = (f"{done:g}/{total:g}" if known else f"{done:g}") + (f" {self.unit}" if self.unit else "")
+        text = count + (f", {extra}" if extra else "")
+        if known:
+            self.bar.update(None, text, work=(float(done), max(float(total) - float(done), 0.0)))
+        else:
+            self.bar.update(0.0, text)
+
+    def close(self) -> None:
+        """End the phase and the live display (call once, also on error)."""
+        self.bar.close()
+
+    def __enter__(self) -> "CountProgress":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 class ProgressLine:

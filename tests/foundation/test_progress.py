@@ -176,3 +176,28 @@ def test_a_cma_level_reports_its_forecast_and_the_clock_turns_it_into_the_bar_fr
     assert rec.points[-1][1] == pytest.approx(d / (d + left))
     assert rec.points[-1][2] == pytest.approx(left * 1.0 / (told[4][0] - told[2][0]))  # the recent half: reports 3 to 5, 1 s
     bar.close()
+
+
+def test_a_counted_task_is_a_named_phase_whose_eta_is_the_items_left_times_the_time_per_item() -> None:
+    from vastcal.progress import CountProgress
+
+    clock, out = Clock(), io.StringIO()
+    bar = CountProgress("acquire", "views", out, tty=False, clock=clock, step_pct=25)
+    clock.now += 30.0  # homing the stage and the first frame: one-off, not the rate
+    bar.update(1, 9, elapsed_s=30.0)
+    for k in range(2, 10):
+        clock.now += 2.0  # then 2 s per view
+        bar.update(k, 9, elapsed_s=999.0)  # the caller's elapsed time does not matter
+        if k == 5:
+            assert bar.bar.records[-1].points[-1][2] == pytest.approx(4 * 2.0)
+    bar.close()
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "acquire: 9 views ..." and lines[-1] == "acquire: 9 views  done in 46.0 s"
+    assert "\r" not in out.getvalue() and any("ETA 8.0 s" in ln for ln in lines)
+    errs = bar.bar.records[0].eta_errors()  # the first view's update has no ETA yet (100 %); then exact at a steady rate
+    assert errs[0] == 1.0 and all(e < 1e-9 for e in errs[1:])
+    term = io.StringIO()
+    with CountProgress("import", "views", term, tty=True) as tbar:
+        tbar.update(1, 4)
+        tbar.update(2, 4)
+    assert "9 views" not in term.getvalue() and "4 views" in term.getvalue()
