@@ -39,7 +39,7 @@ from vastcal import __version__
 from vastcal.allocator import keep_large_blocks
 from vastcal.errors import EXIT_BAD_INPUT, EXIT_CODES, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, UserInputError, VastcalError
 from vastcal.outputs import check_output_file, check_output_folder
-from vastcal.progress import CalibrationProgress, PhaseProgress, ProgressLine
+from vastcal.progress import CalibrationProgress, CountProgress, PhaseProgress
 
 #: calibration methods (vastcal.calibrate.run.METHODS; not imported here to keep the CLI start-up light)
 METHOD_CHOICES = ("coherence", "pi", "vr")
@@ -47,8 +47,8 @@ METHOD_CHOICES = ("coherence", "pi", "vr")
 log = logging.getLogger("vastcal")
 
 
-def _progress(args: argparse.Namespace, label: str, unit: str = "") -> ProgressLine:
-    return ProgressLine(label, unit, enabled=not args.quiet)
+def _progress(args: argparse.Namespace, label: str, unit: str = "") -> CountProgress:
+    return CountProgress(label, unit, enabled=not args.quiet)  # rich on a terminal, plain lines in logs; ETA per item measured
 
 
 def cmd_import(args: argparse.Namespace) -> int:
