@@ -105,7 +105,7 @@ def test_grouped_maps_equal_the_whole_stack_when_it_fits_and_match_it_in_groups(
     assert np.array_equal(out, whole)
     monkeypatch.setattr(view_budget, "MIN_MAP_VIEWS", 7)
     seen.clear()
-    assert grouped_specimen_maps(model, lambda v: frames[v], n, frames.shape[1:], 256.0, store) == 3
+    assert grouped_specimen_maps(model, lambda v: frames[v], n, frames.shape[1:], 128.0, store) == 3
     assert seen == [list(range(j, n, 3)) for j in range(3)]
     assert float(np.mean((out >= 0.5) == (whole >= 0.5))) > 0.999
 
@@ -191,3 +191,15 @@ def test_maps_made_out_of_order_wait_compactly(spheroid_views: PhantomViews, tmp
     assert len(maps) == 21 and np.array_equal(np.asarray(maps)[0], SilhouetteMaps.from_stack(specimen_maps(model, frames[::7]), quantise=True)[0])
     full_frame = 4 * frames[0].size
     assert peak < one_group + maps.nbytes + 3 * full_frame  # 14 views wait for their turn at most: 14 full frames before
+
+
+def test_specimen_maps_hold_what_the_budget_states(spheroid_views: PhantomViews) -> None:
+    """The rules clear one stack of maps in place: the peak stays within view_budget's bytes per frame pixel (it was 36)."""
+    frames = _frames(spheroid_views)
+    model = fit_automatic(frames)
+    tracemalloc.start()
+    maps = specimen_maps(model, frames)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert maps.dtype == np.float32 and maps.shape == frames.shape
+    assert (peak + frames.nbytes) / frames.size <= view_budget.SPECIMEN_MAP_BYTES_PER_PIXEL

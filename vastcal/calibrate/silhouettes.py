@@ -77,7 +77,7 @@ def static_bands(silhouettes: np.ndarray, *, views: float = STATIC_VIEWS, span: 
 
 
 def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_px: int = 3,
-                  t: np.ndarray | None = None) -> np.ndarray:
+                  t: np.ndarray | None = None, *, copy: bool = True) -> np.ndarray:
     """Posteriors (N, H, W) with static bands and the static blobs cut by the frame's edge set to 0.
 
     Static bands (capillary walls and the strip beside them, :func:`static_bands`) are cleared in
@@ -88,8 +88,9 @@ def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_
     body stays); every remaining region that touches the frame's edge is a static blob and is cleared
     (grown by ``margin_px``) — unless it is the largest region of its view: that is the specimen running
     out of the frame (a tail tip past the edge), which is kept (:func:`touches_frame_edge` reports it).
+    ``copy=False``: clear ``pf`` itself when it is float32 (a stack's maps are then held once).
     """
-    out = np.array(pf, dtype=np.float32, copy=True)
+    out = np.array(pf, dtype=np.float32, copy=copy)
     if out.ndim == 3:
         rows, cols = static_bands(out > level)
         if rows.any() or cols.any():
@@ -205,12 +206,18 @@ def contrast(model: ColourModel, f: np.ndarray) -> np.ndarray:
     """
     mb = np.asarray(model.bg.mean, np.float32).reshape(-1)
     d = np.asarray(model.fg.mean, np.float32).reshape(-1) - mb
-    return (((f - mb) @ d) / max(float(d @ d), 1e-12)).astype(np.float32)
+    dd = max(float(d @ d), 1e-12)
+    if f.ndim < 4:
+        return (((f - mb) @ d) / dd).astype(np.float32)
+    out = np.empty(f.shape[:-1], np.float32)
+    for i, fi in enumerate(f):  # one view at a time: its temporaries are a view's, not the stack's
+        out[i] = ((fi - mb) @ d) / dd
+    return out
 
 
 def half_contrast_edges(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, plateau_px: float = 2.0,
                         level: float = 0.5, soft: bool = False, forbid: np.ndarray | None = None,
-                        plateau_depth_px: float | None = None) -> np.ndarray:
+                        plateau_depth_px: float | None = None, copy: bool = True) -> np.ndarray:
     """Posteriors with the silhouettes' rims moved in to the local half-contrast point (module docstring).
 
     A blurred edge rises from the background (contrast 0) to the specimen's value just inside it —
@@ -234,8 +241,10 @@ def half_contrast_edges(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, 
     the simulator's true cameras: 2 px instead of 3 moves the simulated larvae's volume +0.4…+1 % towards
     their hull (their rims step to ~¾ of the contrast 3 px in, then rise), and ZF1's +0.9 → +2.5 % (its
     blurrier, pigmented rims): the default stays 3 px (ZF1 is real data).
+
+    ``copy=False``: move the rims of ``pf`` itself when it is float32.
     """
-    out = np.array(pf, dtype=np.float32, copy=True)
+    out = np.array(pf, dtype=np.float32, copy=copy)
     flat_p = out.reshape((-1,) + out.shape[-2:])
     flat_t = np.asarray(t, np.float32).reshape(flat_p.shape)
     reach = int(np.ceil(band_px + plateau_px))
@@ -277,15 +286,24 @@ def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 3.
     :func:`.specimen_parts.single_specimen`, the parts no rigid body explains dropped). ``band_px`` is the rim band in
     pixels of these images (3 px of the full frame; the calibration passes 3 / its downsampling
     factor), and sets the scale of every other pixel length.
+
+    Memory: every rule works on one float32 stack of maps in place, beside the contrast (float32) and a few
+    bool masks — about 14 bytes a frame pixel at the peak (the features, while the posteriors are made), the
+    frames not included (``benchmarks/scaling.py --map-bytes``).
     """
     f = model.features(images)  # once: the background flattening is the costly part
     t = contrast(model, f)
-    raw = np.exp(model.log_foreground_probability_of_features(f))
-    if not (absorbing(model) and raw.ndim == 3):
-        return half_contrast_edges(specimen_only(raw), t, band_px=band_px)
-    pf = drop_translucent(specimen_only(raw, t=t), t, band_px=band_px)
-    pf = half_contrast_edges(pf, t, band_px=band_px, soft=True, forbid=(raw > 0.5) & (pf <= 0.5))
-    return single_specimen(pf, tol_px=2.0 * band_px / 3.0)
+    pf = model.log_foreground_probability_of_features(f)
+    del f
+    np.exp(pf, out=pf)  # the raw posteriors, float32, the stack every rule below clears in place
+    if not (absorbing(model) and pf.ndim == 3):
+        return half_contrast_edges(specimen_only(pf, copy=False), t, band_px=band_px, copy=False)
+    forbid = pf > 0.5  # what the colour model called specimen: the rules below may clear it, never add it
+    pf = drop_translucent(specimen_only(pf, t=t, copy=False), t, band_px=band_px, copy=False)
+    np.logical_and(forbid, pf <= 0.5, out=forbid)  # cleared by a rule: the soft rim must not grow back into it
+    pf = half_contrast_edges(pf, t, band_px=band_px, soft=True, forbid=forbid, copy=False)
+    del forbid, t
+    return single_specimen(pf, tol_px=2.0 * band_px / 3.0, copy=False)
 
 
 def touches_frame_edge(maps: np.ndarray, level: float = 0.5) -> np.ndarray:

@@ -42,7 +42,7 @@ def largest_regions(inside: np.ndarray) -> tuple[np.ndarray, list[tuple[np.ndarr
 
 
 def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, min_consistent: float = 0.9,
-                    min_support: float = 0.5) -> np.ndarray:
+                    min_support: float = 0.5, copy: bool = True) -> np.ndarray:
     """Posteriors (N, H, W) with the regions no rigid body can explain set to 0 (module docstring).
 
     Args:
@@ -51,24 +51,40 @@ def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, 
         tol_px: tolerance of the band test, px.
         min_consistent: fraction of a secondary region's pixels that must pass both tests.
         min_support: fraction of the other views whose body must occupy a pixel's column.
+        copy: False: drop them from ``pf`` itself when it is float32.
+
+    Two passes over the views, one view's labels at a time: the bodies' columns and row bands first (N × W
+    each), then the secondary regions of the views that have any are judged against them.
     """
-    out = np.array(pf, dtype=np.float32, copy=True)
+    out = np.array(pf, dtype=np.float32, copy=copy)
     if out.ndim != 3 or out.shape[0] < 3:
         return out
     n, h, w = out.shape
-    inside = out > level
-    body, labelled = largest_regions(inside)
-    cover = body.any(axis=1)  # (N, W)
-    rows = np.arange(h)[None, :, None]
-    top = np.where(cover, np.min(np.where(body, rows, h), axis=1), h)  # (N, W) first body row, h where none
-    bottom = np.where(cover, np.max(np.where(body, rows, -1), axis=1), -1)
+    cover = np.zeros((n, w), bool)  # the columns each view's body occupies
+    top = np.full((n, w), h, np.intp)  # its first row in each column, h where none
+    bottom = np.full((n, w), -1, np.intp)  # its last row, -1 where none
+    several: list[int] = []  # views with more than one region
+    for i in range(n):
+        count, labels, stats, _ = cv2.connectedComponentsWithStats((out[i] > level).astype(np.uint8), connectivity=8)
+        if count < 2:
+            continue
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        body = labels == big
+        cover[i] = body.any(axis=0)
+        top[i] = np.where(cover[i], np.argmax(body, axis=0), h)
+        bottom[i] = np.where(cover[i], h - 1 - np.argmax(body[::-1], axis=0), -1)
+        if count > 2:
+            several.append(i)
     dropped = 0
-    for i, (labels, big) in enumerate(labelled):
+    for i in several:
+        inside = out[i] > level
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(inside.astype(np.uint8), connectivity=8)  # as in the first pass
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
         others = np.arange(n) != i
         support = cover[others].sum(axis=0) >= min_support * (n - 1)  # (W,)
         lo = top[others].min(axis=0) - tol_px
         hi = bottom[others].max(axis=0) + tol_px
-        for k in np.unique(labels[inside[i]]):
+        for k in np.unique(labels[inside]):
             if k == big:
                 continue
             ys, xs = np.nonzero(labels == k)
@@ -79,3 +95,4 @@ def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, 
     if dropped:
         log.info("regions no rigid body explains dropped: %d over %d views", dropped, n)
     return out
+

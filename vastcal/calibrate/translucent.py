@@ -90,7 +90,7 @@ def between_in_columns(core: np.ndarray) -> np.ndarray:
 
 
 def drop_translucent(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, level: float = 0.5,
-                     fraction: float = CORE_FRACTION, reach_px: float | None = None) -> np.ndarray:
+                     fraction: float = CORE_FRACTION, reach_px: float | None = None, copy: bool = True) -> np.ndarray:
     """Posteriors (N, H, W) with the specimen's translucent sheets set to 0 (module docstring).
 
     Args:
@@ -100,17 +100,18 @@ def drop_translucent(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, lev
         level: posterior level of the specimen.
         fraction: core threshold as a fraction of the body reference.
         reach_px: radius of the body reference, px (default :func:`body_reach_px`).
+        copy: False: drop them from ``pf`` itself when it is float32.
     """
-    out = np.array(pf, dtype=np.float32, copy=True)
+    out = np.array(pf, dtype=np.float32, copy=copy)
     flat_p = out.reshape((-1,) + out.shape[-2:])
     flat_t = np.asarray(t, np.float32).reshape(flat_p.shape)
-    inside_all = flat_p > level
-    reach = body_reach_px(inside_all) if reach_px is None else float(reach_px)
+    reach = body_reach_px(flat_p > level) if reach_px is None else float(reach_px)
     smooth = band_px / 3.0  # one pixel of the full frame
     grow = max(1, int(np.ceil(band_px / 3.0)))  # one pixel of the full frame: the core's edge is already at half contrast
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
     dropped = 0
-    for p, tt, inside in zip(flat_p, flat_t, inside_all):
+    for p, tt in zip(flat_p, flat_t):
+        inside = p > level
         if not inside.any():
             continue
         ref = body_reference(tt, inside, reach, smooth)

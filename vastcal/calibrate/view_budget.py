@@ -10,10 +10,11 @@ revolution (the yaw is a property of the axis, seen by every view alike).
 
 The specimen maps (:func:`.silhouettes.specimen_maps`) need a whole revolution at once — static bands
 and capillary walls are what (almost) every view shows, a rigid body occupies the same columns in every
-view — and hold ~48 bytes a frame pixel while they are made. :func:`grouped_specimen_maps` therefore
+view — and hold ~16–24 bytes a frame pixel while they are made. :func:`grouped_specimen_maps` therefore
 makes them for interleaved *sub-revolutions* (views j, j + g, j + 2g, …), each itself an evenly spread
 revolution of at least 21 views (the paper's), as many views at once as ``memory_mb`` leaves room for:
-a 360-view session is mapped as 8 revolutions of 45 views, a 21-view one exactly as before.
+the reconstruction maps 360 frames of 1024 × 320 as 4 revolutions of 90 views, 360 of 1024 × 1024 as 12 of 30,
+a 21-view session exactly as before.
 
 :class:`SessionFrames` is a session's projection frames as a read-only stack that reads them when they are
 asked for (one at a time when iterated): calibration never decodes a whole revolution at once.
@@ -99,13 +100,14 @@ def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxe
     return evenly_spread_views(angles_deg, k)
 
 
-#: Bytes per frame pixel that :func:`.silhouettes.specimen_maps` holds while it maps a stack: features,
-#: contrast, log-posterior and posterior, the copies of its three clean-up rules (float32 each), their
-#: masks, and the frames themselves. Measured: 36 bytes (tracemalloc peak of one call on 21 Mono12 frames of
-#: the simulated rig, 1024 × 320 and 1024 × 1024 alike: ``python benchmarks/scaling.py --map-bytes --views 21
-#: --full-frame 21``); 48 leaves room for OpenCV's own temporaries, which tracemalloc does not see (the
-#: process's resident memory grew by ~45 bytes a pixel mapping 45 views of a 360-view session).
-SPECIMEN_MAP_BYTES_PER_PIXEL = 48.0
+#: Bytes per frame pixel that :func:`.silhouettes.specimen_maps` holds while it maps a stack: the features
+#: (float32 per channel), the contrast and one stack of maps (float32) that every rule clears in place, a few
+#: bool masks, and the frames themselves. Measured (tracemalloc peak of one call, frames included;
+#: ``python benchmarks/scaling.py --map-bytes --views 21 --full-frame 21``): 16.3 bytes on 21 Mono12 frames of
+#: 1024 × 1024 (21.3 on 1024 × 320: the posteriors' fixed 1 M-pixel chunk weighs more), ~22 + the chunk on RGB
+#: (three float32 features); was 36 before the rules worked in place. 24 leaves room for RGB and for OpenCV's
+#: per-view temporaries, which tracemalloc does not see.
+SPECIMEN_MAP_BYTES_PER_PIXEL = 24.0
 #: A sub-revolution never holds fewer views than this (when the session has them): the static-band and
 #: rigid-body rules of the specimen maps compare a revolution's views with each other.
 MIN_MAP_VIEWS = 21
