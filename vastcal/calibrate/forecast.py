@@ -9,7 +9,8 @@ not known in advance:
   Once a run converges, the step shrinks about geometrically per generation, so the logarithm of the ``tolx``
   quantity falls about linearly: the generations left are the distance from its recent low (the criterion fires
   on a dip) to log ``tolx``, over the slope fitted to the recent half of the run (the first generations
-  explore and say nothing of the convergence rate), bounded by the evaluations the budget still allows.
+  explore and say nothing of the convergence rate; when the recent half shows no descent, the whole run's),
+  bounded by the evaluations the budget still allows (the only bound while the step has not come down at all).
   Measured limit (``benchmarks/progress_eta.py``): on the simulated rig the step often settles on the
   cost's noise floor a few times above ``tolx`` and the run ends when it happens to dip below; that moment
   is random and no forecast from the run's history gets it to within 30 % near the end.
@@ -58,8 +59,9 @@ class CMAStopForecast:
         if n < self.MIN_WINDOW:
             return math.inf
         y = np.asarray(self.logs[-max(self.MIN_WINDOW, n // 2):])
-        x = np.arange(len(y), dtype=float)
-        slope = float(np.polyfit(x, y, 1)[0])
+        slope = float(np.polyfit(np.arange(len(y), dtype=float), y, 1)[0])
+        if not slope < 0:  # the recent half wanders (the search explores again): the whole run's trend, if it has one
+            slope = float(np.polyfit(np.arange(n, dtype=float), np.asarray(self.logs), 1)[0])
         if not slope < 0:
             return math.inf
         low = min(self.logs[-self.LOW_OF:])
