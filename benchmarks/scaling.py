@@ -144,16 +144,23 @@ def _step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_m
             raise SystemExit(f"acquisition of {views} views failed: {res.reason}")
         tmp.rename(session)
         return {"acquire_s": time.perf_counter() - t}
-    if step == "calibrate":
+    if step in ("calibrate", "calibrate_whole_frames"):
         from vastcal.calibrate import calibrate_session
         from vastcal.pipeline import score_against_truth
 
+        if step == "calibrate_whole_frames":  # the path before the window: every objective's atlas over whole frames
+            import vastcal.calibrate.run as run
+            from vastcal.calibrate.objective_coherence import signed_distance_maps
+            from vastcal.calibrate.sampling import Atlas
+
+            run.coherence_atlas = lambda pf: Atlas.from_stack(signed_distance_maps(pf))  # type: ignore[assignment]
         t, c = time.perf_counter(), _cpu_s()
         cal = calibrate_session(session)
         wall, cpu = time.perf_counter() - t, _cpu_s() - c
         s = score_against_truth(session, truth)
         return {"cal_s": wall, "cal_cpu_s": cpu, "evals": cal.n_evaluations, "ms_per_eval": 1e3 * cal.time_per_evaluation_s, "cal_mb": _peak_mb(),
-                "yaw_err": s["yaw_error_deg"], "pitch_err": s["pitch_error_deg"], "roll_rms": s["angle_rms_error_deg"]}
+                "yaw_err": s["yaw_error_deg"], "pitch_err": s["pitch_error_deg"], "roll_rms": s["angle_rms_error_deg"],
+                "theta": [float(v) for v in cal.theta_deg]}
     if step == "reconstruct":
         from vastcal.pipeline import score_against_truth
         from vastcal.reconstruct import reconstruct_session
@@ -225,6 +232,9 @@ def main() -> None:
     ap.add_argument("--map-bytes", action="store_true", help="only measure the specimen maps' bytes per frame pixel (21 views)")
     ap.add_argument("--profile-memory", action="store_true",
                     help="also write where each step's resident memory reached its high-water marks (<session>.<step>.memory.log)")
+    ap.add_argument("--whole-frame-atlas", action="store_true",
+                    help="also calibrate every case with the coherence cost's maps over whole frames (before the specimen's "
+                         "window) and print the differences of θ")
     ap.add_argument("--_step")
     ap.add_argument("--_case", type=int)
     ap.add_argument("--_full", action="store_true")
@@ -254,10 +264,17 @@ def main() -> None:
         r: dict = {"views": views, "full": full}
         if not a.no_calibrate:
             r.update(_run_step("calibrate", views, full, a.seed, a.workdir, a.profile_memory))
+            if a.whole_frame_atlas:
+                w = _run_step("calibrate_whole_frames", views, full, a.seed, a.workdir)
+                d = np.abs(np.subtract(r["theta"], w["theta"]))
+                print(f"{views} views ({'full' if full else 'ROI'}): window vs whole-frame maps: yaw err {r['yaw_err']:+.4f} / {w['yaw_err']:+.4f}°, "
+                      f"pitch err {r['pitch_err']:+.4f} / {w['pitch_err']:+.4f}°, roll RMS err {r['roll_rms']:.4f} / {w['roll_rms']:.4f}°, "
+                      f"max |Δθ| {d.max():.4f}° (axis {d[:3].max():.4f}°), {r['evals']} / {w['evals']} evaluations, "
+                      f"{r['cal_cpu_s']:.1f} / {w['cal_cpu_s']:.1f} CPU s, {r['cal_mb']:.0f} / {w['cal_mb']:.0f} MB", flush=True)
         if not a.no_reconstruct:
             r.update(_run_step("reconstruct", views, full, a.seed, a.workdir, a.profile_memory))
         rows.append(r)
-        print(json.dumps(r), flush=True)
+        print(json.dumps({k: v for k, v in r.items() if k != "theta"}), flush=True)
     print(hdr)
     for r in rows:
         frame = "1024x1024" if r["full"] else "1024x320"

@@ -222,7 +222,31 @@ def signed_distance_maps(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6
         d_out = cv2.distanceTransform(1 - inside, cv2.DIST_L2, 5)
         sd = (np.where(inside > 0, d_in - 0.5, -(d_out - 0.5))) / upsample
         out[i] = cv2.resize(sd, (w, h), interpolation=cv2.INTER_AREA)
-    return np.clip(out, -clamp_px, clamp_px)
+    return np.clip(out, -clamp_px, clamp_px, out=out)
+
+
+def coherence_atlas(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6.0, upsample: int = 2) -> Atlas:
+    """The :class:`.Atlas` of :func:`signed_distance_maps` of (N, H, W) maps, held only over the specimen's window.
+
+    Beyond ``clamp_px`` (+ 2 px) of every view's ``level`` contour the signed distance is −``clamp_px`` in every
+    view, and a sample clamped to the window reads that same value: the window is the bounding box of all
+    views' pixels above ``level``, grown by that much and cut by the frame. Within it the maps equal the
+    whole frames' (the contour and every distance up to the clamp lie inside). A specimen in a full frame fills
+    a small part of it: at 360 views of 512 × 512 maps the atlas holds ~50 MB instead of 377 MB.
+    """
+    n, h, w = pf.shape
+    rows, cols = np.zeros(h, bool), np.zeros(w, bool)
+    for m in pf:
+        inside = m > level
+        rows |= inside.any(axis=1)
+        cols |= inside.any(axis=0)
+    if not rows.any():
+        return Atlas.from_stack(signed_distance_maps(pf, level, clamp_px, upsample))
+    margin = int(np.ceil(clamp_px)) + 2
+    r, c = np.flatnonzero(rows), np.flatnonzero(cols)
+    y0, y1 = max(0, int(r[0]) - margin), min(h, int(r[-1]) + 1 + margin)
+    x0, x1 = max(0, int(c[0]) - margin), min(w, int(c[-1]) + 1 + margin)
+    return Atlas.from_stack(signed_distance_maps(pf[:, y0:y1, x0:x1], level, clamp_px, upsample), window=(x0, y0, w, h))
 
 
 def dark_feature_probability(images: np.ndarray, pf: np.ndarray, min_fraction: float = 0.003) -> np.ndarray | None:
@@ -304,7 +328,8 @@ class CoherenceObjective:
     """C(θ) for a population of θ (see the module docstring); lower is better.
 
     Args:
-        sd: (N, H, W) signed-distance maps (pixels of the level).
+        sd: (N, H, W) signed-distance maps (pixels of the level), or their atlas (:func:`coherence_atlas`; shared
+            by the objectives of one level).
         edges: the silhouette-boundary samples of every view (pixels of the level).
         K: intrinsics of the level's pixels.
         distance: axis distance d, µm.
@@ -328,13 +353,13 @@ class CoherenceObjective:
 
     name = "pi-coherence"
 
-    def __init__(self, sd: np.ndarray, edges: EdgeSamples, K: np.ndarray, distance: float, radius_um: float,
+    def __init__(self, sd: np.ndarray | Atlas, edges: EdgeSamples, K: np.ndarray, distance: float, radius_um: float,
                  stages: tuple[int, ...] = (7, 7, 7), window: int = 7, window_px: float = 1.5, max_slides: int = 3,
                  sigma_px: float = 0.33,
                  trim: int = 1, cap_px: float = 1.5, max_first_stage: int = 256, research_deg: float = 0.1,
                  per_candidate: bool = False, max_points: int = 1_000_000, max_partners: int = 20,
                  angles_deg: np.ndarray | None = None) -> None:
-        self.atlas = Atlas.from_stack(np.asarray(sd, np.float32))
+        self.atlas = sd if isinstance(sd, Atlas) else Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
         self.Kinv = np.linalg.inv(self.K).astype(np.float32)
@@ -478,8 +503,7 @@ class CoherenceObjective:
         den = np.reciprocal(proj[..., 2, :])
         u = proj[..., 0, :] * den
         v = proj[..., 1, :] * den
-        np.clip(u, 0.0, a.w - 1.0, out=u)
-        np.clip(v, 0.0, a.h - 1.001, out=v)
+        a.frame_to_tile(u, v)
         ox, oy = a.origin(np.broadcast_to(views, lead + (k,)))
         u += ox[..., None]
         v += oy[..., None]

@@ -33,8 +33,8 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
-from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, dark_feature_probability,
-                                                   signed_distance_maps, silhouette_edges)
+from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, coherence_atlas,
+                                                   dark_feature_probability, signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.forecast import PolishForecast
@@ -322,6 +322,7 @@ class _Problem:
         self.images, self.pf, self.sil_src, self.K_small = images, pf, sil_src, K_small
         self.distance, self.space, self.method, self.settings = distance, space, method, settings
         self._region0: tuple[Any, np.ndarray, Any] | None = None  # (region, K, coarse silhouettes) of level 0
+        self._atlas: tuple[int, Any] | None = None  # (level, signed-distance atlas): one per level, shared by its objectives
 
     def level_objective(self, li: int, x: np.ndarray, *, exact: bool = False) -> tuple[Any, Any, np.ndarray, tuple[int, ...]]:
         """(objective, region, K of the level, map shape) of level ``li`` built around the free coordinates ``x``.
@@ -368,7 +369,10 @@ class _Problem:
             P_now = projection_matrices(K_lv, distance, th_now[None])[0]
             edges = silhouette_edges(maps_pf, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines)
             radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
-            obj = CoherenceObjective(signed_distance_maps(maps_pf), edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
+            if self._atlas is None or self._atlas[0] != li:  # the search, the judge and the polish of a level share it
+                self._atlas = None  # the previous level's, before the next is made
+                self._atlas = (li, coherence_atlas(maps_pf))  # held over the specimen's window only
+            obj = CoherenceObjective(self._atlas[1], edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
                                      trim=st.coherence_trim, per_candidate=per_candidate)
             if st.dark_weight > 0:  # the images at the level's size are only needed for the dark features
                 level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in self.images])

@@ -16,6 +16,7 @@ Work is split into chunks of candidates so that memory stays below ``max_samples
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -58,6 +59,12 @@ class Atlas:
     tiles, each tile followed by one replicated column so that a bilinear sample at a tile's right
     edge (u clamped to W − 1) never reads its neighbour. ``offsets`` (N, 2) float32 give each map's
     (column, row) origin in the atlas.
+
+    A *window* atlas holds only a window of every frame (``window`` = (x0, y0, frame width, frame height),
+    pixels): its maps are the frames' columns x0 … x0 + W − 1 and rows y0 … y0 + H − 1, for maps that are
+    constant outside it (the coherence cost's clamped signed distances beyond the specimen). A sample is
+    clamped to the frame, shifted by the window's origin (an integer: its fraction is kept) and clamped to
+    the window (:meth:`frame_to_tile`).
     """
 
     image: np.ndarray
@@ -65,11 +72,14 @@ class Atlas:
     h: int
     w: int
     offsets: np.ndarray | None = None
+    window: tuple[int, int, int, int] | None = None
 
     @classmethod
-    def from_stack(cls, maps: np.ndarray) -> "Atlas":
-        """Atlas of an (N, H, W) stack."""
+    def from_stack(cls, maps: np.ndarray, window: tuple[int, int, int, int] | None = None) -> "Atlas":
+        """Atlas of an (N, H, W) stack (``window``: the stack is that window of the frames, see the class docstring)."""
         n, h, w = maps.shape
+        if window is not None:
+            return dataclasses.replace(cls.from_stack(maps), window=tuple(int(k) for k in window))  # type: ignore[arg-type]
         per_col = (REMAP_LIMIT - 1) // h if h < REMAP_LIMIT else 0
         if per_col == 0 or w + 1 >= REMAP_LIMIT:
             raise ValueError(f"atlas of maps of {h}x{w} exceeds the remap size limit; downsample the maps")
@@ -88,6 +98,21 @@ class Atlas:
             image[y0:y0 + h, x0 + w] = maps[j][:, -1]
             offsets[j] = (x0, y0)
         return cls(image, n, h, w, offsets)
+
+    def frame_to_tile(self, u: np.ndarray, v: np.ndarray) -> None:
+        """Clamp frame pixel positions (u, v) (float32, in place) to the frame and express them in the tiles'
+        pixels: the window's (without a window, the tiles are the frames)."""
+        if self.window is None:
+            np.clip(u, 0.0, self.w - 1.0, out=u)
+            np.clip(v, 0.0, self.h - 1.001, out=v)
+            return
+        x0, y0, fw, fh = self.window
+        np.clip(u, 0.0, fw - 1.0, out=u)
+        np.clip(v, 0.0, fh - 1.001, out=v)
+        u -= np.float32(x0)
+        v -= np.float32(y0)
+        np.clip(u, 0.0, self.w - 1.0, out=u)
+        np.clip(v, 0.0, self.h - 1.001, out=v)
 
     def origin(self, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Column and row offsets (float32, shaped like ``views``) of the tiles of map indices ``views``."""
