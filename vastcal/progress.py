@@ -58,8 +58,8 @@ class PhaseEta:
         optionally the phase's ``work`` (units done, units forecast left)."""
         f = min(max(float(fraction), self.samples[-1][1]), 1.0)
         self.samples.append((t, f))
-        if work is not None:
-            self.work.append((t, float(work[0]), max(float(work[1]), 0.0)))
+        if work is not None:  # a NaN left: the phase cannot tell yet (its ETA is unknown)
+            self.work.append((t, float(work[0]), max(float(work[1]), 0.0) if work[1] == work[1] else float("nan")))
 
     @staticmethod
     def _reference(points: list[tuple[float, float]]) -> tuple[float, float] | None:
@@ -84,7 +84,7 @@ class PhaseEta:
             ref = self._reference([(w[0], w[1]) for w in self.work])
             if left <= 0:
                 return 0.0
-            if ref is None:
+            if ref is None or left != left:
                 return float("nan")
             left = left * (t - ref[0]) / (self.work[-1][1] - ref[1])
         else:
@@ -179,7 +179,7 @@ class PhaseProgress:
         assert self._eta is not None
         now = self.clock()
         if fraction is None:
-            fraction = work[0] / (work[0] + work[1]) if work is not None and work[0] + work[1] > 0 else 0.0
+            fraction = work[0] / (work[0] + work[1]) if work is not None and work[0] + work[1] > 0 else 0.0  # NaN left: 0 (ignored)
         self._eta.add(now, fraction, work)
         f = self._eta.samples[-1][1]
         eta = self._eta.eta()

@@ -10,7 +10,8 @@ not known in advance:
   quantity falls about linearly: the generations left are the distance from its recent low (the criterion fires
   on a dip) to log ``tolx``, over the slope fitted to the recent half of the run (the first generations
   explore and say nothing of the convergence rate; when the recent half shows no descent, the whole run's),
-  bounded by the evaluations the budget still allows (the only bound while the step has not come down at all).
+  bounded by the evaluations the budget still allows. While the step has not come down at all the forecast is
+  unknown (the ETA shows "?"): the budget alone is an upper bound, several times the truth on the simulated rig.
   Measured limit (``benchmarks/progress_eta.py``): on the simulated rig the step often settles on the
   cost's noise floor a few times above ``tolx`` and the run ends when it happens to dip below; that moment
   is random and no forecast from the run's history gets it to within 30 % near the end.
@@ -54,25 +55,28 @@ class CMAStopForecast:
         self.logs: list[float] = []
 
     def generations_to_tolx(self) -> float:
-        """Generations until the fitted trend's recent low reaches ``tolx`` (inf: not converging yet)."""
+        """Generations until the fitted trend's recent low reaches ``tolx`` (NaN: no descent to go by yet)."""
         n = len(self.logs)
         if n < self.MIN_WINDOW:
-            return math.inf
+            return math.nan
         y = np.asarray(self.logs[-max(self.MIN_WINDOW, n // 2):])
         slope = float(np.polyfit(np.arange(len(y), dtype=float), y, 1)[0])
         if not slope < 0:  # the recent half wanders (the search explores again): the whole run's trend, if it has one
             slope = float(np.polyfit(np.arange(n, dtype=float), np.asarray(self.logs), 1)[0])
         if not slope < 0:
-            return math.inf
+            return math.nan
         low = min(self.logs[-self.LOW_OF:])
         return max(0.0, (low - self.log_tolx) / -slope)
 
     def add(self, quantity: float, evaluations: int) -> float:
         """Record one generation: the ``tolx`` quantity (box units) and the run's evaluations so far.
-        Returns the evaluations left (the budget's bound and the tail included)."""
+        Returns the evaluations left (the budget's bound and the tail included), or NaN (unknown) while the step
+        has shown no descent: the budget would be an upper bound only, often several times the truth."""
         self.logs.append(math.log(max(float(quantity), 1e-300)))
         budget_left = max(self.max_evaluations - evaluations, 0.0)
         gens = math.inf if self.spend_budget else self.generations_to_tolx()
+        if gens != gens:
+            return math.nan
         return min(gens * self.popsize, budget_left) + self.popsize  # + the re-scores: about one generation's call
 
 

@@ -210,12 +210,13 @@ class ProgressClock:
 
     def forecast(self, done: float, left: float) -> None:
         """The current phase's work done and forecast left, in units of about equal time each (a CMA-ES level's
-        evaluations, the polish's sweeps; :mod:`.forecast`): the ETA is ``left`` × the time per unit measured in the phase."""
-        self._work = (float(done), max(float(left), 0.0))
+        evaluations, the polish's sweeps; :mod:`.forecast`): the ETA is ``left`` × the time per unit measured in the phase
+        (``left`` NaN: unknown for now, no ETA shown)."""
+        self._work = (float(done), max(float(left), 0.0) if left == left else float("nan"))  # NaN: unknown for now
 
     def phase_fraction(self) -> float:
         """Fraction (0..1) of the current phase done: its forecast's share done, else its own measure, else its evaluations' share."""
-        if self._work is not None:
+        if self._work is not None and self._work[1] == self._work[1]:
             done, left = self._work
             return float(done / (done + left)) if done + left > 0 else 0.0
         by_count = (self.done - self._phase_start) / self._phase_budget
