@@ -220,7 +220,7 @@ class PhaseProgress:
         if not self.enabled:
             return
         if self.tty and self._rich is not None and self._task is not None:
-            self._rich.update(self._task, completed=1.0, eta="done")
+            self._rich.update(self._task, completed=1.0, done=True)
         elif not self.tty:
             self._line(f"{self.label}: {cur.name}  done in {format_duration(now - cur.t0)}")
 
@@ -233,8 +233,18 @@ class PhaseProgress:
 
     def _rich_start(self, name: str) -> None:
         from rich.console import Console
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+        from rich.progress import BarColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
         from rich.table import Column
+        from rich.text import Text
+
+        clock = self.clock
+
+        class EtaColumn(ProgressColumn):  # counts down between updates (a phase with sparse updates does not freeze)
+            def render(self, task: Any) -> Text:
+                eta, at = task.fields.get("eta_s", float("nan")), task.fields.get("eta_at", 0.0)
+                if task.fields.get("done"):
+                    return Text("ETA done")
+                return Text("ETA " + format_duration(max(0.0, eta - (clock() - at)) if eta == eta else eta))
 
         if self._rich is None:
             console = Console(file=self.stream, force_terminal=True)
@@ -244,16 +254,16 @@ class PhaseProgress:
                                   BarColumn(bar_width=12, table_column=Column(width=12, no_wrap=True)),
                                   TextColumn("{task.percentage:>3.0f} %", table_column=Column(width=5, **fixed)),
                                   TimeElapsedColumn(table_column=Column(width=7, **fixed)),
-                                  TextColumn("ETA {task.fields[eta]}", table_column=Column(width=14, **fixed)),
+                                  EtaColumn(table_column=Column(width=14, **fixed)),
                                   TextColumn("{task.fields[extra]}", table_column=Column(min_width=0, **fixed)),
                                   console=console, transient=False, refresh_per_second=4)
             self._rich.start()
-        self._task = self._rich.add_task(name, total=1.0, eta="?", extra="")
+        self._task = self._rich.add_task(name, total=1.0, eta_s=float("nan"), eta_at=0.0, done=False, extra="")
 
     def _rich_update(self, f: float, eta: float, extra: str) -> None:
         if self._rich is not None and self._task is not None:
             room = self._rich.console.width - 80  # the fixed columns take 80; the extra text only where there is room
-            self._rich.update(self._task, completed=f, eta=format_duration(eta), extra=extra if len(extra) <= room else extra[:max(room - 1, 0)] + "…" * (room > 0))
+            self._rich.update(self._task, completed=f, eta_s=eta, eta_at=self.clock(), extra=extra if len(extra) <= room else extra[:max(room - 1, 0)] + "…" * (room > 0))
 
 
 class CalibrationProgress:

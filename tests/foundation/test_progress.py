@@ -206,3 +206,20 @@ def test_a_counted_task_is_a_named_phase_whose_eta_is_the_items_left_times_the_t
         tbar.update(1, 4)
         tbar.update(2, 4)
     assert "9 views" not in term.getvalue() and "4 views" in term.getvalue()
+
+
+def test_the_terminal_eta_counts_down_between_updates() -> None:
+    clock, out = Clock(), io.StringIO()
+    bar = PhaseProgress("calibrate", out, tty=True, clock=clock)
+    bar.phase("photometric yaw (512 px)")  # a few reconstructions of seconds each: sparse updates
+    for _ in range(2):
+        clock.now += 1.0
+        bar.update(bar.records[-1].points[-1][1] + 0.1 if bar.records[-1].points else 0.1)
+    task, column = bar._rich.tasks[0], bar._rich.columns[4]
+    assert column.render(task).plain == "ETA 8.0 s"
+    clock.now += 3.0
+    assert column.render(task).plain == "ETA 5.0 s"  # not frozen until the next update
+    clock.now += 30.0
+    assert column.render(task).plain == "ETA 0.0 s"
+    bar.close()
+    assert column.render(task).plain == "ETA done"
