@@ -28,6 +28,7 @@ import json
 import logging
 import os
 import re
+import _thread
 import signal
 import sys
 import threading
@@ -643,7 +644,17 @@ since freeing them crashes HDF5 (segmentation fault); the program then ends with
 
 def _quiet_unraisable(unraisable: Any) -> None:
     """``sys.unraisablehook`` while a command runs: h5py's failures to release objects of a file
-    that could not be written (disk full) go to the debug log, not to stderr as tracebacks."""
+    that could not be written (disk full) go to the debug log, not to stderr as tracebacks.
+
+    A stop signal whose :class:`Interrupted` was raised inside a finaliser (``__del__``, a weakref callback:
+    h5py releases objects there) would be lost with it; it is delivered to the main thread again, from a
+    timer thread so that it does not land inside this hook (where it would be lost once more).
+    """
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):  # from another thread, so that it lands after this hook returns
+        timer = threading.Timer(0.001, _thread.interrupt_main, args=(getattr(unraisable.exc_value, "signum", signal.SIGINT),))
+        timer.daemon = True
+        timer.start()
+        return
     log.debug("ignored while releasing %r: %s", unraisable.object, unraisable.exc_value)
 
 

@@ -17,9 +17,9 @@ import pytest
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
 
-def _spawn_demo(tmp_path: Path) -> tuple[subprocess.Popen[str], "queue.Queue[str]"]:
+def _spawn_demo(tmp_path: Path, views: int) -> tuple[subprocess.Popen[str], "queue.Queue[str]"]:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "vastcal.cli", "demo", "-o", "D", "--views", "8"], cwd=tmp_path, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "vastcal.cli", "demo", "-o", "D", "--views", str(views)], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: "queue.Queue[str]" = queue.Queue()
 
@@ -65,7 +65,8 @@ def _check(proc: subprocess.Popen[str], stdout: str, stderr: str) -> None:
 
 
 def test_ctrl_c_during_the_demo_acquisition_exits_130(tmp_path: Path) -> None:
-    proc, lines = _spawn_demo(tmp_path)
+    # 60 views take ~3 s to acquire: the signal, sent when the first view is committed, lands inside the acquisition
+    proc, lines = _spawn_demo(tmp_path, 60)
     seen: list[str] = []
     stdout, stderr = _interrupt_when(proc, lines, seen, lambda s: any((tmp_path / "D").glob("*.h5")), "session file")
     assert not any("calibrate" in line for line in seen[:-1] if not line.startswith("vastcal:")), "interrupted in the acquisition"
@@ -74,8 +75,34 @@ def test_ctrl_c_during_the_demo_acquisition_exits_130(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_ctrl_c_during_the_demo_calibration_exits_130(tmp_path: Path) -> None:
-    proc, lines = _spawn_demo(tmp_path)
+    proc, lines = _spawn_demo(tmp_path, 8)
     seen: list[str] = []
     stdout, stderr = _interrupt_when(proc, lines, seen, lambda s: any(line.startswith("calibrate (") and "level 1/2" in line for line in s),
                                      "calibration phase")
     _check(proc, stdout, stderr)
+
+
+def test_a_stop_signal_raised_inside_a_finaliser_is_delivered_again() -> None:
+    """Python hands an exception raised in ``__del__`` or a weakref callback to ``sys.unraisablehook``
+    instead of the running code: a Ctrl-C whose handler ran there (h5py releases objects in weakref
+    callbacks all through a write) must not be lost."""
+    from vastcal import cli
+
+    class Finalised:
+        def __del__(self) -> None:
+            cli._raise_interrupted(signal.SIGINT, None)
+
+    previous = signal.signal(signal.SIGINT, cli._raise_interrupted)
+    hook, sys.unraisablehook = sys.unraisablehook, cli._quiet_unraisable
+    cli.RECEIVED.clear()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            obj = Finalised()
+            del obj  # the handler's KeyboardInterrupt goes to the unraisable hook, not here
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline:
+                time.sleep(0.005)
+    finally:
+        sys.unraisablehook = hook
+        signal.signal(signal.SIGINT, previous)
+        cli.RECEIVED.clear()
