@@ -115,7 +115,12 @@ def test_cma_stop_forecast_follows_the_step_down_to_tolx_and_is_bounded_by_the_b
     flat = CMAStopForecast(tolx=1e-4, max_evaluations=1000, popsize=10)
     for g in range(1, 16):
         left = flat.add(0.1 * (1 + 0.1 * (g % 2)), 10 * g)
-    assert math.isnan(left)  # no descent at all: unknown (the budget would only be an upper bound)
+    assert left == pytest.approx(1000 - 150 + 10)  # stagnant: not even the fastest descent the fit allows gets there first
+    wander = CMAStopForecast(tolx=1e-4, max_evaluations=10_000, popsize=10)
+    rng = np.random.default_rng(0)
+    for g in range(1, 16):
+        left = wander.add(0.1 * math.exp(rng.normal(0.0, 1.0)), 10 * g)
+    assert math.isnan(left)  # exploring with budget to spare: unknown (the budget would only be an upper bound)
     eta = PhaseEta(0.0)
     eta.add(1.0, 0.0, work=(10, 100))
     eta.add(2.0, 0.1, work=(20, left))

@@ -8,12 +8,14 @@ not known in advance:
   step, σ·√diag C, and its evolution path below the tolerance), on ``maxfevals``, or later on other criteria.
   Once a run converges, the step shrinks about geometrically per generation, so the logarithm of the ``tolx``
   quantity falls about linearly: the generations left are the distance from its recent low (the criterion fires
-  on a dip) to log ``tolx``, over the slope fitted to the recent half of the run (the first generations
-  explore and say nothing of the convergence rate), bounded by the evaluations the budget still allows. While
-  the recent half shows no descent (a slope within twice its standard error of zero: the search explores, at
-  first or again after finding a new basin) the forecast is unknown and the ETA shows "?": the budget alone is
-  an upper bound several times the truth, and a near-flat slope's extrapolation is noise (measured: ETAs of
-  3-5 s for 0.5 s left on simulated rig 4).
+  on a dip) to log ``tolx``, over the slope of the step's logarithm fitted to the recent half of the run (the
+  first generations explore and say nothing of the convergence rate), bounded by the evaluations the budget
+  still allows — the whole budget when even the fastest descent the fit allows (slope less twice its standard
+  error) would not reach ``tolx`` first. While the recent half shows no descent (a slope within twice its
+  standard error of zero: the search explores, at first or again after finding a new basin) and the budget is
+  not sure to end it first, the forecast is unknown and the ETA shows "?": the budget alone is an upper bound
+  several times the truth there, and a near-flat slope's extrapolation is noise (measured: ETAs of 3-5 s for
+  0.5 s left on simulated rig 4).
   Measured limit (``benchmarks/progress_eta.py``): on the simulated rig the step often settles on the
   cost's noise floor a few times above ``tolx`` and the run ends when it happens to dip below; that moment
   is random and no forecast from the run's history gets it to within 30 % near the end.
@@ -54,37 +56,47 @@ class CMAStopForecast:
         self.max_evaluations = float(max_evaluations) if max_evaluations else math.inf
         self.popsize = max(1, int(popsize))
         self.spend_budget = spend_budget
-        self.logs: list[float] = []
+        self.logs: list[float] = []  # log of the tolx quantity (what the criterion compares)
+        self.trend: list[float] = []  # log of the step alone (its trend, with less noise than the evolution path's)
 
-    def generations_to_tolx(self) -> float:
-        """Generations until the fitted trend's recent low reaches ``tolx`` (NaN: no descent to go by yet)."""
+    def generations_to_tolx(self, budget_generations: float = math.inf) -> float:
+        """Generations until the fitted trend's recent low reaches ``tolx``; ``budget_generations`` when even the
+        fastest descent the fit allows (slope less twice its standard error) would not get there before the
+        budget ends; NaN when the fit shows no descent (slope within twice its standard error of zero) and the
+        budget is not sure to end the run first."""
         n = len(self.logs)
         if n < self.MIN_WINDOW:
             return math.nan
-        y = np.asarray(self.logs[-max(self.MIN_WINDOW, n // 2):])
+        y = np.asarray(self.trend[-max(self.MIN_WINDOW, n // 2):])
         (slope, _), cov = np.polyfit(np.arange(len(y), dtype=float), y, 1, cov=True)
-        if not slope < -2.0 * math.sqrt(max(float(cov[0, 0]), 0.0)):  # no descent beyond twice its standard error: the
-            return math.nan                                            # search explores (again); a flat fit's forecast is noise
-        low = min(self.logs[-self.LOW_OF:])
-        return max(0.0, (low - self.log_tolx) / -slope)
+        se = math.sqrt(max(float(cov[0, 0]), 0.0))
+        distance = max(0.0, min(self.logs[-self.LOW_OF:]) - self.log_tolx)
+        fastest = slope - 2.0 * se
+        if fastest < 0 and distance / -fastest >= budget_generations:
+            return budget_generations
+        if not slope < -2.0 * se:  # no descent to go by: the search explores (again); a flat fit's forecast is noise
+            return math.nan
+        return distance / -slope
 
-    def add(self, quantity: float, evaluations: int) -> float:
-        """Record one generation: the ``tolx`` quantity (box units) and the run's evaluations so far.
-        Returns the evaluations left (the budget's bound and the tail included), or NaN (unknown) while the step
-        has shown no descent: the budget would be an upper bound only, often several times the truth."""
+    def add(self, quantity: float, evaluations: int, step: float | None = None) -> float:
+        """Record one generation: the ``tolx`` quantity (box units), the run's evaluations so far and optionally the
+        step alone (σ·√diag C; its trend is less noisy). Returns the evaluations left (the budget's bound and the
+        tail included), or NaN (unknown) while the step shows no descent and the budget is not sure to end first."""
         self.logs.append(math.log(max(float(quantity), 1e-300)))
+        self.trend.append(math.log(max(float(quantity if step is None else step), 1e-300)))
         budget_left = max(self.max_evaluations - evaluations, 0.0)
-        gens = math.inf if self.spend_budget else self.generations_to_tolx()
+        gens = math.inf if self.spend_budget else self.generations_to_tolx(budget_left / self.popsize)
         if gens != gens:
             return math.nan
         return min(gens * self.popsize, budget_left) + self.popsize  # + the re-scores: about one generation's call
 
 
-def tolx_quantity(es: object) -> float:
-    """The larger of what a ``cma.CMAEvolutionStrategy``'s ``tolx`` stop compares with its tolerance: every
-    coordinate's step σ·√(diag C) and evolution path σ·|p_c| (box units)."""
+def tolx_quantities(es: object) -> tuple[float, float]:
+    """What a ``cma.CMAEvolutionStrategy``'s ``tolx`` stop compares with its tolerance (box units): the larger of
+    every coordinate's step σ·√(diag C) and evolution path σ·|p_c|, and the step alone."""
     s = es.sigma * np.asarray(es.sigma_vec.scaling)  # type: ignore[attr-defined]
-    return float(max(np.max(s * np.sqrt(es.dC)), np.max(np.abs(s * es.pc))))  # type: ignore[attr-defined]
+    step = float(np.max(s * np.sqrt(es.dC)))  # type: ignore[attr-defined]
+    return max(step, float(np.max(np.abs(s * es.pc)))), step  # type: ignore[attr-defined]
 
 
 class PolishForecast:

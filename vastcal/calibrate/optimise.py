@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from vastcal.calibrate.forecast import CMAStopForecast, tolx_quantity
+from vastcal.calibrate.forecast import CMAStopForecast, tolx_quantities
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +81,8 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
         res.trace_evals.append(evals_before + res.n_evaluations)
         res.trace_best.append(res.f_best)
         if convergence is not None:
-            convergence(evals_before + res.n_evaluations, forecast.add(tolx_quantity(es), res.n_evaluations))
+            quantity, step = tolx_quantities(es)
+            convergence(evals_before + res.n_evaluations, forecast.add(quantity, res.n_evaluations, step))
         if progress is not None:
             progress(evals_before + res.n_evaluations, res.f_best)
     res.stop = dict(es.stop())
