@@ -309,6 +309,14 @@ def local_cluster_shape() -> tuple[int, int, int]:
     return workers, 1, int(total // workers)
 
 
+LOCAL_WORKER_CONFIG: dict[str, Any] = {"distributed.worker.profile.enabled": False}
+"""Dask settings of the embedded cluster's workers. Dask's statistical profiler samples the task thread's
+stack every 10 ms and takes the GIL to do it; a session's calibration is one Python/NumPy thread, so the
+sampling costs it CPU (3-9 % of a session's CPU seconds measured with one worker, `benchmarks/batch_throughput.py`
+prints the figures) for a dashboard page a screen does not need. An existing cluster (``--scheduler``) keeps its own
+configuration."""
+
+
 def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
     """A Dask client: on ``scheduler`` (or ``DASK_SCHEDULER_ADDRESS``), else on a new LocalCluster."""
     from distributed import Client, LocalCluster
@@ -326,8 +334,11 @@ def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
     if n_workers:
         memory = int(memory * workers / n_workers)
         workers = n_workers
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True, memory_limit=memory,
-                           dashboard_address=":0", silence_logs=logging.ERROR)
+    import dask
+
+    with dask.config.set(LOCAL_WORKER_CONFIG):  # the nannies hand this configuration to their worker processes
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True, memory_limit=memory,
+                               dashboard_address=":0", silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 

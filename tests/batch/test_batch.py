@@ -200,3 +200,20 @@ def test_a_killed_batch_resumes_with_what_is_missing(tmp_path: Path) -> None:
     assert all(rows[n]["processed_at"] == t for n, t in before.items())  # done once, never again
     assert "http-equiv='refresh'" not in (out / "index.html").read_text()
     assert json.loads((out / "rig_health.json").read_text())["n_sessions"] == 6
+
+
+def test_the_embedded_cluster_runs_its_workers_without_the_sampling_profiler() -> None:
+    """The embedded LocalCluster's worker processes get :data:`vastcal.batch.LOCAL_WORKER_CONFIG` (the
+    profiler's stack sampling costs the calibration CPU); the client's own process keeps Dask's defaults."""
+    import dask
+
+    from vastcal.batch import LOCAL_WORKER_CONFIG, _client
+
+    client, cluster = _client(None, 1)
+    try:
+        seen = client.run(lambda: {k: dask.config.get(k) for k in LOCAL_WORKER_CONFIG})
+        assert list(seen.values()) == [LOCAL_WORKER_CONFIG]
+        assert dask.config.get("distributed.worker.profile.enabled") is True
+    finally:
+        client.close()
+        cluster.close()
