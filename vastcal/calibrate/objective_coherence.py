@@ -232,7 +232,8 @@ def coherence_atlas(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6.0, u
     view, and a sample clamped to the window reads that same value: the window is the bounding box of all
     views' pixels above ``level``, grown by that much and cut by the frame. Within it the maps equal the
     whole frames' (the contour and every distance up to the clamp lie inside). A specimen in a full frame fills
-    a small part of it: at 360 views of 512 × 512 maps the atlas holds ~50 MB instead of 377 MB.
+    a small part of it: on the simulated rig's full 1024 × 1024 frames, at 512 × 512, the window is 7.5 % of the
+    frame (~28 MB for 360 views instead of 377 MB).
     """
     n, h, w = pf.shape
     rows, cols = np.zeros(h, bool), np.zeros(w, bool)
