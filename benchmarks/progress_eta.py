@@ -16,6 +16,9 @@ the ETA is shown with) plus the phase's tail, and one unit of work more or less 
 Set-up phases that report no progress (maps, regions, judging) show no ETA and are listed with "-".
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3
+    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3 --sim-seed 1 --sim-seed 4 --sim-seed 7
+
+Several runs (or starts) end with a summary by kind of phase (each level, the polish, each photometric yaw width).
 
 Timings on a shared machine are noisy; the ETA is judged against the same run's own clock.
 """
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 from pathlib import Path
 
@@ -46,42 +50,35 @@ def second_half_errors(name_t0_t1_points: tuple[str, float, float, list[tuple[fl
     return out[:len(out) - excuse_last] if excuse_last else out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--views", type=int, default=12)
-    ap.add_argument("--starts", type=int, default=1)
-    ap.add_argument("--seed", type=int, default=0, help="calibration seed")
-    ap.add_argument("--sim-seed", type=int, default=None, help="simulator seed (default: the config's)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the per-phase figures and every update (time, fraction, ETA, true time left) here")
-    args = ap.parse_args()
-
+def one_run(views: int, starts: int, seed: int, sim_seed: int | None) -> list[dict]:
+    """Acquire and calibrate one simulated revolution; print and return every phase's figures."""
     from vastcal.calibrate import calibrate_session
 
     cfg = load_config(None)
-    if args.sim_seed is not None:
+    if sim_seed is not None:
         import dataclasses
 
-        cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(cfg.simulation, seed=args.sim_seed))
+        cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(cfg.simulation, seed=sim_seed))
     with tempfile.TemporaryDirectory() as tmp:
         session = Path(tmp) / "S.h5"
-        acquire_simulated(cfg, session, views=args.views)
+        acquire_simulated(cfg, session, views=views)
         bar = PhaseProgress("calibrate", enabled=False)
         with bar:
-            calibrate_session(session, seed=args.seed, starts=args.starts, progress=CalibrationProgress(bar))
+            calibrate_session(session, seed=seed, starts=starts, progress=CalibrationProgress(bar))
     rows = []
+    print(f"simulator seed {cfg.simulation.seed}, {views} views, {starts} start(s); load average {os.getloadavg()[0]:.2f} at the end")
     print(f"{'phase':<44} {'time s':>7} {'updates':>7} {'median':>7} {'max':>7} {'max but last 2':>14} {'within 30%':>10}")
     for r in bar.records:
         errs, relaxed = (second_half_errors((r.name, r.t0, r.t1, r.points), k) for k in (0, 2))
-        row = {"phase": r.name, "duration_s": r.t1 - r.t0, "updates_second_half": len(errs),
+        row = {"phase": r.name, "sim_seed": cfg.simulation.seed, "duration_s": r.t1 - r.t0, "updates_second_half": len(errs),
                "median_error": float(np.median(errs)) if errs else None, "max_error": float(np.max(errs)) if errs else None,
                "max_error_but_last_2": float(np.max(relaxed)) if relaxed else (0.0 if errs else None),
                "share_within_30pct": float(np.mean(np.asarray(errs) <= 0.3)) if errs else None,
                "updates": [{"t_s": t - r.t0, "fraction": f, "eta_s": eta if eta == eta else None, "true_left_s": r.t1 - t}
                            for t, f, eta in r.points]}
         rows.append(row)
-        fmt = (lambda v, w=7: f"{100 * v:{w - 1}.0f}%" if v is not None else f"{'-':>{w}}")
-        print(f"{r.name:<44} {row['duration_s']:7.2f} {len(errs):7d} {fmt(row['median_error'])} {fmt(row['max_error'])} "
-              f"{fmt(row['max_error_but_last_2'], 14)} {fmt(row['share_within_30pct'], 10)}")
+        print(f"{r.name:<44} {row['duration_s']:7.2f} {len(errs):7d} {_pct(row['median_error'])} {_pct(row['max_error'])} "
+              f"{_pct(row['max_error_but_last_2'], 14)} {_pct(row['share_within_30pct'], 10)}")
     timed = [r for r in rows if r["max_error"] is not None]
     if timed:
         worst = max(timed, key=lambda r: r["max_error"])
@@ -89,6 +86,40 @@ def main() -> None:
               f"within 30 %: {sum(r['max_error'] <= 0.3 for r in timed)}/{len(timed)}, all but the last 2 updates: "
               f"{sum(r['max_error_but_last_2'] <= 0.3 for r in timed)}/{len(timed)}; median of the phases' medians "
               f"{100 * float(np.median([r['median_error'] for r in timed])):.0f} %")
+    return rows
+
+
+def _pct(v: float | None, w: int = 7) -> str:
+    return f"{100 * v:{w - 1}.0f}%" if v is not None else f"{'-':>{w}}"
+
+
+def summary(rows: list[dict]) -> None:
+    """Every kind of phase (a level, the polish, a photometric yaw width) over all runs and starts."""
+    kinds: dict[str, list[dict]] = {}
+    for r in rows:
+        if r["max_error"] is not None:
+            kinds.setdefault(r["phase"].split(",")[0].split(":")[0], []).append(r)
+    print(f"{'kind of phase':<28} {'phases':>6} {'median of medians':>17} {'worst max':>9} {'worst but last 2':>16} {'met':>5} {'met but last 2':>14}")
+    for k, rs in kinds.items():
+        print(f"{k:<28} {len(rs):6d} {_pct(float(np.median([r['median_error'] for r in rs])), 17)} "
+              f"{_pct(max(r['max_error'] for r in rs), 9)} {_pct(max(r['max_error_but_last_2'] for r in rs), 16)} "
+              f"{sum(r['max_error'] <= 0.3 for r in rs):2d}/{len(rs):<2d} {sum(r['max_error_but_last_2'] <= 0.3 for r in rs):11d}/{len(rs):<2d}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--views", type=int, default=12)
+    ap.add_argument("--starts", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=0, help="calibration seed")
+    ap.add_argument("--sim-seed", type=int, action="append", default=None,
+                    help="simulator seed (repeat for several runs and a summary; default: the config's)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the per-phase figures and every update (time, fraction, ETA, true time left) here")
+    args = ap.parse_args()
+    rows: list[dict] = []
+    for sim_seed in args.sim_seed or [None]:
+        rows += one_run(args.views, args.starts, args.seed, sim_seed)
+    if len(args.sim_seed or []) > 1 or args.starts > 1:
+        summary(rows)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
 
