@@ -2,10 +2,12 @@
 flattened sideways lying up to 40 µm off the rotation axis, 21 views).
 
 Acquires a revolution from the simulated rig (seeds from ``simulation.seed``), runs the calibration (default: coherence)
-with the rig file's settings (config/simulated.yaml: the photometric yaw search is on, ~23 s of each
+with the rig file's settings (config/simulated.yaml: the photometric yaw search is on, ~15–40 s of each
 calibration) and prints per-view roll RMS error beside the commanded angles' (both relative to view 0, views 1..N-1),
 the views that ended more than 0.1° farther from the truth than commanded, yaw and pitch errors (degrees), the stored
-pose's cost beside the commanded angles', evaluations and wall time.
+pose's cost beside the commanded angles', evaluations and wall time, and the photometric yaw's last-stage iterations
+(whether its convergence rule was met or the cap hit) and time. Prints the load average first and last (timings
+are only comparable on a quiet machine).
 
     python benchmarks/calibrate_simulated.py [n_rigs=3] [method=coherence]
 """
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sys
 import tempfile
 import time
@@ -32,6 +35,7 @@ def main() -> None:
     n_rigs = int(sys.argv[1]) if len(sys.argv) > 1 else 3
     method = sys.argv[2] if len(sys.argv) > 2 else "coherence"
     base = load_config(None)
+    print(f"load average {os.getloadavg()[0]:.2f}", flush=True)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for k in range(n_rigs):
@@ -49,15 +53,18 @@ def main() -> None:
             e_cal = (cal.theta_deg[3:] - cal.theta_deg[3]) - (actual - actual[0])
             e_cmd = (cal.theta0_deg[3:] - cal.theta0_deg[3]) - (actual - actual[0])
             rms_cmd = float(np.sqrt(np.mean(e_cmd[1:] ** 2)))
+            photo = next((r for r in cal.reports if r.get("stage") == "photometric yaw"), None)
+            photo_text = ("no photometric yaw" if photo is None else f"photometric yaw {photo['time_s']:.1f} s, "
+                          f"{photo.get('final_iterations', '?')} iterations{'' if photo.get('converged', True) else ' (cap)'}")
             worse = np.flatnonzero(np.abs(e_cal) > np.abs(e_cmd) + 0.1).tolist()
             rows.append((s["angle_rms_error_deg"], s["yaw_error_deg"], s["pitch_error_deg"], cal.n_evaluations, wall, rms_cmd))
             print(f"rig seed {cfg.simulation.seed}: roll RMS error {s['angle_rms_error_deg']:.3f}° (commanded {rms_cmd:.3f}°; views > 0.1° "
                   f"farther than commanded: {worse}), yaw error {s['yaw_error_deg']:+.3f}°, pitch error {s['pitch_error_deg']:+.3f}°, "
-                  f"cost {cal.final_cost:.5g} (commanded {cal.theta0_cost:.5g}), {cal.n_evaluations} evaluations, {wall:.1f} s", flush=True)
+                  f"cost {cal.final_cost:.5g} (commanded {cal.theta0_cost:.5g}), {cal.n_evaluations} evaluations, {wall:.1f} s ({photo_text})", flush=True)
     a = np.array(rows)
     print(f"mean over {n_rigs} rigs: roll RMS error {a[:, 0].mean():.3f}° (commanded {a[:, 5].mean():.3f}°), |yaw| {np.abs(a[:, 1]).mean():.3f}° "
           f"(max {np.abs(a[:, 1]).max():.3f}°), |pitch| {np.abs(a[:, 2]).mean():.3f}° (max {np.abs(a[:, 2]).max():.3f}°; targets <= 0.05°), "
-          f"{a[:, 4].mean():.1f} s per calibration")
+          f"{a[:, 4].mean():.1f} s per calibration; load average {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

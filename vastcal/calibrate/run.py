@@ -40,8 +40,7 @@ from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.forecast import PolishForecast
 from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock, minimise, preload
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
-from vastcal.calibrate.photometric_yaw import SCHEDULE as PHOTOMETRIC_SCHEDULE
-from vastcal.calibrate.photometric_yaw import expected_evaluations, refine_yaw
+from vastcal.calibrate.photometric_yaw import expected_evaluations, finest_voxel_um, refine_yaw
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
@@ -673,7 +672,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     if settings.photometric_yaw and method == "coherence" and space.free_mask[0]:
         base = evals_done
         clock.start_phase(expected_evaluations(), "photometric yaw: absorption maps")
-        voxel_um = distance * w_full / (float(K[0, 0]) * min(w_full, PHOTOMETRIC_SCHEDULE[-1][0]))  # its finest voxel
+        voxel_um = finest_voxel_um(K, distance, w_full)  # its finest voxel (a cube of its volume)
         m_est = int(len(judge_region.voxels) * (judge_region.voxel_size / voxel_um) ** 3)
         sub = photometric_views(theta[3:], images.shape[1:], m_est, settings.memory_mb)
         pf_full = pf[sub] if pf.shape[1:] == images.shape[1:3] else specimen_maps_within(model, images[sub], settings.memory_mb)
