@@ -9,9 +9,10 @@ as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel samp
   common-offset scan (0.5°); error against the truth with the common offset removed (gauge-free).
 * dinoRing (true cameras in metres, 0-based; all 48 views: the 48th is the 2nd camera again, a turn later): views 1–10
   offset +10°, rolls free in ±15°, no prior, offset scan 0.5°; gauge-free error.
-* ``--threshold-masks``: ETH David's images replaced by the silhouettes its data README suggests (grey > 100, the
-  largest connected region, closed by 5 px; object 230, background 20): how well clean binary silhouettes pin the
-  rolls down, apart from the colour model.
+* ``--threshold-masks``: the images replaced by binary silhouettes of the data's own rule (ETH David: grey > 100,
+  its data README's; dinoRing: brightest channel > 0.19 of full scale, Middlebury's; the largest connected region,
+  closed by 5 px; object 230, background 20): how well clean binary silhouettes pin the rolls down, apart from the
+  colour model.
 * ``--start-at-truth``: the same runs with the commanded angles at the truth (no offset views): a search that finds its
   cost's minimum stays within 0.1° mean unless that minimum is not at the truth (compare the cost columns).
 
@@ -56,21 +57,23 @@ def _truth_session(tmp: Path, name: str, folder: Path, cameras: Path, n: int, of
     return s, true_rolls
 
 
-def threshold_mask_images(src: Path, out: Path) -> Path:
-    """ETH David as binary images (object 230, background 20 grey) of its data README's silhouette rule, with its
-    camera files beside them; returns ``out``."""
+def threshold_mask_images(src: Path, out: Path, pattern: str, keep: str) -> Path:
+    """A ground-truth set as binary images (object 230, background 20 grey) of its own silhouette rule — ETH David's
+    data README: grey > 100; Middlebury: brightest channel > 0.19 of full scale — the largest region kept, with the
+    files matching ``keep`` (cameras) copied beside them; returns ``out``."""
     import shutil
 
     import cv2
 
     out.mkdir(parents=True, exist_ok=True)
-    for f in sorted(src.glob("david_*.jpg")):
-        fg = (cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) > 100).astype(np.uint8)
+    for f in sorted(src.glob(pattern)):
+        im = cv2.imread(str(f))
+        fg = (cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) > 100 if f.suffix == ".jpg" else im.max(axis=-1) > 0.19 * 255).astype(np.uint8)
         _, labels, stats, _ = cv2.connectedComponentsWithStats(fg)
         mask = cv2.morphologyEx((labels == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8), cv2.MORPH_CLOSE,
                                np.ones((5, 5), np.uint8))
         cv2.imwrite(str(out / f.with_suffix(".png").name), np.where(mask[..., None] > 0, np.uint8([230] * 3), np.uint8([20] * 3)))
-    for p in src.glob("david_*.pa"):
+    for p in src.glob(keep):
         shutil.copy(p, out / p.name)
     return out
 
@@ -142,10 +145,12 @@ def _measure(session: Path, r: object) -> tuple[float, float]:
 def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], starts: int, at_truth: bool = False,
                   threshold_masks: bool = False) -> None:
     if name == "david":
-        folder = threshold_mask_images(DATA / "eth_david", tmp / "david_masks") if threshold_masks else DATA / "eth_david"
+        folder = threshold_mask_images(DATA / "eth_david", tmp / "masks", "david_*.jpg", "david_*.pa") if threshold_masks else DATA / "eth_david"
         s, true_rolls = _truth_session(tmp, name, folder, folder, 18, [] if at_truth else np.arange(1, 18, 2)[:9].tolist() + [16], 0.5, None)
     else:  # all 48 views: the 48th is the 2nd camera photographed again (365°, a turn later)
         folder = DATA / "middlebury_dinoRing"
+        if threshold_masks:
+            folder = threshold_mask_images(folder, tmp / "masks", "dinoR0*.png", "dinoR_*.txt")
         s, true_rolls = _truth_session(tmp, name, folder, folder / "dinoR_par.txt", 48, [] if at_truth else list(range(1, 11)), 0.0, "m")
     from vastcal.session import Session
     from vastcal.calibrate.session_run import session_camera_model
@@ -154,7 +159,7 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
     truth = theta0.copy()
     truth[3:] = true_rolls
     start_mean, start_max = _angle_errors(theta0, true_rolls)
-    masks = " on the threshold masks" if threshold_masks and name == "david" else ""
+    masks = " on the threshold masks" if threshold_masks else ""
     print(f"\n== {name}{masks}{' started at the truth' if at_truth else ''}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)")
     print(f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
           f"{'volume':>9s} {'area':>9s}")
@@ -210,7 +215,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--starts", type=int, default=1)
     ap.add_argument("--start-at-truth", action="store_true", help="commanded angles = the true ones (no offset views)")
-    ap.add_argument("--threshold-masks", action="store_true", help="ETH David: its data README's threshold silhouettes as the images")
+    ap.add_argument("--threshold-masks", action="store_true", help="the data's own threshold silhouettes as the images (ground-truth sets)")
     a = ap.parse_args()
     methods = a.methods.split(",")
     seeds = [int(x) for x in a.seeds.split(",")]
