@@ -53,7 +53,7 @@ def main() -> None:
             e_cal = (cal.theta_deg[3:] - cal.theta_deg[3]) - (actual - actual[0])
             e_cmd = (cal.theta0_deg[3:] - cal.theta0_deg[3]) - (actual - actual[0])
             rms_cmd = float(np.sqrt(np.mean(e_cmd[1:] ** 2)))
-            photo = next((r for r in cal.reports if r.get("stage") == "photometric yaw"), None)
+            photo = next((r for r in cal.level_reports if r.get("stage") == "photometric yaw"), None)
             photo_text = ("no photometric yaw" if photo is None else f"photometric yaw {photo['time_s']:.1f} s, "
                           f"{photo.get('final_iterations', '?')} iterations{'' if photo.get('converged', True) else ' (cap)'}")
             worse = np.flatnonzero(np.abs(e_cal) > np.abs(e_cmd) + 0.1).tolist()

@@ -130,11 +130,9 @@ class CalibrationSettings:
             (absorption contrast) only, skipped with a warning otherwise.
         starts: independent coarse-to-fine CMA-ES runs (seeds seed, seed + 10, …); the one of lowest
             judged cost is kept. Each costs a full run.
-        photometric_sirt_iterations: SIRT iterations of each reconstruction of the photometric yaw. The early-stopped
-            reconstruction biases the yaw: on simulated rigs 8, 4, 7, 1, 100 → 300 iterations moved the yaw errors from
-            −0.091, −0.075, −0.089, −0.003° to +0.038, +0.032, −0.011, +0.022° (``benchmarks/calibrate_yaw_vs_rolls.py``),
-            at about 3× the photometric phase's time; the default stays 100 until the 8-rig run and the demo's time
-            are re-measured with it.
+        photometric_sirt_iterations: SIRT iterations of each reconstruction of the photometric yaw's coarse stages
+            (they only steer the last stage, whose reconstructions run until the yaw stops moving:
+            :func:`.photometric_yaw.refine_yaw`).
         restarts: CMA-ES restarts within every level (:func:`.optimise.minimise`): ``"none"``, ``"ipop"`` or
             ``"bipop"``; with restarts a level spends its whole ``max_evaluations`` (restarts until it is used).
             Off by default: on ETH David at equal evaluations (``benchmarks/calibrate_restarts.py``) it did not lower
