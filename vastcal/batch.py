@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from vastcal.errors import OutputExistsError, UserInputError, VastcalError
-from vastcal.progress import ProgressLine, format_duration
+from vastcal.progress import CountProgress, format_duration
 from vastcal.screen_table import atomic_write_bytes, write_index, write_table
 from vastcal.specimen import read_specimen, session_specimen
 
@@ -424,7 +424,7 @@ def _run_on_dask(todo: list[Path], names: dict[Path, str], out: Path, settings: 
             key = f"vastcal-session-{name}-{shash}-{hashlib.sha1(str(p).encode()).hexdigest()[:8]}"
             fut = client.submit(process_session, str(p), str(out / "reports" / name), settings, key=key, retries=1, pure=False)
             futures[fut] = p
-        bar = ProgressLine("batch", "sessions", enabled=not quiet)
+        bar = CountProgress("batch", "sessions", enabled=not quiet)
         t0 = time.monotonic()
         done = 0
         try:

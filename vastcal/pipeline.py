@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from vastcal.errors import VastcalError
-from vastcal.progress import CalibrationProgress, PhaseProgress, ProgressLine, format_duration
+from vastcal.progress import CalibrationProgress, CountProgress, PhaseProgress, format_duration
 
 log = logging.getLogger(__name__)
 
@@ -248,7 +248,7 @@ def demo(output_dir: str | Path = "vastcal-demo", *, views: int | None = None, f
     except OSError as exc:
         raise VastcalError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     session = out / "demo.h5"
-    bar = ProgressLine("acquire (simulated rig)", "views", enabled=not quiet)
+    bar = CountProgress("acquire (simulated rig)", "views", enabled=not quiet)
     t = time.monotonic()
     try:
         truth_path = acquire_simulated(load_config(None), session, views=views, force=force,
