@@ -30,7 +30,7 @@ reconstructions on maps at full resolution along the axis image and ¼ across it
 whose iterations double — FISTA, each reconstruction continuing where it stopped — until the yaw moves
 less than 0.01° between doublings); the rolls, pitch and γ stay at the silhouette solution. Why that last
 stage: the yaw minimising E is biased by the voxel's size (positive on every simulated rig, growing
-with the iterations as the reconstruction converges: +0.07° at ½ width after 1500 iterations), and a yaw
+with the iterations as the reconstruction converges: +0.087° at ½ width after 1600 iterations on simulated rig 8), and a yaw
 moves features along the axis image, so the voxels are fine along it; see :data:`ACROSS_WIDTH_PX`.
 A Gauss–Newton over every θ on this cost found poses of lower cost than the truth (the early-stopped
 reconstruction and the voxel discretisation bias it), so the rolls are deliberately left alone.
@@ -301,12 +301,13 @@ SCHEDULE: tuple[tuple[int, float, int], ...] = ((256, 0.25, 6), (256, 0.0625, 2)
 #: Across the axis image the maps (and voxels) have the pixel of a frame resized to this width (¼ of the
 #: simulated rig's 1024 px). Why the last stage is fine along the axis and coarse across it: a yaw moves
 #: interior features *along* the axis image (± depth × sin yaw), and the yaw at which a reconstruction
-#: explains the images best is biased by the voxel's size — measured on simulated rigs 4 and 8 (rig indices
-#: 3 and 7), run until the yaw stopped moving (FISTA, 1500 iterations): isotropic ¼-width voxels +0.20°/+0.29°
-#: and still growing, ½-width +0.065°/+0.075°, 1 px along × 2 px across +0.035° (rig 8), 1 px along × 4 px
-#: across +0.005°/+0.014° (it also has fewer voxels than measured pixels, so the reconstruction cannot
-#: invent structure that hides a wrong yaw). The early-stopped ½-width search the module used before sat
-#: between the two biases (−0.075°/−0.091° at 100 iterations, +0.032°/+0.038° at 300).
+#: explains the images best is biased by the voxel's size, more as the reconstruction converges. Measured
+#: (``benchmarks/calibrate_yaw_vs_rolls.py 3,7 --long``, simulated rigs 4 and 8, yaw errors): isotropic ½-width
+#: maps under the convergence rule +0.041°/+0.083°, at a fixed 1600 iterations +0.031°/+0.087°; these maps
+#: under the rule +0.003°/+0.037°, at a fixed 800 iterations +0.003°/+0.030°. (They also have fewer voxels
+#: than measured pixels, so the reconstruction cannot invent structure that hides a wrong yaw.) The
+#: early-stopped ½-width search used before sat between the biases: −0.075°/−0.091° at 100 SIRT iterations,
+#: +0.032°/+0.038° at 300.
 ACROSS_WIDTH_PX = 256
 
 #: The last stage's reconstructions run in doublings from the first to the second count (FISTA, each
