@@ -50,7 +50,7 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster workers (default: one per core)")
     ap.add_argument("--skip-sequential", action="store_true")
     ap.add_argument("--sequential", type=int, default=None, metavar="K",
-                    help="time sequential vastcal run on the first K sessions only and extrapolate to N (said in the output)")
+                    help="time sequential vastcal run on K evenly spread sessions only and extrapolate to N (said in the output)")
     a = ap.parse_args()
 
     battery = a.workdir / "battery"
@@ -66,12 +66,16 @@ def main() -> int:
     seq_s = float("nan")
     per_session: list[float] = []
     cpu_seq: list[float] = []
+    timed_sessions: list[Path] = []
     if not a.skip_sequential:
         seq = a.workdir / "sequential"
         shutil.rmtree(seq, ignore_errors=True)
         seq.mkdir()
         t0 = time.monotonic()
-        for s in sessions[: a.sequential or len(sessions)]:
+        k = min(a.sequential or len(sessions), len(sessions))  # an evenly spread sample: larvae differ in cost
+        timed = [sessions[i] for i in sorted({int(round(j * (len(sessions) - 1) / max(k - 1, 1))) for j in range(k)})]
+        timed_sessions = timed
+        for s in timed:
             copy = Path(shutil.copy(s, seq / s.name))
             t = time.monotonic()
             c = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -83,7 +87,7 @@ def main() -> int:
             print(f"  sequential {s.name}: {per_session[-1]:.1f} s wall, {cpu_seq[-1]:.1f} s CPU", flush=True)
         seq_s = time.monotonic() - t0
         if len(per_session) < len(sessions):
-            print(f"  sequential timed on {len(per_session)} of {len(sessions)} sessions; extrapolated: "
+            print(f"  sequential timed on {len(per_session)} of {len(sessions)} sessions (evenly spread); extrapolated: "
                   f"{seq_s:.1f} s x {len(sessions)}/{len(per_session)}", flush=True)
             seq_s *= len(sessions) / len(per_session)
 
@@ -121,6 +125,12 @@ def main() -> int:
         print(f"CPU per session in the batch workers: mean {sum(cpu_batch) / len(cpu_batch):.1f} s"
               + (f"; sequential vastcal run: mean {sum(cpu_seq) / len(cpu_seq):.1f} s (includes process start-up)" if cpu_seq else "")
               + f" -> {3600 * len(cpu_batch) / sum(cpu_batch):.0f} sessions per hour per fully used core")
+    cpu_of = {Path(r["path"]).stem: float(r["cpu_s"]) for r in ok if r.get("cpu_s", "-") != "-"}
+    both = [(cpu_of[s.stem], c) for s, c in zip(timed_sessions, cpu_seq) if s.stem in cpu_of]
+    if both:  # the same sessions both ways: what running two at a time costs each (sampling differences cancel)
+        b, q = sum(x for x, _ in both), sum(y for _, y in both)
+        print(f"the {len(both)} sessions timed both ways: {b:.1f} CPU s in the batch workers against {q:.1f} s as sequential "
+              f"vastcal run (ratio {b / q:.3f})")
     print("peak resident memory per worker (MB): " + ", ".join(f"{v:.0f}" for v in sorted(peaks.values())))
     per = sum(cpu_batch) / len(cpu_batch) if cpu_batch else batch_s * workers / len(sessions)
     print(f"10 000-larva screen at {per:.1f} CPU s per session per worker (a worker = one unshared core like these; "
