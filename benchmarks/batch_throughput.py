@@ -79,12 +79,13 @@ def main() -> int:
             copy = Path(shutil.copy(s, seq / s.name))
             t = time.monotonic()
             c = resource.getrusage(resource.RUSAGE_CHILDREN)
-            subprocess.run(_vastcal("run", str(copy), "-o", str(seq / (s.stem + "-report")), "--starts", str(a.starts), "-q"),
-                           check=True, stdout=subprocess.DEVNULL)
+            code = subprocess.run(_vastcal("run", str(copy), "-o", str(seq / (s.stem + "-report")), "--starts", str(a.starts), "-q"),
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True).returncode
             per_session.append(time.monotonic() - t)
             c2 = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu_seq.append(c2.ru_utime + c2.ru_stime - c.ru_utime - c.ru_stime)
-            print(f"  sequential {s.name}: {per_session[-1]:.1f} s wall, {cpu_seq[-1]:.1f} s CPU", flush=True)
+            failed = f" (exit {code}: the session failed, as it does in the batch; its time counts)" if code else ""
+            print(f"  sequential {s.name}: {per_session[-1]:.1f} s wall, {cpu_seq[-1]:.1f} s CPU{failed}", flush=True)
         seq_s = time.monotonic() - t0
         if len(per_session) < len(sessions):
             print(f"  sequential timed on {len(per_session)} of {len(sessions)} sessions (evenly spread); extrapolated: "
