@@ -313,7 +313,7 @@ class CountProgress:
     :class:`PhaseProgress`: ``rich`` on a terminal, plain lines in logs (phase start, every ``step_pct`` percent,
     end). Its ETA is the items left × the time per item measured over the recent half of the time since the
     first item: the first item's one-off work (opening files, homing the stage, the camera's first frame) is
-    not counted, a rate that changes midway is followed. Same calls as :class:`ProgressLine`.
+    not counted, a rate that changes midway is followed.
 
     Args:
         label: the task (``import``, ``acquire``); unit: what is counted (``views``).

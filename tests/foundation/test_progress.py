@@ -75,9 +75,9 @@ def test_the_calibration_clock_names_its_phases_and_the_yaw_shows_no_silhouette_
     cb = CalibrationProgress(bar)
     pc = ProgressClock(cb, budget=100)
     pc.start_phase(100, "level 1/2 (256 px), seed 0")
-    pc.converged(0.4)
+    pc.forecast(20, 30)
     pc.update(20, 0.07)
-    assert bar.records[-1].points[-1][1] == pytest.approx(0.4)  # the convergence measure, not 20/100
+    assert bar.records[-1].points[-1][1] == pytest.approx(0.4)  # the forecast's share done, 20/(20+30), not 20/100
     pc.start_phase(10, "photometric yaw (256 px)")
     pc.update(25, 99.0)
     assert bar.records[-1].name == "photometric yaw (256 px)" and bar.records[-1].points[-1][1] == pytest.approx(0.5)

@@ -202,12 +202,7 @@ class ProgressClock:
         self._last_log = self.t0
         self._first: tuple[float, int] | None = None
         self._phase_start, self._phase_budget = 0, self.budget
-        self._converged: float | None = None
         self._work: tuple[float, float] | None = None
-
-    def converged(self, fraction: float) -> None:
-        """The current phase's own measure of its progress (e.g. a CMA-ES run's convergence), 0..1."""
-        self._converged = float(fraction)
 
     def forecast(self, done: float, left: float) -> None:
         """The current phase's work done and forecast left, in units of about equal time each (a CMA-ES level's
@@ -216,12 +211,12 @@ class ProgressClock:
         self._work = (float(done), max(float(left), 0.0) if left == left else float("nan"))  # NaN: unknown for now
 
     def phase_fraction(self) -> float:
-        """Fraction (0..1) of the current phase done: its forecast's share done, else its own measure, else its evaluations' share."""
+        """Fraction (0..1) of the current phase done: its forecast's share done, else its evaluations' share."""
         if self._work is not None and self._work[1] == self._work[1]:
             done, left = self._work
             return float(done / (done + left)) if done + left > 0 else 0.0
         by_count = (self.done - self._phase_start) / self._phase_budget
-        return float(min(1.0, max(by_count, self._converged or 0.0)))
+        return float(min(1.0, by_count))
 
     def update(self, evals_total: int, best: float) -> None:
         """Report progress; ``evals_total`` counts every level so far."""
@@ -257,7 +252,6 @@ class ProgressClock:
         """A named part (e.g. one CMA-ES level) of up to ``evaluations`` evaluations for a callback that draws
         named phases, each with its own fraction done; the overall budget and rate are kept."""
         self._phase_start, self._phase_budget = self.done, max(1, int(evaluations))
-        self._converged = None
         self._work = None
         if name is not None and hasattr(self.callback, "phase"):
             self.callback.phase(name)
