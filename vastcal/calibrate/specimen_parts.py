@@ -28,17 +28,11 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def largest_regions(inside: np.ndarray) -> tuple[np.ndarray, list[tuple[np.ndarray, int]]]:
-    """(N, H, W) bool → (the largest 8-connected region of every view, [(labels, largest label)] per view)."""
-    body = np.zeros_like(inside, dtype=bool)
-    labelled: list[tuple[np.ndarray, int]] = []
-    for i, m in enumerate(inside):
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
-        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) if n > 1 else 0
-        if big:
-            body[i] = labels == big
-        labelled.append((labels, big))
-    return body, labelled
+def largest_region(inside: np.ndarray) -> tuple[int, np.ndarray, int]:
+    """(H, W) bool → (number of labels including the background, 8-connected labels, the largest region's
+    label; 0 when there is no region)."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(inside.astype(np.uint8), connectivity=8)
+    return count, labels, 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) if count > 1 else 0
 
 
 def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, min_consistent: float = 0.9,
@@ -65,10 +59,9 @@ def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, 
     bottom = np.full((n, w), -1, np.intp)  # its last row, -1 where none
     several: list[int] = []  # views with more than one region
     for i in range(n):
-        count, labels, stats, _ = cv2.connectedComponentsWithStats((out[i] > level).astype(np.uint8), connectivity=8)
-        if count < 2:
+        count, labels, big = largest_region(out[i] > level)
+        if not big:
             continue
-        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
         body = labels == big
         cover[i] = body.any(axis=0)
         top[i] = np.where(cover[i], np.argmax(body, axis=0), h)
@@ -78,8 +71,7 @@ def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, 
     dropped = 0
     for i in several:
         inside = out[i] > level
-        _, labels, stats, _ = cv2.connectedComponentsWithStats(inside.astype(np.uint8), connectivity=8)  # as in the first pass
-        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        _, labels, big = largest_region(inside)  # labelled again: holding every view's labels would cost N x H x W ints
         others = np.arange(n) != i
         support = cover[others].sum(axis=0) >= min_support * (n - 1)  # (W,)
         lo = top[others].min(axis=0) - tol_px
