@@ -102,13 +102,11 @@ class Atlas:
     def frame_to_tile(self, u: np.ndarray, v: np.ndarray) -> None:
         """Clamp frame pixel positions (u, v) (float32, in place) to the frame and express them in the tiles'
         pixels: the window's (without a window, the tiles are the frames)."""
-        if self.window is None:
-            np.clip(u, 0.0, self.w - 1.0, out=u)
-            np.clip(v, 0.0, self.h - 1.001, out=v)
-            return
-        x0, y0, fw, fh = self.window
+        x0, y0, fw, fh = self.window or (0, 0, self.w, self.h)
         np.clip(u, 0.0, fw - 1.0, out=u)
         np.clip(v, 0.0, fh - 1.001, out=v)
+        if self.window is None:
+            return
         u -= np.float32(x0)
         v -= np.float32(y0)
         np.clip(u, 0.0, self.w - 1.0, out=u)
