@@ -102,9 +102,10 @@ def _view_scans(truth: np.ndarray) -> list[np.ndarray]:
     return out
 
 
-def _print_view_minima(costs: np.ndarray, at_truth: float, cut: np.ndarray | None) -> None:
-    """Each view's own 1-D cost minimum along its roll (the others at the truth), by a parabola through the lowest
-    scan sample and its neighbours: where the judge cost itself puts that view, relative to its true angle."""
+def view_minima(costs: np.ndarray, at_truth: float) -> np.ndarray:
+    """Each view's own 1-D cost minimum along its roll (the others at the truth), degrees from its true angle, by a
+    parabola through the lowest scan sample and its neighbours. ``costs`` (N − 1, scan offsets but 0) are the judge
+    costs of :func:`_view_scans`' θs; ``at_truth`` the cost at the truth."""
     full = np.insert(costs, int(np.flatnonzero(SCAN_DEG == 0)[0]), at_truth, axis=1)
     mins = []
     for c in full:
@@ -112,7 +113,13 @@ def _print_view_minima(costs: np.ndarray, at_truth: float, cut: np.ndarray | Non
         x, y = SCAN_DEG[k - 1: k + 2], c[k - 1: k + 2]
         a, b, _ = np.polyfit(x, y, 2)
         mins.append(float(np.clip(-b / (2 * a), SCAN_DEG[0], SCAN_DEG[-1])) if a > 0 else float(SCAN_DEG[np.argmin(c)]))
-    m = np.abs(np.asarray(mins))
+    return np.asarray(mins)
+
+
+def _print_view_minima(costs: np.ndarray, at_truth: float, cut: np.ndarray | None) -> None:
+    """Where the judge cost itself puts each view, relative to its true angle (:func:`view_minima`)."""
+    mins = view_minima(costs, at_truth)
+    m = np.abs(mins)
     print(f"{'':15s} each view's own cost minimum (others at the truth), views 1..N-1: mean |offset| {m.mean():.3f}°, "
           f"max {m.max():.3f}° (scan ±{SCAN_DEG[-1]}°); offsets {np.round(mins, 2).tolist()}")
     if cut is not None:
