@@ -74,8 +74,9 @@ def one_run(views: int, starts: int, seed: int, sim_seed: int | None) -> list[di
                "median_error": float(np.median(errs)) if errs else None, "max_error": float(np.max(errs)) if errs else None,
                "max_error_but_last_2": float(np.max(relaxed)) if relaxed else (0.0 if errs else None),
                "share_within_30pct": float(np.mean(np.asarray(errs) <= 0.3)) if errs else None,
-               "updates": [{"t_s": t - r.t0, "fraction": f, "eta_s": eta if eta == eta else None, "true_left_s": r.t1 - t}
-                           for t, f, eta in r.points]}
+               "updates": [{"t_s": t - r.t0, "fraction": f, "eta_s": eta if eta == eta else None, "true_left_s": r.t1 - t,
+                            "work": None if w is None else [w[0], w[1] if w[1] == w[1] else None]}
+                           for (t, f, eta), w in zip(r.points, getattr(r, "work", None) or [None] * len(r.points))]}
         rows.append(row)
         print(f"{r.name:<44} {row['duration_s']:7.2f} {len(errs):7d} {_pct(row['median_error'])} {_pct(row['max_error'])} "
               f"{_pct(row['max_error_but_last_2'], 14)} {_pct(row['share_within_30pct'], 10)}")
@@ -113,7 +114,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0, help="calibration seed")
     ap.add_argument("--sim-seed", type=int, action="append", default=None,
                     help="simulator seed (repeat for several runs and a summary; default: the config's)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the per-phase figures and every update (time, fraction, ETA, true time left) here")
+    ap.add_argument("--json", type=Path, default=None, help="also write the per-phase figures and every update (time, fraction, ETA, true time left, work done and forecast left) here")
     args = ap.parse_args()
     rows: list[dict] = []
     for sim_seed in args.sim_seed or [None]:

@@ -6,10 +6,11 @@ one at every ``step_pct`` percent and one when it ends — no carriage returns, 
 
 The ETA of a phase (:class:`PhaseEta`) is its forecast work left times the time per unit of work
 measured over the recent half of the phase (a phase that reports ``work=(done, left)``: a CMA-ES
-level's evaluations, forecast from its step's way down to ``tolx`` and its budget; the polish's sweeps;
-:mod:`vastcal.calibrate.forecast`), or else its remaining fraction over the rate of the recent half (the
-photometric yaw's share of its reconstructions). One-off set-up before a phase's first report does not
-count in its rate.
+level's evaluations, forecast from its step's way down to ``tolx`` and its budget, or up to the generation a
+level that hands over to a finer one planned to end at; the polish's sweeps; :mod:`vastcal.calibrate.forecast`),
+or else its remaining fraction over the rate of the recent half (the photometric yaw's share of its
+reconstructions at one map width or in one doubling of its last stage). One-off set-up before a phase's first
+report does not count in its rate.
 
 ``benchmarks/progress_eta.py`` measures the ETA's error at every update over the second half of every
 phase (its docstring states the criterion).
@@ -102,12 +103,14 @@ class PhaseEta:
 
 @dataclass
 class PhaseRecord:
-    """What one phase showed: its name, start and end (monotonic s) and every (time, fraction, ETA) drawn."""
+    """What one phase showed: its name, start and end (monotonic s), every (time, fraction, ETA) drawn and the work
+    (units done, forecast left) each update reported (None where it reported none)."""
 
     name: str
     t0: float
     t1: float = float("nan")
     points: list[tuple[float, float, float]] = field(default_factory=list)
+    work: list[tuple[float, float] | None] = field(default_factory=list)
 
     def eta_errors(self, excuse_last: int = 0) -> list[float]:
         """Relative ETA errors |ETA − true remaining| / true remaining at every update in the second half of the
@@ -184,6 +187,7 @@ class PhaseProgress:
         f = self._eta.samples[-1][1]
         eta = self._eta.eta()
         self.records[-1].points.append((now, f, eta))
+        self.records[-1].work.append(None if work is None else (float(work[0]), float(work[1])))
         if not self.enabled:
             return
         if self.tty:

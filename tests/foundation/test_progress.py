@@ -127,6 +127,55 @@ def test_cma_stop_forecast_follows_the_step_down_to_tolx_and_is_bounded_by_the_b
     assert math.isnan(eta.eta())  # shown as "?"
 
 
+def test_a_planned_cma_forecast_freezes_its_end_at_a_third_and_counts_down_to_it() -> None:
+    from vastcal.calibrate.forecast import CMAStopForecast
+
+    fc = CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10, planned=True)
+    rng = np.random.default_rng(3)
+    lefts, g = [], 0
+    while not fc.planned_end():
+        g += 1
+        lefts.append(fc.add(10.0 ** (2 - g / 10 + 0.1 * rng.normal()), 10 * g))
+        assert g < 200
+    assert fc.plan == g and 15 <= g <= 25  # two decades at 0.1 decade per generation (tolx after 20), fixed from the noisy descent
+    known = [i for i in range(len(lefts)) if not math.isnan(lefts[i])]
+    assert known[0] == CMAStopForecast.MIN_WINDOW - 1 < g / 2  # frozen at its first forecast here (a third of the run was past)
+    assert [lefts[i] for i in known] == [10 * (g - i - 1) + 10 for i in known]  # from the freeze on: exact, generation by generation
+    free = CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10)
+    for k in range(1, g + 1):
+        free.add(10.0 ** (2 - k / 10), 10 * k)
+    assert free.plan is None and not free.planned_end()  # unplanned (the last level, tolx): never ends on its own
+
+
+def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_near_it() -> None:
+    from vastcal.calibrate.forecast import tolx_quantities
+    from vastcal.calibrate.optimise import minimise
+
+    scale = np.array([1.0, 10.0, 100.0])  # image motion per box unit of each coordinate
+
+    def sphere(X: np.ndarray) -> np.ndarray:
+        return np.sum((np.asarray(X) * scale) ** 2, axis=1)
+
+    resolution = 1e-3 / scale  # every coordinate: 1e-3 of image motion
+    told: list[tuple[int, float]] = []
+    r = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8,
+                 resolution=resolution, convergence=lambda d, left: told.append((d, left)))
+    full = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8)
+    assert list(r.stop) == ["resolution"] and r.n_evaluations < full.n_evaluations
+    assert r.n_evaluations == 8 * r.n_generations + 2
+    end = told[-1][0] + 2
+    assert all(left == pytest.approx(end - d + 6) for d, left in told[len(told) // 3 + 1:])  # + a generation for the re-scores, less their 2
+    assert np.all(np.abs(r.x_best) * scale < 0.1)  # converged to well under the start's spread
+
+    class Es:  # what tolx_quantities reads of a cma strategy
+        sigma, dC, pc = 2.0, np.array([1.0, 4.0, 0.25]), np.zeros(3)
+
+        class sigma_vec:
+            scaling = np.array([1.0, 1.0, 2.0])
+
+    assert tolx_quantities(Es(), 1.0 / np.array([1.0, 8.0, 1.0])) == pytest.approx((2.0, 2.0))
+
+
 def test_polish_forecast_expects_more_sweeps_after_a_move_and_none_after_the_last() -> None:
     from vastcal.calibrate.forecast import PolishForecast
 

@@ -19,6 +19,16 @@ not known in advance:
   Measured limit (``benchmarks/progress_eta.py``): on the simulated rig the step often settles on the
   cost's noise floor a few times above ``tolx`` and the run ends when it happens to dip below; that moment
   is random and no forecast from the run's history gets it to within 30 % near the end.
+  With ``planned=True`` (a level that hands over to a finer one, :func:`vastcal.calibrate.optimise.minimise`'s
+  ``resolution``) the forecast is also the stopping rule: it is revised every generation until the generations
+  run reach a third (:attr:`CMAStopForecast.PLAN_AT`) of the forecast run's length, then frozen, and the run ends
+  at the frozen generation (:meth:`CMAStopForecast.planned_end`). The end is then known over the whole second
+  half of the run. Why not stop on the crossing itself: the step's way down is a noisy random walk with a drift,
+  and its first passage below any tolerance is random near the end (replayed on 27 traced first-level runs of
+  simulated rigs 1-9: the crossing's forecast 25-35 % median error, 100-200 % worst, whatever the tolerance or fit
+  window); frozen at a third, the step at the end was 1-24× the tolerance (median 2.4×; a tolerance of half the next
+  level's initial step) on the same traces — the descent slows down, the fit over the recent half extrapolates it a
+  little steep.
 * :class:`PolishForecast` — sweeps left in the per-view polish (:func:`vastcal.calibrate.run.polish_rolls`):
   every step size takes 1 to ``max_sweeps`` sweeps, one more after every sweep that moved a roll. The
   chance that a sweep moves a roll is estimated from the sweeps so far (Laplace's rule); the sweeps left are
@@ -50,14 +60,20 @@ class CMAStopForecast:
     MIN_WINDOW = 8
     #: generations whose lowest value is the quantity's level now (the criterion fires on a dip)
     LOW_OF = 5
+    #: planned runs: the share of the forecast run's generations after which its end is frozen. Before the half:
+    #: a level's first generations take longer (a wide population's rays slide further in the coherence cost; measured
+    #: up to 2x the last ones), so the half of its wall time comes before the half of its generations
+    PLAN_AT = 1.0 / 3.0
 
-    def __init__(self, tolx: float, max_evaluations: float, popsize: int, *, spend_budget: bool = False) -> None:
+    def __init__(self, tolx: float, max_evaluations: float, popsize: int, *, spend_budget: bool = False, planned: bool = False) -> None:
         self.log_tolx = math.log(float(tolx))
         self.max_evaluations = float(max_evaluations) if max_evaluations else math.inf
         self.popsize = max(1, int(popsize))
         self.spend_budget = spend_budget
+        self.planned = planned and not spend_budget
         self.logs: list[float] = []  # log of the tolx quantity (what the criterion compares)
         self.trend: list[float] = []  # log of the step alone (its trend, with less noise than the evolution path's)
+        self.plan: int | None = None  # planned: the generation (1-based count) the run ends at, once frozen
 
     def generations_to_tolx(self, budget_generations: float = math.inf) -> float:
         """Generations until the fitted trend's recent low reaches ``tolx``; ``budget_generations`` when even the
@@ -85,16 +101,32 @@ class CMAStopForecast:
         self.logs.append(math.log(max(float(quantity), 1e-300)))
         self.trend.append(math.log(max(float(quantity if step is None else step), 1e-300)))
         budget_left = max(self.max_evaluations - evaluations, 0.0)
-        gens = math.inf if self.spend_budget else self.generations_to_tolx(budget_left / self.popsize)
+        n = len(self.logs)
+        if self.plan is not None:  # frozen: the run ends at the planned generation
+            gens: float = max(self.plan - n, 0)
+        else:
+            gens = math.inf if self.spend_budget else self.generations_to_tolx(budget_left / self.popsize)
+            if self.planned and gens == gens and gens * self.popsize < budget_left:
+                end = n + max(1, math.ceil(gens))  # the end the forecast sees now, in generations run
+                if n >= self.PLAN_AT * end:  # that share run: the plan is frozen (the second half's end is then known)
+                    self.plan = end
+                    gens = end - n
         if gens != gens:
             return math.nan
         return min(gens * self.popsize, budget_left) + self.popsize  # + the re-scores: about one generation's call
 
+    def planned_end(self) -> bool:
+        """True when a planned run has run its frozen number of generations (it ends there)."""
+        return self.plan is not None and len(self.logs) >= self.plan
 
-def tolx_quantities(es: object) -> tuple[float, float]:
+
+def tolx_quantities(es: object, per_unit: np.ndarray | None = None) -> tuple[float, float]:
     """What a ``cma.CMAEvolutionStrategy``'s ``tolx`` stop compares with its tolerance (box units): the larger of
-    every coordinate's step σ·√(diag C) and evolution path σ·|p_c|, and the step alone."""
+    every coordinate's step σ·√(diag C) and evolution path σ·|p_c|, and the step alone. With ``per_unit`` (F,)
+    each coordinate is first multiplied by it (e.g. 1 / its own tolerance: the quantities are then in tolerances)."""
     s = es.sigma * np.asarray(es.sigma_vec.scaling)  # type: ignore[attr-defined]
+    if per_unit is not None:
+        s = s * np.asarray(per_unit, float)
     step = float(np.max(s * np.sqrt(es.dC)))  # type: ignore[attr-defined]
     return max(step, float(np.max(np.abs(s * es.pc)))), step  # type: ignore[attr-defined]
 

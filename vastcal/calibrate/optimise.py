@@ -7,7 +7,9 @@ is where the speed comes from (no Python loop over candidates or views).
 * Search space: x ∈ [−1, 1]^F (see :mod:`.parameters`), enforced by cma's ``bounds`` option
   (its boundary transformation keeps every evaluated point inside the box).
 * Step sizes: a global σ0 in box units times per-parameter ``CMA_stds``.
-* Stopping: cma's ``tolx`` (in box units) and ``tolfun``, plus ``maxfevals``.
+* Stopping: cma's ``tolx`` (in box units) and ``tolfun``, plus ``maxfevals``; with a per-coordinate
+  ``resolution`` (a level that hands over to a finer one) the run ends at the generation its step's descent
+  was planned to reach that resolution (:class:`.forecast.CMAStopForecast` with ``planned=True``).
 * Reproducibility: cma seeds NumPy's global generator from its ``seed`` option at
   construction; cma treats 0 as "seed from the clock", so seed s is passed as s + 1.
 """
@@ -61,15 +63,22 @@ RESTARTS = ("none", "ipop", "bipop")
 
 def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, opts: dict,
              progress: Callable[[int, float], None] | None, evals_before: int,
-             convergence: Callable[[int, float], None] | None = None, spend_budget: bool = False) -> CMAResult:
+             convergence: Callable[[int, float], None] | None = None, spend_budget: bool = False,
+             resolution: np.ndarray | None = None) -> CMAResult:
     """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept.
     ``convergence`` (optional) is told every generation (evaluations so far, counting ``evals_before``; the
     evaluations forecast left, :class:`.forecast.CMAStopForecast`; ``spend_budget``: restarts follow until the
-    budget is spent, so the budget left is the forecast)."""
+    budget is spent, so the budget left is the forecast). ``resolution`` (F,) box units: the run ends at the
+    generation planned for its step to fall below it in every coordinate (stop reason ``resolution``)."""
     res = CMAResult(x0.copy(), float("inf"), 0, 0, {})
+    if resolution is not None:  # the resolution replaces tolx: one stopping rule, whose moment the plan knows
+        opts = dict(opts, tolx=0.0)
     es = cma.CMAEvolutionStrategy(list(x0), float(sigma0), opts)
-    forecast = CMAStopForecast(float(opts["tolx"]), float(opts.get("maxfevals", 0)), int(es.popsize), spend_budget=spend_budget)
-    while not es.stop():
+    per_unit = None if resolution is None else 1.0 / np.maximum(np.asarray(resolution, float), 1e-300)
+    forecast = CMAStopForecast(float(opts["tolx"]) if per_unit is None else 1.0, float(opts.get("maxfevals", 0)), int(es.popsize),
+                               spend_budget=spend_budget, planned=per_unit is not None)
+    planned_end = False
+    while not es.stop() and not planned_end:
         X = np.asarray(es.ask())
         f = np.asarray(objective(X), float)
         es.tell(list(X), list(f))
@@ -80,12 +89,17 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
             res.f_best, res.x_best = float(f[i]), X[i].copy()
         res.trace_evals.append(evals_before + res.n_evaluations)
         res.trace_best.append(res.f_best)
-        if convergence is not None:
-            quantity, step = tolx_quantities(es)
-            convergence(evals_before + res.n_evaluations, forecast.add(quantity, res.n_evaluations, step))
+        if convergence is not None or per_unit is not None:
+            quantity, step = tolx_quantities(es, per_unit)
+            left = forecast.add(quantity, res.n_evaluations, step)
+            planned_end = forecast.planned_end()
+            if convergence is not None:
+                convergence(evals_before + res.n_evaluations, left)
         if progress is not None:
             progress(evals_before + res.n_evaluations, res.f_best)
     res.stop = dict(es.stop())
+    if planned_end and not res.stop:
+        res.stop = {"resolution": forecast.plan}
     # The distribution mean is usually better than any single sample at convergence. The best sample's
     # cost came from its generation's batch (a cost may depend on its population: the coherence cost's
     # rays are searched around the batch mean), so it is scored again alone, like the mean, and the two
@@ -104,7 +118,7 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
 def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, stds: np.ndarray, *, seed: int,
              max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
              progress: Callable[[int, float], None] | None = None, restarts: str = "none",
-             convergence: Callable[[int, float], None] | None = None) -> CMAResult:
+             convergence: Callable[[int, float], None] | None = None, resolution: np.ndarray | None = None) -> CMAResult:
     """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
 
     Args:
@@ -122,6 +136,11 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             large). The best run (re-scored alone) is returned; ``stop`` holds every run's reasons.
         convergence: told (evaluations so far, evaluations forecast left) every generation, before ``progress``
             (for a progress bar's ETA: :class:`.forecast.CMAStopForecast`, :meth:`ProgressClock.forecast`).
+        resolution: (F,) per-coordinate step (box units) fine enough for the caller (e.g. a coarse level's: the step that
+            moves the image less than the next level starts its search with); None: off. Without restarts the run ends
+            at the generation its step's descent, fitted and frozen a third of the way, reaches it (stop ``resolution``;
+            :class:`.forecast.CMAStopForecast`; it replaces ``tolx``), or earlier on cma's other criteria or the budget.
+            Ignored with restarts (they spend the budget).
     """
     cma = _cma()
     if restarts not in RESTARTS:
@@ -130,7 +149,7 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
         inner = objective
         r = minimise(lambda X: inner(np.asarray(X)[:, :1]), np.r_[np.ravel(x0), 0.0], sigma0, np.r_[np.ravel(stds), 1.0], seed=seed,
                      max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress, restarts=restarts,
-                     convergence=convergence)
+                     convergence=convergence, resolution=None if resolution is None else np.r_[np.ravel(resolution), np.inf])
         r.x_best = r.x_best[:1]
         return r
     base = {"bounds": [-1.0, 1.0], "CMA_stds": list(np.asarray(stds, float)), "tolx": float(tolx), "tolfun": float(tolfun),
@@ -161,7 +180,8 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
                 opts["popsize"] = lam_large
             elif lam0:
                 opts["popsize"] = lam0
-            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence, spend_budget=restarts != "none")
+            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence, spend_budget=restarts != "none",
+                         resolution=resolution if restarts == "none" else None)
             if k == 0:
                 lam0 = lam_large = r.popsize  # type: ignore[attr-defined]
             used[regime] += r.n_evaluations

@@ -351,7 +351,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                sirt_iterations: int = 100, final_iterations: tuple[int, int] = FINAL_ITERATIONS,
                yaw_tolerance_deg: float = 0.01, across_width_px: int | None = ACROSS_WIDTH_PX,
                progress: Callable[[int, float], None] | None = None,
-               stage: Callable[[int, int], None] | None = None, recarve: bool = False) -> YawRefinement | None:
+               stage: Callable[[int, int], None] | None = None, recarve: bool = False,
+               part: Callable[[str, int], None] | None = None) -> YawRefinement | None:
     """The yaw that minimises E(θ) with every other entry of θ held (see the module docstring).
 
     Args:
@@ -378,7 +379,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             (None: the same as along it, every stage's maps isotropic).
         progress: called with (evaluations so far, cost of the latest).
         stage: called when the search moves to maps of a new width, with (width px, the evaluations expected
-            there: its samples, plus the final vertex at the last width) — a progress bar's phases.
+            there: its samples, plus the final vertex at the last width unless ``part`` is given) — a progress bar's phases.
+        part: called before each doubling of the last stage (``"N iterations (cap C)"``, the reconstructions it resumes)
+            and before the final vertex (``"final vertex"``, 1): parts whose work is known when they start.
         recarve: carve the voxel support anew at every stage's start yaw (default: once per map width, at the
             yaw where that width is first used — the silhouettes' yaw for the coarse maps). Measured on simulated
             rigs 4 and 8 (``benchmarks/calibrate_yaw_vs_rolls.py``): the same yaw to 0.001°, so off.
@@ -421,7 +424,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         key = (width, si if recarve or final else 0)  # the last stage carves its own support (at its start yaw)
         if key not in matches:
             if stage is not None and all(k[0] != width for k in matches):
-                stage(width, sum(2 * hf + 1 for wd, _, hf in schedule if wd == width) + (1 if width == last else 0))
+                stage(width, sum(2 * hf + 1 for wd, _, hf in schedule if wd == width) + (1 if width == last and part is None else 0))
             f_along = max(1.0, extent_along / float(width))
             f_across = f_along if across_width_px is None else max(1.0, extent_along / float(across_width_px))
             fu, fv = (f_along, f_across) if along_u else (f_across, f_along)
@@ -486,6 +489,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                     converged = False
                     break
                 final_n *= 2
+                if part is not None:
+                    part(f"{final_n} iterations (cap {final_iterations[1]})", len(ys))
                 es = np.array([cost_at(float(y), width) for y in ys])
                 ys2, es2, ks, _ = sample(step, ks, width) if int(np.argmin(es)) in (0, len(ys) - 1) else (ys, es, ks, 0)
                 ys, es = ys2, es2
@@ -499,6 +504,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     last_key = (last, si)
     samples = [(y, e) for (y, _, e, it), k in zip(evaluations, keys) if k == last_key and it == final_n]
     y_best, e_best = min(samples, key=lambda t: t[1])
+    if part is not None:
+        part("final vertex", 1)
     if cost_at(centre, last) > e_best:  # the parabola's vertex must not be worse than a sample
         centre = y_best
     ev = np.array(evaluations, float)
