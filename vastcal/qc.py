@@ -27,8 +27,8 @@ What is checked, per view, and why each threshold is what it is
   rasterised through the view's camera) against the view's silhouette — IoU and the symmetric
   mean boundary distance (px). For consistent silhouettes and cameras the visual hull reprojects
   onto every silhouette exactly; the distance expected from measurement error alone is the edge
-  localisation σ_edge (:mod:`vastcal.uncertainty`) plus what the comparison resolves, r = half a
-  pixel of rasterisation + half a voxel's image. A view is flagged when its distance exceeds
+  localisation σ_edge the images explain (:mod:`vastcal.uncertainty`, without its own term for this
+  disagreement) plus what the comparison resolves, r = half a pixel of rasterisation + half a voxel's image. A view is flagged when its distance exceeds
   3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
   silhouette and the hull overlap less than they differ → *fail*).
 * **Calibration at its bounds** — a free parameter within 1 % of the box width of a bound of the

@@ -604,8 +604,14 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
     # what the silhouette-vs-mesh comparison resolves: half a pixel of rasterisation, half a voxel's image
     voxel_px = float(hull.grid.size) / float(np.mean(um_per_px(P, mesh.vertices.mean(axis=0))))
     raster = 0.5 + 0.5 * voxel_px
-    sigma, edge_details = edge_sigma_px(measures[0], measures[2], raster_px=raster, hard=is_hard(silhouettes))
+    hard = is_hard(silhouettes)
+    sigma, edge_details = edge_sigma_px(measures[0], measures[2], raster_px=raster, hard=hard)
+    # The views' disagreement with the hull is judged against what the images alone explain: a σ that
+    # included the disagreement itself would raise the bar with it (silhouettes far off the hull in many
+    # views would flag none of them).
+    sigma_images, _ = edge_sigma_px(measures[0], None, raster_px=raster, hard=hard)
     edge_details["comparison_resolution_px"] = raster
+    edge_details["edge_sigma_images_px"] = sigma_images
     t1 = time.perf_counter()
     edge, edge_num = edge_component(mesh, P, sigma)
     measure_smooth, coarse = comparison_measurer(silhouettes, hull.grid, measurement.settings)
@@ -622,7 +628,7 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
                "comparison_grid_voxel_um": float(coarse.size), "comparison_grid_shape": [int(s) for s in coarse.shape],
                "comparison_nominal": list(nominal_coarse) if nominal_coarse else None, "timings_s": {"qc": t1 - t0, "budget": t2 - t1}}
     budget = combine(measurement.volume_mm3, measurement.surface_area_mm2, [edge] + cal + [grid], details)
-    result = qc.evaluate_qc(frames, silhouettes, P, mesh.vertices, mesh.faces, edge_sigma_px=sigma if np.isfinite(sigma) else None,
+    result = qc.evaluate_qc(frames, silhouettes, P, mesh.vertices, mesh.faces, edge_sigma_px=sigma_images if np.isfinite(sigma_images) else None,
                             extra_flags=extra_flags, measures=measures, raster_px=raster)
     return budget, result
 

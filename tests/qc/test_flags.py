@@ -131,3 +131,25 @@ def test_edge_offset_by_the_area_method(true_edge: float) -> None:
     off = qc.edge_offsets_px(frame, sil)
     assert off.size == 30
     assert np.mean(off) == pytest.approx(true_edge - 20.5, abs=0.02)  # + = the silhouette reaches beyond the true edge
+
+
+def test_views_off_the_hull_are_flagged_even_when_many_disagree(measured: Measured) -> None:
+    """The assessment judges the disagreement against the edge σ the images explain, not one that includes the
+    disagreement itself (which would raise the bar with it and flag none of many disagreeing views)."""
+    from vastcal import uncertainty
+    from vastcal.measure import MeasureSettings, measure_hull
+    from vastcal.reconstruct import visual_hull_in_grid
+
+    sil = measured.silhouettes.copy()
+    frames = measured.frames.copy()
+    moved = (2, 4, 6, 8)
+    for v in moved:  # four of nine views 6 px off where their cameras put them (a larva that moved between views)
+        sil[v] = np.roll(sil[v], 6, axis=0)
+        frames[v] = np.roll(frames[v], 6, axis=0)
+    s = MeasureSettings()
+    hull = visual_hull_in_grid(measured.P, sil, measured.hull.grid, min_count=s.min_count(len(sil)))  # type: ignore[attr-defined]
+    m = measure_hull(hull, s)
+    budget, res = uncertainty.assess(frames, sil, measured.P, hull, m, None, samples=0)
+    flagged = set(codes(res).get("view_disagrees", ()))
+    assert len(flagged & set(moved)) >= 3, (res.per_view["boundary_distance_px"], res.thresholds)
+    assert budget.details["edge_sigma_px"] > budget.details["edge_sigma_images_px"]  # the budget still carries the disagreement
