@@ -337,8 +337,9 @@ def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
     import dask
 
     with dask.config.set(LOCAL_WORKER_CONFIG):  # the nannies hand this configuration to their worker processes
+        # each worker's cost evaluations use its own threads only (vastcal.calibrate.threads), not every core
         cluster = LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True, memory_limit=memory,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR, env={"VASTCAL_THREADS": str(threads)})
     return Client(cluster), cluster
 
 

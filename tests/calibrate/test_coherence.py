@@ -341,3 +341,17 @@ def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full() 
     fast = obj(X)
     for i in (0, 1, 7, n + 3, 2 * n - 2):
         assert fast[i] == pytest.approx(obj(X[i:i + 1])[0], rel=1e-6, abs=1e-9)
+
+
+@pytest.mark.parametrize("per_candidate", [False, True])
+def test_threads_give_the_same_costs_bit_for_bit(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], per_candidate: bool,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """The views' slices of an evaluation run side by side (vastcal.calibrate.threads): the same numbers as one after the other."""
+    theta, pf, obj = scene
+    batch = theta[None] + np.random.default_rng(4).normal(0.0, 0.05, (6, theta.size)) * (np.arange(theta.size) != 3)
+    costs = {}
+    for threads in ("1", "3"):
+        monkeypatch.setenv("VASTCAL_THREADS", threads)
+        fresh = CoherenceObjective(obj.atlas, obj.edges, obj.K, obj.distance, obj.radius, per_candidate=per_candidate)
+        costs[threads] = (fresh(batch), fresh.residuals(batch[:1]))
+    assert np.array_equal(costs["1"][0], costs["3"][0]) and np.array_equal(costs["1"][1], costs["3"][1])

@@ -55,6 +55,7 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.sampling import Atlas
+from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.errors import AnalysisError
 from vastcal.geometry import project, rot_x, rot_y, rot_z
 
@@ -474,7 +475,8 @@ class CoherenceObjective:
 
         X holds the rays of every view, or of the views ``views`` only (n of them); P (B, N, 3, 4) are
         all cameras. The points of view i's rays are projected into its partners (:func:`partner_views`)
-        only, a few ray views at a time so that at most ``max_points`` samples are held at once.
+        only, a few ray views at a time so that at most ``max_points`` samples are held at once; the slices of
+        views run on :func:`.threads.run_slices` (bit-identical to one after the other).
         """
         b, n, r, s, _ = X.shape
         J = self.partners if self.partners is not None else partner_views(np.zeros(P.shape[1]), self.max_partners)
@@ -482,14 +484,19 @@ class CoherenceObjective:
             J = J[views]
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
-        step = max(1, self.max_points // max(1, b * r * s * k))
-        for a in range(0, n, step):
+        threads = compute_threads()
+        step = max(1, self.max_points // max(1, b * r * s * k * threads))  # the memory bound holds with every thread busy
+        step = min(step, -(-n // threads))  # at least one slice per thread
+
+        def views_slice(a: int) -> None:
             e = min(n, a + step)
             Jc = J[a:e]  # (n_c, K)
             Pc = P[:, Jc]  # (B, n_c, K, 3, 4)
             pts = X[:, a:e].reshape(b, e - a, r * s, 3).transpose(0, 1, 3, 2)  # (B, n_c, 3, R·S)
             vals = self._project_sample(Pc, pts, Jc[None])  # (B, n_c, K, R·S)
             out[:, a:e] = self._robust_min(vals.transpose(0, 2, 1, 3)).reshape(b, e - a, r, s)
+
+        run_slices(views_slice, range(0, n, step))
         return out
 
     def _project_sample(self, P: np.ndarray, pts: np.ndarray, views: np.ndarray) -> np.ndarray:
