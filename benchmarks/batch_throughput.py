@@ -4,7 +4,8 @@
 
 1. Writes N varied simulated larvae with ``benchmarks/make_battery.py`` (seeds 0 … N−1; reused when present
    in ``DIR/battery``).
-2. Sequential: ``vastcal run`` on a copy of each session, one after the other (wall time of each).
+2. Sequential: ``vastcal run`` on a copy of each session, one after the other (wall time of each); its cost
+   evaluations use the usable CPUs (``--sequential-threads 1``: one core, as each batch worker has).
 3. Batch: ``vastcal batch`` on other copies with a W-worker LocalCluster (default: one per core).
 4. Prints sessions per hour for both, the speed-up, CPU seconds per session (steadier than wall time on a
    shared machine), the peak resident memory of each worker (the table's ``worker_peak_mb``), and what a
@@ -49,6 +50,9 @@ def main() -> int:
     ap.add_argument("--starts", type=int, default=3, help="calibration starts per session (vastcal default 3)")
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster workers (default: one per core)")
     ap.add_argument("--skip-sequential", action="store_true")
+    ap.add_argument("--sequential-threads", type=int, default=None, metavar="T",
+                    help="VASTCAL_THREADS of the sequential runs (default: vastcal's own, the usable CPUs; 1: one core, "
+                         "as each batch worker has)")
     ap.add_argument("--sequential", type=int, default=None, metavar="K",
                     help="time sequential vastcal run on K evenly spread sessions only and extrapolate to N (said in the output)")
     a = ap.parse_args()
@@ -75,12 +79,16 @@ def main() -> int:
         k = min(a.sequential or len(sessions), len(sessions))  # an evenly spread sample: larvae differ in cost
         timed = [sessions[i] for i in sorted({int(round(j * (len(sessions) - 1) / max(k - 1, 1))) for j in range(k)})]
         timed_sessions = timed
+        seq_env = dict(os.environ)
+        if a.sequential_threads:
+            seq_env["VASTCAL_THREADS"] = str(a.sequential_threads)
+        print(f"  sequential vastcal run with VASTCAL_THREADS={seq_env.get('VASTCAL_THREADS', 'unset (the usable CPUs)')}", flush=True)
         for s in timed:
             copy = Path(shutil.copy(s, seq / s.name))
             t = time.monotonic()
             c = resource.getrusage(resource.RUSAGE_CHILDREN)
             code = subprocess.run(_vastcal("run", str(copy), "-o", str(seq / (s.stem + "-report")), "--starts", str(a.starts), "-q"),
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True).returncode
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=seq_env).returncode
             per_session.append(time.monotonic() - t)
             c2 = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu_seq.append(c2.ru_utime + c2.ru_stime - c.ru_utime - c.ru_stime)
