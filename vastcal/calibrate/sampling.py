@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.geometry import projection_matrices
 
 
@@ -149,9 +150,14 @@ class Projector:
         th = np.atleast_2d(theta_deg)
         b, n, m = th.shape[0], atlas.n, self.n_voxels
         out = np.empty((b, n, m), np.float32)
-        chunk = max(1, self.max_samples // max(1, n * m))
-        for s in range(0, b, chunk):
+        threads = compute_threads()
+        chunk = max(1, self.max_samples // max(1, n * m * threads))  # the memory bound holds with every thread busy
+        chunk = min(chunk, -(-b // threads))  # candidates shared among the threads (bit-identical to one after the other)
+
+        def candidates(s: int) -> None:
             out[s:s + chunk] = self._sample_chunk(atlas, th[s:s + chunk])
+
+        run_slices(candidates, range(0, b, chunk))
         return out
 
     def _sample_chunk(self, atlas: Atlas, th: np.ndarray) -> np.ndarray:
