@@ -5,7 +5,8 @@ and 360 views on the rig's 1024 × 320 ROI, and one full 1024 × 1024 frame case
 (``calibrate_session``, the rig file's settings: silhouette coherence + photometric yaw) and
 reconstructs them (``reconstruct_session``), each step in a fresh process so that its peak memory is
 its own. Prints wall time, evaluations, time per evaluation, peak memory (ru_maxrss of the process) and
-yaw / pitch errors against the simulator's truth (S.truth.json), then the growth exponent b of
+yaw / pitch errors against the simulator's truth (S.truth.json; each case's JSON line also holds the photometric
+yaw's sub-revolutions, ``yaw_views``, and each one's yaw error, ``yaw_group_errs``), then the growth exponent b of
 time ≈ a·N^b (and of peak memory) fitted over the ROI cases (b = 1: linear), and issue 20's acceptance
 figures: time(81) / time(21) of calibration (≤ 4.5), the 360-view calibration's wall time (≤ 5 min) and
 peak memory (≤ 2 GB, calibration and reconstruction), yaw / pitch errors at 81 and 360 views against 21.
@@ -158,8 +159,12 @@ def _step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_m
         cal = calibrate_session(session)
         wall, cpu = time.perf_counter() - t, _cpu_s() - c
         s = score_against_truth(session, truth)
+        photo = next((r for r in cal.level_reports if r.get("stage") == "photometric yaw"), {})
+        true_yaw = float(cal.theta_deg[0]) - s["yaw_error_deg"]
         return {"cal_s": wall, "cal_cpu_s": cpu, "evals": cal.n_evaluations, "ms_per_eval": 1e3 * cal.time_per_evaluation_s, "cal_mb": _peak_mb(),
                 "yaw_err": s["yaw_error_deg"], "pitch_err": s["pitch_error_deg"], "roll_rms": s["angle_rms_error_deg"],
+                "yaw_views": photo.get("group_views"),  # the photometric yaw's sub-revolutions and each one's yaw error
+                "yaw_group_errs": [round(y - true_yaw, 4) for y in photo.get("group_yaws_deg") or []],
                 "theta": [float(v) for v in cal.theta_deg]}
     if step == "reconstruct":
         from vastcal.pipeline import score_against_truth

@@ -17,7 +17,7 @@ import pytest
 
 from vastcal.calibrate import calibrate_views
 from vastcal.calibrate.colour_model import fit_automatic
-from vastcal.calibrate.photometric_yaw import AbsorptionMatch, absorption_images, drop_static, refine_yaw
+from vastcal.calibrate.photometric_yaw import AbsorptionMatch, absorption_images, drop_static, refine_yaw, yaw_groups
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.geometry import projection_matrices
 
@@ -87,3 +87,30 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     assert refined.scanned_yaw_deg.min() < refined.yaw_deg < refined.scanned_yaw_deg.max()
     assert refined.converged and refined.final_iterations >= 100  # the yaw stopped moving between two doublings
     assert refined.report()["final_iterations"] == refined.final_iterations
+    assert refined.group_yaws_deg is not None and refined.group_yaws_deg.size == 1  # 21 views: one reconstruction of them all
+    # split into two interleaved sub-revolutions: the last stage on each, the yaw their mean
+    split = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=10)
+    assert split is not None and split.group_yaws_deg is not None and list(split.group_views) == [9, 9]
+    assert split.yaw_deg == pytest.approx(float(np.mean(split.group_yaws_deg)))
+    assert abs(split.yaw_deg - truth["yaw_deg"]) < 0.1 and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
+
+
+def test_yaw_groups_are_interleaved_sub_revolutions_of_at_least_the_group_size() -> None:
+    angles = np.arange(81) * 360.0 / 81 + 0.3
+    groups = yaw_groups(angles, 21)
+    assert [g.size for g in groups] == [27, 27, 27]
+    assert np.array_equal(np.sort(np.concatenate(groups)), np.arange(81))
+    for g in groups:  # each spans the revolution evenly
+        assert np.allclose(np.diff(angles[g]), 3 * 360.0 / 81)
+    assert [g.size for g in yaw_groups(angles[:41], 21)] == [41]  # fewer than twice the size: all in one
+    assert [g.size for g in yaw_groups(angles, None)] == [81]
+    shuffled = np.random.default_rng(0).permutation(81)  # views in any order: grouped by angle
+    for g in yaw_groups(angles[shuffled], 21):
+        assert np.allclose(np.diff(np.sort(angles[shuffled][g])), 3 * 360.0 / 81)
+    assert [g.size for g in yaw_groups(np.arange(24) * 15.0, 21)] == [23]  # an even revolution: one view left out
+    spread = np.floor(np.arange(88) * 360 / 88)  # 88 of 360 views at 1° steps: 4 odd revolutions, none with facing views
+    groups = yaw_groups(spread, 21)
+    assert [g.size for g in groups] == [21] * 4 and np.unique(np.concatenate(groups)).size == 84
+    for g in groups:
+        facing = np.abs(np.mod(spread[g][:, None] - spread[g][None, :], 360.0) - 180.0)
+        assert facing.min() >= 0.5 * 360.0 / 21 - 2.0

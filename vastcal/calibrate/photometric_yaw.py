@@ -32,6 +32,21 @@ less than 0.01° between doublings); the rolls, pitch and γ stay at the silhoue
 stage: the yaw minimising E is biased by the voxel's size (positive on every simulated rig, growing
 with the iterations as the reconstruction converges: +0.087° at ½ width after 1600 iterations on simulated rig 8), and a yaw
 moves features along the axis image, so the voxels are fine along it; see :data:`ACROSS_WIDTH_PX`.
+One reconstruction of the last stage holds an odd regular revolution of 21 to 41 views (:data:`GROUP_VIEWS`, the
+paper's 21; :func:`yaw_groups`): a revolution of more views is split into interleaved sub-revolutions, the last
+stage runs on each, and the yaw is the mean of theirs. Odd, because views that face each other (180° apart) bias
+the yaw: a nearly orthographic camera sees the same rays from both, reversed, so their grey levels differ only
+by the yaw (features move along the axis image by ± depth × sin yaw, opposite in the two), the perspective and
+what the voxel model cannot represent, and (our reading; the mechanism is not isolated) the yaw then absorbs
+the last. Measured on
+simulated rig 3's 360-view revolution with the same silhouette θ: evenly spread subsets of 21 views −0.002°, 23 views
++0.016°, 24 views (12 facing pairs) +0.091°; four interleaved 22-view ones (nearly facing within 1°) +0.05° to
++0.10°. One reconstruction of many views also holds nearly facing pairs and leaves the voxels less freedom: all
+81 views of an 81-view revolution (simulated rigs 1–3; with the true rolls on rigs 2 and 3 within 0.01° of
+these) +0.029°, +0.082°, +0.049°, 41 of them on rig 2 +0.068° (+0.040° with voxels half as wide across), against
++0.009°, +0.021°, +0.027° for the mean of its three 27-view sub-revolutions. A single sub-revolution's yaw also
+depends on which views it holds by a few hundredths of a degree, far more than the images' noise explains (σ ≈
+0.002°), which more sub-revolutions average out; what is common to them remains.
 A Gauss–Newton over every θ on this cost found poses of lower cost than the truth (the early-stopped
 reconstruction and the voxel discretisation bias it), so the rolls are deliberately left alone.
 
@@ -79,6 +94,10 @@ class YawRefinement:
     """False when the last stage reached its iteration cap with the yaw still moving."""
     yaw_sigma_deg: float | None = None
     """The yaw's standard deviation under the images' noise at the last stage, degrees (None: not convex)."""
+    group_yaws_deg: np.ndarray | None = None
+    """The last stage's yaw on each sub-revolution, degrees (:func:`yaw_groups`; one entry: all views at once)."""
+    group_views: np.ndarray | None = None
+    """Views of each sub-revolution."""
 
     @property
     def n_evaluations(self) -> int:
@@ -91,7 +110,21 @@ class YawRefinement:
                 "n_evaluations": self.n_evaluations, "n_voxels": self.n_voxels, "map_shape": list(self.map_shape),
                 "time_s": self.time_s, "scanned_yaw_deg": self.scanned_yaw_deg.tolist(), "cost": self.cost.tolist(),
                 "width_px": self.width_px.tolist(), "iterations": None if self.iterations is None else self.iterations.tolist(),
-                "final_iterations": self.final_iterations, "converged": self.converged, "yaw_sigma_deg": self.yaw_sigma_deg}
+                "final_iterations": self.final_iterations, "converged": self.converged, "yaw_sigma_deg": self.yaw_sigma_deg,
+                "group_yaws_deg": None if self.group_yaws_deg is None else self.group_yaws_deg.tolist(),
+                "group_views": None if self.group_views is None else self.group_views.tolist()}
+
+
+@dataclass(frozen=True)
+class _Search:
+    """One search's outcome in :func:`refine_yaw` (degrees; zeros for a search of the coarse stages only)."""
+
+    yaw_deg: float
+    final_iterations: int
+    converged: bool
+    sigma_deg: float | None
+    n_voxels: int
+    map_shape: tuple[int, int]
 
 
 def drop_static(pf: np.ndarray, level: float = 0.5) -> np.ndarray:
@@ -315,6 +348,47 @@ ACROSS_WIDTH_PX = 256
 FINAL_ITERATIONS: tuple[int, int] = (50, 800)
 
 
+#: Views of one reconstruction of the last stage: a revolution of the paper's size, the size the schedule and the
+#: maps were validated at. More views are split into interleaved odd sub-revolutions of at least this many
+#: (:func:`yaw_groups`), each reconstructed on its own, and their yaws averaged. Why not one reconstruction of all
+#: of them: it holds views that (nearly) face each other, and its voxels absorb less of what they cannot represent;
+#: both move the yaw (see the module docstring).
+GROUP_VIEWS = 21
+
+
+def yaw_groups(angles_deg: np.ndarray, group_views: int | None = GROUP_VIEWS) -> list[np.ndarray]:
+    """Interleaved sub-revolutions (sorted indices) of the views at roll angles ``angles_deg`` (degrees).
+
+    g = ⌊N / group_views⌋ groups of m views each, m = ⌊N / g⌋ rounded down to an odd number: group j takes the
+    views nearest to ω_0 + (j / g + t) · 360° / m, t = 0 … m − 1, each view at most once, so that every group is a
+    regular revolution of an odd number of views, in which no two views face each other (180° apart), within
+    the spacing of the views it is drawn from. One group of all views when N is odd and below 2 · group_views,
+    or ``group_views`` is None; an even N below that gives one group of N − 1 views.
+    """
+    a = np.asarray(angles_deg, float)
+    n = a.size
+    if group_views is None or n < 2:
+        return [np.arange(n)]
+    g = max(1, n // max(int(group_views), 1))
+    m = n // g
+    m -= 1 - m % 2  # odd
+    if g == 1 and m == n:
+        return [np.arange(n)]
+    rel = np.mod(a - a[0], 360.0)
+    free = np.ones(n, bool)
+    groups = []
+    for j in range(g):
+        picked = []
+        for t in range(m):
+            d = np.abs(np.mod(rel - (j / g + t) * 360.0 / m + 180.0, 360.0) - 180.0)
+            d[~free] = np.inf
+            k = int(np.argmin(d))
+            free[k] = False
+            picked.append(k)
+        groups.append(np.sort(np.array(picked, np.intp)))
+    return groups
+
+
 def _parabola_fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float] | None:
     """(vertex, curvature c₂ of y ≈ c₂ (x − vertex)² + …) of the least-squares parabola; None when it is not convex."""
     c2, c1, _ = np.polyfit(x, y, 2)
@@ -352,7 +426,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                yaw_tolerance_deg: float = 0.01, across_width_px: int | None = ACROSS_WIDTH_PX,
                progress: Callable[[int, float], None] | None = None,
                stage: Callable[[int, int], None] | None = None, recarve: bool = False,
-               part: Callable[[str, int], None] | None = None) -> YawRefinement | None:
+               part: Callable[[str, int], None] | None = None, group_views: int | None = GROUP_VIEWS) -> YawRefinement | None:
     """The yaw that minimises E(θ) with every other entry of θ held (see the module docstring).
 
     Args:
@@ -385,6 +459,10 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         recarve: carve the voxel support anew at every stage's start yaw (default: once per map width, at the
             yaw where that width is first used — the silhouettes' yaw for the coarse maps). Measured on simulated
             rigs 4 and 8 (``benchmarks/calibrate_yaw_vs_rolls.py``): the same yaw to 0.001°, so off.
+        group_views: at least this many views in one reconstruction of the last stage (:data:`GROUP_VIEWS`): the
+            coarse stages run on the first of :func:`yaw_groups`'s odd sub-revolutions, the last stage (with its
+            convergence rule) on each, and the yaw is their yaws' mean (``yaw_sigma_deg``: the mean's noise σ); an odd
+            N below 2 · group_views is one group of all views, as before. None: one reconstruction of all views.
 
     Returns:
         The refinement, or None when the images show no absorption contrast (specimen not darker
@@ -408,115 +486,147 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         log.warning("photometric yaw: the specimen is not darker than its background (median absorption %.3g, "
                     "background noise %.3g): no absorption contrast; yaw kept at the silhouette solution", contrast, noise)
         return None
+    del images, inside
     a_img, b_img = project(P[:1], axis_probe(P))[0]
     along_u = abs(b_img[0] - a_img[0]) >= abs(b_img[1] - a_img[1])
     extent_along = w if along_u else h
     lo, hi = yaw_range_deg
     last = schedule[-1][0]
-    matches: dict[tuple[int, int], AbsorptionMatch] = {}
-    recs: dict[tuple[tuple[int, int], float], Reconstruction] = {}
-    evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations)
-    keys: list[tuple[int, int]] = []  # (width, support) of each evaluation: costs on different supports are not compared
-    final_n = int(final_iterations[0])
+    groups = yaw_groups(theta[3:], group_views)
+    n_groups = len(groups)
+    evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations), every search's
+    widths_named: set[int] = set()
 
-    def cost_at(yaw: float, width: int) -> float:
-        final = si == len(schedule) - 1
-        key = (width, si if recarve or final else 0)  # the last stage carves its own support (at its start yaw)
-        if key not in matches:
-            if stage is not None and all(k[0] != width for k in matches):
-                stage(width, sum(2 * hf + 1 for wd, _, hf in schedule if wd == width) + (1 if width == last and part is None else 0))
-            f_along = max(1.0, extent_along / float(width))
-            f_across = f_along if across_width_px is None else max(1.0, extent_along / float(across_width_px))
-            fu, fv = (f_along, f_across) if along_u else (f_across, f_along)
-            a_small, S = _resize_maps(a_full, fu, fv)
-            pf_small, _ = _resize_maps(pf_full, fu, fv)
-            th_support = theta.copy()
-            th_support[0] = centre
-            matches[key] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations,
-                                           accelerated=final)
-        rkey = (key, round(yaw, 9))
-        iterations = final_n if final else sirt_iterations
-        rec = recs.get(rkey)
-        if rec is not None and rec.iterations >= iterations:
-            return rec.cost
-        if rec is None:
-            th = theta.copy()
-            th[0] = yaw
-            rec = recs[rkey] = matches[key].start(th)
-        e = matches[key].resume(rec, iterations)
-        evaluations.append((yaw, width, e, iterations))
-        keys.append(key)
-        if progress is not None:
-            progress(len(evaluations), e)
-        log.debug("photometric yaw %+.4f° at width %d, %d iterations: E = %.6g", yaw, width, iterations, e)
-        return e
+    def expected(width: int) -> int:
+        """Evaluations expected at maps of ``width``: the coarse stages once, the last stage once per sub-revolution."""
+        k = sum((2 * hf + 1) * (n_groups if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
+        return k + (n_groups if width == last and part is None else 0)
 
-    def fit(ys: np.ndarray, es: np.ndarray) -> tuple[int, float, float | None]:
-        """(index of the lowest sample, the stage's estimate, the parabola's curvature or None)."""
-        j = int(np.argmin(es))
-        near = slice(max(0, j - 2), min(len(ys), j + 3))
-        par = _parabola_fit(ys[near], es[near]) if ys[near].size >= 3 else None
-        if par is None or not ys[near][0] <= par[0] <= ys[near][-1]:
-            return j, float(ys[j]), None
-        return j, par[0], par[1]
+    def search(views: np.ndarray, first_stage: int, centre: float, label: str) -> _Search:
+        """The schedule's stages from ``first_stage`` on the views ``views`` (indices into the arguments), from ``centre``."""
+        a_v, pf_v = a_full[views], pf_full[views]
+        th_v = np.concatenate([theta[:3], theta[3:][views]])
+        matches: dict[tuple[int, int], AbsorptionMatch] = {}
+        recs: dict[tuple[tuple[int, int], float], Reconstruction] = {}
+        own: list[tuple[tuple[int, int], float, float, int]] = []  # this search's (key, yaw, E, iterations)
+        final_n = int(final_iterations[0])
+        si = first_stage
 
-    def sample(step: float, ks: list[int], width: int) -> tuple[np.ndarray, np.ndarray, list[int], int]:
-        """The samples, extended while the lowest lies at an end (inside the box), at most twice."""
-        for _ in range(3):
-            ys = np.unique(np.clip(centre + step * np.array(ks, float), lo, hi))
-            es = np.array([cost_at(float(y), width) for y in ys])
+        def cost_at(yaw: float, width: int) -> float:
+            final = si == len(schedule) - 1
+            key = (width, si if recarve or final else 0)  # the last stage carves its own support (at its start yaw)
+            if key not in matches:
+                if stage is not None and width not in widths_named:
+                    widths_named.add(width)
+                    stage(width, expected(width))
+                f_along = max(1.0, extent_along / float(width))
+                f_across = f_along if across_width_px is None else max(1.0, extent_along / float(across_width_px))
+                fu, fv = (f_along, f_across) if along_u else (f_across, f_along)
+                a_small, S = _resize_maps(a_v, fu, fv)
+                pf_small, _ = _resize_maps(pf_v, fu, fv)
+                th_support = th_v.copy()
+                th_support[0] = centre
+                matches[key] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations,
+                                               accelerated=final)
+            rkey = (key, round(yaw, 9))
+            iterations = final_n if final else sirt_iterations
+            rec = recs.get(rkey)
+            if rec is not None and rec.iterations >= iterations:
+                return rec.cost
+            if rec is None:
+                th = th_v.copy()
+                th[0] = yaw
+                rec = recs[rkey] = matches[key].start(th)
+            e = matches[key].resume(rec, iterations)
+            evaluations.append((yaw, width, e, iterations))
+            own.append((key, yaw, e, iterations))
+            if progress is not None:
+                progress(len(evaluations), e)
+            log.debug("photometric yaw%s %+.4f° at width %d, %d iterations: E = %.6g", label, yaw, width, iterations, e)
+            return e
+
+        def fit(ys: np.ndarray, es: np.ndarray) -> tuple[int, float, float | None]:
+            """(index of the lowest sample, the stage's estimate, the parabola's curvature or None)."""
             j = int(np.argmin(es))
-            if 0 < j < len(ys) - 1 or ys[j] in (lo, hi):
-                break
-            ks = [k + (half if j else -half) for k in ks]
-        return ys, es, ks, j
+            near = slice(max(0, j - 2), min(len(ys), j + 3))
+            par = _parabola_fit(ys[near], es[near]) if ys[near].size >= 3 else None
+            if par is None or not ys[near][0] <= par[0] <= ys[near][-1]:
+                return j, float(ys[j]), None
+            return j, par[0], par[1]
 
-    centre = float(theta[0])
-    si = 0
-    converged, sigma_yaw = True, None
-    for si, (width, step, half) in enumerate(schedule):
-        ks = list(range(-half, half + 1))
-        ys, es, ks, j = sample(step, ks, width)
-        _, estimate, curvature = fit(ys, es)
-        if si == len(schedule) - 1:  # the convergence rule: double the iterations until the yaw stays put
-            m = matches[(width, si)]
-            sigma_a = background_noise(m.a.reshape(m.shape).astype(np.float32), m.pf)
-            while True:
-                if curvature is not None and sigma_a is not None:
-                    sigma_yaw = sigma_a / np.sqrt(curvature)
-                tol = max(yaw_tolerance_deg, sigma_yaw or 0.0)
-                if 2 * final_n > final_iterations[1]:
-                    converged = False
-                    break
-                final_n *= 2
-                if part is not None:
-                    part(f"{final_n} iterations (cap {final_iterations[1]})", len(ys))
+        def sample(step: float, ks: list[int], width: int) -> tuple[np.ndarray, np.ndarray, list[int], int]:
+            """The samples, extended while the lowest lies at an end (inside the box), at most twice."""
+            for _ in range(3):
+                ys = np.unique(np.clip(centre + step * np.array(ks, float), lo, hi))
                 es = np.array([cost_at(float(y), width) for y in ys])
-                ys2, es2, ks, _ = sample(step, ks, width) if int(np.argmin(es)) in (0, len(ys) - 1) else (ys, es, ks, 0)
-                ys, es = ys2, es2
-                _, moved, curvature = fit(ys, es)
-                log.debug("photometric yaw: %d iterations: %+.4f° (moved %.4f°, tolerance %.4f°)", final_n, moved, abs(moved - estimate), tol)
-                done = abs(moved - estimate) < tol
-                estimate = moved
-                if done:
+                j = int(np.argmin(es))
+                if 0 < j < len(ys) - 1 or ys[j] in (lo, hi):
                     break
-        centre = estimate
-    last_key = (last, si)
-    samples = [(y, e) for (y, _, e, it), k in zip(evaluations, keys) if k == last_key and it == final_n]
-    y_best, e_best = min(samples, key=lambda t: t[1])
-    if part is not None:
-        part("final vertex", 1)
-    if cost_at(centre, last) > e_best:  # the parabola's vertex must not be worse than a sample
-        centre = y_best
+                ks = [k + (half if j else -half) for k in ks]
+            return ys, es, ks, j
+
+        converged, sigma_yaw = True, None
+        for si in range(first_stage, len(schedule)):
+            width, step, half = schedule[si]
+            ks = list(range(-half, half + 1))
+            ys, es, ks, j = sample(step, ks, width)
+            _, estimate, curvature = fit(ys, es)
+            if si == len(schedule) - 1:  # the convergence rule: double the iterations until the yaw stays put
+                m = matches[(width, si)]
+                sigma_a = background_noise(m.a.reshape(m.shape).astype(np.float32), m.pf)
+                while True:
+                    if curvature is not None and sigma_a is not None:
+                        sigma_yaw = sigma_a / np.sqrt(curvature)
+                    tol = max(yaw_tolerance_deg, sigma_yaw or 0.0)
+                    if 2 * final_n > final_iterations[1]:
+                        converged = False
+                        break
+                    final_n *= 2
+                    if part is not None:
+                        part(f"{label.strip() + ': ' if label else ''}{final_n} iterations (cap {final_iterations[1]})", len(ys))
+                    es = np.array([cost_at(float(y), width) for y in ys])
+                    ys2, es2, ks, _ = sample(step, ks, width) if int(np.argmin(es)) in (0, len(ys) - 1) else (ys, es, ks, 0)
+                    ys, es = ys2, es2
+                    _, moved, curvature = fit(ys, es)
+                    log.debug("photometric yaw%s: %d iterations: %+.4f° (moved %.4f°, tolerance %.4f°)", label, final_n, moved,
+                              abs(moved - estimate), tol)
+                    done = abs(moved - estimate) < tol
+                    estimate = moved
+                    if done:
+                        break
+            centre = estimate
+        if si < len(schedule) - 1:  # the coarse stages only
+            return _Search(centre, 0, True, None, 0, (0, 0))
+        last_key = (last, si)
+        y_best, e_best = min(((y, e) for k, y, e, it in own if k == last_key and it == final_n), key=lambda t: t[1])
+        if part is not None:
+            part(f"{label.strip() + ': ' if label else ''}final vertex", 1)
+        if cost_at(centre, last) > e_best:  # the parabola's vertex must not be worse than a sample
+            centre = y_best
+        m = matches[last_key]
+        return _Search(float(centre), final_n, converged, None if sigma_yaw is None else float(sigma_yaw), m.n_voxels, (m.shape[1], m.shape[2]))
+
+    if n_groups == 1:  # every stage on all views
+        finals = [search(groups[0], 0, float(theta[0]), "")]
+    else:  # the coarse stages on the first sub-revolution, the last stage on each; their yaws averaged
+        log.info("photometric yaw: %d views as %d interleaved sub-revolutions of %d-%d views", n, n_groups,
+                 min(g.size for g in groups), max(g.size for g in groups))
+        coarse = search(groups[0], 0, float(theta[0]), " (coarse, sub-revolution 1)").yaw_deg if len(schedule) > 1 else float(theta[0])
+        finals = [search(g, len(schedule) - 1, coarse, f" sub-revolution {i + 1}/{n_groups}") for i, g in enumerate(groups)]
+    yaws = np.array([f.yaw_deg for f in finals])
+    centre = float(np.clip(yaws.mean(), lo, hi))
+    sigmas = [f.sigma_deg for f in finals]
+    sigma = None if any(s is None for s in sigmas) else float(np.sqrt(np.sum(np.square(sigmas)))) / n_groups
     ev = np.array(evaluations, float)
-    result = YawRefinement(float(centre), float(theta[0]), ev[:, 0], ev[:, 2], ev[:, 1].astype(int), matches[last_key].n_voxels,
-                           (matches[last_key].shape[1], matches[last_key].shape[2]), time.monotonic() - t0,
-                           iterations=ev[:, 3].astype(int), final_iterations=final_n, converged=converged,
-                           yaw_sigma_deg=None if sigma_yaw is None else float(sigma_yaw))
+    result = YawRefinement(centre, float(theta[0]), ev[:, 0], ev[:, 2], ev[:, 1].astype(int), finals[-1].n_voxels, finals[-1].map_shape,
+                           time.monotonic() - t0, iterations=ev[:, 3].astype(int), final_iterations=max(f.final_iterations for f in finals),
+                           converged=all(f.converged for f in finals), yaw_sigma_deg=sigma,
+                           group_yaws_deg=yaws, group_views=np.array([g.size for g in groups]))
     if centre in (lo, hi):
         log.warning("photometric yaw: the best yaw %+.3f° lies on the search box's edge", centre)
-    if not converged:
-        log.warning("photometric yaw: the yaw still moved by more than %.3g° at the cap of %d iterations", yaw_tolerance_deg, final_n)
-    log.info("photometric yaw: %+.4f° → %+.4f° (%d reconstructions, %d iterations at the last stage%s, %d voxels at the finest, %.1f s)",
-             result.start_yaw_deg, result.yaw_deg, result.n_evaluations, final_n, "" if converged else " (cap)", result.n_voxels, result.time_s)
+    if not result.converged:
+        log.warning("photometric yaw: the yaw still moved by more than %.3g° at the cap of %d iterations", yaw_tolerance_deg, result.final_iterations)
+    log.info("photometric yaw: %+.4f° → %+.4f° (%d reconstructions, %d iterations at the last stage%s, %d voxels at the finest%s, %.1f s)",
+             result.start_yaw_deg, result.yaw_deg, result.n_evaluations, result.final_iterations, "" if result.converged else " (cap)",
+             result.n_voxels, "" if n_groups == 1 else ", mean of " + " ".join(f"{y:+.4f}°" for y in yaws), result.time_s)
     return result

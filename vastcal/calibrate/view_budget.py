@@ -6,7 +6,10 @@ linearly with the number of views. The photometric yaw (:mod:`.photometric_yaw`)
 absorption maps and a sparse projection matrix of every view it uses (~4 entries per voxel and view);
 at 360 views that is several GB. It therefore uses an evenly spread subset of the views — as many as
 ``calibration.memory_mb`` leaves room for, all of them when they fit — which still spans the whole
-revolution (the yaw is a property of the axis, seen by every view alike).
+revolution (the yaw is a property of the axis, seen by every view alike). It reconstructs them as interleaved
+odd sub-revolutions of 21 or more views, one at a time (:func:`.photometric_yaw.yaw_groups`), so the per-view estimate
+below, which counts every used view's share of one projection matrix, is conservative beyond 41 views: it keeps
+the yaw's time, not only its memory, near what it was when all views were reconstructed at once.
 
 The specimen maps (:func:`.silhouettes.specimen_maps`) need a whole revolution at once — static bands
 and capillary walls are what (almost) every view shows, a rigid body occupies the same columns in every
