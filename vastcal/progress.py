@@ -6,8 +6,10 @@ one at every ``step_pct`` percent and one when it ends — no carriage returns, 
 
 The ETA of a phase (:class:`PhaseEta`) is its forecast work left times the time per unit of work
 measured over the recent half of the phase (a phase that reports ``work=(done, left)``: a CMA-ES
-level's evaluations, forecast from its step's way down to ``tolx`` and its budget, or up to the generation a
-level that hands over to a finer one planned to end at; the polish's sweeps; :mod:`vastcal.calibrate.forecast`),
+level's generations left — forecast from its step's way down to ``tolx`` and its budget, or up to the generation a
+level that hands over to a finer one planned to end at — in seconds of the search, at the measured time of a
+generation with and without the coherence cost's full search and with the full searches still expected; the
+polish's sweeps; :mod:`vastcal.calibrate.forecast`),
 or else its remaining fraction over the rate of the recent half (the photometric yaw's share of its
 reconstructions at one map width or in one doubling of its last stage). One-off set-up before a phase's first
 report does not count in its rate.
@@ -41,12 +43,12 @@ def format_duration(seconds: float) -> str:
 class PhaseEta:
     """ETA of one phase from (time, fraction done) samples, or from its work done and forecast left.
 
-    A phase that knows its work in units of about equal time (a CMA-ES level's evaluations, the polish's sweeps,
-    files, views) reports ``work=(done, left)``: the ETA is ``left`` × the time per unit measured over the recent
-    half of the time since the phase's first report. Otherwise the rate is the fraction gained over that
-    recent half. Either way a slow start (one-off set-up before the first report, a search that first
-    explores) does not inflate the estimate once the phase runs steadily, and the ETA is the raw estimate
-    of the latest report (no smoothing that could freeze it). Before two reports with progress: unknown (NaN).
+    A phase that knows its work in units of about equal time (a CMA-ES level's seconds of search, forecast from
+    its generations of two measured costs; the polish's sweeps; files, views) reports ``work=(done, left)``: the
+    ETA is ``left`` × the time per unit measured over the recent half of the time since the phase's first report.
+    Otherwise the rate is the fraction gained over that recent half. Either way a slow start (one-off set-up
+    before the first report, a search that first explores) does not inflate the estimate once the phase runs
+    steadily, and the ETA is the raw estimate of the latest report (no smoothing that could freeze it). Before two reports with progress: unknown (NaN).
     """
 
     def __init__(self, t0: float) -> None:

@@ -176,6 +176,47 @@ def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_ne
     assert tolx_quantities(Es(), 1.0 / np.array([1.0, 8.0, 1.0])) == pytest.approx((2.0, 2.0))
 
 
+def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_the_time_left() -> None:
+    from vastcal.calibrate.forecast import GenerationTime
+
+    research = np.array([0.01, 0.01, np.inf])  # the third coordinate is not watched
+    gt = GenerationTime(research, popsize=10)
+    rng = np.random.default_rng(1)
+    m = np.zeros(3)
+    fulls = []
+    for g in range(30):  # the step shrinks 20 % per generation from 10x the threshold; the mean walks by a step
+        step = np.full(3, 0.1 * 0.8 ** g)
+        m = m + step * rng.normal(size=3)
+        b = m + step / np.sqrt(10) * rng.normal(size=3)
+        before = None if gt.searched_at is None else gt.searched_at.copy()
+        gt.add(b, m, step, 3.0 if (before is None or np.any(np.abs(b - before)[:2] > 0.01)) else 1.0)  # "seconds": made up
+        fulls.append(gt.full[-1])
+        assert gt.full[-1] == (before is None or bool(np.any(np.abs(b - before)[:2] > 0.01)))
+    assert fulls[:5] == [True] * 5 and not any(fulls[-5:])  # a wide step searches every generation, a narrow one never
+    assert gt.time_model() == pytest.approx((1.0, 2.0, 0.0), abs=1e-9) and gt.done == sum(3.0 if f else 1.0 for f in fulls)
+    done, left = gt.work(10)
+    assert done == gt.done and left == pytest.approx(11.0, abs=0.5)  # 10 generations and the tail, hardly a full search
+    wide = GenerationTime(research, popsize=10)
+    for g in range(12):  # a step that stays 10x the threshold: every generation ahead searches in full
+        wide.add(np.full(3, 0.1 * g), np.full(3, 0.1 * g), np.full(3, 0.1), 3.0 if g % 2 else 1.0)
+    assert wide.expected_full(10) == pytest.approx(10.0, abs=0.2)
+    assert math.isnan(wide.work(math.nan)[1])
+    slides = GenerationTime(np.full(2, 0.01), popsize=10)
+    for g in range(20):  # time 1 + 0.5 per threshold of step (no full search after the first): the time falls with the step
+        st = 0.05 * 0.8 ** g
+        slides.add(np.zeros(2), np.zeros(2), np.full(2, st), 1.0 + 0.5 * st / 0.01 + (3.0 if g == 7 else 0.0))  # one stall
+    assert slides.full == [True] + [False] * 19
+    assert slides.time_model() == pytest.approx((1.0, 0.0, 0.5))  # the stall left out
+    r = 0.05 * 0.8 ** 19 / 0.01
+    assert slides.work(5)[1] == pytest.approx(6.0 + 0.5 * r * sum(0.8 ** k for k in range(1, 6)), rel=1e-6)
+    steep = GenerationTime(np.full(2, 0.01), popsize=10)
+    for g in range(15):  # time cubic in a step that stays far from 0: a line through it would cross 0 before the step does
+        st = 0.1 * 0.95 ** g
+        steep.add(np.zeros(2), np.zeros(2), np.full(2, st), 1.0 + (st / 0.01) ** 3)
+    alpha, _, gamma = steep.time_model()
+    assert alpha > 0 and gamma == 0.0 and steep.work(30)[1] > 0  # no floor below 0: the step's part is left out
+
+
 def test_polish_forecast_expects_more_sweeps_after_a_move_and_none_after_the_last() -> None:
     from vastcal.calibrate.forecast import PolishForecast
 

@@ -17,6 +17,7 @@ is where the speed comes from (no Python loop over candidates or views).
 from __future__ import annotations
 
 import logging
+import math
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -24,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from vastcal.calibrate.forecast import CMAStopForecast, tolx_quantities
+from vastcal.calibrate.forecast import CMAStopForecast, GenerationTime, tolx_quantities
 
 log = logging.getLogger(__name__)
 
@@ -63,13 +64,15 @@ RESTARTS = ("none", "ipop", "bipop")
 
 def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, opts: dict,
              progress: Callable[[int, float], None] | None, evals_before: int,
-             convergence: Callable[[int, float], None] | None = None, spend_budget: bool = False,
-             resolution: np.ndarray | None = None) -> CMAResult:
+             convergence: Callable[[float, float], None] | None = None, spend_budget: bool = False,
+             resolution: np.ndarray | None = None, research: np.ndarray | None = None) -> CMAResult:
     """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept.
     ``convergence`` (optional) is told every generation (evaluations so far, counting ``evals_before``; the
     evaluations forecast left, :class:`.forecast.CMAStopForecast`; ``spend_budget``: restarts follow until the
     budget is spent, so the budget left is the forecast). ``resolution`` (F,) box units: the run ends at the
-    generation planned for its step to fall below it in every coordinate (stop reason ``resolution``)."""
+    generation planned for its step to fall below it in every coordinate (stop reason ``resolution``). ``research``
+    (F,) box units: the objective repeats a costly search when its batch's mean moves more than this; ``convergence``
+    is then told work in seconds of the search (:class:`.forecast.GenerationTime`), not evaluations."""
     res = CMAResult(x0.copy(), float("inf"), 0, 0, {})
     if resolution is not None:  # the resolution replaces tolx: one stopping rule, whose moment the plan knows
         opts = dict(opts, tolx=0.0)
@@ -77,11 +80,18 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
     per_unit = None if resolution is None else 1.0 / np.maximum(np.asarray(resolution, float), 1e-300)
     forecast = CMAStopForecast(float(opts["tolx"]) if per_unit is None else 1.0, float(opts.get("maxfevals", 0)), int(es.popsize),
                                spend_budget=spend_budget, planned=per_unit is not None)
+    timing = GenerationTime(research, int(es.popsize)) if research is not None and convergence is not None and not spend_budget else None
     planned_end = False
+    t_prev = time.monotonic()
     while not es.stop() and not planned_end:
         X = np.asarray(es.ask())
         f = np.asarray(objective(X), float)
         es.tell(list(X), list(f))
+        if timing is not None:
+            now = time.monotonic()
+            timing.add(X.mean(axis=0), np.clip(np.asarray(es.mean, float), -1.0, 1.0),
+                       float(es.sigma) * np.asarray(es.sigma_vec.scaling) * np.sqrt(np.asarray(es.dC)), now - t_prev)
+            t_prev = now
         res.n_evaluations += len(X)
         res.n_generations += 1
         i = int(np.argmin(f))
@@ -94,7 +104,10 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
             left = forecast.add(quantity, res.n_evaluations, step)
             planned_end = forecast.planned_end()
             if convergence is not None:
-                convergence(evals_before + res.n_evaluations, left)
+                if timing is None:
+                    convergence(evals_before + res.n_evaluations, left)
+                else:  # in seconds of the search (generations of two kinds of cost), the re-scores' tail included
+                    convergence(*timing.work((left - es.popsize) / es.popsize if left == left else math.nan))
         if progress is not None:
             progress(evals_before + res.n_evaluations, res.f_best)
     res.stop = dict(es.stop())
@@ -118,7 +131,8 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
 def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, stds: np.ndarray, *, seed: int,
              max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
              progress: Callable[[int, float], None] | None = None, restarts: str = "none",
-             convergence: Callable[[int, float], None] | None = None, resolution: np.ndarray | None = None) -> CMAResult:
+             convergence: Callable[[float, float], None] | None = None, resolution: np.ndarray | None = None,
+             research: np.ndarray | None = None) -> CMAResult:
     """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
 
     Args:
@@ -135,12 +149,18 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             populations and σ0 × 10^(−2u), u ~ U(0, 1), while the small regime has used less budget than the
             large). The best run (re-scored alone) is returned; ``stop`` holds every run's reasons.
         convergence: told (evaluations so far, evaluations forecast left) every generation, before ``progress``
+            (seconds of search instead with ``research``)
             (for a progress bar's ETA: :class:`.forecast.CMAStopForecast`, :meth:`ProgressClock.forecast`).
         resolution: (F,) per-coordinate step (box units) fine enough for the caller (e.g. a coarse level's: the step that
             moves the image less than the next level starts its search with); None: off. Without restarts the run ends
             at the generation its step's descent, fitted and frozen a third of the way, reaches it (stop ``resolution``;
             :class:`.forecast.CMAStopForecast`; it replaces ``tolx``), or earlier on cma's other criteria or the budget.
             Ignored with restarts (they spend the budget).
+        research: (F,) box units: the objective repeats a costly search whenever the mean of a batch it is given has
+            moved more than this in some coordinate since the last one (the coherence cost's ``research_deg`` over each
+            coordinate's half-width; ``inf``: not watched). ``convergence`` is then told work in seconds of the search:
+            the generations' measured time, and the generations left at the measured time of each kind with the full
+            searches forecast among them (:class:`.forecast.GenerationTime`). Ignored with restarts.
     """
     cma = _cma()
     if restarts not in RESTARTS:
@@ -149,7 +169,8 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
         inner = objective
         r = minimise(lambda X: inner(np.asarray(X)[:, :1]), np.r_[np.ravel(x0), 0.0], sigma0, np.r_[np.ravel(stds), 1.0], seed=seed,
                      max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress, restarts=restarts,
-                     convergence=convergence, resolution=None if resolution is None else np.r_[np.ravel(resolution), np.inf])
+                     convergence=convergence, resolution=None if resolution is None else np.r_[np.ravel(resolution), np.inf],
+                     research=None if research is None else np.r_[np.ravel(research), np.inf])
         r.x_best = r.x_best[:1]
         return r
     base = {"bounds": [-1.0, 1.0], "CMA_stds": list(np.asarray(stds, float)), "tolx": float(tolx), "tolfun": float(tolfun),
@@ -181,7 +202,7 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             elif lam0:
                 opts["popsize"] = lam0
             r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence, spend_budget=restarts != "none",
-                         resolution=resolution if restarts == "none" else None)
+                         resolution=resolution if restarts == "none" else None, research=research if restarts == "none" else None)
             if k == 0:
                 lam0 = lam_large = r.popsize  # type: ignore[attr-defined]
             used[regime] += r.n_evaluations
@@ -226,7 +247,7 @@ class ProgressClock:
 
     def forecast(self, done: float, left: float) -> None:
         """The current phase's work done and forecast left, in units of about equal time each (a CMA-ES level's
-        evaluations, the polish's sweeps; :mod:`.forecast`): the ETA is ``left`` × the time per unit measured in the phase
+        evaluations, or seconds of its search when its generations differ in cost; the polish's sweeps; :mod:`.forecast`): the ETA is ``left`` × the time per unit measured in the phase
         (``left`` NaN: unknown for now, no ETA shown)."""
         self._work = (float(done), max(float(left), 0.0) if left == left else float("nan"))  # NaN: unknown for now
 

@@ -417,6 +417,14 @@ class _Start:
     n_voxels: int
 
 
+def _research_deg(obj: Any) -> float | None:
+    """The θ move (degrees, any entry) of a batch's mean after which ``obj`` repeats its full search along the rays
+    (the least of a sum's parts); None when it has no such rule (other costs, or every candidate searched alone)."""
+    parts = getattr(obj, "parts", None) or [obj]
+    found = [float(p.research_deg) for p in parts if getattr(p, "research_deg", None) is not None and not getattr(p, "per_candidate", False)]
+    return min(found) if found and len(found) == len(parts) else None
+
+
 def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before: int) -> _Start:
     """One coarse-to-fine CMA-ES run from θ0 with ``seed``."""
     space, settings = problem.space, problem.settings
@@ -454,10 +462,13 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
                 stds = np.clip(motion.min() / motion, 1e-3, 1.0)
             if lv.max_initial_step_px:
                 stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
+        research_deg = _research_deg(obj)  # its generations' cost differs with the search it repeats: the ETA counts them
+        research = None if research_deg is None else research_deg / space.half_width[space.free_mask][sel]
         clock.name_phase(lv.max_evaluations, name)  # the search: its ETA from the CMA-ES stop forecast
         res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
                        tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize, restarts=settings.restarts,
-                       progress=lambda e, f, _b=base: clock.update(_b + e, f), convergence=clock.forecast, resolution=resolution)
+                       progress=lambda e, f, _b=base: clock.update(_b + e, f), convergence=clock.forecast, resolution=resolution,
+                       research=research)
         x = x.copy()
         x[sel] = res.x_best
         dt = time.monotonic() - t_lv
