@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Callable, NoReturn, Sequence
 
 # The calibration's BLAS products are tiny (3 × 3K by 3 × M): OpenBLAS's own threads only contend with the cost's
-# slices (vastcal.calibrate.threads) and OpenCV's — ZF1 calibrated 14 % slower with them on 2 cores. Set before NumPy
+# slices (vastcal.calibrate.threads) and OpenCV's (docs/history.md, 2026-11-26). Set before NumPy
 # loads (nothing above imports it); a value the user set is kept.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 

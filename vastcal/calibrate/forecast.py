@@ -24,11 +24,8 @@ not known in advance, and of a CMA-ES generation's time:
   run reach a third (:attr:`CMAStopForecast.PLAN_AT`) of the forecast run's length, then frozen, and the run ends
   at the frozen generation (:meth:`CMAStopForecast.planned_end`). The end is then known over the whole second
   half of the run. Why not stop on the crossing itself: the step's way down is a noisy random walk with a drift,
-  and its first passage below any tolerance is random near the end (replayed on 27 traced first-level runs of
-  simulated rigs 1-9: the crossing's forecast 25-35 % median error, 100-200 % worst, whatever the tolerance or fit
-  window); frozen at a third, the step at the end was 1-24× the tolerance (median 2.4×; a tolerance of half the next
-  level's initial step) on the same traces — the descent slows down, the fit over the recent half extrapolates it a
-  little steep.
+  and its first passage below any tolerance is random near the end, so no forecast of it holds near the end
+  (measured: docs/calibration.md, "Where a coarse level hands over").
 * :class:`GenerationTime` — seconds left in a CMA-ES run whose generations cost unequal time: the coherence cost
   repeats its full search along the rays when the batch mean has moved more than ``research_deg``, which a wide
   population's mean does every generation and a narrow one's hardly ever, so a level's time per generation falls

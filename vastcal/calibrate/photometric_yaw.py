@@ -37,16 +37,10 @@ paper's 21; :func:`yaw_groups`): a revolution of more views is split into interl
 stage runs on each, and the yaw is the mean of theirs. Odd, because views that face each other (180° apart) bias
 the yaw: a nearly orthographic camera sees the same rays from both, reversed, so their grey levels differ only
 by the yaw (features move along the axis image by ± depth × sin yaw, opposite in the two), the perspective and
-what the voxel model cannot represent, and (our reading; the mechanism is not isolated) the yaw then absorbs
-the last. Measured on
-simulated rig 3's 360-view revolution with the same silhouette θ: evenly spread subsets of 21 views −0.002°, 23 views
-+0.016°, 24 views (12 facing pairs) +0.091°; four interleaved 22-view ones (nearly facing within 1°) +0.05° to
-+0.10°. One reconstruction of many views also holds nearly facing pairs and leaves the voxels less freedom: all
-81 views of an 81-view revolution (simulated rigs 1–3; with the true rolls on rigs 2 and 3 within 0.01° of
-these) +0.029°, +0.082°, +0.049°, 41 of them on rig 2 +0.068° (+0.040° with voxels half as wide across), against
-+0.009°, +0.021°, +0.027° for the mean of its three 27-view sub-revolutions. A single sub-revolution's yaw also
-depends on which views it holds by a few hundredths of a degree, far more than the images' noise explains (σ ≈
-0.002°), which more sub-revolutions average out; what is common to them remains.
+what the voxel model cannot represent, and the yaw then absorbs the last; one reconstruction of many views also
+holds nearly facing pairs and leaves the voxels less freedom. A single sub-revolution's yaw depends on which views
+it holds by more than the images' noise explains, which more sub-revolutions average out. The measurements behind
+this: docs/calibration.md, "The photometric yaw with many views".
 A Gauss–Newton over every θ on this cost found poses of lower cost than the truth (the early-stopped
 reconstruction and the voxel discretisation bias it), so the rolls are deliberately left alone.
 
@@ -97,7 +91,7 @@ class YawRefinement:
     group_yaws_deg: np.ndarray | None = None
     """The last stage's yaw on each sub-revolution, degrees (:func:`yaw_groups`; one entry: all views at once)."""
     group_views: np.ndarray | None = None
-    """Views of each sub-revolution."""
+    """Number of views of each sub-revolution."""
 
     @property
     def n_evaluations(self) -> int:

@@ -138,9 +138,8 @@ class CalibrationSettings:
             times the least image motion per box unit of any free coordinate): it need not resolve finer than the next
             level searches anyway. The end is planned from the step's descent and frozen a third of the way in
             (:func:`.optimise.minimise`'s ``resolution``, which replaces ``tolx`` there), so the progress bar knows it.
-            0: on ``tolx`` only. A tenth, because the last level ends on its budget, not converged, and keeps some of
-            the first level's error: with a half (the first level then ran ~45 % fewer evaluations) the photometric
-            yaw came out 0.020° from the truth on average over simulated rigs 1-8 instead of 0.014°.
+            0: on ``tolx`` only. A tenth rather than a half, because the last level ends on its budget, not converged,
+            and keeps some of the first level's error (docs/calibration.md, "Where a coarse level hands over").
         restarts: CMA-ES restarts within every level (:func:`.optimise.minimise`): ``"none"``, ``"ipop"`` or
             ``"bipop"``; with restarts a level spends its whole ``max_evaluations`` (restarts until it is used).
             Off by default: on ETH David at equal evaluations (``benchmarks/calibrate_restarts.py``) it did not lower
