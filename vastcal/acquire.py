@@ -131,6 +131,7 @@ def acquire(
     progress: ProgressFn | None = None,
     start_info: dict[str, Any] | None = None,
     on_view: Callable[[int], None] | None = None,
+    phase: Callable[[str], None] | None = None,
 ) -> AcquisitionResult:
     """Acquire one revolution into ``output`` (or continue it with ``resume=True``).
 
@@ -145,6 +146,9 @@ def acquire(
         progress: called after each view with (done, planned, elapsed s).
         start_info: extra attributes for the start record.
         on_view: called with the view index after it is written (used by simulators' truth).
+        phase: called with the name of each step as it begins (a progress display's phases): ``preparing the
+            camera and stage`` (settings, homing when the stage has no reference, the stream's start), ``acquiring N
+            views`` (then ``progress`` after each) and ``finishing the session`` (the stream's stop, the stop record).
 
     Raises:
         OutputExistsError: ``output`` exists, without ``force`` or ``resume``.
@@ -153,6 +157,8 @@ def acquire(
     cancel = cancel or threading.Event()
     out = Path(output)
     state = RunState.PREPARING
+    if phase:
+        phase("preparing the camera and stage")
     cycle = stage.usteps_per_revolution
     if resume:
         with Session.open(out) as s:
@@ -186,6 +192,8 @@ def acquire(
             stage.home(cancel)
         camera.start()
         state = RunState.ACQUIRING
+        if phase:
+            phase(f"acquiring {plan.views - first_index} views" + (f" (resuming at view {first_index + 1} of {plan.views})" if first_index else ""))
         for k in range(first_index, plan.views):
             if cancel.is_set():
                 raise AcquisitionAborted("cancelled by the operator")
@@ -222,6 +230,8 @@ def acquire(
         _safe(stage.stop, "stopping the stage")
     finally:
         state = RunState.FINISHING
+        if phase:
+            phase("finishing the session")
         _safe(camera.stop_stream, "stopping the camera stream")
         if writer is not None:
             result.views_written = writer.n_views

@@ -54,7 +54,9 @@ log = logging.getLogger("vastcal")
 
 
 def _progress(args: argparse.Namespace, label: str, unit: str = "") -> CountProgress:
-    return CountProgress(label, unit, enabled=not args.quiet)  # rich on a terminal, plain lines in logs; ETA per item measured
+    """The progress of a counted task (import, acquire): its named phases (the library's ``phase`` callback) on stderr,
+    rich on a terminal, plain lines in logs; the counted phase's ETA from the time per item measured."""
+    return CountProgress(label, unit, enabled=not args.quiet)
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -68,7 +70,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     try:
         out = import_folder(args.folder, args.output, masks=args.masks, angles=args.angles, cameras=args.cameras,
                             pixel_origin=args.pixel_origin, roi_offset=tuple(args.roi_offset) if args.roi_offset else None,
-                            config=cfg, force=args.force, progress=lambda d, t: bar.update(d, t), length_unit=args.length_unit,
+                            config=cfg, force=args.force, progress=lambda d, t: bar.update(d, t), phase=bar.phase, length_unit=args.length_unit,
                             pixel_size_um=args.pixel_size_um, name=args.name)
     finally:
         bar.close()
@@ -176,9 +178,10 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     cancel = _cancel_on_signals()
     bar = _progress(args, "acquire", "views")
     try:
+        bar.phase("connecting to the rig")
         with connect_rig(cfg, truth_path=_truth_path(Path(out))) as rig:
             result = acquire(rig.stage, rig.camera, cfg, out, views=args.views, resume=bool(args.resume), force=args.force,
-                             cancel=cancel, progress=lambda d, t, e: bar.update(d, t, elapsed_s=e), start_info={**(rig.start_info or {}), **({"specimen": specimen} if specimen else {})},
+                             cancel=cancel, progress=lambda d, t, e: bar.update(d, t, elapsed_s=e), phase=bar.phase, start_info={**(rig.start_info or {}), **({"specimen": specimen} if specimen else {})},
                              on_view=rig.on_view)
     finally:
         bar.close()

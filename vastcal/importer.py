@@ -447,6 +447,7 @@ def import_folder(
     config: RigConfig | None = None,
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    phase: Callable[[str], None] | None = None,
     length_unit: str | None = None,
     pixel_size_um: float | None = None,
     name: str | None = None,
@@ -468,6 +469,9 @@ def import_folder(
             the images (principal point at their centre).
         force: overwrite ``output`` if it exists.
         progress: called with (views done, views total).
+        phase: called with the name of each step as it begins (a progress display's phases): ``reading NAME`` (the
+            file list or stack, masks, angles, cameras, checks), ``copying N views`` (then ``progress`` after each)
+            and ``finishing the session`` (masks, cameras, the stop record).
         length_unit: the cameras' world unit (nm, um, mm, cm, m); default: µm when their distance to the axis
             matches ``config``'s working distance, else unknown (:func:`camera_length_unit`); stored as the
             cameras' ``length_unit`` attribute for calibration and measurement.
@@ -488,6 +492,8 @@ def import_folder(
                               f"(the coordinate of the first pixel's centre, --pixel-origin), got {pixel_origin}")
     if name is not None and (not name.strip() or len(name) > 200 or any(c in name for c in "\n\r\0")):
         raise ImportDataError(f"--name: expected a specimen name of 1 to 200 characters on one line, got {name[:60]!r}")
+    if phase:
+        phase(f"reading {folder.name or folder}")
     views = read_views(folder)
     n = len(views)
     h, w = views.shape[:2]
@@ -563,10 +569,14 @@ def import_folder(
     with SessionWriter.create(out, frame_shape=views.shape, dtype=views.dtype, rig_yaml=dump_config(cfg), plan=plan,
                               pixel_size_um=(pixel_um, pixel_um), roi_offset_px=roi_offset, title=title,
                               start_info=start_info, force=force, live=False) as writer:
+        if phase:
+            phase(f"copying {n} views")
         for i in range(n):
             writer.append_view(views.view(i), float(angle_values[i]))
             if progress:
                 progress(i + 1, n)
+        if phase:
+            phase("finishing the session")
         if mask_stack is not None:
             writer.write_masks(mask_stack)
         if P_given is not None:

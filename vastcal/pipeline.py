@@ -198,8 +198,10 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
 
 
 def acquire_simulated(cfg: Any, session: Path, *, views: int | None = None, force: bool = False,
-                      progress: Callable[[int, int, float], None] | None = None) -> Path:
+                      progress: Callable[[int, int, float], None] | None = None, phase: Callable[[str], None] | None = None) -> Path:
     """Acquire one revolution from the simulated rig ``cfg`` into ``session``; return its truth file.
+
+    ``progress`` (views done, planned, elapsed s) and ``phase`` (each step's name) as :func:`vastcal.acquire.acquire`'s.
 
     The hidden truth goes to ``S.truth.json`` beside the session, never inside it.
 
@@ -210,9 +212,11 @@ def acquire_simulated(cfg: Any, session: Path, *, views: int | None = None, forc
     from vastcal.rig import connect_rig
 
     truth_path = session.with_name(session.stem + ".truth.json")
+    if phase:
+        phase("connecting to the rig")
     with connect_rig(cfg, truth_path=truth_path) as rig:
         result = acquire(rig.stage, rig.camera, cfg, session, views=views, force=force, cancel=threading.Event(),
-                         progress=progress, start_info=rig.start_info, on_view=rig.on_view)
+                         progress=progress, phase=phase, start_info=rig.start_info, on_view=rig.on_view)
     if result.exit_status != "success":
         raise VastcalError(f"{session}: simulated acquisition {result.exit_status}: {result.reason}")
     return truth_path
@@ -252,7 +256,7 @@ def demo(output_dir: str | Path = "vastcal-demo", *, views: int | None = None, f
     t = time.monotonic()
     try:
         truth_path = acquire_simulated(load_config(None), session, views=views, force=force,
-                                       progress=lambda d, n, e: bar.update(d, n, elapsed_s=e))
+                                       progress=lambda d, n, e: bar.update(d, n, elapsed_s=e), phase=bar.phase)
     finally:
         bar.close()
     acquire_s = time.monotonic() - t
