@@ -309,17 +309,34 @@ def test_displacement_bound_moves_each_roll_alone() -> None:
 
 
 def test_photometric_views_fit_the_budget() -> None:
-    from vastcal.calibrate.view_budget import evenly_spread_views, photometric_views
+    from vastcal.calibrate.view_budget import evenly_spread_views, photometric_bytes, photometric_views
 
     angles = np.arange(360) * 1.0
     sub = evenly_spread_views(angles, 40)
     assert len(sub) == 40 and sub[0] == 0 and np.all(np.diff(sub) == 9)
     assert np.array_equal(evenly_spread_views(angles[:21], 40), np.arange(21))
-    # 1024 × 320 frames, 130 000 voxels: ~16 MB a view; 1 GB free holds ~63 of them, never fewer than 21
+    # 1024 × 320 frames, 130 000 voxels: 1 GB free holds ~110 views (8.5 MB each to set up, ~20 MB more for each view
+    # of the sub-revolution being reconstructed), never fewer than 21
     k = len(photometric_views(angles, (320, 1024), 130_000, memory_mb=1500, used_mb=500))
-    assert 50 <= k <= 75
+    assert 90 <= k <= 130
+    assert photometric_bytes(k, (320, 1024), 130_000) <= 1000 * 2**20
+    # full 1024 × 1024 frames: 28 MB a view to set up, ~42 MB a view while 21-41 views are reconstructed at once
+    assert 40 <= len(photometric_views(angles, (1024, 1024), 72_000, memory_mb=1536, used_mb=320)) <= 45
     assert len(photometric_views(angles, (320, 1024), 130_000, memory_mb=600, used_mb=500)) == 21
     assert len(photometric_views(angles[:60], (320, 1024), 130_000, memory_mb=16000, used_mb=500)) == 60
+
+
+def test_photometric_bytes_count_one_sub_revolution_beside_every_view() -> None:
+    """Beyond 41 views the yaw reconstructs sub-revolutions of 21-41 views one at a time: only their share of the
+    matrices grows with the views' own share, every view's held maps (1024 × 1024 frames, 72 000 voxels)."""
+    from vastcal.calibrate.view_budget import photometric_bytes
+
+    shape, vox = (1024, 1024), 72_000
+    per_view_41 = photometric_bytes(41, shape, vox) / 41
+    assert photometric_bytes(21, shape, vox) == pytest.approx(21 * per_view_41)  # one group: every view reconstructed
+    assert photometric_bytes(63, shape, vox) < 63 * per_view_41  # three groups of 21, one at a time
+    assert photometric_bytes(63, shape, vox) >= 63 * 28.0 * 2**20  # never below every view's set-up
+    assert photometric_bytes(0, shape, vox) == 0.0
 
 
 def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full() -> None:

@@ -329,6 +329,13 @@ class _Problem:
         self._region0: tuple[Any, np.ndarray, Any] | None = None  # (region, K, coarse silhouettes) of level 0
         self._atlas: tuple[int, Any] | None = None  # (level, signed-distance atlas): one per level, shared by its objectives
 
+    def release_maps(self) -> None:
+        """Drop the maps the levels are made from (posteriors, rough silhouettes, the coarse level's carving): once the
+        last level's objectives are made nothing needs them (each objective holds what it reads, e.g. its level's atlas).
+        :meth:`level_objective` cannot be called afterwards (AttributeError)."""
+        del self.pf, self.sil_src
+        self._region0 = None
+
     def level_objective(self, li: int, x: np.ndarray, *, exact: bool = False) -> tuple[Any, Any, np.ndarray, tuple[int, ...]]:
         """(objective, region, K of the level, map shape) of level ``li`` built around the free coordinates ``x``.
 
@@ -692,6 +699,13 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
                                     "cma_levels_converged": level_converged, "scored_costs": scored}
     reports.append(judge_report)
     trace = [t for r in runs for t in r.trace] + [(evals_done, f)]
+    # The silhouette stage's maps are done with (the judge holds its level's atlas): freed before the photometric yaw
+    # sizes its views to the memory left (view_budget.photometric_views). Beyond here only this stack's frame shape is
+    # asked for, and the maps themselves only when they are at the frames' size.
+    problem.release_maps()
+    del sil_src
+    if pf.shape[1:] != images.shape[1:3]:
+        pf = np.empty((0,) + pf.shape[1:], pf.dtype)  # not pf[:0], a view that would keep the maps
 
     if settings.photometric_yaw and method == "coherence" and space.free_mask[0]:
         base = evals_done

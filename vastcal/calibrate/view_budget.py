@@ -3,13 +3,13 @@
 The silhouette cost streams its ray samples in bounded chunks and checks each edge ray against a
 bounded set of partner views (:func:`.objective_coherence.partner_views`), so its memory and time grow
 linearly with the number of views. The photometric yaw (:mod:`.photometric_yaw`) holds full-frame
-absorption maps and a sparse projection matrix of every view it uses (~4 entries per voxel and view);
-at 360 views that is several GB. It therefore uses an evenly spread subset of the views — as many as
-``calibration.memory_mb`` leaves room for, all of them when they fit — which still spans the whole
-revolution (the yaw is a property of the axis, seen by every view alike). It reconstructs them as interleaved
-odd sub-revolutions of 21 or more views, one at a time (:func:`.photometric_yaw.yaw_groups`), so the per-view estimate
-below, which counts every used view's share of one projection matrix, is conservative beyond 41 views: it keeps
-the yaw's time, not only its memory, near what it was when all views were reconstructed at once.
+absorption maps of every view it uses, and while it reconstructs one of its interleaved odd sub-revolutions of 21 or
+more views (:func:`.photometric_yaw.yaw_groups`, one at a time) that group's maps and sparse projection matrix
+(~4 entries per voxel and view): at 360 views that is several GB. It therefore uses an evenly spread subset of the
+views — as many as ``calibration.memory_mb`` leaves room for beside what the calibration holds when it starts (the
+silhouette stage's maps are freed first), all of them when they fit — which still spans the whole revolution (the yaw
+is a property of the axis, seen by every view alike). :func:`photometric_bytes` is what it holds at its peak: every
+view's full-frame maps while they are set up, or afterwards beside the largest sub-revolution's reconstruction.
 
 The specimen maps (:func:`.silhouettes.specimen_maps`) need a whole revolution at once — static bands
 and capillary walls are what (almost) every view shows, a rigid body occupies the same columns in every
@@ -41,13 +41,17 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-#: Bytes per full-frame pixel and per voxel (one map pixel at the axis at its finest level) that the
-#: photometric yaw holds for each view it uses: full-frame posterior, its static-free copy, absorption
-#: and masks (~20 bytes a pixel); 4 splat entries a voxel as 32-bit triplets, the CSR matrix, its active
-#: rows and its transpose (~76 bytes a voxel). Measured on the simulated rig (1024 × 320 frames, ~126 000
-#: voxels): 81 views, 77 of them used, took the calibration's peak from 0.35 GB to 1.72 GB, 17.8 MB a view.
-PHOTOMETRIC_BYTES_PER_PIXEL = 20.0
-PHOTOMETRIC_BYTES_PER_VOXEL_VIEW = 76.0
+#: What the photometric yaw holds, bytes (:func:`photometric_bytes`; the figures behind them: docs/measurement.md,
+#: "Many views"). Per frame pixel of every view it uses: while its maps are set up (the caller's frames and full-frame
+#: specimen maps, their resized and static-free copies, the absorption maps and the background's noise temporaries) …
+PHOTOMETRIC_SETUP_BYTES_PER_PIXEL = 28.0
+#: … and afterwards (frames, the caller's maps, the static-free maps, the absorption maps: 2 + 3 × 4 bytes).
+PHOTOMETRIC_HELD_BYTES_PER_PIXEL = 14.0
+#: Per pixel of the last stage's maps (:data:`.photometric_yaw.ACROSS_WIDTH_PX` across the axis image) and per voxel,
+#: for every view of the sub-revolution being reconstructed: float64 absorption, posterior and weights, float32 maps,
+#: the row sums and residuals; 4 splat entries a voxel as 32-bit triplets, the CSR matrix, its active rows, its transpose.
+PHOTOMETRIC_BYTES_PER_MAP_PIXEL = 84.0
+PHOTOMETRIC_BYTES_PER_VOXEL_VIEW = 100.0
 #: The photometric yaw never uses fewer views than this (when the session has them).
 MIN_PHOTOMETRIC_VIEWS = 21
 
@@ -82,9 +86,28 @@ def resident_mb() -> float:
         return peak_resident_mb()
 
 
+def photometric_bytes(k: int, frame_shape: tuple[int, ...], voxels: int) -> float:
+    """Bytes the photometric yaw holds at its peak with ``k`` views of ``frame_shape`` (H, W[, C]) and about ``voxels``
+    voxels at its finest: the larger of its set-up (every view's full-frame maps) and of a reconstruction of its largest
+    sub-revolution (:func:`.photometric_yaw.yaw_groups`) beside every view's held maps."""
+    from vastcal.calibrate.photometric_yaw import ACROSS_WIDTH_PX, GROUP_VIEWS, yaw_groups
+
+    k = int(k)
+    if k <= 0:
+        return 0.0
+    h, w = int(frame_shape[0]), int(frame_shape[1])
+    frame_px = float(h * w)
+    map_px = frame_px * min(1.0, ACROSS_WIDTH_PX / max(h, w, 1))  # full resolution along the axis image, coarser across
+    group = max(g.size for g in yaw_groups(np.arange(k) * 360.0 / k, GROUP_VIEWS))
+    per_group_view = PHOTOMETRIC_BYTES_PER_MAP_PIXEL * map_px + PHOTOMETRIC_BYTES_PER_VOXEL_VIEW * max(int(voxels), 0)
+    return max(k * PHOTOMETRIC_SETUP_BYTES_PER_PIXEL * frame_px, k * PHOTOMETRIC_HELD_BYTES_PER_PIXEL * frame_px + group * per_group_view)
+
+
 def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxels: int, memory_mb: float,
                       used_mb: float | None = None) -> np.ndarray:
-    """The views the photometric yaw uses within ``memory_mb`` (see the module docstring).
+    """The views the photometric yaw uses within ``memory_mb``: the most evenly spread views whose
+    :func:`photometric_bytes` fit beside what is in use (all when they fit; never fewer than
+    :data:`MIN_PHOTOMETRIC_VIEWS`, which may then exceed it).
 
     Args:
         angles_deg: (N,) roll angles, degrees.
@@ -94,12 +117,12 @@ def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxe
         used_mb: memory already in use, MB (default: the resident memory now).
     """
     n = int(np.asarray(angles_deg).size)
-    per_view = (PHOTOMETRIC_BYTES_PER_PIXEL * float(np.prod(frame_shape[:2])) + PHOTOMETRIC_BYTES_PER_VOXEL_VIEW * max(int(voxels), 0)) / 2**20
     free = float(memory_mb) - (resident_mb() if used_mb is None else float(used_mb))
-    k = int(np.clip(free // max(per_view, 1e-9), min(n, MIN_PHOTOMETRIC_VIEWS), n))
+    least = min(n, MIN_PHOTOMETRIC_VIEWS)
+    k = next((j for j in range(n, least, -1) if photometric_bytes(j, frame_shape, voxels) / 2**20 <= free), least)
     if k < n:
-        log.info("photometric yaw: %d of %d views (evenly spread) fit %.0f MB (%.1f MB per view, %.0f MB in use)", k, n, memory_mb, per_view,
-                 float(memory_mb) - free)
+        log.info("photometric yaw: %d of %d views (evenly spread) fit %.0f MB (%.0f MB for them, %.0f MB in use)", k, n, memory_mb,
+                 photometric_bytes(k, frame_shape, voxels) / 2**20, float(memory_mb) - free)
     return evenly_spread_views(angles_deg, k)
 
 
