@@ -318,3 +318,88 @@ def test_the_terminal_eta_counts_down_between_updates() -> None:
     assert column.render(task).plain == "ETA 0.0 s"
     bar.close()
     assert column.render(task).plain == "ETA done"
+
+
+def test_import_names_its_phases_and_counts_the_views_inside_the_copying_one(tmp_path) -> None:
+    import cv2
+
+    from vastcal.importer import import_folder
+
+    (tmp_path / "img").mkdir()
+    for i in range(5):
+        cv2.imwrite(str(tmp_path / "img" / f"view{i}.png"), np.full((20, 30), 10 * i, np.uint8))
+    events: list[tuple] = []
+    import_folder(tmp_path / "img", tmp_path / "s.h5", progress=lambda d, t: events.append(("view", d, t)),
+                  phase=lambda name: events.append(("phase", name)))
+    assert [e[1] for e in events if e[0] == "phase"] == ["reading img", "copying 5 views", "finishing the session"]
+    k = events.index(("phase", "copying 5 views"))
+    assert events[k + 1: k + 6] == [("view", d, 5) for d in range(1, 6)] and events[k + 6] == ("phase", "finishing the session")
+
+
+def test_cli_import_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_to_a_log(tmp_path) -> None:
+    import subprocess
+    import sys
+
+    import cv2
+
+    (tmp_path / "img").mkdir()
+    for i in range(12):
+        cv2.imwrite(str(tmp_path / "img" / f"view{i}.png"), np.full((20, 30), 10 * i, np.uint8))
+    run = subprocess.run([sys.executable, "-m", "vastcal.cli", "import", "img", "-o", "s.h5"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert "\r" not in run.stderr and "\x1b" not in run.stderr
+    lines = [ln for ln in run.stderr.splitlines() if ln.startswith("import:")]
+    starts = [ln.removeprefix("import: ").removesuffix(" ...") for ln in lines if ln.endswith(" ...")]
+    assert starts == ["reading img", "copying 12 views", "finishing the session"]
+    assert all(any(ln.startswith(f"import: {name}  done in ") for ln in lines) for name in starts)
+    counted = [ln for ln in lines if ln.startswith("import: copying 12 views  ") and " % " in ln]
+    assert len(counted) >= 5 and all(" elapsed  ETA " in ln for ln in counted) and "ETA ?" not in counted[-1]
+
+
+def test_a_phase_of_known_size_relative_to_the_one_before_gets_an_eta_before_its_first_report() -> None:
+    clock, out = Clock(), io.StringIO()
+    bar = PhaseProgress("calibrate", out, tty=True, clock=clock)
+    cb = CalibrationProgress(bar)
+    pc = ProgressClock(cb, budget=100)
+    pc.name_phase(5, "photometric yaw (1024 px): 200 iterations (cap 800)")
+    for k in range(1, 6):  # five reconstructions of 0.7 s each
+        clock.now += 0.7
+        pc.update(k, 0.0)
+    pc.name_phase(1, "photometric yaw (1024 px): final vertex", like_previous=2.0)  # one reconstruction of twice their iterations
+    rec = bar.records[-1]
+    assert rec.expect_s == pytest.approx(1.4)
+    task, column = bar._rich.tasks[-1], bar._rich.columns[4]
+    assert column.render(task).plain == "ETA 1.4 s"  # shown from its start, no report needed
+    clock.now += 1.0
+    assert column.render(task).plain == "ETA 0.4 s"  # and counted down
+    eta = PhaseEta(0.0, expect_s=1.4)
+    eta.add(0.5, 0.0)
+    assert eta.eta() == pytest.approx(0.9) and eta.eta(now=2.0) == 0.0
+    assert math.isnan(PhaseEta(0.0).eta())  # nothing expected, no rate: unknown
+    bar.close()
+    plain = PhaseProgress("calibrate", io.StringIO(), tty=False, clock=clock)
+    plain.phase("first")
+    plain.phase("second", like_previous=2.0)  # a phase before it without updates: nothing to go by
+    assert math.isnan(plain.records[-1].expect_s)
+
+
+def test_a_frozen_plan_tells_the_generation_time_the_descent_it_plans() -> None:
+    from vastcal.calibrate.forecast import CMAStopForecast, GenerationTime
+
+    fc = CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10, planned=True)
+    g = 0
+    while fc.plan is None:
+        g += 1
+        fc.add(10.0 ** (2 - g / 10), 10 * g)
+    left = fc.plan - g
+    assert fc.planned_slope() == pytest.approx(-math.log(10.0 ** (2 - g / 10)) / left)  # the low to tolx (log 1 = 0) by the plan's end
+    assert CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10, planned=True).planned_slope() is None  # no plan yet
+    wide = GenerationTime(np.full(2, 0.01), popsize=10)
+    for k in range(12):  # a step that stayed 10x the threshold so far, the mean moving every other generation (then a full search)
+        wide.add(np.full(2, 0.1 * (k // 2)), np.full(2, 0.1 * (k // 2)), np.full(2, 0.1), 3.0 if k % 2 == 0 else 1.0)
+    assert wide.full == [k % 2 == 0 for k in range(12)] and wide.time_model() == pytest.approx((1.0, 2.0, 0.0), abs=1e-9)
+    assert wide.expected_full(20) == pytest.approx(20.0, abs=0.2)  # by its own (flat) fit every generation ahead searches in full
+    descent = math.log(0.01) / 10  # a plan that takes the step to a hundredth of it in 10 generations
+    assert wide.expected_full(20, slope=descent) < 12
+    assert wide.work(20)[1] - wide.work(20, slope=descent)[1] == pytest.approx(2.0 * (20 - wide.expected_full(20, slope=descent)), rel=0.02)

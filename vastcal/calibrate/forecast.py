@@ -31,7 +31,8 @@ not known in advance, and of a CMA-ES generation's time:
   population's mean does every generation and a narrow one's hardly ever, so a level's time per generation falls
   (measured up to 2×) while its step shrinks. It replays that rule on the run's batch means, fits a generation's
   time (a floor, the full search's extra, a part that grows with the step) and counts the full searches still
-  expected along the step's descent; the CMA-ES forecast's generations left then become seconds left.
+  expected along the step's descent (a planned run's, once frozen: to its resolution by the planned generation;
+  :meth:`CMAStopForecast.planned_slope`); the CMA-ES forecast's generations left then become seconds left.
 * :class:`PolishForecast` — sweeps left in the per-view polish (:func:`vastcal.calibrate.run.polish_rolls`):
   every step size takes 1 to ``max_sweeps`` sweeps, one more after every sweep that moved a roll. The
   chance that a sweep moves a roll is estimated from the sweeps so far (Laplace's rule); the sweeps left are
@@ -118,6 +119,14 @@ class CMAStopForecast:
         if gens != gens:
             return math.nan
         return min(gens * self.popsize, budget_left) + self.popsize  # + the re-scores: about one generation's call
+
+    def planned_slope(self) -> float | None:
+        """A frozen plan's descent: the change per generation of the log ``tolx`` quantity that takes its recent low
+        to the tolerance at the planned generation (≤ 0); None before the plan is frozen or at its end."""
+        left = 0 if self.plan is None else self.plan - len(self.logs)
+        if left <= 0:
+            return None
+        return min(0.0, (self.log_tolx - min(self.logs[-self.LOW_OF:])) / left)
 
     def planned_end(self) -> bool:
         """True when a planned run has run its frozen number of generations (it ends there)."""
@@ -240,11 +249,13 @@ class GenerationTime:
                 break
         return float(coef[0]), float(coef[1]), float(coef[2])
 
-    def _shrink(self, generations: int) -> np.ndarray:
-        """(generations,) each generation ahead's step over now's, along the fitted descent of the recent half."""
-        n = len(self.log_step)
-        y = np.asarray(self.log_step[-max(CMAStopForecast.MIN_WINDOW, n // 2):])
-        slope = float(np.polyfit(np.arange(len(y), dtype=float), y, 1)[0]) if len(y) >= 3 else 0.0
+    def _shrink(self, generations: int, slope: float | None = None) -> np.ndarray:
+        """(generations,) each generation ahead's step over now's, along ``slope`` (the log step's change per
+        generation) or else the fitted descent of the recent half."""
+        if slope is None:
+            n = len(self.log_step)
+            y = np.asarray(self.log_step[-max(CMAStopForecast.MIN_WINDOW, n // 2):])
+            slope = float(np.polyfit(np.arange(len(y), dtype=float), y, 1)[0]) if len(y) >= 3 else 0.0
         return np.exp(min(slope, 0.0) * np.arange(1, generations + 1))
 
     def add(self, batch_mean: np.ndarray, mean: np.ndarray, step: np.ndarray, seconds: float) -> None:
@@ -265,20 +276,21 @@ class GenerationTime:
         self.log_step.append(float(np.log(np.max(s))))
         self.done += float(seconds)
 
-    def expected_full(self, generations: int) -> float:
+    def expected_full(self, generations: int, slope: float | None = None) -> float:
         """Expected number of full searches in the next ``generations`` generations.
 
         Per generation, the chance of one is the rate at which the batch mean leaves the box of half-widths
         ``research`` around the last full search's, capped at 1: a random walk of variance v per generation leaves
         (−a, a) after a²/v generations on average (Brownian exit time), summed over the coordinates, plus the chance
         that the batch mean's own scatter (the mean of λ samples, against that of the last full search's batch)
-        alone carries it out. The step of each generation ahead follows its fitted descent."""
+        alone carries it out. The step of each generation ahead follows ``slope`` (the log step's change per
+        generation, e.g. a planned run's descent to its end) or else its fitted descent."""
         if generations <= 0 or self._step is None or len(self.moves) < 2:
             return 0.0
         watched = np.isfinite(self.research)
         if not watched.any():
             return 0.0
-        shrink = self._shrink(generations)[:, None]
+        shrink = self._shrink(generations, slope)[:, None]
         recent = np.asarray(self.moves[-max(CMAStopForecast.MIN_WINDOW, len(self.moves) // 2):])
         spread = np.sqrt(np.mean(recent ** 2, axis=0))[watched]  # the mean's move per generation, in steps
         a, st = self.research[watched], self._step[watched]
@@ -287,14 +299,16 @@ class GenerationTime:
         alone = np.sum(special.erfc(a[None] / (math.sqrt(2.0) * np.maximum(scatter, 1e-300))), axis=1)  # P(|N(0, scatter²)| > a)
         return float(np.sum(np.minimum(walk + alone, 1.0)))
 
-    def work(self, generations_left: float) -> tuple[float, float]:
+    def work(self, generations_left: float, slope: float | None = None) -> tuple[float, float]:
         """(work done, work left) in seconds of the search for ``generations_left`` more generations and the run's
         tail (about one more generation's time; left NaN: unknown): each generation ahead at
-        :meth:`time_model`'s time for its step along the descent, plus the full searches expected."""
+        :meth:`time_model`'s time for its step along the descent (``slope``: the log step's change per generation
+        when the caller knows it, e.g. :meth:`CMAStopForecast.planned_slope`; else the recent half's fit), plus the
+        full searches expected."""
         if generations_left != generations_left:
             return self.done, math.nan
         alpha, beta, gamma = self.time_model()
         g = max(int(math.ceil(generations_left)), 0)
         r_now = self.reach[-1] if self.reach else 0.0
-        widths = float(np.sum(self._shrink(g))) * r_now * (generations_left / g if g else 0.0)
-        return self.done, alpha * (generations_left + 1.0) + gamma * widths + beta * self.expected_full(g)
+        widths = float(np.sum(self._shrink(g, slope))) * r_now * (generations_left / g if g else 0.0)
+        return self.done, alpha * (generations_left + 1.0) + gamma * widths + beta * self.expected_full(g, slope)

@@ -107,7 +107,7 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
                 if timing is None:
                     convergence(evals_before + res.n_evaluations, left)
                 else:  # in seconds of the search (generations of two kinds of cost), the re-scores' tail included
-                    convergence(*timing.work((left - es.popsize) / es.popsize if left == left else math.nan))
+                    convergence(*timing.work((left - es.popsize) / es.popsize if left == left else math.nan, forecast.planned_slope()))
         if progress is not None:
             progress(evals_before + res.n_evaluations, res.f_best)
     res.stop = dict(es.stop())
@@ -289,10 +289,15 @@ class ProgressClock:
         self._first = None
         self.name_phase(evaluations, name)
 
-    def name_phase(self, evaluations: int, name: str | None) -> None:
+    def name_phase(self, evaluations: int, name: str | None, like_previous: float | None = None) -> None:
         """A named part (e.g. one CMA-ES level) of up to ``evaluations`` evaluations for a callback that draws
-        named phases, each with its own fraction done; the overall budget and rate are kept."""
+        named phases, each with its own fraction done; the overall budget and rate are kept. ``like_previous``: the
+        part is that many of the previous part's evaluations' worth of work (its ETA before it reports any:
+        :meth:`vastcal.progress.PhaseProgress.phase`)."""
         self._phase_start, self._phase_budget = self.done, max(1, int(evaluations))
         self._work = None
         if name is not None and hasattr(self.callback, "phase"):
-            self.callback.phase(name)
+            if like_previous is None:
+                self.callback.phase(name)
+            else:
+                self.callback.phase(name, like_previous=like_previous)
