@@ -17,7 +17,8 @@ import pytest
 
 from vastcal.calibrate import calibrate_views
 from vastcal.calibrate.colour_model import fit_automatic
-from vastcal.calibrate.photometric_yaw import AbsorptionMatch, absorption_images, drop_static, refine_yaw, yaw_groups
+from vastcal.calibrate.photometric_yaw import (AbsorptionMatch, absorption_images, combine_group_yaws, drop_static, grid_phase, refine_yaw,
+                                            spread_order, yaw_groups)
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.geometry import projection_matrices
 
@@ -114,3 +115,37 @@ def test_yaw_groups_are_interleaved_sub_revolutions_of_at_least_the_group_size()
     for g in groups:
         facing = np.abs(np.mod(spread[g][:, None] - spread[g][None, :], 360.0) - 180.0)
         assert facing.min() >= 0.5 * 360.0 / 21 - 2.0
+
+
+def test_each_sub_revolution_has_its_own_lattice_phase_spread_over_the_voxel() -> None:
+    assert grid_phase(0) == (0.0, 0.0, 0.0)  # one reconstruction of all views: the lattice as it always was
+    phases = np.array([grid_phase(j) for j in range(16)])
+    assert np.all((phases >= 0) & (phases < 1))
+    gaps = np.abs(phases[:, None] - phases[None])
+    gaps = np.minimum(gaps, 1 - gaps).max(axis=-1)  # circular distance, worst axis
+    assert gaps[~np.eye(16, dtype=bool)].min() > 0.1  # no two sub-revolutions share (nearly) one lattice
+    theta = synthetic.truth_theta(6, seed=2)
+    images = synthetic.render(theta)
+    K, d = synthetic.camera()
+    pf = specimen_maps(fit_automatic(images), images)
+    a = np.zeros_like(pf)
+    m0 = AbsorptionMatch(a, pf, K, d, theta)
+    m1 = AbsorptionMatch(a, pf, K, d, theta, grid_phase=(0.5, 0.25, 0.75))
+    shift = np.array([0.5 * m0.voxel_um, 0.25 * m0.voxel_across_um, 0.75 * m0.voxel_across_um])
+    grid0 = {tuple(np.round(x, 6)) for x in m0.X + shift}
+    assert len(grid0 & {tuple(np.round(x, 6)) for x in m1.X}) > 0.5 * m1.n_voxels  # the same lattice, moved by the phase
+
+
+def test_sub_revolutions_combine_by_their_median_with_an_error_from_their_spread() -> None:
+    assert combine_group_yaws(np.array([0.2]), [0.003]) == (0.2, 0.003)
+    yaw, se = combine_group_yaws(np.array([0.20, 0.24]), [0.002, 0.002])
+    assert yaw == pytest.approx(0.22) and se == pytest.approx(0.02)  # half their difference exceeds the noise's
+    ys = np.array([0.20, 0.21, 0.22, 0.35])  # one lattice resonating with the specimen
+    yaw, se = combine_group_yaws(ys, [0.002] * 4)
+    assert yaw == pytest.approx(0.215) and se == pytest.approx(1.2533 * np.std(ys, ddof=1) / 2)
+    assert combine_group_yaws(ys, [0.002, None, 0.002, 0.002])[1] == pytest.approx(se)  # unknown noise: the spread's
+    assert spread_order(1) == [0]
+    for g in (4, 7, 17):
+        order = spread_order(g)
+        assert sorted(order) == list(range(g)) and order[0] == 0
+        assert max(order[:3]) - min(order[:3]) >= g // 3  # the first three span the spacing

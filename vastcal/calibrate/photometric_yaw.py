@@ -34,12 +34,15 @@ with the iterations as the reconstruction converges: +0.087° at ½ width after 
 moves features along the axis image, so the voxels are fine along it; see :data:`ACROSS_WIDTH_PX`.
 One reconstruction of the last stage holds an odd regular revolution of 21 to 41 views (:data:`GROUP_VIEWS`, the
 paper's 21; :func:`yaw_groups`): a revolution of more views is split into interleaved sub-revolutions, the last
-stage runs on each, and the yaw is the mean of theirs. Odd, because views that face each other (180° apart) bias
+stage runs on each with its own voxel lattice phase (:func:`grid_phase`), and the yaw is the median of theirs
+(:func:`combine_group_yaws`), with a standard error from their spread; they stop once that error is small enough.
+Odd, because views that face each other (180° apart) bias
 the yaw: a nearly orthographic camera sees the same rays from both, reversed, so their grey levels differ only
 by the yaw (features move along the axis image by ± depth × sin yaw, opposite in the two), the perspective and
 what the voxel model cannot represent, and the yaw then absorbs the last; one reconstruction of many views also
 holds nearly facing pairs and leaves the voxels less freedom. A single sub-revolution's yaw depends on which views
-it holds by more than the images' noise explains, which more sub-revolutions average out. The measurements behind
+it holds, and on where the voxel lattice lies against the specimen's features (a point splat aliases), by more
+than the images' noise explains; sub-revolutions with phases spread over the voxel average that out. The measurements behind
 this: docs/calibration.md, "The photometric yaw with many views".
 A Gauss–Newton over every θ on this cost found poses of lower cost than the truth (the early-stopped
 reconstruction and the voxel discretisation bias it), so the rolls are deliberately left alone.
@@ -87,7 +90,8 @@ class YawRefinement:
     converged: bool = True
     """False when the last stage reached its iteration cap with the yaw still moving."""
     yaw_sigma_deg: float | None = None
-    """The yaw's standard deviation under the images' noise at the last stage, degrees (None: not convex)."""
+    """The yaw's standard error, degrees: under the images' noise at the last stage, and with several
+    sub-revolutions at least that of their spread (:func:`combine_group_yaws`); None: a parabola not convex."""
     group_yaws_deg: np.ndarray | None = None
     """The last stage's yaw on each sub-revolution, degrees (:func:`yaw_groups`; one entry: all views at once)."""
     group_views: np.ndarray | None = None
@@ -211,13 +215,16 @@ class AbsorptionMatch:
         band_px: width of the excluded band around the silhouette edges, pixels.
         accelerated: Nesterov/FISTA momentum on the SIRT step (same minimiser; ~3× fewer iterations for the
             same residual on the simulated rig) instead of plain SIRT.
+        grid_phase: offset of the voxel lattice from its centred position, in voxels along world (x, y, z)
+            (each in [0, 1); :func:`grid_phase`).
 
     A voxel is one map pixel at the axis in each direction: along the rotation axis (world x) the pixel of
     the image direction the axis image runs along, across it (world y, z) the other direction's.
     """
 
     def __init__(self, absorption: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: float, theta: np.ndarray,
-                 sirt_iterations: int = 100, band_px: int = 3, accelerated: bool = False) -> None:
+                 sirt_iterations: int = 100, band_px: int = 3, accelerated: bool = False,
+                 grid_phase: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         self.a = np.asarray(absorption, np.float64).reshape(-1)
         self.pf = np.asarray(pf, np.float32)
         self.cov = self.pf.reshape(-1).astype(np.float64)
@@ -245,7 +252,7 @@ class AbsorptionMatch:
         if Xc.size:
             lo, hi = Xc.min(axis=0) - 16 * size, Xc.max(axis=0) + 16 * size  # a thin tail tip may escape the coarse test
         counts = np.maximum(1, np.ceil((hi - lo) / size)).astype(int)
-        axes = [(lo[d] + hi[d]) / 2 + (np.arange(counts[d]) - (counts[d] - 1) / 2) * size[d] for d in range(3)]
+        axes = [(lo[d] + hi[d]) / 2 + (np.arange(counts[d]) - (counts[d] - 1) / 2 + grid_phase[d]) * size[d] for d in range(3)]
         X = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         self.X = X[inside_all(P0, sil, X)]
 
@@ -383,6 +390,59 @@ def yaw_groups(angles_deg: np.ndarray, group_views: int | None = GROUP_VIEWS) ->
     return groups
 
 
+#: Roberts' generalised golden ratio φ₃ (the real root of x⁴ = x + 1): its powers 1/φ₃, 1/φ₃², 1/φ₃³ step the
+#: lattice phases of :func:`grid_phase` through the unit cube with low discrepancy.
+_PHI3 = 1.2207440846057596
+
+
+def grid_phase(j: int) -> tuple[float, float, float]:
+    """The voxel-lattice phase (x, y, z in voxels, each in [0, 1)) of sub-revolution ``j``: the R₃ quasi-random
+    sequence frac(j · (1/φ₃, 1/φ₃², 1/φ₃³)), (0, 0, 0) for j = 0.
+
+    Why the sub-revolutions' lattices differ: a voxel projects as a point splat, so where the lattice lies
+    against the specimen's features moves the best yaw (an aliasing error of the discretisation, not a bias of
+    the images), by a different amount for each phase. Averaging sub-revolutions with phases spread evenly
+    over the voxel averages that error out, as dithering does a quantiser's.
+    """
+    return tuple(float(np.mod(j / _PHI3 ** (k + 1), 1.0)) for k in range(3))  # type: ignore[return-value]
+
+
+def combine_group_yaws(yaws: np.ndarray, noise_sigmas: list[float | None]) -> tuple[float, float | None]:
+    """(yaw, its standard error), degrees, from the sub-revolutions' yaws and their noise σ (None: unknown).
+
+    One or two: their mean, with the noise σ of the mean (and half their difference when larger). Three or
+    more: their median — one sub-revolution whose lattice resonates with the specimen can sit ten times farther
+    off than the rest — with the median's standard error 1.2533 · s / √g from their spread s (never below the
+    noise σ of the mean).
+    """
+    y = np.asarray(yaws, float)
+    g = y.size
+    noise = None if any(s is None for s in noise_sigmas) else float(np.sqrt(np.sum(np.square(noise_sigmas)))) / g
+    if g < 3:
+        spread = float(abs(y[-1] - y[0])) / 2.0
+        return float(y.mean()), None if noise is None else max(noise, spread)
+    se = 1.2533 * float(np.std(y, ddof=1)) / np.sqrt(g)
+    return float(np.median(y)), max(se, noise or 0.0)
+
+
+#: The sub-revolutions of the last stage stop once the combined yaw's standard error
+#: (:func:`combine_group_yaws`) is at most this, degrees — a fifth of the 0.05° the yaw is meant to reach — after
+#: at least :data:`MIN_GROUPS_TO_STOP` of them: a revolution of many views needs no more of its sub-revolutions
+#: than their spread calls for.
+YAW_STANDARD_ERROR_DEG = 0.01
+MIN_GROUPS_TO_STOP = 3
+
+
+def spread_order(g: int) -> list[int]:
+    """An order of g interleaved sub-revolutions (offsets j / g of the view spacing) whose every prefix is spread
+    over the spacing: each next one the farthest (circularly) from those already taken; 0 first."""
+    order = [0]
+    while len(order) < g:
+        gaps = [min(min(abs(j - k), g - abs(j - k)) for k in order) for j in range(g)]
+        order.append(int(np.argmax(gaps)))
+    return order
+
+
 def _parabola_fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float] | None:
     """(vertex, curvature c₂ of y ≈ c₂ (x − vertex)² + …) of the least-squares parabola; None when it is not convex."""
     c2, c1, _ = np.polyfit(x, y, 2)
@@ -420,7 +480,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                yaw_tolerance_deg: float = 0.01, across_width_px: int | None = ACROSS_WIDTH_PX,
                progress: Callable[[int, float], None] | None = None,
                stage: Callable[[int, int], None] | None = None, recarve: bool = False,
-               part: Callable[[str, int], None] | None = None, group_views: int | None = GROUP_VIEWS) -> YawRefinement | None:
+               part: Callable[[str, int], None] | None = None, group_views: int | None = GROUP_VIEWS,
+               yaw_standard_error_deg: float = YAW_STANDARD_ERROR_DEG) -> YawRefinement | None:
     """The yaw that minimises E(θ) with every other entry of θ held (see the module docstring).
 
     Args:
@@ -455,8 +516,12 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             rigs 4 and 8 (``benchmarks/calibrate_yaw_vs_rolls.py``): the same yaw to 0.001°, so off.
         group_views: at least this many views in one reconstruction of the last stage (:data:`GROUP_VIEWS`): the
             coarse stages run on the first of :func:`yaw_groups`'s odd sub-revolutions, the last stage (with its
-            convergence rule) on each, and the yaw is their yaws' mean (``yaw_sigma_deg``: the mean's noise σ); an odd
-            N below 2 · group_views is one group of all views, as before. None: one reconstruction of all views.
+            convergence rule) on each (``yaw_sigma_deg``: the combined yaw's standard error); an odd
+            N below 2 · group_views is one group of all views. None: one reconstruction of all views.
+            Each sub-revolution has its own voxel lattice phase (:func:`grid_phase`); they run in
+            :func:`spread_order`, and the yaw is :func:`combine_group_yaws` of theirs.
+        yaw_standard_error_deg: the sub-revolutions stop once the combined yaw's standard error is at most this
+            (after :data:`MIN_GROUPS_TO_STOP`; ``group_views`` and ``group_yaws_deg`` of the result hold those run).
 
     Returns:
         The refinement, or None when the images show no absorption contrast (specimen not darker
@@ -496,8 +561,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         k = sum((2 * hf + 1) * (n_groups if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
         return k + (n_groups if width == last and part is None else 0)
 
-    def search(views: np.ndarray, first_stage: int, centre: float, label: str) -> _Search:
-        """The schedule's stages from ``first_stage`` on the views ``views`` (indices into the arguments), from ``centre``."""
+    def search(views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0) -> _Search:
+        """The schedule's stages from ``first_stage`` on the views ``views`` (indices into the arguments), from
+        ``centre``, with the voxel lattice at :func:`grid_phase` (``phase``)."""
         a_v, pf_v = a_full[views], pf_full[views]
         th_v = np.concatenate([theta[:3], theta[3:][views]])
         matches: dict[tuple[int, int], AbsorptionMatch] = {}
@@ -521,7 +587,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                 th_support = th_v.copy()
                 th_support[0] = centre
                 matches[key] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations,
-                                               accelerated=final)
+                                               accelerated=final, grid_phase=grid_phase(phase))
             rkey = (key, round(yaw, 9))
             iterations = final_n if final else sirt_iterations
             rec = recs.get(rkey)
@@ -606,11 +672,19 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         log.info("photometric yaw: %d views as %d interleaved sub-revolutions of %d-%d views", n, n_groups,
                  min(g.size for g in groups), max(g.size for g in groups))
         coarse = search(groups[0], 0, float(theta[0]), " (coarse, sub-revolution 1)").yaw_deg if len(schedule) > 1 else float(theta[0])
-        finals = [search(g, len(schedule) - 1, coarse, f" sub-revolution {i + 1}/{n_groups}") for i, g in enumerate(groups)]
+        finals, used = [], []
+        for k, j in enumerate(spread_order(n_groups)):
+            finals.append(search(groups[j], len(schedule) - 1, coarse, f" sub-revolution {k + 1}/{n_groups}", phase=k))
+            used.append(j)
+            _, se = combine_group_yaws(np.array([f.yaw_deg for f in finals]), [f.sigma_deg for f in finals])
+            if k + 1 >= MIN_GROUPS_TO_STOP and k + 1 < n_groups and se is not None and se <= yaw_standard_error_deg:
+                log.info("photometric yaw: %d of %d sub-revolutions put the yaw's standard error at %.4f° (≤ %.4f°); the rest skipped",
+                         k + 1, n_groups, se, yaw_standard_error_deg)
+                break
+        groups = [groups[j] for j in used]
     yaws = np.array([f.yaw_deg for f in finals])
-    centre = float(np.clip(yaws.mean(), lo, hi))
-    sigmas = [f.sigma_deg for f in finals]
-    sigma = None if any(s is None for s in sigmas) else float(np.sqrt(np.sum(np.square(sigmas)))) / n_groups
+    combined, sigma = combine_group_yaws(yaws, [f.sigma_deg for f in finals])
+    centre = float(np.clip(combined, lo, hi))
     ev = np.array(evaluations, float)
     result = YawRefinement(centre, float(theta[0]), ev[:, 0], ev[:, 2], ev[:, 1].astype(int), finals[-1].n_voxels, finals[-1].map_shape,
                            time.monotonic() - t0, iterations=ev[:, 3].astype(int), final_iterations=max(f.final_iterations for f in finals),
