@@ -178,7 +178,6 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     cancel = _cancel_on_signals()
     bar = _progress(args, "acquire", "views")
     try:
-        bar.phase("connecting to the rig")
         with connect_rig(cfg, truth_path=_truth_path(Path(out))) as rig:
             result = acquire(rig.stage, rig.camera, cfg, out, views=args.views, resume=bool(args.resume), force=args.force,
                              cancel=cancel, progress=lambda d, t, e: bar.update(d, t, elapsed_s=e), phase=bar.phase, start_info={**(rig.start_info or {}), **({"specimen": specimen} if specimen else {})},

@@ -212,8 +212,6 @@ def acquire_simulated(cfg: Any, session: Path, *, views: int | None = None, forc
     from vastcal.rig import connect_rig
 
     truth_path = session.with_name(session.stem + ".truth.json")
-    if phase:
-        phase("connecting to the rig")
     with connect_rig(cfg, truth_path=truth_path) as rig:
         result = acquire(rig.stage, rig.camera, cfg, session, views=views, force=force, cancel=threading.Event(),
                          progress=progress, phase=phase, start_info=rig.start_info, on_view=rig.on_view)

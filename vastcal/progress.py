@@ -18,7 +18,7 @@ report does not count in its rate.
 phase (its docstring states the criterion).
 :class:`CountProgress` draws a counted task the same way, with its counted phase's ETA from the time per item
 measured: ``vastcal import`` (reading the folder or stack, copying its views, finishing the session), ``vastcal
-acquire`` (connecting to the rig, preparing the camera and stage, acquiring the views, finishing the session) — each
+acquire`` (preparing the camera and stage, acquiring the views, finishing the session) — each
 named by the library's ``phase`` callback — and a batch's sessions. A phase whose size is known relative to the one
 before it (the photometric yaw's final vertex: one reconstruction of twice the iterations the doubling before it
 resumed) shows an ETA from its start (``like_previous``), counted down on a terminal.

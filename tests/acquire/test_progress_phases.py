@@ -1,4 +1,4 @@
-"""vastcal acquire's progress: named phases (connecting, preparing, the views, finishing) with the views' ETA, in
+"""vastcal acquire's progress: named phases (preparing, the views, finishing) with the views' ETA, in
 plain lines when stderr is not a terminal; the library tells each phase's name before its work."""
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def test_cli_acquire_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_
     lines = [ln for ln in run.stderr.splitlines() if ln.startswith("acquire:")]
     assert "\r" not in run.stderr and "\x1b" not in run.stderr
     starts = [ln.removeprefix("acquire: ").removesuffix(" ...") for ln in lines if ln.endswith(" ...")]
-    assert starts == ["connecting to the rig", "preparing the camera and stage", f"acquiring {VIEWS} views", "finishing the session"]
+    assert starts == ["preparing the camera and stage", f"acquiring {VIEWS} views", "finishing the session"]
     for name in starts:  # every phase that starts also ends, with its time
         assert any(ln.startswith(f"acquire: {name}  done in ") for ln in lines), name
     counted = [ln for ln in lines if ln.startswith(f"acquire: acquiring {VIEWS} views  ") and " % " in ln]
