@@ -460,8 +460,8 @@ def finest_voxel_um(K: np.ndarray, distance: float, frame_width_px: int) -> floa
 
 def expected_evaluations(schedule: tuple[tuple[int, float, int], ...] = SCHEDULE) -> int:
     """About how many reconstructions :func:`refine_yaw` makes: every stage's samples, plus the usual
-    extensions, one doubling of the last stage's samples and the final vertex (for a progress bar's budget)."""
-    return sum(2 * half + 1 for _, _, half in schedule) + 2 * schedule[-1][2] + 1 + 3
+    extensions (two) and one doubling of the last stage's samples (for a progress bar's budget)."""
+    return sum(2 * half + 1 for _, _, half in schedule) + 2 * schedule[-1][2] + 1 + 2
 
 
 def _resize_maps(maps: np.ndarray, factor_u: float, factor_v: float) -> tuple[np.ndarray, np.ndarray]:
@@ -494,8 +494,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         schedule: stages (map width px along the axis image, step °, samples each side): each samples the yaw
             around the previous stage's estimate (extending the samples while the lowest lies at an end, at most
             twice) and moves the estimate to the vertex of a parabola through the five lowest-neighbouring
-            samples. Across the axis image the maps have :data:`ACROSS_WIDTH_PX`'s pixel; a voxel is one map
-            pixel at the axis each way.
+            samples — kept even where a sample's E is lower: E carries the lattice's aliasing ripple on top of its
+            trend, and preferring the lowest sample would round the yaw to the stage's step. Across the axis image
+            the maps have :data:`ACROSS_WIDTH_PX`'s pixel; a voxel is one map pixel at the axis each way.
         sirt_iterations: SIRT iterations of every reconstruction of the stages before the last (from zero).
         final_iterations: (first, cap): the last stage's reconstructions (FISTA) run ``first`` iterations, then
             double, each continuing where it stopped, until the yaw (the vertex) moves less than the tolerance
@@ -508,9 +509,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             (None: the same as along it, every stage's maps isotropic).
         progress: called with (evaluations so far, cost of the latest).
         stage: called when the search moves to maps of a new width, with (width px, the evaluations expected
-            there: its samples, plus the final vertex at the last width unless ``part`` is given) — a progress bar's phases.
-        part: called before each doubling of the last stage (``"N iterations (cap C)"``, the reconstructions it resumes)
-            and before the final vertex (``"final vertex"``, 1): parts whose work is known when they start.
+            there: its samples) — a progress bar's phases.
+        part: called before each doubling of the last stage (``"N iterations (cap C)"``, the reconstructions it
+            resumes): parts whose work is known when they start.
         recarve: carve the voxel support anew at every stage's start yaw (default: once per map width, at the
             yaw where that width is first used — the silhouettes' yaw for the coarse maps). Measured on simulated
             rigs 4 and 8 (``benchmarks/calibrate_yaw_vs_rolls.py``): the same yaw to 0.001°, so off.
@@ -558,8 +559,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
 
     def expected(width: int) -> int:
         """Evaluations expected at maps of ``width``: the coarse stages once, the last stage once per sub-revolution."""
-        k = sum((2 * hf + 1) * (n_groups if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
-        return k + (n_groups if width == last and part is None else 0)
+        return sum((2 * hf + 1) * (n_groups if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
 
     def search(views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0) -> _Search:
         """The schedule's stages from ``first_stage`` on the views ``views`` (indices into the arguments), from
@@ -568,7 +568,6 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         th_v = np.concatenate([theta[:3], theta[3:][views]])
         matches: dict[tuple[int, int], AbsorptionMatch] = {}
         recs: dict[tuple[tuple[int, int], float], Reconstruction] = {}
-        own: list[tuple[tuple[int, int], float, float, int]] = []  # this search's (key, yaw, E, iterations)
         final_n = int(final_iterations[0])
         si = first_stage
 
@@ -599,7 +598,6 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                 rec = recs[rkey] = matches[key].start(th)
             e = matches[key].resume(rec, iterations)
             evaluations.append((yaw, width, e, iterations))
-            own.append((key, yaw, e, iterations))
             if progress is not None:
                 progress(len(evaluations), e)
             log.debug("photometric yaw%s %+.4f° at width %d, %d iterations: E = %.6g", label, yaw, width, iterations, e)
@@ -657,13 +655,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             centre = estimate
         if si < len(schedule) - 1:  # the coarse stages only
             return _Search(centre, 0, True, None, 0, (0, 0))
-        last_key = (last, si)
-        y_best, e_best = min(((y, e) for k, y, e, it in own if k == last_key and it == final_n), key=lambda t: t[1])
-        if part is not None:
-            part(f"{label.strip() + ': ' if label else ''}final vertex", 1)
-        if cost_at(centre, last) > e_best:  # the parabola's vertex must not be worse than a sample
-            centre = y_best
-        m = matches[last_key]
+        m = matches[(last, si)]
         return _Search(float(centre), final_n, converged, None if sigma_yaw is None else float(sigma_yaw), m.n_voxels, (m.shape[1], m.shape[2]))
 
     if n_groups == 1:  # every stage on all views
