@@ -13,16 +13,13 @@ ratio divides by ~0 there). A phase meets it when every such update is within 30
 the stated relaxation, every one but the last two ("max but last 2"): at those the true remaining is at
 most two updates' work (two CMA-ES generations, two polish sweeps: tens of milliseconds, below the 0.1 s
 the ETA is shown with) plus the phase's tail, and one unit of work more or less is already 50 %.
-Set-up phases that report no progress (maps, regions, judging) show no ETA and are listed with "-". A phase
-whose duration is expected when it starts (the photometric yaw's final vertex: one reconstruction, two of the
-doubling before it) and whose only update is its end is listed with "-" too; its expected duration is printed
-beside it with its error against the phase's time (the ETA a terminal counts down from).
+Set-up phases that report no progress (maps, regions, judging) show no ETA and are listed with "-".
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3 --sim-seed 1 4 7
 
 Several runs (or starts) end with a summary by kind of phase (each level, the polish, each photometric yaw width;
-at the last width its first samples, its doublings and its final vertex apart).
+at the last width its first samples and its doublings apart).
 
 Timings on a shared machine are noisy; the ETA is judged against the same run's own clock.
 """
@@ -81,14 +78,9 @@ def one_run(views: int, starts: int, seed: int, sim_seed: int | None) -> list[di
                "updates": [{"t_s": t - r.t0, "fraction": f, "eta_s": eta if eta == eta else None, "true_left_s": r.t1 - t,
                             "work": None if w is None else [w[0], w[1] if w[1] == w[1] else None]}
                            for (t, f, eta), w in zip(r.points, getattr(r, "work", None) or [None] * len(r.points))]}
-        expect = getattr(r, "expect_s", float("nan"))  # a phase whose duration was expected from the one before (the final vertex)
-        if expect == expect:
-            row["expected_at_start_s"] = expect
-            row["start_eta_error"] = abs(expect - row["duration_s"]) / row["duration_s"]
         rows.append(row)
         print(f"{r.name:<44} {row['duration_s']:7.2f} {len(errs):7d} {_pct(row['median_error'])} {_pct(row['max_error'])} "
-              f"{_pct(row['max_error_but_last_2'], 14)} {_pct(row['share_within_30pct'], 10)}"
-              + (f"  expected {expect:.2f} s at its start ({_pct(row['start_eta_error'], 4).strip()} off)" if expect == expect else ""))
+              f"{_pct(row['max_error_but_last_2'], 14)} {_pct(row['share_within_30pct'], 10)}")
     timed = [r for r in rows if r["max_error"] is not None]
     if timed:
         worst = max(timed, key=lambda r: r["max_error"])
@@ -104,7 +96,7 @@ def _pct(v: float | None, w: int = 7) -> str:
 
 
 def summary(rows: list[dict]) -> None:
-    """Every kind of phase (a level, the polish, a photometric yaw width, the last width's doublings and final vertex)
+    """Every kind of phase (a level, the polish, a photometric yaw width, the last width's doublings)
     over all runs and starts."""
     kinds: dict[str, list[dict]] = {}
     for r in rows:
@@ -118,11 +110,6 @@ def summary(rows: list[dict]) -> None:
         print(f"{k:<40} {len(rs):6d} {_pct(float(np.median([r['median_error'] for r in rs])), 17)} "
               f"{_pct(max(r['max_error'] for r in rs), 9)} {_pct(max(r['max_error_but_last_2'] for r in rs), 16)} "
               f"{sum(r['max_error'] <= 0.3 for r in rs):2d}/{len(rs):<2d} {sum(r['max_error_but_last_2'] <= 0.3 for r in rs):11d}/{len(rs):<2d}")
-    expected = [r for r in rows if "start_eta_error" in r]
-    if expected:
-        errs = [r["start_eta_error"] for r in expected]
-        print(f"expected at their start ({len(expected)} phases, e.g. the final vertex): error of the duration expected, median "
-              f"{100 * float(np.median(errs)):.0f} %, worst {100 * max(errs):.0f} %, within 30 %: {sum(e <= 0.3 for e in errs)}/{len(errs)}")
 
 
 def main() -> None:

@@ -19,9 +19,7 @@ phase (its docstring states the criterion).
 :class:`CountProgress` draws a counted task the same way, with its counted phase's ETA from the time per item
 measured: ``vastcal import`` (reading the folder or stack, copying its views, finishing the session), ``vastcal
 acquire`` (preparing the camera and stage, acquiring the views, finishing the session) — each
-named by the library's ``phase`` callback — and a batch's sessions. A phase whose size is known relative to the one
-before it (the photometric yaw's final vertex: one reconstruction of twice the iterations the doubling before it
-resumed) shows an ETA from its start (``like_previous``), counted down on a terminal.
+named by the library's ``phase`` callback — and a batch's sessions.
 """
 
 from __future__ import annotations
@@ -55,9 +53,8 @@ class PhaseEta:
     steadily, and the ETA is the raw estimate of the latest report (no smoothing that could freeze it). Before two reports with progress: unknown (NaN).
     """
 
-    def __init__(self, t0: float, expect_s: float = float("nan")) -> None:
+    def __init__(self, t0: float) -> None:
         self.t0 = t0
-        self.expect_s = float(expect_s)  # the phase's duration known beforehand (s; NaN: none): the ETA until a rate is measured
         self.samples: list[tuple[float, float]] = [(t0, 0.0)]
         self.work: list[tuple[float, float, float]] = []  # (time, units done, units forecast left)
 
@@ -97,9 +94,11 @@ class PhaseEta:
             left = left * (t - ref[0]) / (self.work[-1][1] - ref[1])
         else:
             # From the first report on: the time before it (set-up, a first evaluation that pays one-off work) says nothing of the rate.
-            ref = self._reference(self.samples[1:]) if len(self.samples) >= 3 else None  # fewer than two reports: no rate yet
-            if ref is None:  # no rate of its own: the duration expected beforehand, less the time spent (NaN: unknown)
-                return max(0.0, self.expect_s - ((now if now is not None else t) - self.t0)) if self.expect_s == self.expect_s else float("nan")
+            if len(self.samples) < 3:  # fewer than two reports: no rate yet
+                return float("nan")
+            ref = self._reference(self.samples[1:])
+            if ref is None:
+                return float("nan")
             left = (1.0 - f) / ((f - ref[1]) / (t - ref[0]))
         if now is not None:
             left = max(0.0, left - (now - t))
@@ -116,11 +115,6 @@ class PhaseRecord:
     t1: float = float("nan")
     points: list[tuple[float, float, float]] = field(default_factory=list)
     work: list[tuple[float, float] | None] = field(default_factory=list)
-    expect_s: float = float("nan")  # the duration expected when it started (s; NaN: none, its ETA waits for its own rate)
-
-    def seconds_per_update(self) -> float:
-        """Its wall time per progress update (s; NaN: none), e.g. per reconstruction of a phase that reports each."""
-        return (self.t1 - self.t0) / len(self.points) if self.points and self.t1 == self.t1 else float("nan")
 
     def eta_errors(self, excuse_last: int = 0) -> list[float]:
         """Relative ETA errors |ETA − true remaining| / true remaining at every update in the second half of the
@@ -168,25 +162,19 @@ class PhaseProgress:
         """The phase under way (None before the first and after :meth:`close`)."""
         return self.records[-1] if self.records and self.records[-1].t1 != self.records[-1].t1 else None
 
-    def phase(self, name: str, *, since: float | None = None, like_previous: float | None = None) -> None:
+    def phase(self, name: str, *, since: float | None = None) -> None:
         """End the phase under way (if any) and start ``name`` (at ``since``, a time of :attr:`clock` before now,
-        when its work began before it could be named). ``like_previous``: the phase is that many of the previous
-        phase's updates' worth of work (e.g. 2 for one reconstruction of twice the iterations those resumed): its
-        ETA, until it measures a rate of its own, is that many times the previous phase's time per update."""
+        when its work began before it could be named)."""
         now = self.clock()
-        prev = self.current
         self._end(now)
         t0 = now if since is None else min(float(since), now)
-        expect = like_previous * prev.seconds_per_update() if like_previous is not None and prev is not None else float("nan")
-        self.records.append(PhaseRecord(name, t0, expect_s=expect))
-        self._eta = PhaseEta(t0, expect)
+        self.records.append(PhaseRecord(name, t0))
+        self._eta = PhaseEta(t0)
         self._step = -1
         if not self.enabled:
             return
         if self.tty:
             self._rich_start(name)
-            if expect == expect:
-                self._rich.update(self._task, eta_s=expect, eta_at=now)
         else:
             self._line(f"{self.label}: {name} ...")
 
@@ -303,12 +291,12 @@ class CalibrationProgress:
         self._fraction: float | None = None
         self._work: tuple[float, float] | None = None
 
-    def phase(self, name: str, like_previous: float | None = None) -> None:
-        """Start the phase ``name`` (``like_previous``: as :meth:`PhaseProgress.phase`'s)."""
+    def phase(self, name: str) -> None:
+        """Start the phase ``name``."""
         self._name = name
         self._fraction = None
         self._work = None
-        self.bar.phase(name, like_previous=like_previous)
+        self.bar.phase(name)
 
     def phase_fraction(self, fraction: float) -> None:
         self._fraction = fraction

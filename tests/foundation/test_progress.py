@@ -357,33 +357,6 @@ def test_cli_import_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_t
     assert len(counted) >= 5 and all(" elapsed  ETA " in ln for ln in counted) and "ETA ?" not in counted[-1]
 
 
-def test_a_phase_of_known_size_relative_to_the_one_before_gets_an_eta_before_its_first_report() -> None:
-    clock, out = Clock(), io.StringIO()
-    bar = PhaseProgress("calibrate", out, tty=True, clock=clock)
-    cb = CalibrationProgress(bar)
-    pc = ProgressClock(cb, budget=100)
-    pc.name_phase(5, "photometric yaw (1024 px): 200 iterations (cap 800)")
-    for k in range(1, 6):  # five reconstructions of 0.7 s each
-        clock.now += 0.7
-        pc.update(k, 0.0)
-    pc.name_phase(1, "photometric yaw (1024 px): final vertex", like_previous=2.0)  # one reconstruction of twice their iterations
-    rec = bar.records[-1]
-    assert rec.expect_s == pytest.approx(1.4)
-    task, column = bar._rich.tasks[-1], bar._rich.columns[4]
-    assert column.render(task).plain == "ETA 1.4 s"  # shown from its start, no report needed
-    clock.now += 1.0
-    assert column.render(task).plain == "ETA 0.4 s"  # and counted down
-    eta = PhaseEta(0.0, expect_s=1.4)
-    eta.add(0.5, 0.0)
-    assert eta.eta() == pytest.approx(0.9) and eta.eta(now=2.0) == 0.0
-    assert math.isnan(PhaseEta(0.0).eta())  # nothing expected, no rate: unknown
-    bar.close()
-    plain = PhaseProgress("calibrate", io.StringIO(), tty=False, clock=clock)
-    plain.phase("first")
-    plain.phase("second", like_previous=2.0)  # a phase before it without updates: nothing to go by
-    assert math.isnan(plain.records[-1].expect_s)
-
-
 def test_a_frozen_plan_tells_the_generation_time_the_descent_it_plans() -> None:
     from vastcal.calibrate.forecast import CMAStopForecast, GenerationTime
 

@@ -289,15 +289,10 @@ class ProgressClock:
         self._first = None
         self.name_phase(evaluations, name)
 
-    def name_phase(self, evaluations: int, name: str | None, like_previous: float | None = None) -> None:
+    def name_phase(self, evaluations: int, name: str | None) -> None:
         """A named part (e.g. one CMA-ES level) of up to ``evaluations`` evaluations for a callback that draws
-        named phases, each with its own fraction done; the overall budget and rate are kept. ``like_previous``: the
-        part is that many of the previous part's evaluations' worth of work (its ETA before it reports any:
-        :meth:`vastcal.progress.PhaseProgress.phase`)."""
+        named phases, each with its own fraction done; the overall budget and rate are kept."""
         self._phase_start, self._phase_budget = self.done, max(1, int(evaluations))
         self._work = None
         if name is not None and hasattr(self.callback, "phase"):
-            if like_previous is None:
-                self.callback.phase(name)
-            else:
-                self.callback.phase(name, like_previous=like_previous)
+            self.callback.phase(name)

@@ -718,10 +718,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         refined = refine_yaw(images[sub], pf_full, K, distance, th_sub, (float(space.lower[0]), float(space.upper[0])),
                              sirt_iterations=settings.photometric_sirt_iterations, progress=lambda e, fy: clock.update(base + e, fy),
                              stage=lambda width, n: clock.name_phase(n, f"photometric yaw ({width} px)"),
-                             part=lambda what, n: clock.name_phase(n, f"photometric yaw ({SCHEDULE[-1][0]} px): {what}",
-                                                                   # the final vertex (n = 1): one reconstruction from zero of the
-                                                                   # iterations the doubling before resumed from half: two of its
-                                                                   like_previous=2.0 if n == 1 else None))
+                             part=lambda what, n: clock.name_phase(n, f"photometric yaw ({SCHEDULE[-1][0]} px): {what}"))
         if refined is not None:
             theta[0] = refined.yaw_deg
             evals_done += refined.n_evaluations
