@@ -94,6 +94,12 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     assert split is not None and split.group_yaws_deg is not None and list(split.group_views) == [9, 9]
     assert split.yaw_deg == pytest.approx(float(np.mean(split.group_yaws_deg)))
     assert abs(split.yaw_deg - truth["yaw_deg"]) < 0.1 and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
+    # four sub-revolutions of five views: after three, their median's standard error is within a loose tolerance
+    stopped = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=5,
+                         yaw_standard_error_deg=1.0)
+    assert stopped is not None and stopped.group_yaws_deg is not None and list(stopped.group_views) == [5, 5, 5]  # not 4
+    assert stopped.yaw_deg == pytest.approx(float(np.median(stopped.group_yaws_deg)))
+    assert stopped.yaw_sigma_deg is not None and stopped.yaw_sigma_deg >= 1.2533 * np.std(stopped.group_yaws_deg, ddof=1) / np.sqrt(3) - 1e-12
 
 
 def test_yaw_groups_are_interleaved_sub_revolutions_of_at_least_the_group_size() -> None:
