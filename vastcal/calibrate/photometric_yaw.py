@@ -511,7 +511,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         stage: called when the search moves to maps of a new width, with (width px, the evaluations expected
             there: its samples) — a progress bar's phases.
         part: called before each doubling of the last stage (``"N iterations (cap C)"``, the reconstructions it
-            resumes): parts whose work is known when they start.
+            resumes) and before a later sub-revolution's first samples (``"sub-revolution k/g: first samples"``):
+            parts whose work is known when they start.
         recarve: carve the voxel support anew at every stage's start yaw (default: once per map width, at the
             yaw where that width is first used — the silhouettes' yaw for the coarse maps). Measured on simulated
             rigs 4 and 8 (``benchmarks/calibrate_yaw_vs_rolls.py``): the same yaw to 0.001°, so off.
@@ -556,14 +557,15 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     n_groups = len(groups)
     evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations), every search's
     widths_named: set[int] = set()
+    last_stage_runs: list[str] = []  # the searches that have reached the last stage
 
     def expected(width: int) -> int:
         """Evaluations expected at maps of ``width``: the coarse stages once, the last stage once per sub-revolution."""
         return sum((2 * hf + 1) * (n_groups if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
 
-    def search(views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0) -> _Search:
-        """The schedule's stages from ``first_stage`` on the views ``views`` (indices into the arguments), from
-        ``centre``, with the voxel lattice at :func:`grid_phase` (``phase``)."""
+    def search(views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0, end_stage: int = len(schedule)) -> _Search:
+        """The schedule's stages ``first_stage`` to ``end_stage`` − 1 on the views ``views`` (indices into the
+        arguments), from ``centre``, with the voxel lattice at :func:`grid_phase` (``phase``)."""
         a_v, pf_v = a_full[views], pf_full[views]
         th_v = np.concatenate([theta[:3], theta[3:][views]])
         matches: dict[tuple[int, int], AbsorptionMatch] = {}
@@ -624,9 +626,13 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             return ys, es, ks, j
 
         converged, sigma_yaw = True, None
-        for si in range(first_stage, len(schedule)):
+        for si in range(first_stage, end_stage):
             width, step, half = schedule[si]
             ks = list(range(-half, half + 1))
+            if si == len(schedule) - 1:
+                if part is not None and last_stage_runs:  # a later sub-revolution's start
+                    part(f"{label.strip()}: first samples", len(ks))
+                last_stage_runs.append(label)
             ys, es, ks, j = sample(step, ks, width)
             _, estimate, curvature = fit(ys, es)
             if si == len(schedule) - 1:  # the convergence rule: double the iterations until the yaw stays put
@@ -663,7 +669,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     else:  # the coarse stages on the first sub-revolution, the last stage on each; their yaws averaged
         log.info("photometric yaw: %d views as %d interleaved sub-revolutions of %d-%d views", n, n_groups,
                  min(g.size for g in groups), max(g.size for g in groups))
-        coarse = search(groups[0], 0, float(theta[0]), " (coarse, sub-revolution 1)").yaw_deg if len(schedule) > 1 else float(theta[0])
+        coarse = (search(groups[0], 0, float(theta[0]), " (coarse, sub-revolution 1)", end_stage=len(schedule) - 1).yaw_deg
+                  if len(schedule) > 1 else float(theta[0]))
         finals, used = [], []
         for k, j in enumerate(spread_order(n_groups)):
             finals.append(search(groups[j], len(schedule) - 1, coarse, f" sub-revolution {k + 1}/{n_groups}", phase=k))
