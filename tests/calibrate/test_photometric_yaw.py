@@ -157,3 +157,17 @@ def test_sub_revolutions_combine_by_their_median_with_an_error_from_their_spread
         order = spread_order(g)
         assert sorted(order) == list(range(g)) and order[0] == 0
         assert max(order[:3]) - min(order[:3]) >= g // 3  # the first three span the spacing
+
+
+def test_samples_moved_past_a_lowest_one_at_an_end_are_announced_before_they_run(simulated: tuple[np.ndarray, np.ndarray, dict]) -> None:
+    images, commanded, truth = simulated
+    K, d = np.array(truth["K"]), truth["distance_um"]
+    theta = np.r_[0.0, 0.0, 0.0, commanded]  # yaw 0.72° from the truth: ±0.1° of samples all lie on one side of it
+    pf = specimen_maps(fit_automatic(images), images)
+    events: list[tuple[str, object]] = []
+    refine_yaw(images, pf, K, d, theta, (-3.0, 3.0), schedule=((128, 0.05, 2),), final_iterations=(25, 50),
+               part=lambda what, n: events.append(("part", what)), progress=lambda e, c: events.append(("eval", e)))
+    extended = [i for i, ev in enumerate(events) if ev == ("part", "samples extended past the lowest")]
+    assert len(extended) == 2  # the box allows both extensions; each named before its reconstructions
+    for i in extended:
+        assert events[i + 1][0] == "eval"

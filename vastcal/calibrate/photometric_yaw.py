@@ -511,7 +511,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         stage: called when the search moves to maps of a new width, with (width px, the evaluations expected
             there: its samples) — a progress bar's phases.
         part: called before each doubling of the last stage (``"N iterations (cap C)"``, the reconstructions it
-            resumes) and before a later sub-revolution's first samples (``"sub-revolution k/g: first samples"``):
+            resumes), before a later sub-revolution's first samples (``"sub-revolution k/g: first samples"``) and
+            before the samples are extended past a lowest one at an end (``"samples extended past the lowest"``):
             parts whose work is known when they start.
         recarve: carve the voxel support anew at every stage's start yaw (default: once per map width, at the
             yaw where that width is first used — the silhouettes' yaw for the coarse maps). Measured on simulated
@@ -570,6 +571,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         th_v = np.concatenate([theta[:3], theta[3:][views]])
         matches: dict[tuple[int, int], AbsorptionMatch] = {}
         recs: dict[tuple[tuple[int, int], float], Reconstruction] = {}
+        noise_of: dict[tuple[int, int], float | None] = {}  # the last stage's background absorption noise σ_a
         final_n = int(final_iterations[0])
         si = first_stage
 
@@ -587,8 +589,10 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                 pf_small, _ = _resize_maps(pf_v, fu, fv)
                 th_support = th_v.copy()
                 th_support[0] = centre
-                matches[key] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations,
-                                               accelerated=final, grid_phase=grid_phase(phase))
+                m = matches[key] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations,
+                                                   accelerated=final, grid_phase=grid_phase(phase))
+                if final:  # the convergence rule's noise, before the first sample (a progress bar's last update ends its work)
+                    noise_of[key] = background_noise(m.a.reshape(m.shape).astype(np.float32), m.pf)
             rkey = (key, round(yaw, 9))
             iterations = final_n if final else sirt_iterations
             rec = recs.get(rkey)
@@ -616,7 +620,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
 
         def sample(step: float, ks: list[int], width: int) -> tuple[np.ndarray, np.ndarray, list[int], int]:
             """The samples, extended while the lowest lies at an end (inside the box), at most twice."""
-            for _ in range(3):
+            for attempt in range(3):
+                if attempt and part is not None and si == len(schedule) - 1:  # work the bar could not know: the samples move on
+                    part(f"{label.strip() + ': ' if label else ''}samples extended past the lowest", half)
                 ys = np.unique(np.clip(centre + step * np.array(ks, float), lo, hi))
                 es = np.array([cost_at(float(y), width) for y in ys])
                 j = int(np.argmin(es))
@@ -636,8 +642,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             ys, es, ks, j = sample(step, ks, width)
             _, estimate, curvature = fit(ys, es)
             if si == len(schedule) - 1:  # the convergence rule: double the iterations until the yaw stays put
-                m = matches[(width, si)]
-                sigma_a = background_noise(m.a.reshape(m.shape).astype(np.float32), m.pf)
+                sigma_a = noise_of[(width, si)]
                 while True:
                     if curvature is not None and sigma_a is not None:
                         sigma_yaw = sigma_a / np.sqrt(curvature)
