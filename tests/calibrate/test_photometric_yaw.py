@@ -96,8 +96,10 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     assert abs(split.yaw_deg - truth["yaw_deg"]) < 0.1 and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
     # four sub-revolutions of five views: after three, their median's standard error is within a loose tolerance
     parts: list[str] = []
+    stages: list[tuple[int, int]] = []
     stopped = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=5,
-                         yaw_standard_error_deg=1.0, part=lambda what, n: parts.append(what))
+                         yaw_standard_error_deg=1.0, part=lambda what, n: parts.append(what), stage=lambda w, n: stages.append((w, n)))
+    assert stages[-1] == (1024, 5)  # the first sub-revolution's first samples; the later ones' are parts of their own
     assert [p for p in parts if p.endswith("first samples")] == ["sub-revolution 2/4: first samples", "sub-revolution 3/4: first samples"]
     assert stopped is not None and stopped.group_yaws_deg is not None and list(stopped.group_views) == [5, 5, 5]  # not 4
     assert stopped.yaw_deg == pytest.approx(float(np.median(stopped.group_yaws_deg)))

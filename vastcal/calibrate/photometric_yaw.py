@@ -561,8 +561,10 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     last_stage_runs: list[str] = []  # the searches that have reached the last stage
 
     def expected(width: int) -> int:
-        """Evaluations expected at maps of ``width``: the coarse stages once, the last stage once per sub-revolution."""
-        return sum((2 * hf + 1) * (n_groups if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
+        """Evaluations expected at maps of ``width``: the coarse stages' samples once, the last stage's first samples once
+        per sub-revolution — or once with ``part``, whose parts name the later sub-revolutions' samples."""
+        per_last = 1 if part is not None else n_groups
+        return sum((2 * hf + 1) * (per_last if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
 
     def search(views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0, end_stage: int = len(schedule)) -> _Search:
         """The schedule's stages ``first_stage`` to ``end_stage`` − 1 on the views ``views`` (indices into the
