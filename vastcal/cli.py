@@ -655,13 +655,20 @@ def _quiet_unraisable(unraisable: Any) -> None:
 
     A stop signal whose :class:`Interrupted` was raised inside a finaliser (``__del__``, a weakref callback:
     h5py releases objects there) would be lost with it; it is delivered to the main thread again, from a
-    timer thread so that it does not land inside this hook (where it would be lost once more).
+    timer thread so that it lands after this hook returns. Should the timer fire while the hook still runs
+    (starting a thread waits for it; a busy machine can let the timer go first), its interrupt is caught
+    here and scheduled again: one delivery always arrives outside the hook.
     """
-    if isinstance(unraisable.exc_value, KeyboardInterrupt):  # from another thread, so that it lands after this hook returns
-        timer = threading.Timer(0.001, _thread.interrupt_main, args=(getattr(unraisable.exc_value, "signum", signal.SIGINT),))
-        timer.daemon = True
-        timer.start()
-        return
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        signum = getattr(unraisable.exc_value, "signum", signal.SIGINT)
+        while True:
+            try:
+                timer = threading.Timer(0.01, _thread.interrupt_main, args=(signum,))
+                timer.daemon = True
+                timer.start()
+                return
+            except KeyboardInterrupt:  # the re-delivery landed inside this hook: once more
+                continue
     log.debug("ignored while releasing %r: %s", unraisable.object, unraisable.exc_value)
 
 

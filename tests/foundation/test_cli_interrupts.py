@@ -106,3 +106,42 @@ def test_a_stop_signal_raised_inside_a_finaliser_is_delivered_again() -> None:
         sys.unraisablehook = hook
         signal.signal(signal.SIGINT, previous)
         cli.RECEIVED.clear()
+
+
+def test_a_redelivery_that_lands_inside_the_hook_is_delivered_once_more(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Starting the timer thread waits for it, and on a busy machine the timer can fire before the hook returns:
+    its interrupt then lands inside the hook. Simulated by a first timer that fires at once, within ``start``."""
+    import _thread
+    from vastcal import cli
+
+    starts: list[str] = []
+
+    class FiresAtOnceFirst(threading.Timer):
+        def start(self) -> None:
+            if not starts:
+                starts.append("at once")
+                _thread.interrupt_main(self.args[0])
+                time.sleep(0.01)  # the handler runs at the next bytecode: still inside start(), inside the hook
+                return
+            starts.append("timer")
+            super().start()
+
+    class Finalised:
+        def __del__(self) -> None:
+            cli._raise_interrupted(signal.SIGINT, None)
+
+    monkeypatch.setattr(threading, "Timer", FiresAtOnceFirst)
+    previous = signal.signal(signal.SIGINT, cli._raise_interrupted)
+    hook, sys.unraisablehook = sys.unraisablehook, cli._quiet_unraisable
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            obj = Finalised()
+            del obj
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline:
+                time.sleep(0.005)
+    finally:
+        sys.unraisablehook = hook
+        signal.signal(signal.SIGINT, previous)
+        cli.RECEIVED.clear()
+    assert starts == ["at once", "timer"]
