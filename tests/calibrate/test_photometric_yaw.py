@@ -107,17 +107,26 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
 
 
 def test_yaw_groups_are_interleaved_sub_revolutions_of_at_least_the_group_size() -> None:
-    angles = np.arange(81) * 360.0 / 81 + 0.3
+    angles = np.arange(63) * 360.0 / 63 + 0.3
     groups = yaw_groups(angles, 21)
-    assert [g.size for g in groups] == [27, 27, 27]
-    assert np.array_equal(np.sort(np.concatenate(groups)), np.arange(81))
+    assert [g.size for g in groups] == [21, 21, 21]
+    assert np.array_equal(np.sort(np.concatenate(groups)), np.arange(63))
     for g in groups:  # each spans the revolution evenly
-        assert np.allclose(np.diff(angles[g]), 3 * 360.0 / 81)
+        assert np.allclose(np.diff(angles[g]), 3 * 360.0 / 63)
     assert [g.size for g in yaw_groups(angles[:41], 21)] == [41]  # fewer than twice the size: all in one
-    assert [g.size for g in yaw_groups(angles, None)] == [81]
-    shuffled = np.random.default_rng(0).permutation(81)  # views in any order: grouped by angle
+    assert [g.size for g in yaw_groups(np.arange(62) * 360.0 / 62, 21)] == [31, 31]  # two groups: every view used
+    assert [g.size for g in yaw_groups(angles, None)] == [63]
+    shuffled = np.random.default_rng(0).permutation(63)  # views in any order: grouped by angle
     for g in yaw_groups(angles[shuffled], 21):
-        assert np.allclose(np.diff(np.sort(angles[shuffled][g])), 3 * 360.0 / 81)
+        assert np.allclose(np.diff(np.sort(angles[shuffled][g])), 3 * 360.0 / 63)
+    fine = np.arange(81) * 360.0 / 81  # three groups or more: each of the validated size, within a sixth of its spacing
+    groups = yaw_groups(fine, 21)
+    assert [g.size for g in groups] == [21, 21, 21] and np.unique(np.concatenate(groups)).size == 63
+    for j, g in enumerate(groups):
+        places = (j / 3 + np.arange(21)) * 360.0 / 21
+        assert np.abs(np.sort(fine[g]) - places).max() <= 360.0 / 81 / 2 + 1e-9 <= 360.0 / 21 / 6
+        gaps = np.abs(np.mod(fine[g][:, None] - fine[g][None] + 180.0, 360.0) - 180.0)
+        assert np.abs(gaps - 180.0).min() > 360.0 / 21 / 6  # no two of them (nearly) facing each other
     assert [g.size for g in yaw_groups(np.arange(24) * 15.0, 21)] == [23]  # an even revolution: one view left out
     spread = np.floor(np.arange(88) * 360 / 88)  # 88 of 360 views at 1° steps: 4 odd revolutions, none with facing views
     groups = yaw_groups(spread, 21)

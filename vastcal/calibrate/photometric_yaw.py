@@ -32,7 +32,7 @@ less than 0.01° between doublings); the rolls, pitch and γ stay at the silhoue
 stage: the yaw minimising E is biased by the voxel's size (positive on every simulated rig, growing
 with the iterations as the reconstruction converges: +0.087° at ½ width after 1600 iterations on simulated rig 8), and a yaw
 moves features along the axis image, so the voxels are fine along it; see :data:`ACROSS_WIDTH_PX`.
-One reconstruction of the last stage holds an odd regular revolution of 21 to 41 views (:data:`GROUP_VIEWS`, the
+One reconstruction of the last stage holds an odd regular revolution of 21 views (up to 41 below three of them; :data:`GROUP_VIEWS`, the
 paper's 21; :func:`yaw_groups`): a revolution of more views is split into interleaved sub-revolutions, the last
 stage runs on each with its own voxel lattice phase (:func:`grid_phase`), and the yaw is the median of theirs
 (:func:`combine_group_yaws`), with a standard error from their spread; they stop once that error is small enough.
@@ -350,8 +350,8 @@ FINAL_ITERATIONS: tuple[int, int] = (50, 800)
 
 
 #: Views of one reconstruction of the last stage: a revolution of the paper's size, the size the schedule and the
-#: maps were validated at. More views are split into interleaved odd sub-revolutions of at least this many
-#: (:func:`yaw_groups`), each reconstructed on its own, and their yaws averaged. Why not one reconstruction of all
+#: maps were validated at. More views are split into interleaved odd sub-revolutions of this many (more below three of them)
+#: (:func:`yaw_groups`), each reconstructed on its own, and their yaws combined. Why not one reconstruction of all
 #: of them: it holds views that (nearly) face each other, and its voxels absorb less of what they cannot represent;
 #: both move the yaw (see the module docstring).
 GROUP_VIEWS = 21
@@ -360,18 +360,22 @@ GROUP_VIEWS = 21
 def yaw_groups(angles_deg: np.ndarray, group_views: int | None = GROUP_VIEWS) -> list[np.ndarray]:
     """Interleaved sub-revolutions (sorted indices) of the views at roll angles ``angles_deg`` (degrees).
 
-    g = ⌊N / group_views⌋ groups of m views each, m = ⌊N / g⌋ rounded down to an odd number: group j takes the
-    views nearest to ω_0 + (j / g + t) · 360° / m, t = 0 … m − 1, each view at most once, so that every group is a
-    regular revolution of an odd number of views, in which no two views face each other (180° apart), within
-    the spacing of the views it is drawn from. One group of all views when N is odd and below 2 · group_views,
-    or ``group_views`` is None; an even N below that gives one group of N − 1 views.
+    g = ⌊N / group_views⌋ groups of m views each: group j takes the views nearest to ω_0 + (j / g + t) · 360° / m,
+    t = 0 … m − 1, each view at most once, so that every group is a regular revolution of an odd number of views,
+    in which no two views face each other (180° apart), within the spacing of the views it is drawn from. With
+    g ≥ 3 the views are at least three times finer than a group's spacing, and m is ``group_views`` (rounded
+    down to odd): each view lies within a sixth of that spacing of its place, and every group has the size the
+    last stage was validated at (larger groups leave the voxels less freedom and bias the yaw; the views left
+    over are not used). With fewer groups m = ⌊N / g⌋ rounded down to odd, every view used that can be. One
+    group of all views when N is odd and below 2 · group_views, or ``group_views`` is None; an even N below that
+    gives one group of N − 1 views.
     """
     a = np.asarray(angles_deg, float)
     n = a.size
     if group_views is None or n < 2:
         return [np.arange(n)]
     g = max(1, n // max(int(group_views), 1))
-    m = n // g
+    m = int(group_views) if g >= 3 else n // g
     m -= 1 - m % 2  # odd
     if g == 1 and m == n:
         return [np.arange(n)]
