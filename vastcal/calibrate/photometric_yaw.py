@@ -521,7 +521,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         recarve: carve the voxel support anew at every stage's start yaw (default: once per map width, at the
             yaw where that width is first used — the silhouettes' yaw for the coarse maps). Measured on simulated
             rigs 4 and 8 (``benchmarks/calibrate_yaw_vs_rolls.py``): the same yaw to 0.001°, so off.
-        group_views: at least this many views in one reconstruction of the last stage (:data:`GROUP_VIEWS`): the
+        group_views: the views of one reconstruction of the last stage (:data:`GROUP_VIEWS`; see :func:`yaw_groups`): the
             coarse stages run on the first of :func:`yaw_groups`'s odd sub-revolutions, the last stage (with its
             convergence rule) on each (``yaw_sigma_deg``: the combined yaw's standard error); an odd
             N below 2 · group_views is one group of all views. None: one reconstruction of all views.
@@ -562,7 +562,6 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     n_groups = len(groups)
     evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations), every search's
     widths_named: set[int] = set()
-    last_stage_runs: list[str] = []  # the searches that have reached the last stage
 
     def expected(width: int) -> int:
         """Evaluations expected at maps of ``width``: the coarse stages' samples once, the last stage's first samples once
@@ -572,7 +571,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
 
     def search(views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0, end_stage: int = len(schedule)) -> _Search:
         """The schedule's stages ``first_stage`` to ``end_stage`` − 1 on the views ``views`` (indices into the
-        arguments), from ``centre``, with the voxel lattice at :func:`grid_phase` (``phase``)."""
+        arguments), from ``centre``, with the voxel lattice at :func:`grid_phase` (``phase``: its place in the
+        order the sub-revolutions run, 0 for the first)."""
         a_v, pf_v = a_full[views], pf_full[views]
         th_v = np.concatenate([theta[:3], theta[3:][views]])
         matches: dict[tuple[int, int], AbsorptionMatch] = {}
@@ -641,10 +641,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         for si in range(first_stage, end_stage):
             width, step, half = schedule[si]
             ks = list(range(-half, half + 1))
-            if si == len(schedule) - 1:
-                if part is not None and last_stage_runs:  # a later sub-revolution's start
-                    part(f"{label.strip()}: first samples", len(ks))
-                last_stage_runs.append(label)
+            if si == len(schedule) - 1 and part is not None and phase > 0:  # a later sub-revolution's start
+                part(f"{label.strip()}: first samples", len(ks))
             ys, es, ks, j = sample(step, ks, width)
             _, estimate, curvature = fit(ys, es)
             if si == len(schedule) - 1:  # the convergence rule: double the iterations until the yaw stays put
@@ -677,7 +675,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
 
     if n_groups == 1:  # every stage on all views
         finals = [search(groups[0], 0, float(theta[0]), "")]
-    else:  # the coarse stages on the first sub-revolution, the last stage on each; their yaws averaged
+    else:  # the coarse stages on the first sub-revolution, the last stage on each until their yaws combine well enough
         log.info("photometric yaw: %d views as %d interleaved sub-revolutions of %d-%d views", n, n_groups,
                  min(g.size for g in groups), max(g.size for g in groups))
         coarse = (search(groups[0], 0, float(theta[0]), " (coarse, sub-revolution 1)", end_stage=len(schedule) - 1).yaw_deg
