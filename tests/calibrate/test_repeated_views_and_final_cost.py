@@ -62,7 +62,8 @@ def test_dino_ring_imports_all_48_views_with_its_true_angles(tmp_path: Path) -> 
 def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(views: np.ndarray, truth: np.ndarray,
                                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """The yaw search is replaced by one that moves the yaw 0.4°: the stored final_cost must be the judge's cost
-    there (scored by a run without the yaw step: same seed, same judge), not the silhouettes' optimum's."""
+    there without the yaw prior (scored by a run without the yaw step: same seed, same judge, less the prior's
+    yaw term), not the silhouettes' optimum's, and never above the commanded angles' at that yaw."""
     import synthetic as sy
 
     K, d = sy.camera()
@@ -82,8 +83,11 @@ def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(views: np.ndarr
     check = calibrate_views(views, K, d, theta0, seed=0, free=["yaw", "pitch", "gamma"], settings=settings,
                             score_thetas=[r.theta_deg, silhouette_pose])
     assert check.final_cost == pytest.approx(judge["silhouette_cost"], rel=1e-6)
-    assert r.final_cost == pytest.approx(check.scored_costs[0], rel=1e-6)
+    yaw_prior = settings.roll_prior_weight * ((r.theta_deg[0] - theta0[0]) / settings.yaw_prior_deg) ** 2
+    assert yaw_prior > 1e-3  # the moved yaw carries a prior term the stored cost must not hold
+    assert r.final_cost == pytest.approx(check.scored_costs[0] - yaw_prior, rel=1e-6)
     assert r.final_cost != pytest.approx(judge["silhouette_cost"], rel=1e-3)
+    assert judge["final_cost_without"] == "the yaw prior" and r.final_cost <= judge["commanded_at_photometric_yaw_cost"]
 
 
 def _rastrigin(X: np.ndarray) -> np.ndarray:

@@ -404,9 +404,10 @@ class _Problem:
             obj = VRObjective(s_lv, Projector(K_lv, distance, vox), weights, st.eps)
         return obj, region, K_lv, tuple(maps_pf.shape[1:])
 
-    def cost_fn(self, obj: Any) -> Callable[[np.ndarray], np.ndarray]:
-        """θ (B, 3 + N) degrees → (B,) data cost of ``obj`` plus the prior."""
-        theta0, st = self.space.theta0, self.settings
+    def cost_fn(self, obj: Any, *, yaw_prior: bool = True) -> Callable[[np.ndarray], np.ndarray]:
+        """θ (B, 3 + N) degrees → (B,) data cost of ``obj`` plus the prior (``yaw_prior=False``: without its yaw term)."""
+        theta0 = self.space.theta0
+        st = self.settings if yaw_prior else dataclasses.replace(self.settings, yaw_prior_deg=0.0)
 
         def cost(th: np.ndarray) -> np.ndarray:
             return np.asarray(obj(th), float) + prior_cost(th, theta0, st)
@@ -725,13 +726,29 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             eval_time += refined.time_s
             reports.append(refined.report())
             # final_cost is the stored pose's: the judge again, at the photometric yaw (the silhouettes' own
-            # optimum's cost stays in the judge's report as silhouette_cost).
+            # optimum's cost stays in the judge's report as silhouette_cost). The yaw is now measured by the
+            # grey levels, so the yaw prior, which only steadies the silhouettes' nearly flat yaw direction, is
+            # no part of that cost: with it, a true yaw beyond the prior's width would make every correct
+            # result look costlier than the commanded angles. The commanded angles' own rolls, pitch and γ at
+            # the photometric yaw are scored too, so that the stored pose is never costlier than they are.
             t_y = time.monotonic()
             clock.name_phase(1, "judging the photometric yaw")  # not the yaw search's time
-            f_sil, f = f, float(judge(theta[None])[0])
-            evals_done += 1
+            judge_y = problem.cost_fn(judge_obj, yaw_prior=False)
+            commanded_y = theta0.copy()
+            commanded_y[0] = theta[0]
+            f_sil, (f, f_cmd) = f, judge_y(np.stack([theta, commanded_y]))
+            evals_done += 2
+            if f_cmd < f:
+                log.warning("calibration: the silhouette solution at the photometric yaw is costlier (%.6g) than the commanded "
+                            "angles there (%.6g); keeping the latter", f, f_cmd)
+                theta, f, kept = commanded_y, f_cmd, "the commanded angles at the photometric yaw"
+            f = float(f)
+            if len(score_thetas):
+                scored = judge_y(np.stack([np.asarray(t, float) for t in score_thetas])).tolist()
             eval_time += time.monotonic() - t_y
-            judge_report.update({"silhouette_cost": f_sil, "final_cost": f, "final_cost_after": "photometric yaw"})
+            judge_report.update({"silhouette_cost": f_sil, "final_cost": f, "final_cost_after": "photometric yaw",
+                                 "final_cost_without": "the yaw prior", "commanded_at_photometric_yaw_cost": float(f_cmd),
+                                 "kept": kept, "scored_costs": scored})
             trace.append((evals_done, f))
     P = projection_matrices(K, distance, theta[None])[0]
     wall = time.monotonic() - t0
