@@ -339,25 +339,34 @@ def test_photometric_bytes_count_one_sub_revolution_beside_every_view() -> None:
     assert photometric_bytes(0, shape, vox) == 0.0
 
 
-def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full() -> None:
+@pytest.mark.parametrize("per_candidate", [True, False])
+def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(per_candidate: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """A per-view polish scores x and x ± h in one roll at a time; only the rays of the moved view and of
-    the views that have it as a partner are searched again, and the costs equal the full searches."""
+    the views that have it as a partner are searched again, and the costs equal the full searches (the judge's
+    cost, per candidate) or the whole batch's rays taken near the batch mean's peaks (the polish's cost)."""
     n = 24
     theta = synthetic.truth_theta(n=n, seed=5)
     K, d = synthetic.camera()
     pf = np.stack([s.astype(np.float32) for s in synthetic.silhouettes(theta)])
     P = projection_matrices(K, d, theta[None])[0]
     edges = silhouette_edges(pf, axis_crossings(P, pf.shape[1:]), max_lines=12)
-    obj = CoherenceObjective(signed_distance_maps(pf), edges, K, d, radius_um=400.0, max_partners=6, per_candidate=True,
-                             angles_deg=theta[3:])
+    def objective() -> CoherenceObjective:
+        return CoherenceObjective(signed_distance_maps(pf), edges, K, d, radius_um=400.0, max_partners=6, per_candidate=per_candidate,
+                                  angles_deg=theta[3:])
+
     x = theta + np.r_[0.0, 0.0, 0.0, np.random.default_rng(0).normal(0, 0.3, n)]
     X = np.repeat(x[None], 2 * n - 1, 0)
     for k in range(1, n):
         X[k, 3 + k] += 0.2
         X[n - 1 + k, 3 + k] -= 0.2
-    fast = obj(X)
-    for i in (0, 1, 7, n + 3, 2 * n - 2):
-        assert fast[i] == pytest.approx(obj(X[i:i + 1])[0], rel=1e-6, abs=1e-9)
+    fast = objective()(X)
+    if per_candidate:
+        obj = objective()
+        for i in (0, 1, 7, n + 3, 2 * n - 2):
+            assert fast[i] == pytest.approx(obj(X[i:i + 1])[0], rel=1e-6, abs=1e-9)
+    else:  # the same batch with every view's rays taken for every candidate
+        monkeypatch.setattr(CoherenceObjective, "_single_roll_moves", lambda self, th: None)
+        np.testing.assert_allclose(fast, objective()(X), rtol=1e-6, atol=1e-9)
 
 
 @pytest.mark.parametrize("per_candidate", [False, True])

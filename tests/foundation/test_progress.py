@@ -217,21 +217,8 @@ def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_
     assert alpha > 0 and gamma == 0.0 and steep.work(30)[1] > 0  # no floor below 0: the step's part is left out
 
 
-def test_polish_forecast_expects_more_sweeps_after_a_move_and_none_after_the_last() -> None:
-    from vastcal.calibrate.forecast import PolishForecast
-
-    fc = PolishForecast(n_steps=4, max_sweeps=3)
-    assert fc.left() == pytest.approx(4 * (1 + 0.5 + 0.25) + fc.TAIL)  # no sweep yet: a move is a coin toss
-    assert fc.add(0, 1, False) == pytest.approx(3 * (1 + 1 / 3 + 1 / 9) + fc.TAIL)  # step 0 done; p = 1/3
-    left = fc.add(1, 1, True)  # step 1 moved: one more sweep certain, another with p = 2/4
-    assert left == pytest.approx((1 + 0.5) + 2 * (1 + 0.5 + 0.25) + fc.TAIL)
-    fc.add(1, 2, True)
-    p = 4 / 6
-    assert fc.add(1, 3, True) == pytest.approx(2 * (1 + p + p * p) + fc.TAIL)  # out of sweeps at step 1: the next step
-    assert fc.add(3, 1, False) == pytest.approx(fc.TAIL)
-
-
-def test_polish_rolls_reports_every_sweep() -> None:
+def test_the_polish_runs_one_sweep_per_step_so_its_work_is_known_before_it_starts() -> None:
+    from vastcal.calibrate.forecast import POLISH_TAIL_SWEEPS, polish_sweeps_left
     from vastcal.calibrate.parameters import CalibrationBounds, ParameterSpace
     from vastcal.calibrate.run import polish_rolls
 
@@ -242,14 +229,13 @@ def test_polish_rolls_reports_every_sweep() -> None:
     def cost(th: np.ndarray) -> np.ndarray:
         return np.sum((np.atleast_2d(th) - target) ** 2, axis=1) + 1.0
 
-    seen: list[tuple[int, int, bool]] = []
-    x, f, evals, converged = polish_rolls(cost, space, np.zeros(space.n_free), on_sweep=lambda *a: seen.append(a))
-    n = 4  # free rolls
-    moved = sum(m for _, _, m in seen)
-    assert evals == 1 + len(seen) * (2 * n + 1) + 2 * moved + 1
-    assert [s for s, _, _ in seen] == sorted(s for s, _, _ in seen) and {s for s, _, _ in seen} == {0, 1, 2, 3}
-    assert all(k == 1 or seen[i - 1][:2] == (s, k - 1) and seen[i - 1][2] for i, (s, k, _) in enumerate(seen))
-    assert all(not m or k == 3 or seen[i + 1][:2] == (s, k + 1) for i, (s, k, m) in enumerate(seen[:-1]))
+    for steps in ((0.2, 0.1, 0.05, 0.025), (0.4, 0.2)):
+        seen: list[int] = []
+        x, f, evals, converged = polish_rolls(cost, space, np.zeros(space.n_free), steps_deg=steps, on_sweep=seen.append)
+        n = 4  # free rolls
+        assert seen == list(range(len(steps) + 1))  # x scored (0), then one sweep per step, told in order
+        assert len(steps) * (2 * n + 1) + 2 <= evals <= len(steps) * (2 * n + 4) + 2
+    assert polish_sweeps_left(4, 0) == 4 + POLISH_TAIL_SWEEPS and polish_sweeps_left(4, 4) == POLISH_TAIL_SWEEPS
 
 
 def test_a_cma_level_reports_its_forecast_and_the_clock_turns_it_into_the_bar_fraction() -> None:

@@ -1,7 +1,7 @@
 """How much work an iterative search has left: forecasts behind the progress bar's ETA.
 
 A phase's ETA is its forecast work left times the time per unit of work measured in the phase itself
-(:class:`vastcal.progress.PhaseEta`). This module holds the forecasts of the two searches whose length is
+(:class:`vastcal.progress.PhaseEta`). This module holds the forecasts of the searches whose length is
 not known in advance, and of a CMA-ES generation's time:
 
 * :class:`CMAStopForecast` — evaluations left in one CMA-ES run. The run stops on ``tolx`` (every coordinate's
@@ -33,14 +33,12 @@ not known in advance, and of a CMA-ES generation's time:
   time (a floor, the full search's extra, a part that grows with the step) and counts the full searches still
   expected along the step's descent (a planned run's, once frozen: to its resolution by the planned generation;
   :meth:`CMAStopForecast.planned_slope`); the CMA-ES forecast's generations left then become seconds left.
-* :class:`PolishForecast` — sweeps left in the per-view polish (:func:`vastcal.calibrate.run.polish_rolls`):
-  every step size takes 1 to ``max_sweeps`` sweeps, one more after every sweep that moved a roll. The
-  chance that a sweep moves a roll is estimated from the sweeps so far (Laplace's rule); the sweeps left are
-  their expectation: the current step's (certain next sweep, then each further one with that chance) plus
-  every smaller step's.
-
 Both count a small tail: the work after the last reported unit (a CMA-ES run's two single-candidate
-re-scores, about one generation's call; the polish's final evaluation and the judge's, about half a sweep).
+re-scores, about one generation's call).
+
+The per-view polish (:func:`vastcal.calibrate.run.polish_rolls`) needs no forecast: it runs one sweep per step
+size, so its work is known before it starts (:func:`polish_sweeps_left`, with a tail of half a sweep: its final
+evaluation and the judge's).
 """
 
 from __future__ import annotations
@@ -144,36 +142,13 @@ def tolx_quantities(es: object, per_unit: np.ndarray | None = None) -> tuple[flo
     return max(step, float(np.max(np.abs(s * es.pc)))), step  # type: ignore[attr-defined]
 
 
-class PolishForecast:
-    """Sweeps left in the per-view polish of ``n_steps`` step sizes, each of at most ``max_sweeps`` sweeps."""
+#: the polish's work after its last sweep (its final evaluation and the judge's), in sweeps
+POLISH_TAIL_SWEEPS = 0.5
 
-    #: the work after the last sweep (a single-candidate evaluation and the judge's), in sweeps
-    TAIL = 0.5
 
-    def __init__(self, n_steps: int, max_sweeps: int) -> None:
-        self.n_steps, self.max_sweeps = int(n_steps), int(max_sweeps)
-        self.sweeps = 0
-        self.moved = 0
-
-    def _expected(self, p: float, at_most: int) -> float:
-        """Expected sweeps of a step with at most ``at_most`` of them, each after the first run with chance p."""
-        return float(sum(p ** k for k in range(max(at_most, 0))))
-
-    def left(self, step: int = 0, sweeps_in_step: int = 0, moved: bool = False) -> float:
-        """Sweeps left (tail included) after sweep ``sweeps_in_step`` (0: none yet) of step ``step`` (0-based)
-        that ``moved`` a roll or not; the sweeps so far must have been told with :meth:`add`."""
-        p = (self.moved + 1) / (self.sweeps + 2)
-        if sweeps_in_step == 0:
-            now = self._expected(p, self.max_sweeps)
-        else:
-            now = self._expected(p, self.max_sweeps - sweeps_in_step) if moved else 0.0
-        return now + (self.n_steps - step - 1) * self._expected(p, self.max_sweeps) + self.TAIL
-
-    def add(self, step: int, sweeps_in_step: int, moved: bool) -> float:
-        """Record a sweep (``sweeps_in_step`` ≥ 1 of step ``step``; ``moved``: it moved a roll); returns the sweeps left."""
-        self.sweeps += 1
-        self.moved += int(bool(moved))
-        return self.left(step, sweeps_in_step, moved)
+def polish_sweeps_left(n_steps: int, done: int) -> float:
+    """Sweeps left in the per-view polish of ``n_steps`` step sizes after ``done`` sweeps, its tail included."""
+    return max(int(n_steps) - int(done), 0) + POLISH_TAIL_SWEEPS
 
 
 class GenerationTime:

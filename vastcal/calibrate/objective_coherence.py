@@ -430,6 +430,10 @@ class CoherenceObjective:
             self._searched_at = mean
         else:  # the mean moved little since the last full search: zoom in around the known peaks
             self.z_peak = self._search_peaks(mean[None], around=self.z_peak[None])[0]
+        if th.shape[0] > 2 and k + 1 < n:
+            single = self._single_roll_moves(th)
+            if single is not None:
+                return self._residuals_of_roll_moves(th, single, z_peak=self.z_peak)
         chunk = max(1, self.max_points // max(1, n * r * self.window * k))
         for s in range(0, th.shape[0], chunk):
             out[s:s + chunk] = self._local_max(th[s:s + chunk], np.broadcast_to(self.z_peak, (len(th[s:s + chunk]),) + self.z_peak.shape))
@@ -444,18 +448,20 @@ class CoherenceObjective:
             return None
         return np.concatenate([[-1], np.where(counts == 1, np.argmax(diff, axis=1) - 3, -1)])
 
-    def _residuals_of_roll_moves(self, th: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    def _residuals_of_roll_moves(self, th: np.ndarray, moved: np.ndarray, z_peak: np.ndarray | None = None) -> np.ndarray:
         """Per-candidate residuals (B, N, R) of a batch of single-roll moves (:meth:`_single_roll_moves`).
 
         A ray's residual depends on its own view's camera and its partners' only. Moving view v's roll
         changes the rays of v and of the views that have v as a partner (about K + 1 views): only those
         are searched again, the rest are the first candidate's. Equal to searching every ray of every
         candidate, in time linear in the number of views instead of quadratic for a sweep over all rolls.
+        ``z_peak`` (N, R): the batch mean's peak depths (the cost that is not per candidate): every candidate's
+        affected rays are then taken at their maximum near those depths, as the whole batch's would be.
         """
         assert self.partners is not None
         n, r = self.edges.weight.shape
         out = np.empty((th.shape[0], n, r), np.float32)
-        out[0] = self._local_max(th[:1], self._search_peaks(th[:1]))[0]
+        out[0] = self._local_max(th[:1], self._search_peaks(th[:1]) if z_peak is None else z_peak[None])[0]
         users: list[list[int]] = [[] for _ in range(n)]
         for i, row in enumerate(self.partners):
             for j in row:
@@ -466,7 +472,7 @@ class CoherenceObjective:
             if v < 0:
                 continue
             views = np.array(sorted({v, *users[v]}), dtype=np.intp)
-            z = self._search_peaks(th[b:b + 1], views=views)
+            z = self._search_peaks(th[b:b + 1], views=views) if z_peak is None else z_peak[None, views]
             out[b, views] = self._local_max(th[b:b + 1], z, views)[0]
         return out
 
