@@ -209,3 +209,18 @@ def test_a_coarse_search_that_wanders_off_says_so(views: np.ndarray, monkeypatch
     n = len(views)
     with pytest.raises(EmptyHullError, match="coarse search ended .* hold more of θ fixed"):
         calibrate_views(views, K, d, np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n], seed=0, settings=FAST)
+
+
+def test_cma_is_imported_without_its_plotting_and_surrogate_imports_which_stay_importable() -> None:
+    """A fresh interpreter: importing cma through vastcal leaves matplotlib and scipy.stats unloaded (~75 % of its
+    import time), both import normally afterwards, and a search runs."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from vastcal.calibrate.optimise import _cma, minimise; import numpy as np; cma = _cma(); "
+            "assert 'matplotlib' not in sys.modules and 'scipy.stats' not in sys.modules, sorted(sys.modules); "
+            "r = minimise(lambda X: np.sum(np.asarray(X) ** 2, axis=1), np.full(3, 0.5), 0.3, np.ones(3), seed=1, "
+            "max_evaluations=400, tolx=1e-6, tolfun=1e-12); assert r.f_best < 1e-3, r.f_best; "
+            "import scipy.stats, matplotlib.pyplot; assert scipy.stats.kendalltau([1, 2, 3], [1, 2, 3])[0] == 1.0; print('ok')")
+    out = subprocess.run([sys.executable, "-W", "error", "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
