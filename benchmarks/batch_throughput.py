@@ -10,7 +10,8 @@
 4. Prints sessions per hour for both, the speed-up, CPU seconds per session (steadier than wall time on a
    shared machine), the peak resident memory of each worker (the table's ``worker_peak_mb``), and what a
    10 000-larva screen costs on 1, 2, 8, 32 and 128 workers at the measured CPU time per session
-   (arithmetic, assuming each worker has one unshared core like these).
+   (arithmetic, assuming each worker has one unshared core like these), and how right the batch's progress ETA
+   was: each line the batch's log got (one per 10 % of the sessions) against when its sessions really ended.
 
 Wall times on a shared machine are noisy (a batch of 2 processes also gets a larger share of a machine
 loaded by others than one sequential process does); the load average is printed beside them.
@@ -28,6 +29,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import re
 import resource
 import shutil
 import subprocess
@@ -107,11 +109,15 @@ def main() -> int:
     par.mkdir()
     for s in sessions:
         shutil.copy(s, par / s.name)
-    cmd = _vastcal("batch", str(par), "-o", str(res), "--starts", str(a.starts), "-q") + (["--workers", str(a.workers)] if a.workers else [])
+    cmd = _vastcal("batch", str(par), "-o", str(res), "--starts", str(a.starts)) + (["--workers", str(a.workers)] if a.workers else [])
     print(f"load average before the batch: {os.getloadavg()}", flush=True)
     t0 = time.monotonic()
-    proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr is not None
+    lines = [(time.monotonic(), line.rstrip("\n")) for line in proc.stderr]  # the progress lines a log gets, as they come
+    proc.wait()
     batch_s = time.monotonic() - t0
+    batch_eta(lines)
     with (res / "measurements.csv").open() as f:
         rows = list(csv.DictReader(f))
     ok = [r for r in rows if r["status"] == "ok"]
@@ -149,6 +155,33 @@ def main() -> int:
         print(f"  {n:4d} workers: {hours:8.1f} h  ({hours * n:.0f} worker-hours)")
     stage_error_recovery(battery, res, [s.stem for s in sessions])
     return 0
+
+
+_LINE = re.compile(r"^batch: (?P<phase>.+?)\s+(?P<pct>\d+) %\s+.* elapsed\s+ETA (?P<eta>.+)$")
+
+
+def _seconds(text: str) -> float:
+    """Seconds of a :func:`vastcal.progress.format_duration` text (NaN for ``?``)."""
+    parts = re.findall(r"(\d+(?:\.\d+)?) (h|min|s)\b", text)
+    return sum(float(v) * {"h": 3600.0, "min": 60.0, "s": 1.0}[u] for v, u in parts) if parts else float("nan")
+
+
+def batch_eta(lines: list[tuple[float, str]]) -> None:
+    """The batch's ETA as its log lines showed it (one per 10 % of the sessions) against the time its sessions'
+    phase really ended: the issue-18 criterion (every second-half line within 30 %, the last two excused)."""
+    done = [(t, ln) for t, ln in lines if ln.startswith("batch: ") and " done in " in ln and "session" in ln]
+    shown = [(t, m) for t, ln in lines if (m := _LINE.match(ln)) and "session" in m["phase"]]
+    if not done or not shown:
+        print("batch ETA: no progress lines with an ETA seen (fewer than 10 sessions?)")
+        return
+    t_end = done[-1][0]
+    t_start = t_end - _seconds(done[-1][1].split(" done in ")[1])  # the phase starts before its first line (at the batch's submit)
+    errs = [(int(m["pct"]), abs(_seconds(m["eta"]) - (t_end - t)) / (t_end - t) if _seconds(m["eta"]) == _seconds(m["eta"]) else 1.0)
+            for t, m in shown if t - t_start >= 0.5 * (t_end - t_start) and t_end - t > 0.01 * (t_end - t_start)]
+    text = ", ".join(f"{p} %: {100 * e:.0f} %" for p, e in errs)
+    relaxed = [e for _, e in errs[:-2]]
+    print(f"batch ETA over the second half of its sessions phase ({len(errs)} lines): {text or '-'}; "
+          f"within 30 %: {'yes' if all(e <= 0.3 for _, e in errs) else 'no'}, all but the last two: {'yes' if all(e <= 0.3 for e in relaxed) else 'no'}")
 
 
 def stage_error_recovery(battery: Path, results: Path, names: list[str]) -> None:
