@@ -18,6 +18,10 @@ Set-up phases that report no progress (maps, regions, judging) show no ETA and a
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3 --sim-seed 1 4 7
+    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --import-folder ../shared/data/zf_3dpf_s001/images --sim-seed 1
+
+``--import-folder`` also imports a folder of images with the progress `vastcal import` draws and judges its phases.
+The batch's ETA is judged by ``benchmarks/batch_throughput.py`` (from the log lines a batch prints).
 
 Several runs (or starts) end with a summary by kind of phase (each level, the polish, each photometric yaw width;
 at the last width its first samples and its doublings apart).
@@ -69,12 +73,17 @@ def one_run(views: int, starts: int, seed: int, sim_seed: int | None) -> list[di
         bar = PhaseProgress("calibrate", enabled=False)
         with bar:
             calibrate_session(session, seed=seed, starts=starts, progress=CalibrationProgress(bar))
-    rows = []
     print(f"simulator seed {cfg.simulation.seed}, {views} views, {starts} start(s); load average {os.getloadavg()[0]:.2f} at the end")
+    return report(acq.bar.records + bar.records, cfg.simulation.seed)
+
+
+def report(records: list, sim_seed: int | None) -> list[dict]:
+    """Print every phase's duration and ETA errors (the criterion of the module docstring); return them as rows."""
+    rows = []
     print(f"{'phase':<44} {'time s':>7} {'updates':>7} {'median':>7} {'max':>7} {'max but last 2':>14} {'within 30%':>10}")
-    for r in acq.bar.records + bar.records:
+    for r in records:
         errs, relaxed = (second_half_errors((r.name, r.t0, r.t1, r.points), k) for k in (0, 2))
-        row = {"phase": r.name, "sim_seed": cfg.simulation.seed, "duration_s": r.t1 - r.t0, "updates_second_half": len(errs),
+        row = {"phase": r.name, "sim_seed": sim_seed, "duration_s": r.t1 - r.t0, "updates_second_half": len(errs),
                "median_error": float(np.median(errs)) if errs else None, "max_error": float(np.max(errs)) if errs else None,
                "max_error_but_last_2": float(np.max(relaxed)) if relaxed else (0.0 if errs else None),
                "share_within_30pct": float(np.mean(np.asarray(errs) <= 0.3)) if errs else None,
@@ -92,6 +101,17 @@ def one_run(views: int, starts: int, seed: int, sim_seed: int | None) -> list[di
               f"{sum(r['max_error_but_last_2'] <= 0.3 for r in timed)}/{len(timed)}; median of the phases' medians "
               f"{100 * float(np.median([r['median_error'] for r in timed])):.0f} %")
     return rows
+
+
+def import_run(folder: Path) -> list[dict]:
+    """Import ``folder`` with the progress `vastcal import` draws; print and return its phases' figures."""
+    from vastcal.importer import import_folder
+
+    bar = CountProgress("import", "views", enabled=False)
+    with tempfile.TemporaryDirectory() as tmp, bar:
+        import_folder(folder, Path(tmp) / "imported.h5", progress=lambda d, n: bar.update(d, n), phase=bar.phase)
+    print(f"import of {folder}")
+    return report(bar.bar.records, None)
 
 
 def _pct(v: float | None, w: int = 7) -> str:
@@ -122,9 +142,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0, help="calibration seed")
     ap.add_argument("--sim-seed", type=int, action="extend", nargs="+", default=None,
                     help="simulator seed(s) (several: one run each and a summary, e.g. --sim-seed 1 4 7; default: the config's)")
+    ap.add_argument("--import-folder", type=Path, default=None, metavar="FOLDER",
+                    help="also import FOLDER (images, as `vastcal import FOLDER` would) and judge the import's phases")
     ap.add_argument("--json", type=Path, default=None, help="also write the per-phase figures and every update (time, fraction, ETA, true time left, work done and forecast left) here")
     args = ap.parse_args()
     rows: list[dict] = []
+    if args.import_folder is not None:
+        rows += import_run(args.import_folder)
     for sim_seed in args.sim_seed or [None]:
         rows += one_run(args.views, args.starts, args.seed, sim_seed)
     if len(args.sim_seed or []) > 1 or args.starts > 1:
