@@ -177,20 +177,26 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
         res.timings_s["calibrate"] = time.monotonic() - t
         res.calibration = _calibration_digest(cal)
         calibration_run = getattr(cal, "run", None)  # the run just stored, when the result names it; else the latest
-    t = time.monotonic()
-    m = reconstruct_session(path, calibration_run=calibration_run)
-    res.timings_s["reconstruct"] = time.monotonic() - t
-    res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)
-    res.uncertainty = dict(getattr(m, "uncertainty", None) or {})
-    if getattr(m, "qc", None):
-        from vastcal.qc import QCResult
+    steps = PhaseProgress("measure", enabled=not quiet)  # set-up-like phases: their time shown, no ETA
+    try:
+        t = time.monotonic()
+        steps.phase("visual hull, volume and area")
+        m = reconstruct_session(path, calibration_run=calibration_run)
+        res.timings_s["reconstruct"] = time.monotonic() - t
+        res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)
+        res.uncertainty = dict(getattr(m, "uncertainty", None) or {})
+        if getattr(m, "qc", None):
+            from vastcal.qc import QCResult
 
-        res.verdict = QCResult.from_dict(m.qc).verdict_line()
-    if truth_path is not None:
-        res.truth = score_against_truth(path, truth_path)
-    t = time.monotonic()
-    write_report(path, out, truth=res.truth)
-    res.timings_s["report"] = time.monotonic() - t
+            res.verdict = QCResult.from_dict(m.qc).verdict_line()
+        if truth_path is not None:
+            res.truth = score_against_truth(path, truth_path)
+        t = time.monotonic()
+        steps.phase("writing the report")
+        write_report(path, out, truth=res.truth)
+        res.timings_s["report"] = time.monotonic() - t
+    finally:
+        steps.close()
     if keep_runs is not None:
         prune_runs(path, keep=keep_runs)
     return res
