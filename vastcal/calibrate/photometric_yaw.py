@@ -434,7 +434,15 @@ def combine_group_yaws(yaws: np.ndarray, noise_sigmas: list[float | None]) -> tu
 #: at least :data:`MIN_GROUPS_TO_STOP` of them: a revolution of many views needs no more of its sub-revolutions
 #: than their spread calls for.
 YAW_STANDARD_ERROR_DEG = 0.01
-MIN_GROUPS_TO_STOP = 3
+
+#: Sub-revolutions run before their standard error may stop the last stage (so only a revolution split into six or
+#: more, 126 views or more in groups of 21, stops early). Why five: the error 1.2533 · s / √g rests on their spread s, and the spread
+#: of g values estimates their σ with a relative error of about 1 / √(2 (g − 1)): ±50 % from three, ±35 % from five.
+#: A sub-revolution's yaw scatters by σ ≈ 0.02° (mostly with its lattice phase); three pass the 0.01° bar when
+#: s ≤ 0.0138°, which a χ²₂ spread does with probability 1 − exp(−(0.0138 / 0.02)²) ≈ 0.38 although the median of
+#: three is then off by ≈ 0.67 σ ≈ 0.013°. Five pass it when s ≤ 0.0178° (about half the time), and their median's
+#: error (≈ 0.54 σ ≈ 0.011°) is then about the bar's.
+MIN_GROUPS_TO_STOP = 5
 
 
 def spread_order(g: int) -> list[int]:
@@ -704,5 +712,5 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         log.warning("photometric yaw: the yaw still moved by more than %.3g° at the cap of %d iterations", yaw_tolerance_deg, result.final_iterations)
     log.info("photometric yaw: %+.4f° → %+.4f° (%d reconstructions, %d iterations at the last stage%s, %d voxels at the finest%s, %.1f s)",
              result.start_yaw_deg, result.yaw_deg, result.n_evaluations, result.final_iterations, "" if result.converged else " (cap)",
-             result.n_voxels, "" if n_groups == 1 else ", mean of " + " ".join(f"{y:+.4f}°" for y in yaws), result.time_s)
+             result.n_voxels, "" if n_groups == 1 else f", {'median' if yaws.size >= 3 else 'mean'} of " + " ".join(f"{y:+.4f}°" for y in yaws), result.time_s)
     return result
