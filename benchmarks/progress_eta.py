@@ -1,6 +1,6 @@
 """How right is the progress ETA? Its error over the second half of every named phase of a simulated run.
 
-Acquires a revolution from the simulated rig (config/simulated.yaml; --views, default 12) with the progress
+Acquires a revolution from the simulated rig (config/simulated.yaml; --views, default 13) with the progress
 the CLI draws (vastcal.progress.CountProgress), calibrates it with the progress callback the CLI uses
 (vastcal.progress.CalibrationProgress on a PhaseProgress that draws nothing), and for every phase (the
 acquisition's, each CMA-ES level of each start, the per-view polish, the photometric yaw) prints its duration
@@ -16,8 +16,8 @@ most two updates' work (two CMA-ES generations, two polish sweeps: tens of milli
 the ETA is shown with) plus the phase's tail, and one unit of work more or less is already 50 %.
 Set-up phases that report no progress (maps, regions, judging) show no ETA and are listed with "-".
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3
-    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 12 --starts 3 --sim-seed 1 4 7
+    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 13 --starts 3
+    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 13 --starts 3 --sim-seed 1 4 7
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --import-folder ../shared/data/zf_3dpf_s001/images --sim-seed 1
 
 ``--import-folder`` also imports a folder of images with the progress `vastcal import` draws and judges its phases.
@@ -137,7 +137,7 @@ def summary(rows: list[dict]) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--views", type=int, default=12)
+    ap.add_argument("--views", type=int, default=13, help="views (default 13: odd and above the 11 directions the photometric yaw needs, so that every phase runs)")
     ap.add_argument("--starts", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0, help="calibration seed")
     ap.add_argument("--sim-seed", type=int, action="extend", nargs="+", default=None,

@@ -17,8 +17,8 @@ import pytest
 
 from vastcal.calibrate import calibrate_views
 from vastcal.calibrate.colour_model import fit_automatic
-from vastcal.calibrate.photometric_yaw import (AbsorptionMatch, absorption_images, combine_group_yaws, drop_static, grid_phase, refine_yaw,
-                                            spread_order, yaw_groups)
+from vastcal.calibrate.photometric_yaw import (AbsorptionMatch, absorption_images, combine_group_yaws, distinct_directions,
+                                            drop_static, grid_phase, refine_yaw, spread_order, yaw_groups)
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.geometry import projection_matrices
 
@@ -72,7 +72,7 @@ def test_no_absorption_contrast_leaves_the_yaw_alone(caplog: pytest.LogCaptureFi
     K, d = synthetic.camera()
     pf = specimen_maps(fit_automatic(images), images)
     with caplog.at_level(logging.WARNING, logger="vastcal.calibrate.photometric_yaw"):
-        assert refine_yaw(images, pf, K, d, theta, (theta[0] - 1, theta[0] + 1)) is None
+        assert refine_yaw(images, pf, K, d, theta, (theta[0] - 1, theta[0] + 1), min_directions=0) is None  # 8 views: the contrast alone
     assert "not darker than its background" in caplog.text
 
 
@@ -90,7 +90,7 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     assert refined.report()["final_iterations"] == refined.final_iterations
     assert refined.group_yaws_deg is not None and refined.group_yaws_deg.size == 1  # 21 views: one reconstruction of them all
     # split into two interleaved sub-revolutions: the last stage on each, the yaw their mean
-    split = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=10)
+    split = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=10, min_directions=9)
     assert split is not None and split.group_yaws_deg is not None and list(split.group_views) == [9, 9]
     assert split.yaw_deg == pytest.approx(float(np.mean(split.group_yaws_deg)))
     assert abs(split.yaw_deg - truth["yaw_deg"]) < 0.1 and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
@@ -98,12 +98,33 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     parts: list[str] = []
     stages: list[tuple[int, int]] = []
     stopped = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=3,
-                         yaw_standard_error_deg=1.0, part=lambda what, n: parts.append(what), stage=lambda w, n: stages.append((w, n)))
+                         yaw_standard_error_deg=1.0, part=lambda what, n: parts.append(what), stage=lambda w, n: stages.append((w, n)),
+                         min_directions=3)
     assert stages[-1] == (1024, 5)  # the first sub-revolution's first samples; the later ones' are parts of their own
     assert [p for p in parts if p.endswith("first samples")] == [f"sub-revolution {k}/7: first samples" for k in range(2, 6)]
     assert stopped is not None and stopped.group_yaws_deg is not None and list(stopped.group_views) == [3] * 5  # not 7
     assert stopped.yaw_deg == pytest.approx(float(np.median(stopped.group_yaws_deg)))
     assert stopped.yaw_sigma_deg is not None and stopped.yaw_sigma_deg >= 1.2533 * np.std(stopped.group_yaws_deg, ddof=1) / np.sqrt(5) - 1e-12
+
+
+def test_too_few_directions_leave_the_yaw_alone(simulated: tuple[np.ndarray, np.ndarray, dict], caplog: pytest.LogCaptureFixture) -> None:
+    """An even revolution's views face each other in pairs: 12 views look along 6 directions, 11 along 11; the yaw is
+    searched from 11 directions on, and not from fewer (a warning says why)."""
+    rng = np.random.default_rng(3)
+    for n, expected in ((8, 4), (9, 9), (10, 5), (11, 11), (12, 6), (13, 13), (21, 21)):
+        angles = np.arange(n) * 360.0 / n + rng.normal(0.0, 1.0, n)  # a stage's drift of ~1°
+        assert distinct_directions(angles[yaw_groups(angles)[0]]) == expected, n
+    angles = np.arange(36) * 360.0 / 36 + rng.normal(0.0, 1.0, 36)  # 18 directions, facing pairs ~1.4° apart: 18 or more
+    assert 18 <= distinct_directions(angles[yaw_groups(angles)[0]]) <= 35
+    images, commanded, truth = simulated
+    K, d = np.array(truth["K"]), truth["distance_um"]
+    views = np.arange(0, 21, 2)  # 11 of the 21 views, spread over the turn: 11 directions, then 10
+    pf = specimen_maps(fit_automatic(images[views]), images[views])
+    theta = np.r_[0.0, 0.0, 0.0, commanded[views]]
+    assert distinct_directions(commanded[views]) == 11 and distinct_directions(commanded[views[:-1]]) == 10
+    with caplog.at_level(logging.WARNING, logger="vastcal.calibrate.photometric_yaw"):
+        assert refine_yaw(images[views[:-1]], pf[:-1], K, d, theta[:-1], (-3.0, 3.0)) is None
+    assert "distinct directions" in caplog.text and "yaw not measured" in caplog.text
 
 
 def test_yaw_groups_are_interleaved_sub_revolutions_of_at_least_the_group_size() -> None:

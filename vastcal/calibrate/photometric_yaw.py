@@ -357,6 +357,33 @@ FINAL_ITERATIONS: tuple[int, int] = (50, 800)
 GROUP_VIEWS = 21
 
 
+#: Distinct projection directions a sub-revolution needs for the photometric yaw. Its views' roll angles are taken
+#: modulo 180° (a nearly orthographic camera sees a specimen along the same lines from ω and ω + 180°, so an even
+#: regular revolution of N views has only N/2 directions, an odd one N). The grey levels determine the yaw only through a
+#: reconstruction, and one from few directions has wedges between them that its voxels fill freely. Measured on
+#: simulated rigs (docs/calibration.md, "Too few directions for the photometric yaw"): 11 directions or more (odd 11,
+#: 13, 15, 17 views; even 36) gave yaw errors within 0.06°; 9 (9 views), 6 (12 views), 5 (10 views) and 4 (8 views)
+#: gave up to 0.13°, 0.26°, 0.40° and 2.2°.
+MIN_DIRECTIONS = 11
+
+
+def distinct_directions(angles_deg: np.ndarray) -> int:
+    """Projection directions of views at roll angles ``angles_deg`` (degrees): the angles modulo 180°, those within a
+    quarter of a regular spacing (180° / number of views) of a direction already counted taken as the same (the two
+    views of a facing pair differ by the stage's drift only)."""
+    d = np.sort(np.mod(np.asarray(angles_deg, float), 180.0))
+    if d.size == 0:
+        return 0
+    tol = 0.25 * 180.0 / d.size
+    count, first = 1, d[0]
+    for x in d[1:]:
+        if x - first > tol:
+            count, first = count + 1, x
+    if count > 1 and d[0] + 180.0 - first <= tol:  # the last direction wraps onto the first
+        count -= 1
+    return count
+
+
 def yaw_groups(angles_deg: np.ndarray, group_views: int | None = GROUP_VIEWS) -> list[np.ndarray]:
     """Interleaved sub-revolutions (sorted indices) of the views at roll angles ``angles_deg`` (degrees).
 
@@ -493,7 +520,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                progress: Callable[[int, float], None] | None = None,
                stage: Callable[[int, int], None] | None = None, recarve: bool = False,
                part: Callable[[str, int], None] | None = None, group_views: int | None = GROUP_VIEWS,
-               yaw_standard_error_deg: float = YAW_STANDARD_ERROR_DEG) -> YawRefinement | None:
+               yaw_standard_error_deg: float = YAW_STANDARD_ERROR_DEG, min_directions: int = MIN_DIRECTIONS) -> YawRefinement | None:
     """The yaw that minimises E(θ) with every other entry of θ held (see the module docstring).
 
     Args:
@@ -537,13 +564,22 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             :func:`spread_order`, and the yaw is :func:`combine_group_yaws` of theirs.
         yaw_standard_error_deg: the sub-revolutions stop once the combined yaw's standard error is at most this
             (after :data:`MIN_GROUPS_TO_STOP`; ``group_views`` and ``group_yaws_deg`` of the result hold those run).
+        min_directions: the projection directions (:func:`distinct_directions`) a sub-revolution must have; with fewer
+            the yaw is not searched (None, a warning; :data:`MIN_DIRECTIONS`).
 
     Returns:
         The refinement, or None when the images show no absorption contrast (specimen not darker
-        than its background) — the yaw then stays as it was.
+        than its background) or the views too few directions — the yaw then stays as it was.
     """
     t0 = time.monotonic()
     theta = np.asarray(theta, float)
+    groups = yaw_groups(theta[3:], group_views)
+    directions = distinct_directions(theta[3:][groups[0]])
+    if directions < min_directions:
+        log.warning("photometric yaw: the views look along %d distinct directions (modulo 180°); the yaw needs %d (an odd number "
+                    "of at least %d views, or an even number of at least %d): yaw not measured, kept at the silhouette solution",
+                    directions, min_directions, min_directions, 2 * min_directions)
+        return None
     images = np.asarray(images)
     n, h, w = images.shape[:3]
     pf_full = np.stack([cv2.resize(np.asarray(p, np.float32), (w, h), interpolation=cv2.INTER_LINEAR) for p in pf])
@@ -566,7 +602,6 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     extent_along = w if along_u else h
     lo, hi = yaw_range_deg
     last = schedule[-1][0]
-    groups = yaw_groups(theta[3:], group_views)
     n_groups = len(groups)
     evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations), every search's
     widths_named: set[int] = set()
