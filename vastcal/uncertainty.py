@@ -358,21 +358,40 @@ def _settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
     return s if isinstance(s, dict) else {}
 
 
-def open_directions_sigma(n_params: int, free: Sequence[str], settings: dict[str, Any]) -> tuple[np.ndarray, str]:
+def _photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
+    """Whether a stored calibration run's photometric yaw ran (a level report of that stage), None when the run keeps
+    no level reports. It may be on in the settings and yet not run: no absorption contrast, too few directions."""
+    import json
+
+    levels = attrs.get("levels")
+    if isinstance(levels, (str, bytes)):
+        try:
+            levels = json.loads(levels)
+        except ValueError:
+            return None
+    if not isinstance(levels, list):
+        return None
+    return any(isinstance(r, dict) and r.get("stage") == "photometric yaw" for r in levels)
+
+
+def open_directions_sigma(n_params: int, free: Sequence[str], settings: dict[str, Any],
+                          photometric_ran: bool | None = None) -> tuple[np.ndarray, str]:
     """σ (degrees, per θ entry) of the directions the images leave open, and a line saying why.
 
     Rolls (views 1 … N−1): the roll prior's width ``roll_prior_deg`` (default 1°) — the rig file's
     statement of how far the stage may drift, which is what decides them (docs/calibration.md);
     when the rolls were fixed the same width (they sit at the commanded angles, the stage's drift
-    unknown). Yaw: the photometric yaw's measured error when it ran, else ``yaw_prior_deg``
-    (default 0.5°). Pitch and γ are pinned by the silhouettes (a few hundredths of a degree) and
-    are not sampled.
+    unknown). Yaw: the photometric yaw's measured error when it ran (``photometric_ran``; None: when the settings
+    turn it on and the yaw was free), else ``yaw_prior_deg`` (default 0.5°). Pitch and γ are pinned by the
+    silhouettes (a few hundredths of a degree) and are not sampled.
     """
     sig = np.zeros(n_params)
     roll = float(settings.get("roll_prior_deg", 1.0) or 1.0)
     sig[4:] = roll
     free = set(free or [])
     photometric = bool(settings.get("photometric_yaw", False)) and ("yaw" in free or "all" in free)
+    if photometric_ran is not None:
+        photometric = photometric and photometric_ran
     yaw = PHOTOMETRIC_YAW_SIGMA_DEG if photometric else float(settings.get("yaw_prior_deg", 0.5) or 0.5)
     sig[0] = yaw
     src = (f"rolls of views 1..N-1: sigma {roll:g} deg (the roll prior: the images do not determine them); yaw: sigma {yaw:g} deg ("
@@ -393,7 +412,7 @@ def calibration_spread_from_group(group: Any) -> CalibrationSpread | None:
     free = a.get("free", []) or []
     if isinstance(free, str):
         free = [free]
-    sig, src = open_directions_sigma(theta.size, list(free), _settings_of(a))
+    sig, src = open_directions_sigma(theta.size, list(free), _settings_of(a), _photometric_yaw_ran(a))
     st = sc = None
     if "starts" in group and "theta" in group["starts"] and "cost" in group["starts"]:
         st = np.asarray(group["starts"]["theta"][...], float)

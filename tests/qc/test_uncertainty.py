@@ -166,3 +166,20 @@ def test_a_failing_assessment_never_loses_the_measurement(tmp_path: Path, qc_vie
     m = reconstruct_session(path, target_voxels=100_000, use_masks=True)
     assert m.volume_mm3 > 0 and m.qc is None and m.uncertainty["not_evaluated"] == ["all"]
     assert "not evaluated: all" in m.summary()
+
+
+def test_the_yaw_sigma_is_the_prior_s_when_the_photometric_yaw_did_not_run() -> None:
+    """The rig file turns the photometric yaw on, but a run with too few directions (or no absorption contrast) skips
+    it: its yaw is then the prior's, and so is its σ in the budget — not the photometric yaw's measured error."""
+    import json
+
+    from vastcal.uncertainty import PHOTOMETRIC_YAW_SIGMA_DEG, _photometric_yaw_ran, open_directions_sigma
+
+    settings = {"photometric_yaw": True, "yaw_prior_deg": 0.5, "roll_prior_deg": 1.0}
+    ran = {"levels": json.dumps([{"seed": 0, "level": 0}, {"judge": "..."}, {"stage": "photometric yaw", "yaw_deg": 0.3}])}
+    skipped = {"levels": json.dumps([{"seed": 0, "level": 0}, {"judge": "..."}])}
+    assert _photometric_yaw_ran(ran) is True and _photometric_yaw_ran(skipped) is False and _photometric_yaw_ran({}) is None
+    for attrs, sigma, says in ((ran, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw"), (skipped, 0.5, "the yaw prior"),
+                               ({}, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw")):
+        sig, src = open_directions_sigma(3 + 6, ["yaw", "pitch", "gamma", "rolls"], settings, _photometric_yaw_ran(attrs))
+        assert sig[0] == sigma and says in src
