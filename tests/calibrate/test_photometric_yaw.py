@@ -94,6 +94,11 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     assert split is not None and split.group_yaws_deg is not None and list(split.group_views) == [9, 9]
     assert split.yaw_deg == pytest.approx(float(np.mean(split.group_yaws_deg)))
     assert abs(split.yaw_deg - truth["yaw_deg"]) < 0.1 and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
+    # a sub-revolution larger than the group size (21 views against 15): reconstructed at three lattice phases, their median
+    phased = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=15)
+    assert phased is not None and phased.group_yaws_deg is not None and list(phased.group_views) == [21, 21, 21]
+    assert phased.yaw_deg == pytest.approx(float(np.median(phased.group_yaws_deg))) and len(set(phased.group_yaws_deg.tolist())) == 3
+    assert abs(phased.yaw_deg - truth["yaw_deg"]) < 0.05 and phased.yaw_sigma_deg is not None
     # seven sub-revolutions of three views: after five (not three), their median's standard error is within a loose tolerance
     parts: list[str] = []
     stages: list[tuple[int, int]] = []

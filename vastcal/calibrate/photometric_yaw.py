@@ -367,6 +367,14 @@ GROUP_VIEWS = 21
 MIN_DIRECTIONS = 11
 
 
+#: Reconstructions of the last stage, at least, when its sub-revolutions hold more views than :data:`GROUP_VIEWS` (from 22
+#: to 62 views: one or two of them): their views are reconstructed again at new lattice phases (:func:`grid_phase`) up to
+#: this many, and the yaw is their median. A group that large reads the lattice's aliasing more strongly than one of 21
+#: (docs/calibration.md, "Lattice phases for large sub-revolutions": 35 views, simulated rigs 2 and 3, +0.057° and
+#: +0.062° at one phase, +0.025° and +0.011° as the median of three); 21-view sessions keep their one reconstruction.
+MIN_LATTICE_PHASES = 3
+
+
 def distinct_directions(angles_deg: np.ndarray) -> int:
     """Projection directions of views at roll angles ``angles_deg`` (degrees): the angles modulo 180°, those within a
     quarter of a regular spacing (180° / number of views) of a direction already counted taken as the same (the two
@@ -560,7 +568,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
             coarse stages run on the first of :func:`yaw_groups`'s odd sub-revolutions, the last stage (with its
             convergence rule) on each (``yaw_sigma_deg``: the combined yaw's standard error); an odd
             N below 2 · group_views is one group of all views. None: one reconstruction of all views.
-            Each sub-revolution has its own voxel lattice phase (:func:`grid_phase`); they run in
+            Fewer than :data:`MIN_LATTICE_PHASES` sub-revolutions larger than ``group_views`` are reconstructed again
+            up to that many times. Each reconstruction has its own voxel lattice phase (:func:`grid_phase`); they run in
             :func:`spread_order`, and the yaw is :func:`combine_group_yaws` of theirs.
         yaw_standard_error_deg: the sub-revolutions stop once the combined yaw's standard error is at most this
             (after :data:`MIN_GROUPS_TO_STOP`; ``group_views`` and ``group_yaws_deg`` of the result hold those run).
@@ -602,6 +611,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     extent_along = w if along_u else h
     lo, hi = yaw_range_deg
     last = schedule[-1][0]
+    n_views_used = int(sum(g.size for g in groups))
+    if len(groups) < MIN_LATTICE_PHASES and max(g.size for g in groups) > (group_views or 0) > 0:
+        groups = [groups[k % len(groups)] for k in range(MIN_LATTICE_PHASES)]  # the same views again, each time at a new lattice phase
     n_groups = len(groups)
     evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations), every search's
     widths_named: set[int] = set()
@@ -719,8 +731,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     if n_groups == 1:  # every stage on all views
         finals = [search(groups[0], 0, float(theta[0]), "")]
     else:  # the coarse stages on the first sub-revolution, the last stage on each until their yaws combine well enough
-        log.info("photometric yaw: %d views as %d interleaved sub-revolutions of %d-%d views", n, n_groups,
-                 min(g.size for g in groups), max(g.size for g in groups))
+        log.info("photometric yaw: %d views as %d reconstructions (interleaved sub-revolutions, each at its own lattice phase) "
+                 "of %d-%d views", n_views_used, n_groups, min(g.size for g in groups), max(g.size for g in groups))
         coarse = (search(groups[0], 0, float(theta[0]), " (coarse, sub-revolution 1)", end_stage=len(schedule) - 1).yaw_deg
                   if len(schedule) > 1 else float(theta[0]))
         finals, used = [], []
