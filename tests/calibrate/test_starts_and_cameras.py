@@ -121,3 +121,23 @@ def test_length_unit_is_given_inferred_or_unknown() -> None:
     assert camera_length_unit(P, None, None)[0] == "unknown"
     with pytest.raises(ImportDataError):
         camera_length_unit(P, "furlong", None)
+
+
+def test_a_level_that_hands_over_shows_exploring_until_its_end_is_planned(session_path: Path) -> None:
+    """The first level ends at a generation planned from its step's descent: until that plan is frozen it is shown as
+    exploring, with its time only (no ETA to be wrong), then as the level itself, whose end is then known."""
+    from vastcal.progress import CalibrationProgress, PhaseProgress
+
+    import dataclasses
+
+    settings = dataclasses.replace(FAST, levels=(dataclasses.replace(FAST.levels[0], max_evaluations=4000), FAST.levels[1]))
+    bar = PhaseProgress("calibrate", enabled=False)
+    with bar:
+        calibrate_session(session_path, seed=1, settings=settings, progress=CalibrationProgress(bar))
+    names = [r.name for r in bar.records]
+    first = "level 1/2 (160 px), seed 1"
+    assert names.index(f"{first}: exploring") + 1 == names.index(first), names
+    exploring = bar.records[names.index(f"{first}: exploring")]
+    assert exploring.points == [] and exploring.t1 > exploring.t0
+    assert bar.records[names.index(first)].points  # the planned part reports its progress
+    assert not any(n.startswith("level 2/2") and "exploring" in n for n in names)  # the last level has no plan

@@ -158,8 +158,11 @@ def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_ne
 
     resolution = 1e-3 / scale  # every coordinate: 1e-3 of image motion
     told: list[tuple[int, float]] = []
+    planned_at: list[int] = []  # the convergence reports before on_plan: the generation the plan froze in is the next
     r = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8,
-                 resolution=resolution, convergence=lambda d, left: told.append((d, left)))
+                 resolution=resolution, convergence=lambda d, left: told.append((d, left)), on_plan=lambda: planned_at.append(len(told)))
+    assert len(planned_at) == 1 and 0 < planned_at[0] < len(told) // 2  # once, within the run's first half of generations
+    assert all(left == pytest.approx(told[-1][0] + 2 - d + 6) for d, left in told[planned_at[0]:])  # from then on: the end known
     full = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8)
     assert list(r.stop) == ["resolution"] and r.n_evaluations < full.n_evaluations
     assert r.n_evaluations == 8 * r.n_generations + 2

@@ -83,14 +83,16 @@ RESTARTS = ("none", "ipop", "bipop")
 def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, opts: dict,
              progress: Callable[[int, float], None] | None, evals_before: int,
              convergence: Callable[[float, float], None] | None = None, spend_budget: bool = False,
-             resolution: np.ndarray | None = None, research: np.ndarray | None = None) -> CMAResult:
+             resolution: np.ndarray | None = None, research: np.ndarray | None = None,
+             on_plan: Callable[[], None] | None = None) -> CMAResult:
     """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept.
     ``convergence`` (optional) is told every generation (evaluations so far, counting ``evals_before``; the
     evaluations forecast left, :class:`.forecast.CMAStopForecast`; ``spend_budget``: restarts follow until the
     budget is spent, so the budget left is the forecast). ``resolution`` (F,) box units: the run ends at the
     generation planned for its step to fall below it in every coordinate (stop reason ``resolution``). ``research``
     (F,) box units: the objective repeats a costly search when its batch's mean moves more than this; ``convergence``
-    is then told work in seconds of the search (:class:`.forecast.GenerationTime`), not evaluations."""
+    is then told work in seconds of the search (:class:`.forecast.GenerationTime`), not evaluations. ``on_plan`` is
+    called once, in the generation whose forecast froze the planned end (before that generation's ``convergence``)."""
     res = CMAResult(x0.copy(), float("inf"), 0, 0, {})
     if resolution is not None:  # the resolution replaces tolx: one stopping rule, whose moment the plan knows
         opts = dict(opts, tolx=0.0)
@@ -121,6 +123,9 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
             quantity, step = tolx_quantities(es, per_unit)
             left = forecast.add(quantity, res.n_evaluations, step)
             planned_end = forecast.planned_end()
+            if on_plan is not None and forecast.plan is not None:
+                on_plan()
+                on_plan = None
             if convergence is not None:
                 if timing is None:
                     convergence(evals_before + res.n_evaluations, left)
@@ -150,7 +155,7 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
              max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
              progress: Callable[[int, float], None] | None = None, restarts: str = "none",
              convergence: Callable[[float, float], None] | None = None, resolution: np.ndarray | None = None,
-             research: np.ndarray | None = None) -> CMAResult:
+             research: np.ndarray | None = None, on_plan: Callable[[], None] | None = None) -> CMAResult:
     """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
 
     Args:
@@ -179,6 +184,8 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             coordinate's half-width; ``inf``: not watched). ``convergence`` is then told work in seconds of the search:
             the generations' measured time, and the generations left at the measured time of each kind with the full
             searches forecast among them (:class:`.forecast.GenerationTime`). Ignored with restarts.
+        on_plan: with ``resolution`` (no restarts), called once when the run's end is planned (frozen), before that
+            generation's ``convergence`` and ``progress``: from then on the end is known.
     """
     cma = _cma()
     if restarts not in RESTARTS:
@@ -219,7 +226,7 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
                 opts["popsize"] = lam_large
             elif lam0:
                 opts["popsize"] = lam0
-            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence, spend_budget=restarts != "none",
+            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence, spend_budget=restarts != "none", on_plan=on_plan,
                          resolution=resolution if restarts == "none" else None, research=research if restarts == "none" else None)
             if k == 0:
                 lam0 = lam_large = r.popsize  # type: ignore[attr-defined]

@@ -471,11 +471,25 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
                 stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
         research_deg = _research_deg(obj)  # its generations' cost differs with the search it repeats: the ETA counts them
         research = None if research_deg is None else research_deg / space.half_width[space.free_mask][sel]
-        clock.name_phase(lv.max_evaluations, name)  # the search: its ETA from the CMA-ES stop forecast
+        # The search: its ETA from the CMA-ES stop forecast. A level that hands over at a planned generation is first shown
+        # as exploring, with its time only: its end is a forecast that can still move by half until the plan is frozen
+        # (a third of its generations, which its costlier first generations can make half of its time); from then on the
+        # level's phase has an end that is known.
+        planned = resolution is not None and settings.restarts == "none"
+        shown = [not planned]
+
+        def plan_frozen(_lv: Level = lv, _name: str = name) -> None:
+            shown[0] = True
+            clock.name_phase(_lv.max_evaluations, _name)
+
+        if planned:
+            clock.name_phase(1, f"{name}: exploring")
+        else:
+            clock.name_phase(lv.max_evaluations, name)
         res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
                        tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize, restarts=settings.restarts,
-                       progress=lambda e, f, _b=base: clock.update(_b + e, f), convergence=clock.forecast, resolution=resolution,
-                       research=research)
+                       progress=lambda e, f, _b=base: clock.update(_b + e, f) if shown[0] else None, convergence=clock.forecast,
+                       resolution=resolution, research=research, on_plan=plan_frozen if planned else None)
         x = x.copy()
         x[sel] = res.x_best
         dt = time.monotonic() - t_lv
