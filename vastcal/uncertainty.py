@@ -346,29 +346,28 @@ class CalibrationSpread:
         return projection_matrices(self.K, self.distance_um, np.asarray(theta_deg, float)[None])[0]
 
 
-def _settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
+def _json_attr(attrs: dict[str, Any], key: str) -> Any:
+    """A stored attribute that holds JSON (a run's ``settings``, ``levels``), decoded; None when absent or not JSON."""
     import json
 
-    s = attrs.get("settings", {})
-    if isinstance(s, (str, bytes)):
+    v = attrs.get(key)
+    if isinstance(v, (str, bytes)):
         try:
-            s = json.loads(s)
+            return json.loads(v)
         except ValueError:
-            s = {}
+            return None
+    return v
+
+
+def _settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
+    s = _json_attr(attrs, "settings")
     return s if isinstance(s, dict) else {}
 
 
 def _photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
     """Whether a stored calibration run's photometric yaw ran (a level report of that stage), None when the run keeps
     no level reports. It may be on in the settings and yet not run: no absorption contrast, too few directions."""
-    import json
-
-    levels = attrs.get("levels")
-    if isinstance(levels, (str, bytes)):
-        try:
-            levels = json.loads(levels)
-        except ValueError:
-            return None
+    levels = _json_attr(attrs, "levels")
     if not isinstance(levels, list):
         return None
     return any(isinstance(r, dict) and r.get("stage") == "photometric yaw" for r in levels)

@@ -698,9 +698,10 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         n_rolls = int(np.sum(space.free_mask[4:]))
         clock.name_phase(1, "per-view polish: region")
         fast, _, _, _ = problem.level_objective(last, x)
-        clock.start_phase((2 * n_rolls + 3) * 2 * len(settings.polish_steps_deg), "per-view polish")
-        polish_cost, seen = problem.cost_fn(fast), [evals_done]
         n_steps = len(settings.polish_steps_deg)
+        # its evaluations, at most: x, each sweep's 2F + 1 trials and 3 moves, the final x and the judge's
+        clock.start_phase(n_steps * (2 * n_rolls + 4) + 3, "per-view polish")
+        polish_cost, seen = problem.cost_fn(fast), [evals_done]
 
         def counted(th: np.ndarray) -> np.ndarray:
             out = polish_cost(th)
