@@ -75,6 +75,7 @@ def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(views: np.ndarr
         return SimpleNamespace(yaw_deg=float(theta[0]) + 0.4, n_evaluations=1, time_s=0.0, report=lambda: {"stage": "photometric yaw"})
 
     monkeypatch.setattr(run_module, "refine_yaw", moved_yaw)
+    monkeypatch.setattr(run_module, "enough_directions", lambda angles: True)  # 12 views: 6 directions, but the search is faked
     r = calibrate_views(views, K, d, theta0, seed=0, free=["yaw", "pitch", "gamma"], settings=dataclasses.replace(settings, photometric_yaw=True))
     judge = next(rep for rep in r.level_reports if "judge" in rep)
     assert judge["final_cost_after"] == "photometric yaw" and judge["final_cost"] == r.final_cost

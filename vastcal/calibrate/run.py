@@ -40,7 +40,7 @@ from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.forecast import polish_sweeps_left
 from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock, minimise, preload
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
-from vastcal.calibrate.photometric_yaw import SCHEDULE, expected_evaluations, finest_voxel_um, refine_yaw
+from vastcal.calibrate.photometric_yaw import SCHEDULE, enough_directions, expected_evaluations, finest_voxel_um, refine_yaw
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
@@ -752,7 +752,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     if pf.shape[1:] != images.shape[1:3]:
         pf = np.empty((0,) + pf.shape[1:], pf.dtype)  # not pf[:0], a view that would keep the maps
 
-    if settings.photometric_yaw and method == "coherence" and space.free_mask[0]:
+    if settings.photometric_yaw and method == "coherence" and space.free_mask[0] and enough_directions(theta[3:]):
         base = evals_done
         clock.start_phase(expected_evaluations(), "photometric yaw: absorption maps")
         voxel_um = finest_voxel_um(K, distance, w_full)  # its finest voxel (a cube of its volume)
