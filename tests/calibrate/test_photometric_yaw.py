@@ -209,3 +209,21 @@ def test_samples_moved_past_a_lowest_one_at_an_end_are_announced_before_they_run
     assert len(extended) == 2  # the box allows both extensions; each named before its reconstructions
     for i in extended:
         assert events[i + 1][0] == "eval"
+
+
+def test_a_product_split_over_threads_is_bit_identical(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The reconstruction's products, their rows cut into blocks computed on two threads, equal one product bit for bit
+    (rows of very unequal length: the blocks are cut by stored entries, and a block may hold one row)."""
+    import scipy.sparse as sp
+
+    from vastcal.calibrate import photometric_yaw as py
+
+    rng = np.random.default_rng(5)
+    dense = (rng.random((300, 200)) < np.linspace(0.001, 0.6, 300)[:, None]) * rng.random((300, 200))
+    M = sp.csr_matrix(dense.astype(np.float32))
+    x = rng.random(200).astype(np.float32)
+    monkeypatch.setenv("VASTCAL_THREADS", "2")
+    monkeypatch.setattr(py, "MIN_ENTRIES_PER_THREAD", 10)
+    assert np.array_equal(py._threaded_product(M)(x), M @ x)
+    monkeypatch.setattr(py, "MIN_ENTRIES_PER_THREAD", 10**9)  # too small to split: the plain product
+    assert np.array_equal(py._threaded_product(M)(x), M @ x)

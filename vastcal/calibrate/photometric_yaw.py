@@ -64,7 +64,7 @@ import scipy.sparse as sp
 
 from vastcal.calibrate.objective_coherence import axis_probe
 from vastcal.calibrate.sampling import downsample_matrix, resize_stack
-from vastcal.calibrate.threads import in_order
+from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.geometry import project, projection_matrices
 from vastcal.voxels import VoxelGrid, inside_all, viewing_box
 
@@ -336,13 +336,14 @@ class AbsorptionMatch:
             return rec.cost
         A, At, active, row_sum = self.system(rec.theta)
         col_sum = np.asarray(At.sum(axis=1)).ravel()
+        forward, backward = _threaded_product(A), _threaded_product(At)
         Dr = (1.0 / row_sum).astype(np.float32)
         Dc = (1.0 / np.maximum(col_sum, 1e-12)).astype(np.float32)
         a, cov = self.a[active], self.cov[active]
         cc, ca = max(self.s_cc, 1e-12), self.s_ac  # c is fitted over every weighted pixel, reached or not
         mu, mu_prev, t = rec.mu, rec.mu_prev, rec.t
-        Amu = A @ mu
-        Amu_prev = A @ mu_prev if self.accelerated and rec.iterations else Amu
+        Amu = forward(mu)
+        Amu_prev = forward(mu_prev) if self.accelerated and rec.iterations else Amu
         c = (ca - float(cov @ Amu)) / cc if rec.iterations else 0.0
         for _ in range(rec.iterations, iterations):
             if self.accelerated:  # FISTA: the SIRT step from an extrapolated point
@@ -352,8 +353,8 @@ class AbsorptionMatch:
                 mu_prev, Amu_prev, t = mu, Amu, t_next
             else:
                 y, Ay = mu, Amu
-            mu = np.maximum(0.0, y + Dc * (At @ (Dr * (a - np.float32(c) * cov - Ay))))
-            Amu = A @ mu
+            mu = np.maximum(0.0, y + Dc * backward(Dr * (a - np.float32(c) * cov - Ay)))
+            Amu = forward(mu)
             c = (ca - float(cov @ Amu)) / cc
         # E = Σ_w (a − c p_f)² over the weighted pixels, with A μ taken off the active ones (all weighted).
         base = (a - np.float32(c) * cov).astype(np.float64)
@@ -365,6 +366,37 @@ class AbsorptionMatch:
     def __call__(self, theta: np.ndarray) -> float:
         """E(θ) for one θ (3 + N,) degrees, after ``sirt_iterations`` iterations from zero."""
         return self.resume(self.start(theta), self.iterations)
+
+
+#: Least stored entries per row block for which :func:`_threaded_product` splits a product over threads: below
+#: it (the coarse stages' small systems) a thread's hand-over costs about what the split saves.
+MIN_ENTRIES_PER_THREAD = 250_000
+
+
+def _threaded_product(M: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
+    """x ↦ M x for a CSR matrix, the rows cut into :func:`.threads.compute_threads` blocks of about equal stored entries
+    computed side by side (:func:`.threads.run_slices`; SciPy's product releases the GIL): every row is summed exactly as
+    in one product, so the result is bit-identical to ``M @ x`` whatever the number of threads. The blocks are views of
+    M's arrays, not copies."""
+    parts = int(min(compute_threads(), max(1, M.nnz // MIN_ENTRIES_PER_THREAD)))
+    if parts <= 1:
+        return lambda x: M @ x
+    cuts = np.searchsorted(M.indptr, np.linspace(0, M.nnz, parts + 1)[1:-1])
+    bounds = np.concatenate([[0], cuts, [M.shape[0]]]).astype(int)
+    blocks = [(r0, r1, sp.csr_matrix((M.data[M.indptr[r0]:M.indptr[r1]], M.indices[M.indptr[r0]:M.indptr[r1]],
+                                      M.indptr[r0:r1 + 1] - M.indptr[r0]), shape=(r1 - r0, M.shape[1])))
+              for r0, r1 in zip(bounds[:-1], bounds[1:]) if r1 > r0]
+
+    def product(x: np.ndarray) -> np.ndarray:
+        out = np.empty(M.shape[0], np.result_type(M.dtype, x.dtype))
+
+        def block(b: tuple[int, int, sp.csr_matrix]) -> None:
+            out[b[0]:b[1]] = b[2] @ x
+
+        run_slices(block, blocks)
+        return out
+
+    return product
 
 
 #: The search schedule: (map width px along the axis image, step °, samples each side of the centre). A scan
@@ -691,8 +723,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         si = first_stage
 
         def costs_at(yaws: np.ndarray, width: int) -> np.ndarray:
-            """E at each of ``yaws`` on maps of ``width``: the reconstructions that need work run side by side
-            (:func:`.threads.in_order`), each reported as it ends, in order."""
+            """E at each of ``yaws`` on maps of ``width`` (each reconstruction that needs work reported as it ends)."""
             final = si == len(schedule) - 1
             key = (width, si if recarve or final else 0)  # the last stage carves its own support (at its start yaw)
             if key not in matches:
@@ -721,7 +752,8 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                     recs[rkey] = match.start(th)
                 if recs[rkey].iterations < iterations:
                     todo.append((yaw, recs[rkey]))
-            for (yaw, _), e in zip(todo, in_order(lambda job: match.resume(job[1], iterations), todo)):
+            for yaw, rec in todo:
+                e = match.resume(rec, iterations)
                 evaluations.append((yaw, width, e, iterations))
                 if progress is not None:
                     progress(len(evaluations), e)

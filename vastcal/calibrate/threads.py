@@ -18,7 +18,7 @@ import logging
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, Iterable, Iterator, TypeVar
+from typing import Callable, Iterable, TypeVar
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +28,6 @@ MAX_THREADS = 4
 ENV = "VASTCAL_THREADS"
 
 T = TypeVar("T")
-R = TypeVar("R")
 
 _lock = threading.Lock()
 _pool: ThreadPoolExecutor | None = None
@@ -52,36 +51,6 @@ def compute_threads() -> int:
     return max(1, min(cpus, MAX_THREADS))
 
 
-def _shared_pool(n: int) -> ThreadPoolExecutor:
-    """The process's pool of ``n`` threads (made anew when ``n`` changes)."""
-    global _pool, _pool_size
-    with _lock:
-        if _pool is None or _pool_size != n:
-            if _pool is not None:
-                _pool.shutdown(wait=False)
-            _pool, _pool_size = ThreadPoolExecutor(max_workers=n, thread_name_prefix="vastcal-cost"), n
-        return _pool
-
-
-def in_order(work: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
-    """``work(item)`` of every item, computed on up to :func:`compute_threads` threads and yielded in the items'
-    order as each is ready — so that the caller can report each as it ends. ``work`` must not share mutable state
-    between items. An exception in any item is raised when its result is reached."""
-    items = list(items)
-    n = compute_threads()
-    if n <= 1 or len(items) <= 1:
-        for item in items:
-            yield work(item)
-        return
-    futures = [_shared_pool(n).submit(work, item) for item in items]
-    try:
-        for future in futures:
-            yield future.result()
-    finally:
-        for future in futures:
-            future.cancel()
-
-
 def run_slices(work: Callable[[T], None], slices: Iterable[T]) -> None:
     """Call ``work(s)`` for every slice, on up to :func:`compute_threads` threads; returns when all are done.
 
@@ -93,6 +62,12 @@ def run_slices(work: Callable[[T], None], slices: Iterable[T]) -> None:
         for s in items:
             work(s)
         return
-    pool = _shared_pool(n)
+    global _pool, _pool_size
+    with _lock:
+        if _pool is None or _pool_size != n:
+            if _pool is not None:
+                _pool.shutdown(wait=False)
+            _pool, _pool_size = ThreadPoolExecutor(max_workers=n, thread_name_prefix="vastcal-cost"), n
+        pool = _pool
     for future in [pool.submit(work, s) for s in items]:
         future.result()

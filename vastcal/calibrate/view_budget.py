@@ -49,11 +49,10 @@ PHOTOMETRIC_SETUP_BYTES_PER_PIXEL = 28.0
 PHOTOMETRIC_HELD_BYTES_PER_PIXEL = 14.0
 #: Per pixel of the last stage's maps (:data:`.photometric_yaw.ACROSS_WIDTH_PX` across the axis image) and per voxel,
 #: for every view of the sub-revolution being reconstructed: float32 absorption, posterior and weights, the maps' own
-#: copies, each reconstruction's row sums and index; per voxel and view, 4 splat entries in A and in Aᵀ (float32
-#: weight + 32-bit index each) and the chunked set-up's slack, for each reconstruction in flight
-#: (:func:`.threads.compute_threads` of them side by side, at most a stage's samples).
+#: copies, the reconstruction's row sums and index; per voxel and view, 4 splat entries in A and in Aᵀ (float32
+#: weight + 32-bit index each) and the chunked set-up's slack.
 PHOTOMETRIC_BYTES_PER_MAP_PIXEL = 84.0
-PHOTOMETRIC_BYTES_PER_VOXEL_VIEW = 50.0
+PHOTOMETRIC_BYTES_PER_VOXEL_VIEW = 100.0
 #: The photometric yaw never uses fewer views than this (when the session has them).
 MIN_PHOTOMETRIC_VIEWS = 21
 
@@ -92,8 +91,7 @@ def photometric_bytes(k: int, frame_shape: tuple[int, ...], voxels: int) -> floa
     """Bytes the photometric yaw holds at its peak with ``k`` views of ``frame_shape`` (H, W[, C]) and about ``voxels``
     voxels at its finest: the larger of its set-up (every view's full-frame maps) and of a reconstruction of its largest
     sub-revolution (:func:`.photometric_yaw.yaw_groups`) beside every view's held maps."""
-    from vastcal.calibrate.photometric_yaw import ACROSS_WIDTH_PX, GROUP_VIEWS, SCHEDULE, yaw_groups
-    from vastcal.calibrate.threads import compute_threads
+    from vastcal.calibrate.photometric_yaw import ACROSS_WIDTH_PX, GROUP_VIEWS, yaw_groups
 
     k = int(k)
     if k <= 0:
@@ -102,8 +100,7 @@ def photometric_bytes(k: int, frame_shape: tuple[int, ...], voxels: int) -> floa
     frame_px = float(h * w)
     map_px = frame_px * min(1.0, ACROSS_WIDTH_PX / max(h, w, 1))  # full resolution along the axis image, coarser across
     group = max(g.size for g in yaw_groups(np.arange(k) * 360.0 / k, GROUP_VIEWS))
-    in_flight = min(compute_threads(), 2 * SCHEDULE[-1][2] + 1)  # reconstructions set up side by side
-    per_group_view = PHOTOMETRIC_BYTES_PER_MAP_PIXEL * map_px + in_flight * PHOTOMETRIC_BYTES_PER_VOXEL_VIEW * max(int(voxels), 0)
+    per_group_view = PHOTOMETRIC_BYTES_PER_MAP_PIXEL * map_px + PHOTOMETRIC_BYTES_PER_VOXEL_VIEW * max(int(voxels), 0)
     return max(k * PHOTOMETRIC_SETUP_BYTES_PER_PIXEL * frame_px, k * PHOTOMETRIC_HELD_BYTES_PER_PIXEL * frame_px + group * per_group_view)
 
 
