@@ -191,6 +191,10 @@ class CalibrationConfig:
     bounds: CalibrationBounds = field(default_factory=CalibrationBounds)
     offset_scan_deg: float = field(default=0.0, metadata=_range(0.0, 5.0))
     """Step (degrees) of the common roll-offset scan after the coarse level; 0 = off (``--offset-scan``)."""
+    roll_scan: bool = True
+    """After the coarse level, score every free roll over its whole box and move the views left in another basin
+    (:mod:`vastcal.calibrate.roll_scan`; the coherence method). It scans only rolls whose box is wider than the
+    narrowest basin of their cost, so on a microscope (rolls that barely move the image) it costs nothing; false = off."""
     prior_weight: float = field(default=0.05, metadata=_range(0.0, 100.0))
     """Weight of the Gaussian prior (rolls around the commanded angles, yaw around 0) relative to the
     data cost; 0 = none (for commanded angles known to be wrong, as in the ETH test)."""

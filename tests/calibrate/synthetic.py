@@ -48,10 +48,10 @@ def silhouettes(theta: np.ndarray, phantom=PHANTOM) -> np.ndarray:
     return out.reshape(-1, H, W)
 
 
-def render(theta: np.ndarray, *, dark_specimen: bool = True, noise: float = 3.0, seed: int = 0) -> np.ndarray:
+def render(theta: np.ndarray, *, dark_specimen: bool = True, noise: float = 3.0, seed: int = 0, phantom=PHANTOM) -> np.ndarray:
     """(N, H, W) uint8 grey views of the phantom under θ (degrees)."""
     rng = np.random.default_rng(seed)
-    sil = silhouettes(theta).astype(np.float32)
+    sil = silhouettes(theta, phantom).astype(np.float32)
     fg, bg = (70.0, 215.0) if dark_specimen else (200.0, 40.0)
     imgs = []
     for s in sil:

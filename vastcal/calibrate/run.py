@@ -42,6 +42,7 @@ from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE, enough_directions, expected_evaluations, finest_voxel_um, refine_yaw
 from vastcal.calibrate.region import specimen_region
+from vastcal.calibrate.roll_scan import basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan
 from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
@@ -144,6 +145,12 @@ class CalibrationSettings:
             ``"bipop"``; with restarts a level spends its whole ``max_evaluations`` (restarts until it is used).
             Off by default: on ETH David at equal evaluations (``benchmarks/calibrate_restarts.py``) it did not lower
             the angle error — the levels' default budgets end on ``maxfevals``, so the first run takes them all.
+        roll_scan: after every level but the last, score every free roll over its whole box on a grid, the others
+            held, and move the views left in another basin, view 0 through the gauge when every other roll is free
+            (:mod:`.roll_scan`; the coherence method only). The grid step is half of the narrowest basin the cost can
+            have for that view (the edges' penalty cap over the image motion of its roll); a view whose box range is no
+            wider than that is not scanned, so on a microscope, whose rolls barely move the image, it costs nothing.
+            With it the polish moves view 0 through the gauge too, where that is exact (no roll prior).
         polish: after the starts, a per-view compass search of every free roll on the judge cost
             (:func:`polish_rolls`), steps ``polish_steps_deg`` (degrees, largest first).
         memory_mb: memory budget, MB: the photometric yaw uses as many views (evenly spread) as fit in it
@@ -174,6 +181,7 @@ class CalibrationSettings:
     starts: int = 1
     restarts: str = "none"
     level_handover: float = 0.1
+    roll_scan: bool = True
     polish: bool = True
     polish_steps_deg: tuple[float, ...] = (0.2, 0.1, 0.05, 0.025)
     memory_mb: float = 1536.0
@@ -500,14 +508,61 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
             clock.name_phase(1, f"{name}: common roll offset scan")  # not the search's time
             x, n_scan = _common_roll_offset_scan(cost, space, x, settings.roll_offset_scan_deg)
             evals_done += n_scan
+        scan_report = None
+        if settings.roll_scan and problem.method == "coherence" and li + 1 < len(settings.levels) and np.any(space.free_mask[4:]):
+            x, n_scan, scan_report = _roll_scan_stage(problem, li, obj, region, K_lv, x, clock, evals_before + evals_done, name)
+            evals_done += n_scan
         n_vox = len(region.voxels)
         reports.append({"seed": seed, "level": li, "map_shape": list(shape), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
                         "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
                         "n_evaluations": res.n_evaluations, "generations": res.n_generations, "best_cost": res.f_best,
                         "time_s": dt, "stop": {k: str(v) for k, v in res.stop.items()}})
+        if scan_report is not None:
+            reports[-1]["roll_scan"] = scan_report
         log.info("seed %d level %d: maps %s, %d voxels, %d evaluations in %.2f s (%.2f ms each), cost %.6g, stop %s", seed, li, shape,
                  len(region.voxels), res.n_evaluations, dt, 1e3 * dt / max(res.n_evaluations, 1), res.f_best, list(res.stop))
     return _Start(x, reports, trace, evals_done, eval_time, n_vox)
+
+
+def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np.ndarray, x: np.ndarray, clock: ProgressClock,
+                     evals_before: int, name: str) -> tuple[np.ndarray, int, dict[str, Any]]:
+    """The per-view roll scan (:func:`.roll_scan.roll_scan`) from x after level ``li`` on that level's fast cost ``obj``,
+    its moves judged on the level's batch-independent cost; returns (x, evaluations, report).
+
+    Each view's narrowest basin half-width is the objective's penalty cap over the image motion (level pixels, K_lv,
+    per degree) of the level region's points under its roll. View 0 is scanned as the gauge when every other roll
+    is free. A progress phase per round, of the round's planned evaluations.
+    """
+    space, st = problem.space, problem.settings
+    points = region.voxels[:: max(1, len(region.voxels) // 2000)]
+    parts = getattr(obj, "parts", None) or [obj]
+    cap = min(float(p.cap_px) for p in parts)
+
+    def widths(theta: np.ndarray) -> np.ndarray:
+        return basin_half_widths_deg(roll_motion_px_per_deg(K_lv, problem.distance, theta, points), cap)
+
+    gauge = bool(np.all(space.free_mask[4:]))
+    first = plan_grid(space, x, widths(space.theta(x)[0]), gauge)
+    spread = [float(np.min(first.half_width_deg)), float(np.max(first.half_width_deg))]
+    if not first.views.size:
+        return x, 0, {"ran": False, "why": "every roll's range in the box lies within one basin of its cost", "basin_half_width_deg": spread}
+    clock.name_phase(1, f"{name}: per-view roll scan, judge")
+    judge = problem.cost_fn(problem.level_objective(li, x, exact=True)[0])
+    f = float(judge(space.theta(x))[0])
+
+    def round_started(r: int, planned: int) -> None:
+        clock.name_phase(planned, f"{name}: per-view roll scan, round {r + 1}")
+
+    def progressed(e: int) -> None:
+        clock.update(evals_before + 1 + e, f)
+
+    # what the next level's CMA-ES reaches on its own: its initial step (scaled steps are no larger) in a roll
+    reach = st.levels[li + 1].sigma0 * float(np.max(space.half_width[4:][space.free_mask[4:]]))
+    x, f, n_scan, report = roll_scan(obj, lambda th: prior_cost(th, space.theta0, st), judge, space, x, f,
+                                     half_width_deg=widths, gauge=gauge, reach_deg=reach, share=roll_share(obj, space.theta0.size - 3),
+                                     on_round=round_started, on_batch=progressed)
+    report.update({"ran": True, "level": li, "reach_deg": reach, "basin_half_width_deg": spread})
+    return x, n_scan + 1, report
 
 
 def roll_share(obj: Any, n_views: int) -> float:
@@ -529,7 +584,7 @@ POLISH_REACH = 2.0
 
 def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray, *,
                  steps_deg: Sequence[float] = (0.2, 0.1, 0.05, 0.025), rtol: float = 1e-4, share: float = 1.0,
-                 on_sweep: Callable[[int], None] | None = None) -> tuple[np.ndarray, float, int, bool]:
+                 on_sweep: Callable[[int], None] | None = None, gauge: bool = False) -> tuple[np.ndarray, float, int, bool]:
     """Per-view polish of every free roll: one parabolic sweep per step size, all views' trials in one batch.
 
     For each step h (degrees, largest first) every free roll is tried at ω ± h with the others fixed, in one
@@ -542,10 +597,15 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
     All counted moves together, the same at half length (the rolls' parabolas are coupled through the views they
     share) and the best single one are then scored, and the lowest is kept when it lowers the cost.
 
+    ``gauge``: view 0, held fixed, is polished too, through the gauge of a cost that a common rotation of every view
+    about the axis leaves unchanged (the coherence cost without a roll prior, every other roll free: see
+    :mod:`.roll_scan`): its trials move θ's view 0 alone, and its move is applied as the opposite move of every
+    free roll. No single free roll can move the others' common offset from view 0.
+
     One sweep per step, so the work is known before it starts (``len(steps_deg)`` batches of 2F + 1 trials and at
-    most as many of 3, F free rolls): what lets a progress bar's ETA hold. ``cost`` maps θ (B, 3 + N) degrees to
-    (B,). Returns (x, cost of x, evaluations, converged): converged when, at the smallest step, every roll that
-    moved had its parabola's vertex within ± that step (its minimum bracketed there).
+    most as many of 3, F free rolls, + 1 with the gauge): what lets a progress bar's ETA hold. ``cost`` maps θ
+    (B, 3 + N) degrees to (B,). Returns (x, cost of x, evaluations, converged): converged when, at the smallest step,
+    every roll that moved had its parabola's vertex within ± that step (its minimum bracketed there).
     ``on_sweep`` is told the sweeps done: 0 once x itself is scored (that first call may pay the cost's one-off search
     along the rays, which is no sweep's time), then after every sweep.
     """
@@ -558,15 +618,22 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
     hw = space.half_width[space.free_mask][rolls]
     evals = 1
     converged = False
+    g = int(bool(gauge))
+    n_moves = rolls.size + g  # the free rolls, then view 0 through the gauge
     k = np.arange(rolls.size)
     for si, h in enumerate(steps_deg):
         X = np.repeat(x[None], 2 * rolls.size + 1, axis=0)
         X[1 + k, rolls] = np.clip(x[rolls] + h / hw, -1.0, 1.0)
         X[1 + rolls.size + k, rolls] = np.clip(x[rolls] - h / hw, -1.0, 1.0)
-        fs = cost(space.theta(X))
-        evals += len(X)
+        TH = space.theta(X)
+        if g:  # view 0 ± h, after each block of the free rolls' trials (the batch's mean stays x)
+            zero = np.repeat(TH[:1], 2, axis=0)
+            zero[:, 3] += (h, -h)
+            TH = np.concatenate([TH[: 1 + rolls.size], zero[:1], TH[1 + rolls.size:], zero[1:]])
+        fs = cost(TH)
+        evals += len(TH)
         f = float(fs[0])
-        plus, minus = fs[1: 1 + rolls.size], fs[1 + rolls.size:]
+        plus, minus = fs[1: 1 + n_moves], fs[1 + n_moves:]
         threshold = rtol * share * max(abs(f), 1e-12)
         curv, slope = plus + minus - 2.0 * f, 0.5 * (plus - minus)  # the parabola f + slope·t + curv/2·t², t in units of h
         t = np.where(curv > 0, np.clip(-slope / np.where(curv > 0, curv, 1.0), -POLISH_REACH, POLISH_REACH),
@@ -576,11 +643,18 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
         beyond = int(np.sum(move & (np.abs(t) >= 1.0)))
         converged = beyond == 0  # every roll's minimum within ± h of the sweep's start
         if move.any():
-            cands = np.repeat(x[None], 3, axis=0)
-            for c, scale in ((0, 1.0), (1, 0.5)):
-                cands[c, rolls[move]] = np.clip(x[rolls[move]] + scale * t[move] * h / hw[move], -1.0, 1.0)
             j = int(np.argmax(gain))
-            cands[2, rolls[j]] = np.clip(x[rolls[j]] + t[j] * h / hw[j], -1.0, 1.0)
+
+            def moved(sel: np.ndarray, scale: float) -> np.ndarray:
+                d = np.where(sel[: rolls.size], scale * t[: rolls.size] * h, 0.0)
+                if g and sel[-1]:  # view 0 by d0 is every free roll by −d0
+                    d = d - scale * t[-1] * h
+                out = x.copy()
+                nz = d != 0
+                out[rolls[nz]] = np.clip(x[rolls[nz]] + d[nz] / hw[nz], -1.0, 1.0)
+                return out
+
+            cands = np.stack([moved(move, 1.0), moved(move, 0.5), moved(np.arange(n_moves) == j, 1.0)])
             fc = cost(space.theta(cands))
             evals += 3
             best = int(np.argmin(fc))
@@ -589,7 +663,7 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
         if on_sweep is not None:
             on_sweep(si + 1)
     if not converged:
-        log.info("per-view polish: %d of %d rolls had their minimum beyond ± %.3g° at the last step", beyond, rolls.size, steps_deg[-1])
+        log.info("per-view polish: %d of %d rolls had their minimum beyond ± %.3g° at the last step", beyond, n_moves, steps_deg[-1])
     return x, float(cost(space.theta(x))[0]), evals + 1, converged
 
 
@@ -695,7 +769,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     x, f = X[best].copy(), float(start_costs[best])
     polished = {"converged": True, "evaluations": 0}
     if settings.polish and np.any(space.free_mask[4:]):
-        n_rolls = int(np.sum(space.free_mask[4:]))
+        # view 0 through the gauge (polish_rolls) where a common rotation leaves the cost unchanged: the roll scan's rule
+        gauge = settings.roll_scan and method == "coherence" and bool(np.all(space.free_mask[4:])) and settings.roll_prior_weight <= 0
+        n_rolls = int(np.sum(space.free_mask[4:])) + int(gauge)
         clock.name_phase(1, "per-view polish: region")
         fast, _, _, _ = problem.level_objective(last, x)
         n_steps = len(settings.polish_steps_deg)
@@ -713,12 +789,12 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             clock.update(seen[0], f)
 
         xp, _, n_pol, conv = polish_rolls(counted, space, x, steps_deg=settings.polish_steps_deg, share=roll_share(fast, n),
-                                          on_sweep=swept)
+                                          on_sweep=swept, gauge=gauge)
         fp = float(judge(space.theta(xp))[0])
         evals_done += n_pol + 1
         clock.forecast(n_steps, 0.0)
         clock.update(evals_done, min(f, fp))
-        polished = {"converged": bool(conv), "evaluations": n_pol, "judged_before": f, "judged_after": fp}
+        polished = {"converged": bool(conv), "evaluations": n_pol, "judged_before": f, "judged_after": fp, "gauge": gauge}
         if fp <= f:
             x, f = xp, fp
         else:

@@ -85,7 +85,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         scribbles: (view, labels) with 0 unknown, 1 specimen, 2 background.
         use_masks: VR only — use the session's imported masks as silhouettes (default: when present).
         settings: numerical settings (default: :class:`CalibrationSettings` with the rig config's
-            ``calibration.offset_scan_deg``, ``prior_weight``, ``roll_prior_deg`` and ``yaw_prior_deg``).
+            ``calibration.offset_scan_deg``, ``roll_scan``, ``prior_weight``, ``roll_prior_deg`` and ``yaw_prior_deg``).
         offset_scan_deg: overrides the settings' common roll-offset scan step (``--offset-scan``).
         progress: callback (evaluations, best cost, elapsed s, ETA s).
         fixed_views: views whose roll stays at its commanded angle: ``"10-35"``, ``"0,3,5-7"`` or indices (0-based).
@@ -111,7 +111,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         free = cfg.free if free is None else free
         bounds = bounds or cfg.bounds
         if settings is None:
-            settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg, roll_prior_weight=cfg.prior_weight,
+            settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg, roll_scan=cfg.roll_scan, roll_prior_weight=cfg.prior_weight,
                                            roll_prior_deg=cfg.roll_prior_deg, yaw_prior_deg=cfg.yaw_prior_deg,
                                            photometric_yaw=cfg.photometric_yaw, memory_mb=cfg.memory_mb)
         if offset_scan_deg is not None:  # the rig file's range applies to the override too

@@ -1,0 +1,318 @@
+"""The per-view roll scan: every free roll's cost over its whole box, the others held, to find views left in another basin.
+
+CMA-ES in 35 dimensions can end with single views in the wrong basin of the cost, several degrees from where the
+rest of the revolution puts them, and what follows it is local: the next level's CMA-ES starts with steps of a
+fraction of a degree, the per-view polish reaches 0.75° at most. So after every level but the last (in practice
+after the first, on its ¼-width maps) every free roll is scored over its whole box on a grid, all other views
+held at the current pose x; the views whose scan finds a lower cost beyond what the next level's first steps
+reach are moved, the joint move (and the moves of the better half, and the best single move) are scored on the
+level's batch-independent cost, and the lowest is kept when it lowers that cost. The views' costs are coupled (a
+view's rays are checked against its partners' silhouettes), hence the judged moves and the repeated rounds. The
+last level then refines from there (:func:`.run._run_start`).
+
+View 0 is held fixed (it defines 0°), yet it is the one view that can be off: when the other views agree with
+each other a few degrees away from it (a +10° test leaves them there), no single free roll can repair that. A
+common rotation of every view about the axis is a gauge of the coherence cost (it rotates the world about the
+axis: the same images, the same cylinder), so moving view 0 by d costs what moving every other view by −d
+costs. When all other rolls are free the scan therefore scores view 0 as well, by moving its roll in θ alone
+(a single-roll trial like the others); a move of it is applied as −d on every free roll. The roll prior is not
+gauge-free: a trial of view 0 is scored with the prior of the others moved.
+
+The grid step, from the basin width
+-----------------------------------
+The coherence cost sums per-edge penalties that grow with an edge ray's gap and saturate at ``cap_px`` (level
+pixels; :class:`.objective_coherence.CoherenceObjective`). A roll of view v by δ degrees moves the specimen's
+image in view v by about m_v · δ pixels (m_v: the RMS image motion of the specimen region's points per degree of
+that roll at x, with the level's camera: :func:`roll_motion_px_per_deg`), and it turns view v's edge rays about the
+axis, which its partners, spread around the revolution, see moving by about the RMS m̄ of every view's motion. One
+edge's penalty needs a roll of about cap_px / m degrees to go from its lowest to its plateau, and a sum of such
+penalties forms no dip narrower than its narrowest term: w_v = cap_px / max(m_v, m̄) is the narrowest half-width
+of a basin of view v's cost (:func:`basin_half_widths_deg`). The grid step is half of it (:data:`STEP_FRACTION`):
+every basin then holds at least two samples on each side of its minimum, and its best sample lies within a
+quarter of w_v of the minimum, where a parabolic basin has risen by at most 1/16 of its rise over w_v. A parabola
+through the best sample and its neighbours then places the move. A roll whose whole range in the box is no wider
+than w_v has room for one basin at most, which the local search finds; it is not scanned. A microscope's rolls
+barely move its image, so there nothing is scanned and nothing costs: ZF1 (±5° box) w_v 12–13°, the simulated
+demo (±4°) 10.5–11°.
+
+Measured on the synthetic 36-view 720 × 576 turntable set (``benchmarks/turntable_speed.py``, ±15° box) at the
+first level's 256 px: m_v 0.12–0.73 px per degree, w_v 2.0–3.3° (steps 1.0–1.7°, ~1000 trials a round); the
+single-view profiles of that cost have basins 4–6° wide on either side of their minima, above the bound as they
+must be. With the view's own motion alone (no m̄) views 27 and 28, which see the specimen move along their line of
+sight, got 6–6.5° steps and their basins were stepped over.
+
+Batches: the cost that searches its rays around the batch mean
+--------------------------------------------------------------
+The scan's cost is the level's fast coherence cost, which searches every ray's maximum for the batch's mean θ and
+scores each candidate on a window around those depths (:class:`.objective_coherence.CoherenceObjective`); a
+batch of single-roll moves re-evaluates only the moved view's rays and those of the views that check against it.
+Each batch holds x and, for every scanned view, the pair x ± j·s_v of its j-th step: its mean is x, as the
+polish's batches (:func:`.run.polish_rolls`), so that every trial is scored on the same footing as x, whose cost
+is in every batch, and the ray search is done once at x. A pair's trial beyond the box is scored (the cost is
+defined there) but never chosen. Far trials are scored on x's ray depths, which over-rates them a little (the
+window slides only so far): a gain the scan sees is an under-estimate, and every move is judged on the
+batch-independent cost before it is kept.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from vastcal.calibrate.parameters import ParameterSpace
+from vastcal.geometry import project, projection_matrices
+
+log = logging.getLogger(__name__)
+
+#: Grid step as a fraction of a view's narrowest basin half-width w_v (see the module docstring).
+STEP_FRACTION = 0.5
+#: Rounds of scan and judged move at most: a round that keeps no move ends the scan.
+MAX_ROUNDS = 3
+#: Threshold of a view's predicted gain, relative to the part of the cost one roll enters (as the polish's rtol).
+GAIN_RTOL = 1e-4
+#: Candidates judged per round: the joint move, the better half's and the best single move.
+JUDGED_PER_ROUND = 3
+
+CostFn = Callable[[np.ndarray], np.ndarray]
+
+
+def roll_motion_px_per_deg(K: np.ndarray, distance: float, theta: np.ndarray, points: np.ndarray, step_deg: float = 0.01) -> np.ndarray:
+    """RMS image motion (pixels of K per degree) of ``points`` (M, 3) in each view under its own roll, at θ (3 + N,).
+
+    Central differences of ``step_deg`` on every roll at once (a roll moves its own view only); (N,).
+    """
+    th = np.asarray(theta, float)
+    pair = np.repeat(th[None], 2, axis=0)
+    pair[0, 3:] += step_deg
+    pair[1, 3:] -= step_deg
+    uv = project(projection_matrices(K, distance, pair), np.asarray(points, float))  # (2, N, M, 2)
+    d2 = np.sum(((uv[0] - uv[1]) / (2.0 * step_deg)) ** 2, axis=-1)  # (N, M)
+    return np.sqrt(np.mean(d2, axis=1))
+
+
+def basin_half_widths_deg(motion_px_per_deg: np.ndarray, cap_px: float) -> np.ndarray:
+    """The narrowest half-width (degrees) of a basin of each view's cost (N,), from every view's image motion under
+    its own roll (N,) pixels per degree (:func:`roll_motion_px_per_deg`): ``cap_px`` over the faster of the view's own
+    motion and the RMS of all views' (inf when nothing moves).
+
+    A roll of view v moves its silhouette against the rays of the views that check against it (view v's own image
+    motion), and it turns view v's edge rays about the axis, which its partners, spread around the revolution, see
+    moving as the specimen turning seen from them (the RMS of every view's motion). A view that sees the specimen
+    move mostly along its line of sight has a small motion of its own, but its rays still sweep across its
+    partners' images."""
+    m = np.asarray(motion_px_per_deg, float)
+    fastest = np.maximum(m, float(np.sqrt(np.mean(m * m))) if m.size else 0.0)
+    return np.where(fastest > 0, float(cap_px) / np.where(fastest > 0, fastest, 1.0), np.inf)
+
+
+@dataclass(frozen=True)
+class ScanGrid:
+    """The trials of one round: view ``views[k]`` is tried at x ± j · ``step_deg[k]``, j = 1 … ``pairs[k]``.
+
+    Attributes:
+        views: (V,) views scanned (0-based; view 0 only as the gauge, see the module docstring).
+        step_deg: (V,) grid step, degrees.
+        lo_deg, hi_deg: (V,) the box's range of each view's move from x, degrees (lo ≤ 0 ≤ hi).
+        pairs: (V,) pairs of trials of each view (their reach covers the farther end of the range).
+        half_width_deg: (N,) every view's narrowest basin half-width w_v, degrees.
+        skipped: views not scanned: their range is no wider than w_v (one basin at most).
+    """
+
+    views: np.ndarray
+    step_deg: np.ndarray
+    lo_deg: np.ndarray
+    hi_deg: np.ndarray
+    pairs: np.ndarray
+    half_width_deg: np.ndarray
+    skipped: tuple[int, ...]
+
+    @property
+    def n_batches(self) -> int:
+        """Batches of the round (the j-th holds every view's pair j)."""
+        return int(self.pairs.max()) if self.pairs.size else 0
+
+    @property
+    def n_trials(self) -> int:
+        """Evaluations of the round's scan: x alone, then each batch's x and its pairs."""
+        return 0 if not self.pairs.size else 1 + self.n_batches + 2 * int(self.pairs.sum())
+
+
+def plan_grid(space: ParameterSpace, x: np.ndarray, half_width_deg: np.ndarray, gauge: bool) -> ScanGrid:
+    """The scan's grid at x (free coordinates) for basin half-widths ``half_width_deg`` (N,) degrees; ``gauge``:
+    score view 0 too (every other roll free and the cost invariant to a common rotation about the axis)."""
+    th = space.theta(x)[0]
+    free_views = np.flatnonzero(space.free_mask[3:])
+    lo_all = space.lower[3:] - th[3:]  # each free view's range of moves within the box, degrees
+    hi_all = space.upper[3:] - th[3:]
+    candidates: list[tuple[int, float, float]] = [(int(v), float(lo_all[v]), float(hi_all[v])) for v in free_views]
+    if gauge and free_views.size:  # view 0 by d ≡ every free roll by −d, which the box must hold
+        candidates.insert(0, (0, float(np.max(-hi_all[free_views])), float(np.min(-lo_all[free_views]))))
+    views, steps, los, his, pairs, skipped = [], [], [], [], [], []
+    for v, lo, hi in candidates:
+        w = float(half_width_deg[v])
+        lo, hi = min(lo, 0.0), max(hi, 0.0)
+        if not np.isfinite(w) or hi - lo <= w:
+            skipped.append(v)
+            continue
+        s = STEP_FRACTION * w
+        views.append(v)
+        steps.append(s)
+        los.append(lo)
+        his.append(hi)
+        pairs.append(int(np.ceil(max(hi, -lo) / s - 1e-9)))
+    return ScanGrid(np.array(views, np.intp), np.array(steps, float), np.array(los, float), np.array(his, float),
+                    np.array(pairs, np.intp), np.asarray(half_width_deg, float), tuple(skipped))
+
+
+@dataclass(frozen=True)
+class ViewScan:
+    """One view's scan: its best move from x (degrees, 0 = stay) and the gain (cost units) its grid predicts."""
+
+    view: int
+    move_deg: float
+    gain: float
+
+
+def scan_views(data: CostFn, prior: CostFn, space: ParameterSpace, x: np.ndarray, grid: ScanGrid,
+               on_batch: Callable[[int], None] | None = None) -> tuple[list[ViewScan], float, int]:
+    """Score every view of ``grid`` over its range, the others held at x; returns (each view's best move, the
+    scan cost of x, evaluations).
+
+    ``data`` maps θ (B, 3 + N) degrees to the data cost (B,) — a batch-mean cost: the batches are built with mean
+    x (module docstring) —, ``prior`` to the prior (B,). A trial of view 0 (the gauge) moves θ's view 0 for the data
+    cost and every free roll the other way for the prior, which is not gauge-free. The best sample of each view is
+    refined by a parabola through it and its neighbours (when both lie in the box and it is convex); a view's gain
+    is x's cost minus that parabola's lowest value, within the same batches. ``on_batch`` is told the evaluations
+    done after x alone (which pays the cost's full search along the rays: no batch's time) and after each batch.
+    """
+    th = space.theta(x)[0]
+    free_views = np.flatnonzero(space.free_mask[3:])
+
+    def scored(X: np.ndarray) -> np.ndarray:
+        real = X.copy()
+        gauge_rows = np.flatnonzero(X[:, 3] != th[3])
+        for r in gauge_rows:  # view 0 by d: the prior sees every free roll moved by −d
+            real[r, 3] = th[3]
+            real[r, 3 + free_views] -= X[r, 3] - th[3]
+        return np.asarray(data(X), float) + np.asarray(prior(real), float)
+
+    f_x = float(scored(th[None])[0])
+    evals = 1
+    if on_batch is not None:
+        on_batch(evals)
+    offsets: list[list[float]] = [[0.0] for _ in grid.views]
+    gains: list[list[float]] = [[0.0] for _ in grid.views]
+    for j in range(1, grid.n_batches + 1):
+        active = np.flatnonzero(grid.pairs >= j)
+        X = np.repeat(th[None], 1 + 2 * active.size, axis=0)
+        d = j * grid.step_deg[active]
+        cols = 3 + grid.views[active]
+        X[1 + np.arange(active.size), cols] += d
+        X[1 + active.size + np.arange(active.size), cols] -= d
+        fs = scored(X)
+        evals += len(X)
+        for k, a in enumerate(active):
+            for sign, f in ((1.0, fs[1 + k]), (-1.0, fs[1 + active.size + k])):
+                off = sign * float(d[k])
+                if grid.lo_deg[a] - 1e-9 <= off <= grid.hi_deg[a] + 1e-9:
+                    offsets[a].append(off)
+                    gains[a].append(float(fs[0] - f))  # against x in the same batch
+        if on_batch is not None:
+            on_batch(evals)
+    out = []
+    for a, v in enumerate(grid.views):
+        o, g = np.asarray(offsets[a]), np.asarray(gains[a])
+        order = np.argsort(o)
+        o, g = o[order], g[order]
+        b = int(np.argmax(g))
+        if o[b] == 0.0:  # x is its own best sample: its basin is the best one, the polish's to refine
+            out.append(ViewScan(int(v), 0.0, 0.0))
+            continue
+        move, gain = float(o[b]), float(g[b])
+        if 0 < b < len(o) - 1:  # a parabola through the best sample and its neighbours, equal steps
+            c = g[b - 1] - 2.0 * g[b] + g[b + 1]  # of the gains: < 0 where the cost is convex
+            if c < 0:
+                t = 0.5 * (g[b - 1] - g[b + 1]) / c  # vertex, in steps, within ± ½
+                move += t * float(o[b + 1] - o[b])
+                gain -= 0.25 * (g[b - 1] - g[b + 1]) * t  # the parabola's peak gain
+        out.append(ViewScan(int(v), move, gain))
+    return out, f_x, evals
+
+
+def compose(space: ParameterSpace, x: np.ndarray, moves: dict[int, float]) -> np.ndarray:
+    """Free coordinates after moving each view v of ``moves`` by its degrees (view 0: every free roll by the
+    opposite, the gauge), clipped to the box."""
+    th = space.theta(x)[0].copy()
+    free_views = np.flatnonzero(space.free_mask[3:])
+    for v, d in moves.items():
+        if v == 0:
+            th[3 + free_views] -= d
+        else:
+            th[3 + v] += d
+    return np.clip(space.x(th), -1.0, 1.0)
+
+
+def roll_scan(data: CostFn, prior: CostFn, judge: CostFn, space: ParameterSpace, x: np.ndarray, f_judged: float, *,
+              half_width_deg: Callable[[np.ndarray], np.ndarray], gauge: bool, reach_deg: float, share: float,
+              on_round: Callable[[int, int], None] | None = None,
+              on_batch: Callable[[int], None] | None = None) -> tuple[np.ndarray, float, int, dict[str, Any]]:
+    """Rounds of the per-view roll scan from x (judged cost ``f_judged``); returns (x, its judged cost, evaluations,
+    report).
+
+    Each round plans the grid at x (``half_width_deg`` maps θ (3 + N,) degrees to every view's narrowest basin
+    half-width w_v, degrees: :func:`basin_half_widths_deg`), scans (:func:`scan_views`), and takes as candidates the
+    views whose best move lies beyond ``reach_deg`` (what the per-view polish that follows reaches on its own)
+    with a predicted gain above :data:`GAIN_RTOL` × ``share`` × the cost (``share``: the part of the cost one roll
+    enters, :func:`.run.roll_share`). The joint move of all candidates, of the better half by gain and the best
+    single move are scored on ``judge`` (batch-independent, with the prior); the lowest is kept if it is lower
+    than x's judged cost. A round that keeps nothing, or finds no candidate, ends the scan; at most
+    :data:`MAX_ROUNDS` rounds. ``on_round(r, evaluations)`` is told each round's planned evaluations before it
+    starts, ``on_batch(evaluations)`` the scan's evaluations so far (all rounds).
+    """
+    evals, rounds = 0, []
+    f = float(f_judged)
+    for r in range(MAX_ROUNDS):
+        grid = plan_grid(space, x, half_width_deg(space.theta(x)[0]), gauge)
+        entry: dict[str, Any] = {"round": r + 1, "views_scanned": grid.views.tolist(), "skipped": list(grid.skipped),
+                                 "step_deg": [float(np.min(grid.step_deg)), float(np.max(grid.step_deg))] if grid.views.size else [],
+                                 "judged_before": f}
+        rounds.append(entry)
+        if not grid.views.size:
+            entry.update({"trials": 0, "moved": [], "judged_after": f})
+            break
+        if on_round is not None:
+            on_round(r, grid.n_trials + JUDGED_PER_ROUND)
+        base = evals
+        results, f_scan, n = scan_views(data, prior, space, x, grid, None if on_batch is None else (lambda e, _b=base: on_batch(_b + e)))
+        evals += n
+        threshold = GAIN_RTOL * share * max(abs(f_scan), 1e-12)
+        cand = sorted((s for s in results if abs(s.move_deg) > reach_deg and s.gain > threshold), key=lambda s: -s.gain)
+        entry.update({"trials": n, "scan_cost": f_scan, "candidates": {str(s.view): [round(float(s.move_deg), 4), float(s.gain)] for s in cand}})
+        if not cand:
+            entry.update({"moved": [], "judged_after": f})
+            break
+        sets = [cand, cand[: max(1, len(cand) // 2)], cand[:1]]
+        unique = [s for i, s in enumerate(sets) if all([c.view for c in s] != [c.view for c in t] for t in sets[:i])]
+        X = np.stack([compose(space, x, {c.view: c.move_deg for c in s}) for s in unique])
+        fj = np.asarray(judge(space.theta(X)), float)
+        evals += len(X)
+        if on_batch is not None:
+            on_batch(evals)
+        best = int(np.argmin(fj))
+        if fj[best] < f:
+            moved = [c.view for c in unique[best]]
+            log.info("roll scan round %d: moved view(s) %s (%s), judged cost %.6g -> %.6g", r + 1, moved,
+                     ", ".join(f"{c.move_deg:+.2f}°" for c in unique[best]), f, fj[best])
+            x, f = X[best].copy(), float(fj[best])
+            entry.update({"moved": moved, "moves_deg": [float(c.move_deg) for c in unique[best]], "judged_after": f})
+        else:
+            log.info("roll scan round %d: no move of %d candidate view(s) lowered the judged cost %.6g (best %.6g)",
+                     r + 1, len(cand), f, float(fj[best]))
+            entry.update({"moved": [], "judged_after": f, "judged_candidates": fj.tolist()})
+            break
+    report = {"rounds": rounds, "evaluations": evals, "judged_before": float(f_judged), "judged_after": f,
+              "moved": sorted({v for e in rounds for v in e.get("moved", [])})}
+    return x, f, evals, report
