@@ -170,3 +170,24 @@ def test_a_calibration_records_the_scan_in_its_level_reports() -> None:
         assert scan["ran"] and scan["rounds"] and scan["rounds"][0]["trials"] > 0 and 0 in scan["rounds"][0]["views_scanned"]
         assert scan["judged_after"] <= scan["judged_before"]
         assert all(e["judged_after"] <= e["judged_before"] for e in scan["rounds"])
+        assert r.level_reports[0]["max_evaluations"] == 300 and r.level_reports[1]["max_evaluations"] == (400 if scan["moved"] else 200)
+
+
+def test_views_moved_by_the_scan_double_the_next_level_s_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+    """When the scan moves views to other basins, the next level searches with MOVED_BUDGET_SCALE times its budget
+    (the scan replaced by one that reports a move and returns x as it was)."""
+    from vastcal.calibrate import run as run_module
+    from vastcal.calibrate.run import MOVED_BUDGET_SCALE, CalibrationSettings, Level, calibrate_views
+
+    def moved_one(obj, prior, judge, space, x, f, **_):  # noqa: ANN001, ANN003, ANN202 - roll_scan's signature
+        return x, f, 0, {"rounds": [], "evaluations": 0, "judged_before": f, "judged_after": f, "moved": [8]}
+
+    monkeypatch.setattr(run_module, "roll_scan", moved_one)
+    theta = synthetic.truth_theta(n=12, seed=3)
+    images = synthetic.render(theta, phantom=ATTACHED)
+    K, d = synthetic.camera()
+    levels = (Level(160, 1500, 0.3, 300), Level(320, 3000, 0.03, 200))
+    r = calibrate_views(images, K, d, theta, free=["rolls"], bounds=BOX,
+                        settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, polish=False))
+    assert r.level_reports[0]["roll_scan"]["moved"] == [8]
+    assert r.level_reports[1]["max_evaluations"] == int(MOVED_BUDGET_SCALE * 200) > 200

@@ -447,8 +447,10 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
     trace: list[tuple[int, float]] = []
     reports: list[dict[str, Any]] = []
     evals_done, eval_time, n_vox = 0, 0.0, 0
+    budget_scale = 1.0
     for li, lv in enumerate(settings.levels):
         name = f"level {li + 1}/{len(settings.levels)} ({lv.width_px} px), seed {seed}"
+        lv = dataclasses.replace(lv, max_evaluations=int(round(lv.max_evaluations * budget_scale)))
         clock.name_phase(1, f"{name}: region and maps")  # set-up: no progress of its own to report
         preload()  # cma's first import (~1 s) is set-up too, not the search's time
         obj, region, K_lv, shape = problem.level_objective(li, x)
@@ -515,13 +517,23 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
         n_vox = len(region.voxels)
         reports.append({"seed": seed, "level": li, "map_shape": list(shape), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
                         "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
-                        "n_evaluations": res.n_evaluations, "generations": res.n_generations, "best_cost": res.f_best,
+                        "max_evaluations": lv.max_evaluations, "n_evaluations": res.n_evaluations, "generations": res.n_generations, "best_cost": res.f_best,
                         "time_s": dt, "stop": {k: str(v) for k, v in res.stop.items()}})
         if scan_report is not None:
             reports[-1]["roll_scan"] = scan_report
+            if scan_report.get("moved"):
+                # Views moved to other basins leave the next level errors coupled over neighbouring views, which no
+                # single roll's move lowers: its CMA-ES learns them in a fresh covariance, with twice its budget.
+                budget_scale = MOVED_BUDGET_SCALE
         log.info("seed %d level %d: maps %s, %d voxels, %d evaluations in %.2f s (%.2f ms each), cost %.6g, stop %s", seed, li, shape,
                  len(region.voxels), res.n_evaluations, dt, 1e3 * dt / max(res.n_evaluations, 1), res.f_best, list(res.stop))
     return _Start(x, reports, trace, evals_done, eval_time, n_vox)
+
+
+#: The next level's evaluation budget, as a multiple of its own, after the per-view roll scan has moved views to other
+#: basins (synthetic 36-view turntable, seed 0: one more last level from the scanned result took its cost from 2.9 % to
+#: 0.5 % above the truth's; docs/calibration.md, "The per-view roll scan").
+MOVED_BUDGET_SCALE = 2.0
 
 
 def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np.ndarray, x: np.ndarray, clock: ProgressClock,
