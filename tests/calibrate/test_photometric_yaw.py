@@ -95,7 +95,10 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     assert split.yaw_deg == pytest.approx(float(np.mean(split.group_yaws_deg)))
     assert abs(split.yaw_deg - truth["yaw_deg"]) < 0.1 and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
     # a sub-revolution larger than the group size (21 views against 15): reconstructed at three lattice phases, their median
-    phased = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=15)
+    named: list[str] = []
+    phased = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=15,
+                        part=lambda what, n: named.append(what))
+    assert [p for p in named if p.endswith("first samples")] == ["lattice phase 2/3: first samples", "lattice phase 3/3: first samples"]
     assert phased is not None and phased.group_yaws_deg is not None and list(phased.group_views) == [21, 21, 21]
     assert phased.yaw_deg == pytest.approx(float(np.median(phased.group_yaws_deg))) and len(set(phased.group_yaws_deg.tolist())) == 3
     assert abs(phased.yaw_deg - truth["yaw_deg"]) < 0.05 and phased.yaw_sigma_deg is not None

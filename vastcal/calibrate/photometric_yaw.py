@@ -700,6 +700,7 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     n_views_used = int(sum(g.size for g in groups))
     if len(groups) < MIN_LATTICE_PHASES and max(g.size for g in groups) > (group_views or 0) > 0:
         groups = [groups[k % len(groups)] for k in range(MIN_LATTICE_PHASES)]  # the same views again, each time at a new lattice phase
+    unit = "lattice phase" if len({tuple(g) for g in groups}) < len(groups) else "sub-revolution"  # what the progress parts name
     n_groups = len(groups)
     evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations), every search's
     widths_named: set[int] = set()
@@ -821,13 +822,14 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     if n_groups == 1:  # every stage on all views
         finals = [search(groups[0], 0, float(theta[0]), "")]
     else:  # the coarse stages on the first sub-revolution, the last stage on each until their yaws combine well enough
-        log.info("photometric yaw: %d views as %d reconstructions (interleaved sub-revolutions, each at its own lattice phase) "
-                 "of %d-%d views", n_views_used, n_groups, min(g.size for g in groups), max(g.size for g in groups))
-        coarse = (search(groups[0], 0, float(theta[0]), " (coarse, sub-revolution 1)", end_stage=len(schedule) - 1).yaw_deg
+        log.info("photometric yaw: %d views as %d reconstructions (%s, each at its own lattice phase) of %d-%d views", n_views_used,
+                 n_groups, "interleaved sub-revolutions" if unit == "sub-revolution" else "the same views again",
+                 min(g.size for g in groups), max(g.size for g in groups))
+        coarse = (search(groups[0], 0, float(theta[0]), f" (coarse, {unit} 1)", end_stage=len(schedule) - 1).yaw_deg
                   if len(schedule) > 1 else float(theta[0]))
         finals, used = [], []
         for k, j in enumerate(spread_order(n_groups)):
-            finals.append(search(groups[j], len(schedule) - 1, coarse, f" sub-revolution {k + 1}/{n_groups}", phase=k))
+            finals.append(search(groups[j], len(schedule) - 1, coarse, f" {unit} {k + 1}/{n_groups}", phase=k))
             used.append(j)
             _, se = combine_group_yaws(np.array([f.yaw_deg for f in finals]), [f.sigma_deg for f in finals])
             if k + 1 >= MIN_GROUPS_TO_STOP and k + 1 < n_groups and se is not None and se <= yaw_standard_error_deg:
