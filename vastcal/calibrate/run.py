@@ -450,7 +450,10 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
     budget_scale = 1.0
     for li, lv in enumerate(settings.levels):
         name = f"level {li + 1}/{len(settings.levels)} ({lv.width_px} px), seed {seed}"
-        lv = dataclasses.replace(lv, max_evaluations=int(round(lv.max_evaluations * budget_scale)))
+        if budget_scale != 1.0:
+            scaled = int(round(lv.max_evaluations * budget_scale))
+            clock.budget += scaled - lv.max_evaluations  # the whole calibration's budget (its overall ETA) grows as much
+            lv = dataclasses.replace(lv, max_evaluations=scaled)
         clock.name_phase(1, f"{name}: region and maps")  # set-up: no progress of its own to report
         preload()  # cma's first import (~1 s) is set-up too, not the search's time
         obj, region, K_lv, shape = problem.level_objective(li, x)
