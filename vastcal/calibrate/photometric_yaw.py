@@ -269,7 +269,7 @@ class AbsorptionMatch:
     def _splats(self, P: np.ndarray, i: int, voxels: slice) -> tuple[np.ndarray, np.ndarray]:
         """(pixel, weight), each (4, M'): the bilinear splat of the voxels ``voxels`` in view ``i`` (cameras ``P``):
         flat pixel indices of the maps (0 with weight 0 outside the frame) and line-integral weights."""
-        n, h, w = self.shape
+        _, h, w = self.shape
         x = self.X[voxels] @ P[i, :, :3].T + P[i, :, 3]
         u, v, z = x[:, 0] / x[:, 2], x[:, 1] / x[:, 2], x[:, 2]
         scale = self.voxel_um * self.voxel_across_um * self.K[0, 0] * self.K[1, 1] / z ** 2  # voxel volume over the pixel's
@@ -285,7 +285,7 @@ class AbsorptionMatch:
         return pixel, weight
 
     #: Voxels whose splats :meth:`system` assembles at a time: the set-up's temporaries stay a few MB however
-    #: large the system (two reconstructions are set up side by side).
+    #: large the system.
     VOXEL_CHUNK = 8192
 
     def system(self, theta: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray, np.ndarray]:
@@ -744,22 +744,22 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                     noise_of[key] = background_noise(m.a.reshape(m.shape), m.pf)
             match = matches[key]
             iterations = final_n if final else sirt_iterations
-            todo = []
+            es = []
             for yaw in map(float, yaws):
                 rkey = (key, round(yaw, 9))
                 if rkey not in recs:
                     th = th_v.copy()
                     th[0] = yaw
                     recs[rkey] = match.start(th)
-                if recs[rkey].iterations < iterations:
-                    todo.append((yaw, recs[rkey]))
-            for yaw, rec in todo:
-                e = match.resume(rec, iterations)
-                evaluations.append((yaw, width, e, iterations))
-                if progress is not None:
-                    progress(len(evaluations), e)
-                log.debug("photometric yaw%s %+.4f° at width %d, %d iterations: E = %.6g", label, yaw, width, iterations, e)
-            return np.array([recs[(key, round(float(y), 9))].cost for y in yaws])
+                rec = recs[rkey]
+                if rec.iterations < iterations:
+                    match.resume(rec, iterations)
+                    evaluations.append((yaw, width, rec.cost, iterations))
+                    if progress is not None:
+                        progress(len(evaluations), rec.cost)
+                    log.debug("photometric yaw%s %+.4f° at width %d, %d iterations: E = %.6g", label, yaw, width, iterations, rec.cost)
+                es.append(rec.cost)
+            return np.array(es)
 
         def fit(ys: np.ndarray, es: np.ndarray) -> tuple[int, float, float | None]:
             """(index of the lowest sample, the stage's estimate, the parabola's curvature or None)."""
