@@ -98,19 +98,22 @@ def axis_direction_px(P0: np.ndarray) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Start and end (exclusive) of the True runs of a 1-D mask."""
-    m = np.concatenate([[False], mask, [False]])
-    edges = np.flatnonzero(m[1:] != m[:-1])
-    return list(zip(edges[0::2], edges[1::2]))
+def _line_runs(inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The True runs along axis 0 of every column of ``inside`` (length, lines): their line, start and end
+    (exclusive), ordered by line and then by start."""
+    pad = np.zeros((1, inside.shape[1]), bool)
+    change = np.diff(np.concatenate([pad, inside, pad]).view(np.int8), axis=0) != 0  # (length + 1, lines)
+    line, pos = np.nonzero(change.T)  # per line: start, end, start, end, … (each run opens and closes)
+    return line[0::2], pos[0::2], pos[1::2]
 
 
-def _crossing(profile: np.ndarray, a: int, b: int, level: float) -> float:
-    """Sub-pixel position between samples a and b (adjacent) where ``profile`` crosses ``level``."""
-    pa, pb = float(profile[a]), float(profile[b])
-    if pa == pb:
-        return 0.5 * (a + b)
-    return a + (level - pa) / (pb - pa) * (b - a)
+def _crossings(profiles: np.ndarray, line: np.ndarray, a: np.ndarray, level: float) -> np.ndarray:
+    """Sub-pixel positions between samples a and a + 1 of the columns ``line`` of ``profiles`` where they cross
+    ``level`` (midway where the two samples are equal)."""
+    pa = profiles[a, line].astype(float)
+    pb = profiles[a + 1, line].astype(float)
+    step = pb - pa
+    return np.where(step == 0, a + 0.5, a + (level - pa) / np.where(step == 0, 1.0, step))
 
 
 def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, level: float = 0.5, min_run_px: int = 3,
@@ -139,46 +142,42 @@ def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, l
     if n > full_views > 0:
         max_lines = max(min(max_lines, int(min_lines)), int(round(max_lines * full_views / n)))
     horizontal = axis_uv.shape[1] == w
-    per_view: list[list[tuple[float, float]]] = []
+    per_view: list[np.ndarray] = []
     for i in range(n):
-        maps = pf[i] if horizontal else pf[i].T
-        lines, length = (w, h) if horizontal else (h, w)
-        found: list[tuple[int, list[float]]] = []
-        for c in range(lines):
-            prof = maps[:, c]
-            a_pos = axis_uv[i, c, 1] if horizontal else axis_uv[i, c, 0]
-            runs = [r for r in _runs(prof > level) if r[1] - r[0] >= min_run_px and r[0] > 0 and r[1] < length]
-            if not runs:
-                continue
-            if not all_runs:
-                # The specimen's run holds the axis (a tail tip may miss it by a little); a run far from
-                # the axis is a static structure such as a capillary wall.
-                margin = max_axis_gap * length
-                runs = [r for r in runs if r[0] - margin <= a_pos < r[1] + margin]
-                if not runs:
-                    continue
-                runs = [min(runs, key=lambda r: 0.0 if r[0] <= a_pos < r[1] else min(abs(r[0] - a_pos), abs(r[1] - 1 - a_pos)))]
-            pos: list[float] = []
-            for s, e in runs:
-                pos += [_crossing(prof, s - 1, s, level), _crossing(prof, e - 1, e, level)]
-            found.append((c, pos))
-        if len(found) > max_lines:
-            idx = np.round(np.linspace(0, len(found) - 1, max_lines)).astype(int)
-            found = [found[k] for k in idx]
-        pts: list[tuple[float, float]] = []
-        for c, positions in found:
-            for p in positions:
-                pts.append((c, p) if horizontal else (p, c))
-        per_view.append(pts)
+        profiles = pf[i] if horizontal else pf[i].T  # (length, lines): column c is scan line c
+        length = profiles.shape[0]
+        line, start, end = _line_runs(profiles > level)
+        ok = (end - start >= min_run_px) & (start > 0) & (end < length)  # runs touching the border are cut
+        line, start, end = line[ok], start[ok], end[ok]
+        if not all_runs and line.size:
+            # The specimen's run holds the axis (a tail tip may miss it by a little); a run far from the
+            # axis is a static structure such as a capillary wall. Per line, the run holding the axis or,
+            # failing that, the nearest (the first of equals).
+            a_pos = (axis_uv[i, :, 1] if horizontal else axis_uv[i, :, 0])[line]
+            margin = max_axis_gap * length
+            near = (start - margin <= a_pos) & (a_pos < end + margin)
+            line, start, end, a_pos = line[near], start[near], end[near], a_pos[near]
+            gap = np.where((start <= a_pos) & (a_pos < end), 0.0, np.minimum(np.abs(start - a_pos), np.abs(end - 1 - a_pos)))
+            order = np.lexsort((np.arange(line.size), gap, line))
+            first = order[np.unique(line[order], return_index=True)[1]]
+            line, start, end = line[first], start[first], end[first]
+        lines = np.unique(line)
+        if lines.size > max_lines:
+            lines = lines[np.round(np.linspace(0, lines.size - 1, max_lines)).astype(int)]
+        keep = np.isin(line, lines)
+        line, start, end = line[keep], start[keep], end[keep]
+        pos = np.stack([_crossings(profiles, line, start - 1, level), _crossings(profiles, line, end - 1, level)], 1).ravel()
+        along = np.repeat(line, 2).astype(float)  # each run gives its start and its end crossing, in order
+        per_view.append(np.stack([along, pos] if horizontal else [pos, along], 1))
     r_max = max((len(p) for p in per_view), default=0)
     if r_max == 0:
         raise AnalysisError("no silhouette edge found in any view: the colour model sees no specimen around the rotation axis")
     uv = np.zeros((n, r_max, 2), np.float32)
     wt = np.zeros((n, r_max), np.float32)
     for i, pts in enumerate(per_view):
-        if not pts:
+        if not len(pts):
             continue
-        arr = np.asarray(pts, np.float32)
+        arr = pts.astype(np.float32)
         uv[i, : len(arr)] = arr
         uv[i, len(arr):] = arr[0]
         wt[i, : len(arr)] = 1.0
@@ -507,21 +506,21 @@ class CoherenceObjective:
 
     def _project_sample(self, P: np.ndarray, pts: np.ndarray, views: np.ndarray) -> np.ndarray:
         """Signed distances (..., K, M) of views ``views`` (broadcastable to (..., K)) through their cameras
-        P (..., K, 3, 4) at points ``pts`` (..., 3, M) µm: one batched product, one remap for all."""
-        a = self.atlas
+        P (..., K, 3, 4) at points ``pts`` (..., 3, M) µm: one product per image coordinate, one remap for all.
+
+        The points are made homogeneous so that each of x, y, w is one matrix product (no separate pass adding
+        the translation), each written to its own contiguous block: u = x/w and v = y/w are then contiguous
+        (..., K, M) arrays that go to the atlas and to ``cv2.remap`` without a copy.
+        """
         k = P.shape[-3]
         lead = P.shape[:-3]
-        proj = P[..., :3].reshape(lead + (k * 3, 3)) @ pts  # (..., 3K, M)
-        proj += P[..., 3].reshape(lead + (k * 3, 1))
-        proj = proj.reshape(lead + (k, 3, -1))
-        den = np.reciprocal(proj[..., 2, :])
-        u = proj[..., 0, :] * den
-        v = proj[..., 1, :] * den
-        a.frame_to_tile(u, v)
-        ox, oy = a.origin(np.broadcast_to(views, lead + (k,)))
-        u += ox[..., None]
-        v += oy[..., None]
-        m = u.shape[-1]
+        m = pts.shape[-1]
+        pts4 = np.concatenate([pts, np.ones(pts.shape[:-2] + (1, m), np.float32)], axis=-2)  # (..., 4, M)
+        rows = np.ascontiguousarray(np.moveaxis(P, -2, 0))  # (3, ..., K, 4): the x, y and w rows of every camera
+        u, v, w = np.matmul(rows, pts4)  # (3, ..., K, M)
+        np.divide(u, w, out=u)
+        np.divide(v, w, out=v)
+        self.atlas.to_atlas(u, v, np.broadcast_to(views, u.shape[:-1]))
         return self._remap(u.reshape(-1, m), v.reshape(-1, m)).reshape(u.shape)
 
     def _robust_min(self, vals: np.ndarray) -> np.ndarray:

@@ -64,8 +64,7 @@ class Atlas:
     A *window* atlas holds only a window of every frame (``window`` = (x0, y0, frame width, frame height),
     pixels): its maps are the frames' columns x0 … x0 + W − 1 and rows y0 … y0 + H − 1, for maps that are
     constant outside it (the coherence cost's clamped signed distances beyond the specimen). A sample is
-    clamped to the frame, shifted by the window's origin (an integer: its fraction is kept) and clamped to
-    the window (:meth:`frame_to_tile`).
+    clamped to the frame and to the window, then shifted to its map's tile (:meth:`to_atlas`).
     """
 
     image: np.ndarray
@@ -100,18 +99,19 @@ class Atlas:
             offsets[j] = (x0, y0)
         return cls(image, n, h, w, offsets)
 
-    def frame_to_tile(self, u: np.ndarray, v: np.ndarray) -> None:
-        """Clamp frame pixel positions (u, v) (float32, in place) to the frame and express them in the tiles'
-        pixels: the window's (without a window, the tiles are the frames)."""
+    def to_atlas(self, u: np.ndarray, v: np.ndarray, views: np.ndarray) -> None:
+        """Move frame pixel positions (u, v) (float32 (..., M), in place) to the atlas image's pixels.
+
+        Each is clamped to the frame cut by the window (one clamp: the frame's and the window's intervals
+        overlap, so clamping to their intersection equals clamping to one after the other), then shifted by
+        its tile's origin less the window's; ``views`` (...) are the maps' indices of the rows of (u, v).
+        """
         x0, y0, fw, fh = self.window or (0, 0, self.w, self.h)
-        np.clip(u, 0.0, fw - 1.0, out=u)
-        np.clip(v, 0.0, fh - 1.001, out=v)
-        if self.window is None:
-            return
-        u -= np.float32(x0)
-        v -= np.float32(y0)
-        np.clip(u, 0.0, self.w - 1.0, out=u)
-        np.clip(v, 0.0, self.h - 1.001, out=v)
+        np.clip(u, max(0.0, x0), min(fw - 1.0, x0 + self.w - 1.0), out=u)
+        np.clip(v, max(0.0, y0), min(fh - 1.001, y0 + self.h - 1.001), out=v)
+        ox, oy = self.origin(views)
+        u += (ox - np.float32(x0))[..., None]
+        v += (oy - np.float32(y0))[..., None]
 
     def origin(self, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Column and row offsets (float32, shaped like ``views``) of the tiles of map indices ``views``."""
@@ -174,11 +174,7 @@ class Projector:
         v = P[:, 1, :3] @ X
         v += P[:, 1, 3:]
         v *= den
-        np.clip(u, 0.0, atlas.w - 1.0, out=u)
-        np.clip(v, 0.0, atlas.h - 1.001, out=v)
-        ox, oy = atlas.origin(np.arange(b * n) % n)
-        u += ox[:, None]
-        v += oy[:, None]
+        atlas.to_atlas(u, v, np.arange(b * n) % n)
         m = X.shape[1]
         total = u.size
         cols = 4096 if total % 4096 == 0 else (1024 if total % 1024 == 0 else m)
