@@ -381,3 +381,17 @@ def test_threads_give_the_same_costs_bit_for_bit(scene: tuple[np.ndarray, np.nda
         fresh = CoherenceObjective(obj.atlas, obj.edges, obj.K, obj.distance, obj.radius, per_candidate=per_candidate)
         costs[threads] = (fresh(batch), fresh.residuals(batch[:1]))
     assert np.array_equal(costs["1"][0], costs["3"][0]) and np.array_equal(costs["1"][1], costs["3"][1])
+
+
+def test_ray_points_keep_float64_accuracy_at_a_microscope_distance(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
+    """The homogeneous ray points, float32, are within 5e-8 of the axis distance of Rᵀ(z·ray − t) in float64 (adding the
+    camera centre to z·Rᵀray in float32 would miss by 1e-7: their axis-distance-sized parts must cancel first)."""
+    theta, _, obj = scene
+    R, t = obj._poses(theta[None])
+    rng = np.random.default_rng(0)
+    Z = (obj.distance + rng.uniform(-obj.radius, obj.radius, obj.edges.weight.shape + (5,)))[None].astype(np.float32)
+    X = obj._ray_points(obj.rays_cam, R.astype(np.float32), t.astype(np.float32), Z)  # (1, N, 4, R, S)
+    cam = obj.rays_cam[None, :, :, None, :].astype(float) * Z[..., None].astype(float) - t[:, None, None, None, :]
+    ref = np.einsum("bnrsj,bnjk->bnkrs", cam, R)  # rows cᵀ R = (Rᵀ c)ᵀ
+    assert np.all(X[:, :, 3] == 1.0)
+    assert np.abs(X[:, :, :3] - ref).max() < 5e-8 * obj.distance

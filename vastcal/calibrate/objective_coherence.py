@@ -475,18 +475,22 @@ class CoherenceObjective:
             out[b, views] = self._local_max(th[b:b + 1], z, views)[0]
         return out
 
-    def _sample_min_others(self, X: np.ndarray, P: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
-        """(Robust) min over the partner views j of sd_j at the projections of X (B, n, R, S, 3); returns (B, n, R, S).
+    def _sample_min_others(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None
+                           ) -> np.ndarray:
+        """(Robust) min over the partner views j of sd_j at the edge rays' points at camera depths Z (B, n, R, S) µm;
+        returns (B, n, R, S).
 
-        X holds the rays of every view, or of the views ``views`` only (n of them); P (B, N, 3, 4) are
-        all cameras. The points of view i's rays are projected into its partners (:func:`partner_views`)
-        only, a few ray views at a time so that at most ``max_points`` samples are held at once; the slices of
-        views run on :func:`.threads.run_slices` (bit-identical to one after the other).
+        R (B, n, 3, 3) and t (B, 3) are the poses of the rays' own views: every view, or the views ``views`` only
+        (n of them); P (B, N, 3, 4) are all cameras. The points of view i's rays are projected into its partners
+        (:func:`partner_views`) only, a few ray views at a time so that at most ``max_points`` samples are held
+        at once; the slices of views, from their ray points on, run on :func:`.threads.run_slices`
+        (bit-identical to one after the other).
         """
-        b, n, r, s, _ = X.shape
+        b, n, r, s = Z.shape
         J = self.partners if self.partners is not None else partner_views(np.zeros(P.shape[1]), self.max_partners)
+        rays = self.rays_cam
         if views is not None:
-            J = J[views]
+            J, rays = J[views], rays[views]
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
         threads = compute_threads()
@@ -496,26 +500,22 @@ class CoherenceObjective:
         def views_slice(a: int) -> None:
             e = min(n, a + step)
             Jc = J[a:e]  # (n_c, K)
-            Pc = P[:, Jc]  # (B, n_c, K, 3, 4)
-            pts = X[:, a:e].reshape(b, e - a, r * s, 3).transpose(0, 1, 3, 2)  # (B, n_c, 3, R·S)
-            vals = self._project_sample(Pc, pts, Jc[None])  # (B, n_c, K, R·S)
+            pts4 = self._ray_points(rays[a:e], R[:, a:e], t, Z[:, a:e]).reshape(b, e - a, 4, r * s)
+            vals = self._project_sample(P[:, Jc], pts4, Jc[None])  # (B, n_c, K, R·S)
             out[:, a:e] = self._robust_min(vals.transpose(0, 2, 1, 3)).reshape(b, e - a, r, s)
 
         run_slices(views_slice, range(0, n, step))
         return out
 
-    def _project_sample(self, P: np.ndarray, pts: np.ndarray, views: np.ndarray) -> np.ndarray:
+    def _project_sample(self, P: np.ndarray, pts4: np.ndarray, views: np.ndarray) -> np.ndarray:
         """Signed distances (..., K, M) of views ``views`` (broadcastable to (..., K)) through their cameras
-        P (..., K, 3, 4) at points ``pts`` (..., 3, M) µm: one product per image coordinate, one remap for all.
+        P (..., K, 3, 4) at homogeneous points ``pts4`` (..., 4, M) µm: one product for x, y and w, one remap for all.
 
-        The points are made homogeneous so that each of x, y, w is one matrix product (no separate pass adding
-        the translation), each written to its own contiguous block: u = x/w and v = y/w are then contiguous
-        (..., K, M) arrays that go to the atlas and to ``cv2.remap`` without a copy.
+        With homogeneous points the translation is part of the product (no separate pass adding it), and x, y, w
+        come out as contiguous (..., K, M) blocks: u = x/w and v = y/w go to the atlas and to ``cv2.remap``
+        without a copy.
         """
-        k = P.shape[-3]
-        lead = P.shape[:-3]
-        m = pts.shape[-1]
-        pts4 = np.concatenate([pts, np.ones(pts.shape[:-2] + (1, m), np.float32)], axis=-2)  # (..., 4, M)
+        m = pts4.shape[-1]
         rows = np.ascontiguousarray(np.moveaxis(P, -2, 0))  # (3, ..., K, 4): the x, y and w rows of every camera
         u, v, w = np.matmul(rows, pts4)  # (3, ..., K, M)
         np.divide(u, w, out=u)
@@ -543,7 +543,8 @@ class CoherenceObjective:
         assert self.partners is not None
         J = self.partners[own]  # (M, K)
         Pj = np.take_along_axis(P, J[:, :, None, None], axis=1)  # (M, K, 3, 4)
-        vals = self._project_sample(Pj, X.transpose(0, 2, 1), J)  # (M, K, S)
+        pts4 = np.concatenate([X, np.ones(X.shape[:-1] + (1,), np.float32)], axis=-1).transpose(0, 2, 1)  # (M, 4, S)
+        vals = self._project_sample(Pj, pts4, J)  # (M, K, S)
         return self._robust_min(vals)
 
     def _remap(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -581,7 +582,7 @@ class CoherenceObjective:
         for stage in range(len(self.stages) + 1):
             offs = np.linspace(-1.0, 1.0, count, dtype=np.float32)
             Z = zc[..., None] + half[..., None] * offs
-            vals = self._sample_min_others(self._ray_points(R, t, Z, views), Pm, views)
+            vals = self._sample_min_others(R, t, Z, Pm, views)
             zc = np.take_along_axis(Z, np.argmax(vals, axis=-1)[..., None], -1)[..., 0]
             half = (2.0 * half / (count - 1)).astype(np.float32)
             if stage < len(self.stages):
@@ -625,7 +626,7 @@ class CoherenceObjective:
             R = R[:, views]
         offs = np.linspace(-self.window_um, self.window_um, self.window, dtype=np.float32)
         Z = z_peak[..., None] + offs
-        vals = self._sample_min_others(self._ray_points(R, t, Z, views), Pm, views)  # (B, N, R, S)
+        vals = self._sample_min_others(R, t, Z, Pm, views)  # (B, N, R, S)
         best = np.argmax(vals, axis=-1)
         self._follow_rising_ends(R, t, Pm, Z, vals, best, views)
         k = np.clip(best, 1, self.window - 2)[..., None]
@@ -676,12 +677,25 @@ class CoherenceObjective:
         Rt = np.concatenate([R, np.broadcast_to(t[:, None, :, None], R.shape[:-1] + (1,))], -1)
         return np.einsum("ij,bnjk->bnik", self.K.astype(np.float32), Rt).astype(np.float32)
 
-    def _ray_points(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
-        """Points (B, N, R, S, 3) on the edge rays at camera depths Z (B, N, R, S), µm: X = Rᵀ(z·ray − t)."""
-        rays = self.rays_cam if views is None else self.rays_cam[views]
-        cam = rays[None, :, :, None, :] * Z[..., None] - t[:, None, None, None, :]
-        b, n, r, s, _ = cam.shape
-        return (cam.reshape(b, n, r * s, 3) @ R).reshape(b, n, r, s, 3)  # rows: (Rᵀ c)ᵀ = cᵀ R
+    def _ray_points(self, rays: np.ndarray, R: np.ndarray, t: np.ndarray, Z: np.ndarray) -> np.ndarray:
+        """Homogeneous points (B, n, 4, R, S) on the edge rays ``rays`` (n, R, 3) of views posed R (B, n, 3, 3), t (B, 3)
+        at camera depths Z (B, n, R, S), µm: X = Rᵀ(z·ray − t), w = 1.
+
+        Written as X = X₀ + (z − d)·Rᵀ ray with X₀ = Rᵀ(d·ray − t) the ray's point at the axis distance d: one
+        multiply-add per coordinate and sample, and no float32 cancellation (X₀ and z − d are specimen-sized,
+        where Rᵀt and z·Rᵀray are axis-distance-sized).
+        """
+        d = np.float32(self.distance)
+        D = rays[None] @ R  # (B, n, R, 3): rows (Rᵀ ray)ᵀ
+        X0 = (d * rays[None] - t[:, None, None, :]) @ R  # (B, n, R, 3)
+        dz = Z - d
+        b, n, r, s = Z.shape
+        out = np.empty((b, n, 4, r, s), np.float32)
+        for c in range(3):
+            np.multiply(dz, D[..., c, None], out=out[:, :, c])
+            out[:, :, c] += X0[..., c, None]
+        out[:, :, 3] = 1.0
+        return out
 
     def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
         """Costs (B,) for θ (B, 3 + N) degrees."""
