@@ -390,7 +390,7 @@ def test_ray_points_keep_float64_accuracy_at_a_microscope_distance(scene: tuple[
     R, t = obj._poses(theta[None])
     rng = np.random.default_rng(0)
     Z = (obj.distance + rng.uniform(-obj.radius, obj.radius, obj.edges.weight.shape + (5,)))[None].astype(np.float32)
-    X = obj._ray_points(obj.rays_cam, R.astype(np.float32), t.astype(np.float32), Z)  # (1, N, 4, R, S)
+    X = obj._ray_points(obj.rays_cam, R.astype(np.float32), t.astype(np.float32)[:, None], Z)  # (1, N, 4, R, S)
     cam = obj.rays_cam[None, :, :, None, :].astype(float) * Z[..., None].astype(float) - t[:, None, None, None, :]
     ref = np.einsum("bnrsj,bnjk->bnkrs", cam, R)  # rows cᵀ R = (Rᵀ c)ᵀ
     assert np.all(X[:, :, 3] == 1.0)

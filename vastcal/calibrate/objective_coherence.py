@@ -500,7 +500,7 @@ class CoherenceObjective:
         def views_slice(a: int) -> None:
             e = min(n, a + step)
             Jc = J[a:e]  # (n_c, K)
-            pts4 = self._ray_points(rays[a:e], R[:, a:e], t, Z[:, a:e]).reshape(b, e - a, 4, r * s)
+            pts4 = self._ray_points(rays[a:e], R[:, a:e], t[:, None], Z[:, a:e]).reshape(b, e - a, 4, r * s)
             vals = self._project_sample(P[:, Jc], pts4, Jc[None])  # (B, n_c, K, R·S)
             out[:, a:e] = self._robust_min(vals.transpose(0, 2, 1, 3)).reshape(b, e - a, r, s)
 
@@ -537,13 +537,13 @@ class CoherenceObjective:
             return second
         return np.partition(vals, self.trim, axis=1)[:, self.trim]
 
-    def _min_others_of_rays(self, X: np.ndarray, P: np.ndarray, own: np.ndarray) -> np.ndarray:
-        """Like :meth:`_sample_min_others` for an irregular set of M rays: points X (M, S, 3) µm,
-        the cameras P (M, N, 3, 4) of each ray's candidate and its own view ``own`` (M,); returns (M, S)."""
+    def _min_others_of_rays(self, pts4: np.ndarray, P: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """Like :meth:`_sample_min_others` for an irregular set of M rays: homogeneous points pts4 (M, 4, S) µm
+        (:meth:`_ray_points`), the cameras P (M, N, 3, 4) of each ray's candidate and its own view ``own`` (M,);
+        returns (M, S)."""
         assert self.partners is not None
         J = self.partners[own]  # (M, K)
         Pj = np.take_along_axis(P, J[:, :, None, None], axis=1)  # (M, K, 3, 4)
-        pts4 = np.concatenate([X, np.ones(X.shape[:-1] + (1,), np.float32)], axis=-1).transpose(0, 2, 1)  # (M, 4, S)
         vals = self._project_sample(Pj, pts4, J)  # (M, K, S)
         return self._robust_min(vals)
 
@@ -663,11 +663,10 @@ class CoherenceObjective:
             zr = Z[b, i, r] + (direction * 0.5 * (Z[b, i, r, -1] - Z[b, i, r, 0]))[:, None]  # (M, S): centred on the old best
             zr = np.maximum(zr, np.float32(1e-3 * self.distance))
             own = i if views is None else views[i]
-            cam = self.rays_cam[own, r][:, None, :] * zr[..., None] - t[b][:, None, :]  # (M, S, 3) camera frame
-            X = np.matmul(cam, R[b, i])  # (M, S, 3) world: Rᵀ c, as rows cᵀ R
+            pts4 = self._ray_points(self.rays_cam[own, r][:, None], R[b, i], t[b], zr[:, None])[:, :, 0]  # (M, 4, S)
             assert self.partners is not None
             step = max(1, self.max_points // (self.partners.shape[1] * count))  # rays per chunk: memory as in the batched path
-            v = np.concatenate([self._min_others_of_rays(X[c:c + step], Pm[b[c:c + step]], own[c:c + step])
+            v = np.concatenate([self._min_others_of_rays(pts4[c:c + step], Pm[b[c:c + step]], own[c:c + step])
                                 for c in range(0, len(b), step)])
             Z[b, i, r], vals[b, i, r] = zr, v
             best[b, i, r] = np.argmax(v, axis=-1)
@@ -678,23 +677,22 @@ class CoherenceObjective:
         return np.einsum("ij,bnjk->bnik", self.K.astype(np.float32), Rt).astype(np.float32)
 
     def _ray_points(self, rays: np.ndarray, R: np.ndarray, t: np.ndarray, Z: np.ndarray) -> np.ndarray:
-        """Homogeneous points (B, n, 4, R, S) on the edge rays ``rays`` (n, R, 3) of views posed R (B, n, 3, 3), t (B, 3)
-        at camera depths Z (B, n, R, S), µm: X = Rᵀ(z·ray − t), w = 1.
+        """Homogeneous points (..., 4, R, S) on the edge rays ``rays`` (..., R, 3) of views posed R (..., 3, 3), t (..., 3)
+        at camera depths Z (..., R, S), µm: X = Rᵀ(z·ray − t), w = 1 (leading dimensions broadcast).
 
         Written as X = X₀ + (z − d)·Rᵀ ray with X₀ = Rᵀ(d·ray − t) the ray's point at the axis distance d: one
         multiply-add per coordinate and sample, and no float32 cancellation (X₀ and z − d are specimen-sized,
         where Rᵀt and z·Rᵀray are axis-distance-sized).
         """
         d = np.float32(self.distance)
-        D = rays[None] @ R  # (B, n, R, 3): rows (Rᵀ ray)ᵀ
-        X0 = (d * rays[None] - t[:, None, None, :]) @ R  # (B, n, R, 3)
+        D = rays @ R  # (..., R, 3): rows (Rᵀ ray)ᵀ
+        X0 = (d * rays - t[..., None, :]) @ R
         dz = Z - d
-        b, n, r, s = Z.shape
-        out = np.empty((b, n, 4, r, s), np.float32)
+        out = np.empty(dz.shape[:-2] + (4,) + dz.shape[-2:], np.float32)
         for c in range(3):
-            np.multiply(dz, D[..., c, None], out=out[:, :, c])
-            out[:, :, c] += X0[..., c, None]
-        out[:, :, 3] = 1.0
+            np.multiply(dz, D[..., c, None], out=out[..., c, :, :])
+            out[..., c, :, :] += X0[..., c, None]
+        out[..., 3, :, :] = 1.0
         return out
 
     def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
