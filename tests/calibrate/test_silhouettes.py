@@ -153,3 +153,23 @@ def test_a_specimen_cut_by_the_frame_is_kept_and_flagged() -> None:
     assert touches_frame_edge(maps).all()
     inside = np.stack([_body(h, w, (120, 50), (60, 12))] * n)
     assert not touches_frame_edge(specimen_maps(_absorbing_model(), _render(inside))).any()
+
+
+def test_fill_holes_fills_what_the_outside_cannot_reach() -> None:
+    """The flood fill equals scipy.ndimage.binary_fill_holes (4-connected background) on random masks and shapes."""
+    from scipy import ndimage
+
+    from vastcal.calibrate.translucent import fill_holes
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        h, w = (int(k) for k in rng.integers(1, 40, 2))
+        m = rng.random((h, w)) < rng.uniform(0.2, 0.8)
+        assert np.array_equal(fill_holes(m), ndimage.binary_fill_holes(m))
+    ring = np.zeros((9, 9), bool)
+    ring[2:7, 2:7] = True
+    ring[4, 4] = False  # a hole: filled; a notch open to the outside: kept open
+    ring[2, 3] = False
+    ring[3, 3] = False
+    filled = fill_holes(ring)
+    assert filled[4, 4] and not filled[2, 3] and not filled[3, 3]

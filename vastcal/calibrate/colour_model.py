@@ -480,9 +480,10 @@ def em_refine(model: ColourModel, samples: np.ndarray, rounds: int) -> ColourMod
     The border fit sees only the border's illumination; EM lets the background Gaussian widen to
     the whole field's (vignetting, a brighter capillary interior) while the specimen keeps its own.
     """
+    wide = np.asarray(samples, np.float64)  # the fits' precision, converted once for all rounds
     for _ in range(rounds):
         lf = model.fg.log_pdf(samples) + np.log(model.prior_fg)
         lb = model.bg.log_pdf(samples) + np.log1p(-model.prior_fg)
         r = np.exp(-np.logaddexp(0.0, np.clip(lb - lf, -80, 80)))  # responsibility of the foreground
-        model = ColourModel(Gaussian.fit(samples, r), Gaussian.fit(samples, 1 - r), _prior(float(r.mean())), model.space, model.source, model.eps)
+        model = ColourModel(Gaussian.fit(wide, r), Gaussian.fit(wide, 1 - r), _prior(float(r.mean())), model.space, model.source, model.eps)
     return model

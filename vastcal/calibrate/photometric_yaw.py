@@ -56,17 +56,19 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
 
 from vastcal.calibrate.objective_coherence import axis_probe
 from vastcal.calibrate.sampling import downsample_matrix, resize_stack
 from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.geometry import project, projection_matrices
 from vastcal.voxels import VoxelGrid, inside_all, viewing_box
+
+if TYPE_CHECKING:  # imported where a system is built: SciPy takes ~0.1 s to import, which runs without the photometric yaw need not pay
+    import scipy.sparse as sp
 
 log = logging.getLogger(__name__)
 
@@ -322,6 +324,8 @@ class AbsorptionMatch:
             np.cumsum(keep.sum(axis=1), out=indptr[chunk.start + 1:chunk.stop + 1])
             indptr[chunk.start + 1:chunk.stop + 1] += nnz
             nnz += k
+        import scipy.sparse as sp
+
         At = sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=(m, active.size))
         return At.T.tocsr(), At, active, row_sum[active]
 
@@ -381,6 +385,8 @@ def _threaded_product(M: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
     parts = int(min(compute_threads(), max(1, M.nnz // MIN_ENTRIES_PER_THREAD)))
     if parts <= 1:
         return lambda x: M @ x
+    import scipy.sparse as sp
+
     cuts = np.searchsorted(M.indptr, np.linspace(0, M.nnz, parts + 1)[1:-1])
     bounds = np.concatenate([[0], cuts, [M.shape[0]]]).astype(int)
     blocks = [(r0, r1, sp.csr_matrix((M.data[M.indptr[r0]:M.indptr[r1]], M.indices[M.indptr[r0]:M.indptr[r1]],

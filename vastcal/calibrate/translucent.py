@@ -32,7 +32,6 @@ import logging
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 log = logging.getLogger(__name__)
 
@@ -117,9 +116,22 @@ def drop_translucent(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, lev
         ref = body_reference(tt, inside, reach, smooth)
         ts = cv2.GaussianBlur(tt, (0, 0), max(smooth, 0.3))
         core = inside & (ts >= fraction * ref) & (ref > 0)
-        keep = ndimage.binary_fill_holes((cv2.dilate(core.astype(np.uint8), kernel) > 0) | between_in_columns(core))
+        keep = fill_holes((cv2.dilate(core.astype(np.uint8), kernel) > 0) | between_in_columns(core))
         gone = inside & ~keep
         dropped += int(gone.sum())
         p[gone] = 0.0
     log.info("translucent parts dropped: %d px over %d views (body reach %.1f px)", dropped, flat_p.shape[0], reach)
     return out
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """``mask`` (H, W) bool with its holes filled: every pixel not 4-connected to the outside of the image through
+    pixels outside the mask joins it (what ``scipy.ndimage.binary_fill_holes`` does with its default structure).
+
+    A flood fill of the outside from a one-pixel frame around the image; what it does not reach is inside.
+    """
+    h, w = mask.shape
+    outside = np.zeros((h + 2, w + 2), np.uint8)
+    outside[1:-1, 1:-1] = mask  # 1 inside the mask, 0 elsewhere, and a frame of 0 all round
+    cv2.floodFill(outside, None, (0, 0), 2, flags=4)  # the outside and the background connected to it become 2
+    return outside[1:-1, 1:-1] != 2
