@@ -151,9 +151,8 @@ def flatten_background(f: np.ndarray, *, inplace: bool = False) -> np.ndarray:
     for i in range(n):
         img = stack[i] if c > 1 else stack[i, :, :, 0]
         bg = cv2.blur(cv2.dilate(img, kernel), (kx, kx))
-        bg = np.maximum(bg, 1e-3)
-        corr = img / bg
-        out[i] = corr if c > 1 else corr[..., None]  # view i is read whole above before it is overwritten
+        np.maximum(bg, np.float32(1e-3), out=bg)
+        np.divide(img, bg, out=out[i] if c > 1 else out[i, :, :, 0])  # elementwise: in place when out is the stack
     np.clip(out, 0.0, 1.0, out=out)
     return out[0] if single else out
 
@@ -442,14 +441,15 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
         ColourModelError: blank or saturated views, nothing unlike the background, or no separation.
     """
     stack = _stack(images)
-    check_images(stack)
     rng = np.random.default_rng(seed)
     views = fit_views(stack.shape[0], int(np.prod(stack.shape[1:3])), max_pixels)
     if views.size < stack.shape[0]:
         log.info("colour model: fitted on %d of %d views (evenly spread, at most %d pixels)", views.size, stack.shape[0], max_pixels)
+        check_images(stack)  # every view, one at a time
         images = np.asarray(stack[views])
     else:
-        images = np.asarray(stack)
+        images = np.asarray(stack)  # read once, then checked
+        check_images(images)
     f = features(images)  # once: the background flattening is the costly part
     border = _border_of(f, border_frac)
     if border.shape[0] > max_samples:
