@@ -67,7 +67,7 @@ from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.geometry import project, projection_matrices
 from vastcal.voxels import VoxelGrid, inside_all, viewing_box
 
-if TYPE_CHECKING:  # imported where a system is built: SciPy takes ~0.1 s to import, which runs without the photometric yaw need not pay
+if TYPE_CHECKING:  # at run time imported where a system is built: runs without the photometric yaw skip its ~0.1 s import
     import scipy.sparse as sp
 
 log = logging.getLogger(__name__)
