@@ -15,13 +15,16 @@ as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel samp
   colour model.
 * ``--start-at-truth``: the same runs with the commanded angles at the truth (no offset views): a search that finds its
   cost's minimum stays within 0.1° mean unless that minimum is not at the truth (compare the cost columns).
+* ``--fixed-unperturbed``: the paper's protocol — the views that are not offset keep their (true) commanded rolls
+  (``fixed_views``), only the offset views' rolls are free; their error against the truth is absolute (the fixed views
+  pin the common roll), over the free views only. With ``--start-at-truth`` the same views are free, started at the truth.
 
 For the ground-truth sets each run also scores the truth on its own final cost (the judge: the finest
 level's batch-independent cost), printed beside the final cost. Usage (CPU-heavy: a David run takes ~1 min of
 CPU per start, dinoRing several):
 
     python benchmarks/compare_methods.py [--data zf,david,dino] [--methods coherence,pi,vr] [--seeds 0] [--starts 1] [--start-at-truth]
-                                         [--threshold-masks]
+                                         [--threshold-masks] [--fixed-unperturbed]
 """
 
 from __future__ import annotations
@@ -149,16 +152,22 @@ def _measure(session: Path, r: object) -> tuple[float, float]:
     return float(m.volume_mm3), float(m.surface_area_mm2)
 
 
+#: The views each ground-truth set's runs offset by +10° (the rest are the unperturbed views).
+OFFSET_VIEWS = {"david": np.arange(1, 18, 2)[:9].tolist() + [16], "dino": list(range(1, 11))}
+
+
 def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], starts: int, at_truth: bool = False,
-                  threshold_masks: bool = False) -> None:
+                  threshold_masks: bool = False, fixed_unperturbed: bool = False) -> None:
+    offset = OFFSET_VIEWS[name]
     if name == "david":
         folder = threshold_mask_images(DATA / "eth_david", tmp / "masks", "david_*.jpg", "david_*.pa") if threshold_masks else DATA / "eth_david"
-        s, true_rolls = _truth_session(tmp, name, folder, folder, 18, [] if at_truth else np.arange(1, 18, 2)[:9].tolist() + [16], 0.5, None)
+        s, true_rolls = _truth_session(tmp, name, folder, folder, 18, [] if at_truth else offset, 0.5, None)
     else:  # all 48 views: the 48th is the 2nd camera photographed again (365°, a turn later)
         folder = DATA / "middlebury_dinoRing"
         if threshold_masks:
             folder = threshold_mask_images(folder, tmp / "masks", "dinoR0*.png", "dinoR_*.txt")
-        s, true_rolls = _truth_session(tmp, name, folder, folder / "dinoR_par.txt", 48, [] if at_truth else list(range(1, 11)), 0.0, "m")
+        s, true_rolls = _truth_session(tmp, name, folder, folder / "dinoR_par.txt", 48, [] if at_truth else offset, 0.0, "m")
+    fixed = [v for v in range(len(true_rolls)) if v not in offset] if fixed_unperturbed else []
     from vastcal.session import Session
     from vastcal.calibrate.session_run import session_camera_model
     with Session.open(s) as ss:
@@ -167,7 +176,8 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
     truth[3:] = true_rolls
     start_mean, start_max = _angle_errors(theta0, true_rolls)
     masks = " on the threshold masks" if threshold_masks else ""
-    print(f"\n== {name}{masks}{' started at the truth' if at_truth else ''}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)")
+    protocol = f", views {offset} free, the others fixed (errors over the free views, absolute)" if fixed else ""
+    print(f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)")
     print(f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
           f"{'volume':>9s} {'area':>9s}")
     for method in methods:
@@ -176,14 +186,20 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
             t = time.perf_counter()
             scan = _view_scans(truth) if at_truth else []
             r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                                  settings=settings, starts=starts, score_thetas=[truth] + scan)
+                                  settings=settings, starts=starts, score_thetas=[truth] + scan, fixed_views=fixed)
             wall = time.perf_counter() - t
             mean, mx = _angle_errors(r.theta_deg, true_rolls)
+            if fixed:
+                e_free = np.abs(r.theta_deg[3:] - true_rolls)[offset]
+                mean, mx = float(e_free.mean()), float(e_free.max())
             vol, area = _measure(s, r)
             print(f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
                   f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}", flush=True)
-            e = _gauge_free(r.theta_deg, true_rolls)
-            e0 = (theta0[3:] - theta0[3]) - (true_rolls - true_rolls[0])  # the start's error (0 or 10°), view 0 the reference
+            if fixed:  # the fixed views pin the common roll: absolute errors
+                e, e0 = r.theta_deg[3:] - true_rolls, theta0[3:] - true_rolls
+            else:
+                e = _gauge_free(r.theta_deg, true_rolls)
+                e0 = (theta0[3:] - theta0[3]) - (true_rolls - true_rolls[0])  # the start's error (0 or 10°), view 0 the reference
             worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
             print(f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}")
             if at_truth:
@@ -223,6 +239,7 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=1)
     ap.add_argument("--start-at-truth", action="store_true", help="commanded angles = the true ones (no offset views)")
     ap.add_argument("--threshold-masks", action="store_true", help="the data's own threshold silhouettes as the images (ground-truth sets)")
+    ap.add_argument("--fixed-unperturbed", action="store_true", help="the paper's protocol: only the offset views' rolls free")
     a = ap.parse_args()
     methods = a.methods.split(",")
     seeds = [int(x) for x in a.seeds.split(",")]
@@ -231,7 +248,7 @@ def main() -> None:
             if name == "zf":
                 run_zebrafish(Path(tmp), methods, seeds, a.starts)
             else:
-                run_truth_set(Path(tmp), name, methods, seeds, a.starts, a.start_at_truth, a.threshold_masks)
+                run_truth_set(Path(tmp), name, methods, seeds, a.starts, a.start_at_truth, a.threshold_masks, a.fixed_unperturbed)
 
 
 if __name__ == "__main__":
