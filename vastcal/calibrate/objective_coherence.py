@@ -517,8 +517,9 @@ class CoherenceObjective:
         m = pts4.shape[-1]
         rows = np.ascontiguousarray(np.moveaxis(P, -2, 0))  # (3, ..., K, 4): the x, y and w rows of every camera
         u, v, w = np.matmul(rows, pts4)  # (3, ..., K, M)
-        np.divide(u, w, out=u)
-        np.divide(v, w, out=v)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a point on a partner's focal plane (w = 0): clamped to its frame's edge
+            np.divide(u, w, out=u)
+            np.divide(v, w, out=v)
         self.atlas.to_atlas(u, v, np.broadcast_to(views, u.shape[:-1]))
         return self._remap(u.reshape(-1, m), v.reshape(-1, m)).reshape(u.shape)
 
