@@ -188,18 +188,16 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
             r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
                                   settings=settings, starts=starts, score_thetas=[truth] + scan, fixed_views=fixed)
             wall = time.perf_counter() - t
-            mean, mx = _angle_errors(r.theta_deg, true_rolls)
-            if fixed:
-                e_free = np.abs(r.theta_deg[3:] - true_rolls)[offset]
-                mean, mx = float(e_free.mean()), float(e_free.max())
-            vol, area = _measure(s, r)
-            print(f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
-                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}", flush=True)
-            if fixed:  # the fixed views pin the common roll: absolute errors
+            if fixed:  # the fixed views pin the common roll: absolute errors, summarised over the free views
                 e, e0 = r.theta_deg[3:] - true_rolls, theta0[3:] - true_rolls
+                mean, mx = float(np.mean(np.abs(e[offset]))), float(np.max(np.abs(e[offset])))
             else:
                 e = _gauge_free(r.theta_deg, true_rolls)
                 e0 = (theta0[3:] - theta0[3]) - (true_rolls - true_rolls[0])  # the start's error (0 or 10°), view 0 the reference
+                mean, mx = _angle_errors(r.theta_deg, true_rolls)
+            vol, area = _measure(s, r)
+            print(f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
+                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}", flush=True)
             worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
             print(f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}")
             if at_truth:

@@ -443,13 +443,11 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
     stack = _stack(images)
     rng = np.random.default_rng(seed)
     views = fit_views(stack.shape[0], int(np.prod(stack.shape[1:3])), max_pixels)
-    if views.size < stack.shape[0]:
+    subset = views.size < stack.shape[0]
+    if subset:
         log.info("colour model: fitted on %d of %d views (evenly spread, at most %d pixels)", views.size, stack.shape[0], max_pixels)
-        check_images(stack)  # every view, one at a time
-        images = np.asarray(stack[views])
-    else:
-        images = np.asarray(stack)  # read once, then checked
-        check_images(images)
+    images = np.asarray(stack[views] if subset else stack)
+    check_images(stack if subset else images)  # every view; read once when all are fitted
     f = features(images)  # once: the background flattening is the costly part
     border = _border_of(f, border_frac)
     if border.shape[0] > max_samples:

@@ -433,9 +433,12 @@ class CoherenceObjective:
             single = self._single_roll_moves(th)
             if single is not None:
                 return self._residuals_of_roll_moves(th, single, z_peak=self.z_peak)
-        # The whole population at once: _sample_min_others cuts the views finer to keep max_points (one call per
-        # population instead of one per few candidates, whose fixed costs — poses, slides, parabolas — added up).
-        return self._local_max(th, np.broadcast_to(self.z_peak, (len(th),) + self.z_peak.shape))
+        # As many candidates at once as fit max_points within one view: _sample_min_others cuts the views finer, down to
+        # one (a whole CMA-ES population in one call, unless it is very large, e.g. after IPOP restarts).
+        chunk = max(1, self.max_points // max(1, r * self.window * k))
+        for s in range(0, th.shape[0], chunk):
+            out[s:s + chunk] = self._local_max(th[s:s + chunk], np.broadcast_to(self.z_peak, (len(th[s:s + chunk]),) + self.z_peak.shape))
+        return out
 
     def _single_roll_moves(self, th: np.ndarray) -> np.ndarray | None:
         """For a batch whose candidates each differ from the first in one roll at most (a per-view polish),
