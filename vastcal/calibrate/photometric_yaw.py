@@ -262,6 +262,7 @@ class AbsorptionMatch:
         axes = [(lo[d] + hi[d]) / 2 + (np.arange(counts[d]) - (counts[d] - 1) / 2 + grid_phase[d]) * size[d] for d in range(3)]
         X = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         self.X = X[inside_all(P0, sil, X)]
+        self._Xt = np.ascontiguousarray(self.X.T)  # (3, M): a 3 × 3 camera times it is one BLAS product (M × 3 by 3 × 3 is not)
 
     @property
     def n_voxels(self) -> int:
@@ -272,8 +273,8 @@ class AbsorptionMatch:
         """(pixel, weight), each (4, M'): the bilinear splat of the voxels ``voxels`` in view ``i`` (cameras ``P``):
         flat pixel indices of the maps (0 with weight 0 outside the frame) and line-integral weights."""
         _, h, w = self.shape
-        x = self.X[voxels] @ P[i, :, :3].T + P[i, :, 3]
-        u, v, z = x[:, 0] / x[:, 2], x[:, 1] / x[:, 2], x[:, 2]
+        x = P[i, :, :3] @ self._Xt[:, voxels] + P[i, :, 3:]
+        u, v, z = x[0] / x[2], x[1] / x[2], x[2]
         scale = self.voxel_um * self.voxel_across_um * self.K[0, 0] * self.K[1, 1] / z ** 2  # voxel volume over the pixel's
         u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)                           # footprint at depth (/ µm)
         fu, fv = u - u0, v - v0
@@ -286,7 +287,7 @@ class AbsorptionMatch:
             weight[k] = np.where(ok, wt, 0.0) * scale
         return pixel, weight
 
-    #: Voxels whose splats :meth:`system` assembles at a time: the set-up's temporaries stay a few MB however
+    #: Voxels whose entries :meth:`system` compacts at a time: the set-up's temporaries stay a few MB however
     #: large the system.
     VOXEL_CHUNK = 8192
 
@@ -294,39 +295,44 @@ class AbsorptionMatch:
         """A(θ) on the pixels it is fitted to: (A, Aᵀ, active, row sums).
 
         A: (len(active), M) line-integral weights of every voxel's bilinear splat in every view, and its transpose
-        (the back-projection), both as compressed rows. Aᵀ is assembled from the splats directly, a chunk of voxels
-        at a time (a voxel's entries are one row of Aᵀ), and A is Aᵀ transposed in one linear pass: no sort of the
-        entries, no full-size temporaries. ``active``: the flat pixel indices (view, row, column of the maps) of
-        A's rows — the pixels a voxel reaches, outside the edge band. Row sums: A's, float64.
+        (the back-projection), both as compressed rows. Every voxel is projected once: the splats of a view (the views
+        side by side, :func:`.threads.run_slices`) give that view's row sums and are written straight into the buffers
+        Aᵀ is then compacted in, voxel-major (a voxel's entries are one row of Aᵀ, view by view); A is Aᵀ transposed in
+        one linear pass: no sort of the entries, no full-size temporaries. ``active``: the flat pixel indices (view, row,
+        column of the maps) of A's rows — the pixels a voxel reaches, outside the edge band. Row sums: A's, float64.
         """
         n, h, w = self.shape
         P = projection_matrices(self.K, self.distance, np.asarray(theta, float)[None])[0]
         m = self.n_voxels
+        itype = np.int32 if max(4 * n * m, n * h * w) < 2**31 else np.int64
+        data, indices = np.empty((m, n, 4), np.float32), np.empty((m, n, 4), itype)  # the most entries there can be
         row_sum = np.zeros(n * h * w)
-        for i in range(n):  # first pass: the row sums, a view at a time (its pixels' sums stay in cache)
+
+        def view(i: int) -> None:  # a view's splats: its pixels' sums (in cache) and its entries of every voxel
             pixel, weight = self._splats(P, i, slice(None))
             row_sum[i * h * w:(i + 1) * h * w] = np.bincount(pixel.ravel() - i * h * w, weight.ravel(), minlength=h * w)
+            indices[:, i, :], data[:, i, :] = pixel.T, weight.T
+
+        run_slices(view, range(n))
         active = np.flatnonzero((row_sum > 1e-12) & (self.w > 0))  # pixels a voxel reaches, outside the edge band
         index = np.full(n * h * w, -1, np.int32)
         index[active] = np.arange(active.size, dtype=np.int32)
-        itype = np.int32 if 4 * n * m < 2**31 else np.int64
-        data, indices = np.empty(4 * n * m, np.float32), np.empty(4 * n * m, itype)  # the most entries there can be
+        data, indices = data.reshape(m, 4 * n), indices.reshape(m, 4 * n)
+        flat_data, flat_indices = data.reshape(-1), indices.reshape(-1)
         indptr = np.zeros(m + 1, itype)
         nnz = 0
-        for j0 in range(0, m, self.VOXEL_CHUNK):  # second pass: Aᵀ's rows, voxel-major
+        for j0 in range(0, m, self.VOXEL_CHUNK):  # compacted in place: a chunk's kept entries never pass its own end
             chunk = slice(j0, min(m, j0 + self.VOXEL_CHUNK))
-            splats = [self._splats(P, i, chunk) for i in range(n)]
-            rows = index[np.stack([p for p, _ in splats], axis=1)].transpose(2, 1, 0).reshape(-1, 4 * n)  # (M', 4 N)
-            vals = np.stack([wt for _, wt in splats], axis=1).transpose(2, 1, 0).reshape(-1, 4 * n)
+            rows, vals = index[indices[chunk]], data[chunk]
             keep = (rows >= 0) & (vals > 0)
             k = int(keep.sum())
-            data[nnz:nnz + k], indices[nnz:nnz + k] = vals[keep], rows[keep]
+            flat_data[nnz:nnz + k], flat_indices[nnz:nnz + k] = vals[keep], rows[keep]
             np.cumsum(keep.sum(axis=1), out=indptr[chunk.start + 1:chunk.stop + 1])
             indptr[chunk.start + 1:chunk.stop + 1] += nnz
             nnz += k
         import scipy.sparse as sp
 
-        At = sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=(m, active.size))
+        At = sp.csr_matrix((flat_data[:nnz], flat_indices[:nnz], indptr), shape=(m, active.size))
         return At.T.tocsr(), At, active, row_sum[active]
 
     def start(self, theta: np.ndarray) -> Reconstruction:
