@@ -87,19 +87,23 @@ def inside_all(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray) -> np
     """Boolean (M,): points (M, 3) whose projection lies inside every silhouette (N, H, W; or any stack
     with ``shape`` whose ``[i]`` is view i's (H, W) mask).
 
-    A point projecting outside an image counts as outside that silhouette. Nearest-pixel test.
+    A point projecting outside an image counts as outside that silhouette. Nearest-pixel test. Each view
+    projects only the points still inside the views before it, as one (3, 3) × (3, M') product.
     """
     n, h, w = silhouettes.shape
-    keep = np.ones(points.shape[0], bool)
+    pts = np.ascontiguousarray(np.asarray(points, float).T)  # (3, M): one BLAS product per view
+    idx = np.arange(pts.shape[1])
     for i in range(n):
-        uv = project(P[i], points[keep])
-        u = np.rint(uv[:, 0]).astype(np.int64)
-        v = np.rint(uv[:, 1]).astype(np.int64)
+        Pi = np.asarray(P[i], float)
+        x = Pi[:, :3] @ pts + Pi[:, 3:]
+        u = np.rint(x[0] / x[2]).astype(np.int64)
+        v = np.rint(x[1] / x[2]).astype(np.int64)
         ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
         inside = np.zeros(len(u), bool)
         inside[ok] = np.asarray(silhouettes[i])[v[ok], u[ok]]  # one view at a time (a lazy stack of masks too)
-        idx = np.flatnonzero(keep)
-        keep[idx[~inside]] = False
+        idx, pts = idx[inside], pts[:, inside]
+    keep = np.zeros(np.asarray(points).shape[0], bool)
+    keep[idx] = True
     return keep
 
 
