@@ -395,3 +395,30 @@ def test_ray_points_keep_float64_accuracy_at_a_microscope_distance(scene: tuple[
     ref = np.einsum("bnrsj,bnjk->bnkrs", cam, R)  # rows cᵀ R = (Rᵀ c)ᵀ
     assert np.all(X[:, :, 3] == 1.0)
     assert np.abs(X[:, :, :3] - ref).max() < 5e-8 * obj.distance
+
+
+def test_long_chords_are_searched_by_bounds_with_every_sample_s_maximum(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective],
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """A chord of ≥ CHORD_BOUND_MIN_SAMPLES samples is read every CHORD_STRIDE-th sample and between them only where the
+    profile's Lipschitz bound reaches the best: each ray's maximum — its sample and value — must be that of the dense pass,
+    for candidates off the truth too, while far fewer samples are read."""
+    import vastcal.calibrate.objective_coherence as oc
+
+    theta, pf, obj = scene
+    wide = CoherenceObjective(obj.atlas, obj.edges, obj.K, obj.distance, radius_um=1200.0, angles_deg=theta[3:])
+    assert wide.first_stage >= oc.CHORD_BOUND_MIN_SAMPLES
+    th = np.stack([theta, theta + np.r_[0.3, -0.2, 0.0, np.linspace(-1.0, 1.0, theta.size - 3)], theta + 0.5])
+    R, t = wide._poses(th)
+    R, t = R.astype(np.float32), t.astype(np.float32)
+    Pm = wide._cameras(R, t)
+    zc, half = wide._axis_chords(R, t)
+    Z = zc[..., None] + half[..., None] * np.linspace(-1.0, 1.0, wide.first_stage, dtype=np.float32)
+    dense = wide._sample_min_others(R, t, Z, Pm)
+    bounded = wide._chord_profiles(R, t, Z, Pm)
+    read = np.isfinite(bounded)
+    assert read.mean() < 0.6
+    np.testing.assert_array_equal(np.argmax(bounded, axis=-1), np.argmax(dense, axis=-1))
+    np.testing.assert_array_equal(bounded[read], dense[read])
+    with_bounds = wide._search_peaks(th)
+    monkeypatch.setattr(oc, "CHORD_BOUND_MIN_SAMPLES", 10**6)  # the dense pass everywhere: the same peaks
+    np.testing.assert_array_equal(with_bounds, wide._search_peaks(th))

@@ -30,7 +30,8 @@ which is ≈ 0 when every edge ray touches the others' hull and grows linearly w
 empty hull is the *worst* case here (every r < 0), so, unlike a volume, the cost cannot be gamed
 by pulling the views apart. The maximum along the ray is searched over the ray's chord through
 the cylinder where the specimen can be, about one pixel per step as seen from the other views (a
-coarser grid steps over thin parts, such as a statue's limbs), then refined by zooming and a
+coarser grid steps over thin parts, such as a statue's limbs; on long chords only the samples a
+Lipschitz bound cannot rule out are read, with the same maximum), then refined by zooming and a
 parabola through the best three samples, so its error is a small fraction of a pixel.
 
 What it cannot see: with a nearly orthographic camera looking perpendicular to the axis, every view
@@ -223,6 +224,21 @@ def signed_distance_maps(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6
         sd = (np.where(inside > 0, d_in - 0.5, -(d_out - 0.5))) / upsample
         out[i] = cv2.resize(sd, (w, h), interpolation=cv2.INTER_AREA)
     return np.clip(out, -clamp_px, clamp_px, out=out)
+
+
+#: The chord search's first pass reads every this many samples (:meth:`CoherenceObjective._chord_profiles`).
+CHORD_STRIDE = 4
+
+#: Chords of fewer samples are searched at every sample: the bounded search's second pass gathers its samples ray by
+#: ray, at about twice the cost per sample of the batched pass, and pays for itself on long chords only. Measured per
+#: full search (36-view turntable, `benchmarks/turntable_speed.py`): 256 samples 97 → 61 ms; 152 samples 33 → 37 ms;
+#: ZF1's 55 and 72 samples 11–15 → 16–23 ms and 18–23 → 23–27 ms.
+CHORD_BOUND_MIN_SAMPLES = 192
+
+#: Bound on how fast a ray's profile can change per pixel its samples move in a partner view: √2 (the bilinear
+#: interpolant of a 1-Lipschitz distance map) with 6 % for the distance transform's approximation and the slightly
+#: unequal spacing, under perspective, of one ray's samples in different partners.
+CHORD_LIPSCHITZ = 1.5
 
 
 def coherence_atlas(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6.0, upsample: int = 2) -> Atlas:
@@ -477,8 +493,8 @@ class CoherenceObjective:
             out[b, views] = self._local_max(th[b:b + 1], z, views)[0]
         return out
 
-    def _sample_min_others(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None
-                           ) -> np.ndarray:
+    def _sample_min_others(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None,
+                           steps: np.ndarray | None = None) -> np.ndarray:
         """(Robust) min over the partner views j of sd_j at the edge rays' points at camera depths Z (B, n, R, S) µm;
         returns (B, n, R, S).
 
@@ -486,7 +502,8 @@ class CoherenceObjective:
         (n of them); P (B, N, 3, 4) are all cameras. The points of view i's rays are projected into its partners
         (:func:`partner_views`) only, a few ray views at a time so that at most ``max_points`` samples are held
         at once; the slices of views, from their ray points on, run on :func:`.threads.run_slices`
-        (bit-identical to one after the other).
+        (bit-identical to one after the other). ``steps`` (B, n, R, S − 1), when given, is filled with the largest
+        image distance (pixels, over the partners) between each two neighbouring samples of a ray.
         """
         b, n, r, s = Z.shape
         J = self.partners if self.partners is not None else partner_views(np.zeros(P.shape[1]), self.max_partners)
@@ -503,19 +520,27 @@ class CoherenceObjective:
             e = min(n, a + step)
             Jc = J[a:e]  # (n_c, K)
             pts4 = self._ray_points(rays[a:e], R[:, a:e], t[:, None], Z[:, a:e]).reshape(b, e - a, 4, r * s)
-            vals = self._project_sample(P[:, Jc], pts4, Jc[None])  # (B, n_c, K, R·S)
+            if steps is None:
+                vals = self._project_sample(P[:, Jc], pts4, Jc[None])  # (B, n_c, K, R·S)
+            else:
+                vals, steps[:, a:e] = self._project_sample(P[:, Jc], pts4, Jc[None], rays_of=(r, s))
             out[:, a:e] = self._robust_min(vals.transpose(0, 2, 1, 3)).reshape(b, e - a, r, s)
 
         run_slices(views_slice, range(0, n, step))
         return out
 
-    def _project_sample(self, P: np.ndarray, pts4: np.ndarray, views: np.ndarray) -> np.ndarray:
+    def _project_sample(self, P: np.ndarray, pts4: np.ndarray, views: np.ndarray,
+                        rays_of: tuple[int, int] | None = None) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Signed distances (..., K, M) of views ``views`` (broadcastable to (..., K)) through their cameras
         P (..., K, 3, 4) at homogeneous points ``pts4`` (..., 4, M) µm: one product for x, y and w, one remap for all.
 
         With homogeneous points the translation is part of the product (no separate pass adding it), and x, y, w
         come out as contiguous (..., K, M) blocks: u = x/w and v = y/w go to the atlas and to ``cv2.remap``
         without a copy.
+
+        ``rays_of`` = (R, S): the M points are R rays of S samples each; then also returned, (..., R, S − 1): the
+        largest image distance (pixels, over the K views, before any clamping to a frame) between neighbouring
+        samples of a ray — infinite where a sample has no finite image.
         """
         m = pts4.shape[-1]
         rows = np.ascontiguousarray(np.moveaxis(P, -2, 0))  # (3, ..., K, 4): the x, y and w rows of every camera
@@ -523,8 +548,14 @@ class CoherenceObjective:
         with np.errstate(divide="ignore", invalid="ignore"):  # a point on a partner's focal plane (w = 0): clamped to its frame's edge
             np.divide(u, w, out=u)
             np.divide(v, w, out=v)
+            steps = None
+            if rays_of is not None:
+                uu, vv = u.reshape(u.shape[:-1] + rays_of), v.reshape(v.shape[:-1] + rays_of)
+                steps = np.hypot(np.diff(uu, axis=-1), np.diff(vv, axis=-1)).max(axis=-3)  # (..., R, S − 1)
+                steps[~np.isfinite(steps)] = np.inf
         self.atlas.to_atlas(u, v, np.broadcast_to(views, u.shape[:-1]))
-        return self._remap(u.reshape(-1, m), v.reshape(-1, m)).reshape(u.shape)
+        vals = self._remap(u.reshape(-1, m), v.reshape(-1, m)).reshape(u.shape)
+        return vals if steps is None else (vals, steps)
 
     def _robust_min(self, vals: np.ndarray) -> np.ndarray:
         """The (trim + 1)-th smallest of ``vals`` over axis 1 (the partner views), so that one
@@ -540,13 +571,13 @@ class CoherenceObjective:
             return second
         return np.partition(vals, self.trim, axis=1)[:, self.trim]
 
-    def _min_others_of_rays(self, pts4: np.ndarray, P: np.ndarray, own: np.ndarray) -> np.ndarray:
+    def _min_others_of_rays(self, pts4: np.ndarray, P: np.ndarray, candidate: np.ndarray, own: np.ndarray) -> np.ndarray:
         """Like :meth:`_sample_min_others` for an irregular set of M rays: homogeneous points pts4 (M, 4, S) µm
-        (:meth:`_ray_points`), the cameras P (M, N, 3, 4) of each ray's candidate and its own view ``own`` (M,);
+        (:meth:`_ray_points`), all cameras P (B, N, 3, 4), each ray's candidate (M,) and its own view ``own`` (M,);
         returns (M, S)."""
         assert self.partners is not None
         J = self.partners[own]  # (M, K)
-        Pj = np.take_along_axis(P, J[:, :, None, None], axis=1)  # (M, K, 3, 4)
+        Pj = P[candidate[:, None], J]  # (M, K, 3, 4): each ray's partners
         vals = self._project_sample(Pj, pts4, J)  # (M, K, S)
         return self._robust_min(vals)
 
@@ -568,8 +599,8 @@ class CoherenceObjective:
         return out.ravel()[:m].reshape(rows, cols)
 
     def _search_peaks(self, th: np.ndarray, around: np.ndarray | None = None, views: np.ndarray | None = None) -> np.ndarray:
-        """Depth (B, n, R) of each ray's maximum: a dense pass over the ray's chord through the cylinder
-        of radius ``radius_um`` about the axis (or, given ``around``, a pass of ±4 windows about those
+        """Depth (B, n, R) of each ray's maximum: a pass over the ray's chord through the cylinder of radius
+        ``radius_um`` about the axis (:meth:`_chord_profiles`; or, given ``around``, a pass of ±4 windows about those
         depths), then successive zooms around the best sample. The rays of every view, or of ``views``."""
         R, t = self._poses(th)
         R, t = R.astype(np.float32), t.astype(np.float32)
@@ -585,12 +616,59 @@ class CoherenceObjective:
         for stage in range(len(self.stages) + 1):
             offs = np.linspace(-1.0, 1.0, count, dtype=np.float32)
             Z = zc[..., None] + half[..., None] * offs
-            vals = self._sample_min_others(R, t, Z, Pm, views)
+            if stage == 0 and around is None:
+                vals = self._chord_profiles(R, t, Z, Pm, views)
+            else:
+                vals = self._sample_min_others(R, t, Z, Pm, views)
             zc = np.take_along_axis(Z, np.argmax(vals, axis=-1)[..., None], -1)[..., 0]
             half = (2.0 * half / (count - 1)).astype(np.float32)
             if stage < len(self.stages):
                 count = self.stages[stage]
         return zc
+
+    def _chord_profiles(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
+        """The chord search's samples (B, n, R, S) at depths Z: every sample that can be a ray's maximum, −inf elsewhere.
+
+        Branch and bound on the samples: every :data:`CHORD_STRIDE`-th sample (and the last) first, then the samples
+        between two of them only where the profile can rise above the best of them. The profile is the (trimmed)
+        minimum over the partner views of signed distances (pixels), each Lipschitz with constant ≤ √2 in the image
+        (the bilinear interpolant of a distance map); an order statistic of such functions is too. A ray's samples
+        move along a line in each partner's image, fastest where the partner's depth is least — at an end of the
+        chord — so the image step between neighbouring samples is at most the largest of the two end steps over the
+        partners, v. Between two samples g steps apart the profile is therefore at most
+        (f₁ + f₂ + :data:`CHORD_LIPSCHITZ` · v · g) / 2, where the cones from both ends meet. Every sample that can
+        reach the best is evaluated, so the maximum — and the first of equal ones — is the one every sample would give.
+        """
+        b, n, r, s = Z.shape
+        if s < CHORD_BOUND_MIN_SAMPLES:
+            return self._sample_min_others(R, t, Z, P, views)
+        coarse = np.unique(np.r_[np.arange(0, s, CHORD_STRIDE), s - 1])
+        ends = np.ascontiguousarray(Z[..., [0, 1, s - 2, s - 1]])
+        steps = np.empty((b, n, r, 3), np.float32)
+        self._sample_min_others(R, t, ends, P, views, steps=steps)
+        speed = np.maximum(steps[..., 0], steps[..., 2])[..., None]  # (B, n, R, 1): the largest image step of a sample, px
+        vc = self._sample_min_others(R, t, np.ascontiguousarray(Z[..., coarse]), P, views)
+        out = np.full(Z.shape, -np.inf, np.float32)
+        out[..., coarse] = vc
+        gaps = np.diff(coarse)
+        bound = 0.5 * (vc[..., :-1] + vc[..., 1:] + np.float32(CHORD_LIPSCHITZ) * speed * gaps.astype(np.float32))
+        bi, ii, ri, gi = np.nonzero((bound >= vc.max(axis=-1, keepdims=True)) & (gaps > 1))
+        if bi.size == 0:
+            return out
+        inner = np.minimum(coarse[gi, None] + np.arange(1, CHORD_STRIDE), (coarse[gi + 1] - 1)[:, None])  # (M, stride − 1), repeats at a short gap
+        zr = Z[bi[:, None], ii[:, None], ri[:, None], inner]
+        own = ii if views is None else views[ii]
+        assert self.partners is not None
+        threads = compute_threads()
+        chunk = max(1, min(self.max_points // (self.partners.shape[1] * inner.shape[1] * threads), -(-bi.size // threads)))
+
+        def rays_slice(c: int) -> None:  # memory as in the batched path with every thread busy; each writes its own samples
+            sl = slice(c, c + chunk)
+            pts4 = self._ray_points(self.rays_cam[own[sl], ri[sl]][:, None], R[bi[sl], ii[sl]], t[bi[sl]], zr[sl, None])[:, :, 0]
+            out[bi[sl, None], ii[sl, None], ri[sl, None], inner[sl]] = self._min_others_of_rays(pts4, P, bi[sl], own[sl])
+
+        run_slices(rays_slice, range(0, bi.size, chunk))
+        return out
 
     def _axis_chords(self, R: np.ndarray, t: np.ndarray, views: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Centre and half-length (B, N, R), camera depths, of each ray's chord through the cylinder.
@@ -669,7 +747,7 @@ class CoherenceObjective:
             pts4 = self._ray_points(self.rays_cam[own, r][:, None], R[b, i], t[b], zr[:, None])[:, :, 0]  # (M, 4, S)
             assert self.partners is not None
             step = max(1, self.max_points // (self.partners.shape[1] * count))  # rays per chunk: memory as in the batched path
-            v = np.concatenate([self._min_others_of_rays(pts4[c:c + step], Pm[b[c:c + step]], own[c:c + step])
+            v = np.concatenate([self._min_others_of_rays(pts4[c:c + step], Pm, b[c:c + step], own[c:c + step])
                                 for c in range(0, len(b), step)])
             Z[b, i, r], vals[b, i, r] = zr, v
             best[b, i, r] = np.argmax(v, axis=-1)
