@@ -24,12 +24,16 @@ voxels, the process's peak resident memory (``ru_maxrss``) before and after the 
 duration (the names ``vastcal calibrate`` shows), the judge cost of the result against that of the true rolls (one
 extra judge evaluation: a result costlier than the truth is the search's miss, not the cost's), and the rolls'
 errors against the truth (mean / max; "gauge-free" with the median offset removed).
+``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on chords
+of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord, as before) or ``verify`` (bounded, each
+full search checked against the dense pass: rays whose maximum differs, samples read; slower). Each prints its full
+searches per chord length and their mean time.
 ``--profile`` runs the calibration under cProfile and prints the top functions by cumulative and internal time.
 cProfile sees only the main thread, so ``--profile`` sets ``VASTCAL_THREADS=1`` (cost evaluations on the main
 thread) unless it is set; profiling also slows the run: take the wall time from a run without it.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/turntable_speed.py [--seed N] [--views 36] [--width 720 --height 576]
-        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--profile]
+        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--chords bounded|dense|verify] [--profile]
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate import calibrate_session
+from vastcal.calibrate import objective_coherence as oc
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings
 from vastcal.calibrate.threads import ENV as THREADS_ENV
 from vastcal.calibrate.threads import compute_threads
@@ -227,6 +232,50 @@ def print_profile(profiler: cProfile.Profile, top: int = 25) -> None:
         print(text[text.find("   ncalls"):].rstrip())
 
 
+@dataclass
+class ChordStats:
+    """The coherence cost's full searches along the chords, per chord length (samples): calls, seconds, and with
+    ``verify`` the rays, the rays whose bounded maximum differs from the dense pass's, samples read and in all."""
+
+    calls: dict[int, list[float]]
+    rays: int = 0
+    differ: int = 0
+    read: int = 0
+    total: int = 0
+
+
+def instrument_chords(mode: str) -> ChordStats:
+    """Time every full search of the coherence cost (and set or check its chord search, ``--chords``)."""
+    stats = ChordStats({})
+    if mode == "dense":
+        oc.CHORD_BOUND_MIN_SAMPLES = 10**9
+    search, bounded = oc.CoherenceObjective._search_peaks, oc.CoherenceObjective._chord_profiles
+
+    def timed(self: oc.CoherenceObjective, th: np.ndarray, around: np.ndarray | None = None, views: np.ndarray | None = None) -> np.ndarray:
+        t0 = time.perf_counter()
+        out = search(self, th, around, views)
+        if around is None:
+            stats.calls.setdefault(self.first_stage, []).append(time.perf_counter() - t0)
+        return out
+
+    def checked(self: oc.CoherenceObjective, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray,
+                views: np.ndarray | None = None) -> np.ndarray:
+        out = bounded(self, R, t, Z, P, views)
+        if Z.shape[-1] < oc.CHORD_BOUND_MIN_SAMPLES:  # a short chord: the dense pass itself
+            return out
+        dense = self._sample_min_others(R, t, Z, P, views)
+        stats.rays += out[..., 0].size
+        stats.differ += int(np.sum(np.argmax(out, axis=-1) != np.argmax(dense, axis=-1)))
+        stats.read += int(np.isfinite(out).sum())
+        stats.total += out.size
+        return out
+
+    oc.CoherenceObjective._search_peaks = timed  # type: ignore[method-assign]
+    if mode == "verify":
+        oc.CoherenceObjective._chord_profiles = checked  # type: ignore[method-assign]
+    return stats
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=0, help="the calibration's CMA-ES seed")
@@ -236,6 +285,8 @@ def main() -> None:
     ap.add_argument("--offset-scan", type=float, default=0.0, help="common roll-offset scan step, degrees (0: none)")
     ap.add_argument("--scene-seed", type=int, default=0, help="the stage's irregularity and the sensor noise")
     ap.add_argument("--ambient", type=float, default=0.5, help="ambient share of the light (the rest: Lambert from the lamp)")
+    ap.add_argument("--chords", choices=["bounded", "dense", "verify"], default="bounded",
+                    help="the coherence cost's search along the chords (see the module docstring)")
     ap.add_argument("--profile", action="store_true", help="run the calibration under cProfile (slower)")
     a = ap.parse_args()
     n = a.views
@@ -260,6 +311,7 @@ def main() -> None:
         print(f"{n} views {a.width} x {a.height}: rendered in {t_render:.1f} s, imported in {t_import:.1f} s; "
               f"views offset +10°: {offset_views.tolist()}")
         before = peak_mb()
+        chords = instrument_chords(a.chords)
         bar = PhaseProgress("calibrate", enabled=False)
         profiler = cProfile.Profile() if a.profile else None
         settings = CalibrationSettings(roll_offset_scan_deg=a.offset_scan, roll_prior_weight=0.0)
@@ -290,6 +342,11 @@ def main() -> None:
           f"(start: mean {np.mean(np.abs(commanded - true_rolls)[1:]):.2f}°)")
     print(f"gauge-free (median offset {np.median(err):+.3f}° removed): mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°")
     print("per view:", np.round(err, 2).tolist())
+    for samples, times in sorted(chords.calls.items()):
+        print(f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, {1000 * np.mean(times):.1f} ms each")
+    if a.chords == "verify":
+        print(f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of {chords.rays} rays "
+              f"with another maximum; {chords.read / max(chords.total, 1):.1%} of their samples read")
     if profiler is not None:
         print_profile(profiler)
 
