@@ -235,13 +235,15 @@ def print_profile(profiler: cProfile.Profile, top: int = 25) -> None:
 @dataclass
 class ChordStats:
     """The coherence cost's full searches along the chords, per chord length (samples): calls, seconds, and with
-    ``verify`` the rays, the rays whose bounded maximum differs from the dense pass's, samples read and in all."""
+    ``verify`` the rays, the rays whose bounded maximum differs from the dense pass's, samples read and in all, and the
+    samples read whose value differs from the dense pass's."""
 
     calls: dict[int, list[float]]
     rays: int = 0
     differ: int = 0
     read: int = 0
     total: int = 0
+    values_differ: int = 0
 
 
 def instrument_chords(mode: str) -> ChordStats:
@@ -266,6 +268,7 @@ def instrument_chords(mode: str) -> ChordStats:
         dense = self._sample_min_others(R, t, Z, P, views)
         stats.rays += out[..., 0].size
         stats.differ += int(np.sum(np.argmax(out, axis=-1) != np.argmax(dense, axis=-1)))
+        stats.values_differ += int(np.sum(out[np.isfinite(out)] != dense[np.isfinite(out)]))
         stats.read += int(np.isfinite(out).sum())
         stats.total += out.size
         return out
@@ -346,7 +349,8 @@ def main() -> None:
         print(f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, {1000 * np.mean(times):.1f} ms each")
     if a.chords == "verify":
         print(f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of {chords.rays} rays "
-              f"with another maximum; {chords.read / max(chords.total, 1):.1%} of their samples read")
+              f"with another maximum, {chords.values_differ} samples read with another value; {chords.read / max(chords.total, 1):.1%} "
+              "of their samples read")
     if profiler is not None:
         print_profile(profiler)
 

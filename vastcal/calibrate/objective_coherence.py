@@ -229,10 +229,10 @@ def signed_distance_maps(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6
 #: The chord search's first pass reads every this many samples (:meth:`CoherenceObjective._chord_profiles`).
 CHORD_STRIDE = 4
 
-#: Chords of fewer samples are searched at every sample: the bounded search's second pass gathers its samples ray by
-#: ray, at about twice the cost per sample of the batched pass, and pays for itself on long chords only. Measured per
-#: full search (36-view turntable, `benchmarks/turntable_speed.py`): 256 samples 97 → 61 ms; 152 samples 33 → 37 ms;
-#: ZF1's 55 and 72 samples 11–15 → 16–23 ms and 18–23 → 23–27 ms.
+#: Chords of fewer samples are searched at every sample: the bound leaves about half of a short chord's samples to read
+#: (ZF1: 48 %), in two passes whose fixed costs then outweigh what it saves. Measured per full search (mean over a
+#: calibration, dense against bounded): 36-view turntable (`benchmarks/turntable_speed.py --chords`), 256 samples
+#: 97–99 → 48–59 ms, 152 samples 28–30 → 26–29 ms; ZF1, 55 samples 10–11 → 12–13 ms, 72 samples 15 → 16–17 ms.
 CHORD_BOUND_MIN_SAMPLES = 192
 
 #: Bound on how fast a ray's profile can change per pixel its samples move in a partner view: √2 (the bilinear
@@ -494,7 +494,7 @@ class CoherenceObjective:
         return out
 
     def _sample_min_others(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None,
-                           steps: np.ndarray | None = None) -> np.ndarray:
+                           rays: np.ndarray | None = None) -> np.ndarray:
         """(Robust) min over the partner views j of sd_j at the edge rays' points at camera depths Z (B, n, R, S) µm;
         returns (B, n, R, S).
 
@@ -502,14 +502,16 @@ class CoherenceObjective:
         (n of them); P (B, N, 3, 4) are all cameras. The points of view i's rays are projected into its partners
         (:func:`partner_views`) only, a few ray views at a time so that at most ``max_points`` samples are held
         at once; the slices of views, from their ray points on, run on :func:`.threads.run_slices`
-        (bit-identical to one after the other). ``steps`` (B, n, R, S − 1), when given, is filled with the largest
-        image distance (pixels, over the partners) between each two neighbouring samples of a ray.
+        (bit-identical to one after the other). ``rays`` (B, n, R, 3): camera-frame directions of each candidate's
+        rays instead of the views' edge rays (any rays of those views, e.g. some edge rays repeated).
         """
         b, n, r, s = Z.shape
         J = self.partners if self.partners is not None else partner_views(np.zeros(P.shape[1]), self.max_partners)
-        rays = self.rays_cam
+        own_rays = rays is None
+        if own_rays:
+            rays = self.rays_cam if views is None else self.rays_cam[views]
         if views is not None:
-            J, rays = J[views], rays[views]
+            J = J[views]
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
         threads = compute_threads()
@@ -519,28 +521,21 @@ class CoherenceObjective:
         def views_slice(a: int) -> None:
             e = min(n, a + step)
             Jc = J[a:e]  # (n_c, K)
-            pts4 = self._ray_points(rays[a:e], R[:, a:e], t[:, None], Z[:, a:e]).reshape(b, e - a, 4, r * s)
-            if steps is None:
-                vals = self._project_sample(P[:, Jc], pts4, Jc[None])  # (B, n_c, K, R·S)
-            else:
-                vals, steps[:, a:e] = self._project_sample(P[:, Jc], pts4, Jc[None], rays_of=(r, s))
+            rays_c = rays[a:e] if own_rays else rays[:, a:e]
+            pts4 = self._ray_points(rays_c, R[:, a:e], t[:, None], Z[:, a:e]).reshape(b, e - a, 4, r * s)
+            vals = self._project_sample(P[:, Jc], pts4, Jc[None])  # (B, n_c, K, R·S)
             out[:, a:e] = self._robust_min(vals.transpose(0, 2, 1, 3)).reshape(b, e - a, r, s)
 
         run_slices(views_slice, range(0, n, step))
         return out
 
-    def _project_sample(self, P: np.ndarray, pts4: np.ndarray, views: np.ndarray,
-                        rays_of: tuple[int, int] | None = None) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    def _project_sample(self, P: np.ndarray, pts4: np.ndarray, views: np.ndarray) -> np.ndarray:
         """Signed distances (..., K, M) of views ``views`` (broadcastable to (..., K)) through their cameras
         P (..., K, 3, 4) at homogeneous points ``pts4`` (..., 4, M) µm: one product for x, y and w, one remap for all.
 
         With homogeneous points the translation is part of the product (no separate pass adding it), and x, y, w
         come out as contiguous (..., K, M) blocks: u = x/w and v = y/w go to the atlas and to ``cv2.remap``
         without a copy.
-
-        ``rays_of`` = (R, S): the M points are R rays of S samples each; then also returned, (..., R, S − 1): the
-        largest image distance (pixels, over the K views, before any clamping to a frame) between neighbouring
-        samples of a ray — infinite where a sample has no finite image.
         """
         m = pts4.shape[-1]
         rows = np.ascontiguousarray(np.moveaxis(P, -2, 0))  # (3, ..., K, 4): the x, y and w rows of every camera
@@ -548,14 +543,8 @@ class CoherenceObjective:
         with np.errstate(divide="ignore", invalid="ignore"):  # a point on a partner's focal plane (w = 0): clamped to its frame's edge
             np.divide(u, w, out=u)
             np.divide(v, w, out=v)
-            steps = None
-            if rays_of is not None:
-                uu, vv = u.reshape(u.shape[:-1] + rays_of), v.reshape(v.shape[:-1] + rays_of)
-                steps = np.hypot(np.diff(uu, axis=-1), np.diff(vv, axis=-1)).max(axis=-3)  # (..., R, S − 1)
-                steps[~np.isfinite(steps)] = np.inf
         self.atlas.to_atlas(u, v, np.broadcast_to(views, u.shape[:-1]))
-        vals = self._remap(u.reshape(-1, m), v.reshape(-1, m)).reshape(u.shape)
-        return vals if steps is None else (vals, steps)
+        return self._remap(u.reshape(-1, m), v.reshape(-1, m)).reshape(u.shape)
 
     def _robust_min(self, vals: np.ndarray) -> np.ndarray:
         """The (trim + 1)-th smallest of ``vals`` over axis 1 (the partner views), so that one
@@ -627,48 +616,82 @@ class CoherenceObjective:
         return zc
 
     def _chord_profiles(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
-        """The chord search's samples (B, n, R, S) at depths Z: every sample that can be a ray's maximum, −inf elsewhere.
+        """The chord search's samples (B, n, R, S) at depths Z (evenly spaced along each ray): every sample that can be
+        a ray's maximum, −inf elsewhere.
 
         Branch and bound on the samples: every :data:`CHORD_STRIDE`-th sample (and the last) first, then the samples
         between two of them only where the profile can rise above the best of them. The profile is the (trimmed)
         minimum over the partner views of signed distances (pixels), each Lipschitz with constant ≤ √2 in the image
         (the bilinear interpolant of a distance map); an order statistic of such functions is too. A ray's samples
         move along a line in each partner's image, fastest where the partner's depth is least — at an end of the
-        chord — so the image step between neighbouring samples is at most the largest of the two end steps over the
-        partners, v. Between two samples g steps apart the profile is therefore at most
-        (f₁ + f₂ + :data:`CHORD_LIPSCHITZ` · v · g) / 2, where the cones from both ends meet. Every sample that can
-        reach the best is evaluated, so the maximum — and the first of equal ones — is the one every sample would give.
+        chord (:meth:`_chord_image_speed`) — by at most v pixels a sample. Between two samples g samples apart the
+        profile is therefore at most (f₁ + f₂ + :data:`CHORD_LIPSCHITZ` · v · g) / 2, where the cones from both ends
+        meet. Every sample that can reach the best is evaluated, so the maximum — and the first of equal ones — is the
+        one every sample would give. The second pass is batched like the first: each view's open gaps as rays of
+        ``CHORD_STRIDE`` − 1 samples, padded to the most any view has.
         """
         b, n, r, s = Z.shape
         if s < CHORD_BOUND_MIN_SAMPLES:
             return self._sample_min_others(R, t, Z, P, views)
         coarse = np.unique(np.r_[np.arange(0, s, CHORD_STRIDE), s - 1])
-        ends = np.ascontiguousarray(Z[..., [0, 1, s - 2, s - 1]])
-        steps = np.empty((b, n, r, 3), np.float32)
-        self._sample_min_others(R, t, ends, P, views, steps=steps)
-        speed = np.maximum(steps[..., 0], steps[..., 2])[..., None]  # (B, n, R, 1): the largest image step of a sample, px
+        per_sample = self._chord_image_speed(R, t, P, Z[..., 0], Z[..., -1], views) * (Z[..., 1] - Z[..., 0])  # px a sample (B, n, R)
         vc = self._sample_min_others(R, t, np.ascontiguousarray(Z[..., coarse]), P, views)
         out = np.full(Z.shape, -np.inf, np.float32)
         out[..., coarse] = vc
         gaps = np.diff(coarse)
-        bound = 0.5 * (vc[..., :-1] + vc[..., 1:] + np.float32(CHORD_LIPSCHITZ) * speed * gaps.astype(np.float32))
-        bi, ii, ri, gi = np.nonzero((bound >= vc.max(axis=-1, keepdims=True)) & (gaps > 1))
-        if bi.size == 0:
+        bound = 0.5 * (vc[..., :-1] + vc[..., 1:] + np.float32(CHORD_LIPSCHITZ) * per_sample[..., None] * gaps.astype(np.float32))
+        open_gap = (bound >= vc.max(axis=-1, keepdims=True)) & (gaps > 1)  # (B, n, R, G); a NaN bound (no finite speed) stays open
+        open_gap |= np.isnan(bound) & (gaps > 1)
+        counts = open_gap.sum(axis=(2, 3))  # (B, n)
+        width = int(counts.max())
+        if width == 0:
             return out
-        inner = np.minimum(coarse[gi, None] + np.arange(1, CHORD_STRIDE), (coarse[gi + 1] - 1)[:, None])  # (M, stride − 1), repeats at a short gap
-        zr = Z[bi[:, None], ii[:, None], ri[:, None], inner]
-        own = ii if views is None else views[ii]
-        assert self.partners is not None
-        threads = compute_threads()
-        chunk = max(1, min(self.max_points // (self.partners.shape[1] * inner.shape[1] * threads), -(-bi.size // threads)))
-
-        def rays_slice(c: int) -> None:  # memory as in the batched path with every thread busy; each writes its own samples
-            sl = slice(c, c + chunk)
-            pts4 = self._ray_points(self.rays_cam[own[sl], ri[sl]][:, None], R[bi[sl], ii[sl]], t[bi[sl]], zr[sl, None])[:, :, 0]
-            out[bi[sl, None], ii[sl, None], ri[sl, None], inner[sl]] = self._min_others_of_rays(pts4, P, bi[sl], own[sl])
-
-        run_slices(rays_slice, range(0, bi.size, chunk))
+        # Each (candidate, view)'s open gaps in order, padded by repeating its first (or gap 0 of ray 0: read, not kept).
+        bi, ii, ri, gi = np.nonzero(open_gap)
+        slot = np.arange(bi.size) - np.repeat(np.cumsum(counts.ravel()) - counts.ravel(), counts.ravel())  # rank within its (b, i)
+        ray_of, gap_of = np.zeros((b, n, width), np.intp), np.zeros((b, n, width), np.intp)
+        ray_of[bi, ii, slot], gap_of[bi, ii, slot] = ri, gi
+        valid = np.arange(width) < counts[..., None]  # (B, n, width)
+        inner = np.minimum(coarse[gap_of][..., None] + np.arange(1, CHORD_STRIDE), (coarse[gap_of + 1] - 1)[..., None])  # (B, n, width, stride − 1)
+        bb, nn = np.arange(b)[:, None, None, None], np.arange(n)[None, :, None, None]
+        zr = Z[bb, nn, ray_of[..., None], inner]
+        own = np.arange(n) if views is None else np.asarray(views)
+        rays = self.rays_cam[own[None, :, None], ray_of]  # (B, n, width, 3)
+        v = self._sample_min_others(R, t, zr, P, views, rays=rays)
+        keep = np.broadcast_to(valid[..., None], inner.shape)
+        out[np.broadcast_to(bb, inner.shape)[keep], np.broadcast_to(nn, inner.shape)[keep],
+            np.broadcast_to(ray_of[..., None], inner.shape)[keep], inner[keep]] = v[keep]
         return out
+
+    def _chord_image_speed(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, z0: np.ndarray, z1: np.ndarray,
+                           views: np.ndarray | None = None) -> np.ndarray:
+        """The largest image speed (pixels per µm of camera depth, over the partner views) of each ray's points between
+        depths z0 and z1 (B, n, R); inf where a partner's depth reaches zero.
+
+        A ray X(z) = X₀ + (z − d) D projects through a partner P as (a + b z) / (c + e z) per image coordinate, whose
+        derivative (b c − a e) / (c + e z)² has a constant numerator: the speed is largest where the partner's depth
+        c + e z is least, at z0 or z1. Both are evaluated, in float64.
+        """
+        rays = (self.rays_cam if views is None else self.rays_cam[views]).astype(np.float64)  # (n, R, 3)
+        J = self.partners if self.partners is not None else partner_views(np.zeros(P.shape[1]), self.max_partners)
+        J = J if views is None else J[views]
+        Rd = R.astype(np.float64)
+        D = rays[None] @ Rd  # (B, n, R, 3): world direction per unit depth
+        X0 = (self.distance * rays[None] - t.astype(np.float64)[:, None, None, :]) @ Rd
+        Pj = P[:, J].astype(np.float64)  # (B, n, K, 3, 4)
+        M, p = Pj[..., :3], Pj[..., 3]
+        dx = M @ np.swapaxes(D, -1, -2)[:, :, None]  # (B, n, K, 3, R): the image's homogeneous velocity
+        speed = np.zeros(z0.shape)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for z in (z0, z1):
+                X = X0 + (z.astype(np.float64) - self.distance)[..., None] * D
+                x = M @ np.swapaxes(X, -1, -2)[:, :, None] + p[..., None]  # (B, n, K, 3, R)
+                w = x[..., 2, :]
+                du = (dx[..., 0, :] * w - x[..., 0, :] * dx[..., 2, :]) / (w * w)
+                dv = (dx[..., 1, :] * w - x[..., 1, :] * dx[..., 2, :]) / (w * w)
+                sp = np.where(w > 0, np.hypot(du, dv), np.inf).max(axis=2)  # (B, n, R): the fastest partner
+                speed = np.maximum(speed, sp)
+        return speed.astype(np.float32)
 
     def _axis_chords(self, R: np.ndarray, t: np.ndarray, views: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Centre and half-length (B, N, R), camera depths, of each ray's chord through the cylinder.
