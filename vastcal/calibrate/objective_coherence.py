@@ -236,8 +236,7 @@ CHORD_STRIDE = 4
 CHORD_BOUND_MIN_SAMPLES = 192
 
 #: Bound on how fast a ray's profile can change per pixel its samples move in a partner view: √2 (the bilinear
-#: interpolant of a 1-Lipschitz distance map) with 6 % for the distance transform's approximation and the slightly
-#: unequal spacing, under perspective, of one ray's samples in different partners.
+#: interpolant of a 1-Lipschitz distance map) with 6 % for the approximation of OpenCV's 5 × 5 distance transform.
 CHORD_LIPSCHITZ = 1.5
 
 
