@@ -419,6 +419,11 @@ def test_long_chords_are_searched_by_bounds_with_every_sample_s_maximum(scene: t
     assert read.mean() < 0.6
     np.testing.assert_array_equal(np.argmax(bounded, axis=-1), np.argmax(dense, axis=-1))
     np.testing.assert_array_equal(bounded[read], dense[read])
-    with_bounds = wide._search_peaks(th)
+    some = np.array([1, 4, 5, 9])  # the rays of some views only (a per-view polish's moves)
+    Rs, Zs = R[:, some], Z[:, some]
+    np.testing.assert_array_equal(np.argmax(wide._chord_profiles(Rs, t, Zs, Pm, some), axis=-1),
+                                  np.argmax(wide._sample_min_others(Rs, t, Zs, Pm, some), axis=-1))
+    with_bounds = wide._search_peaks(th), wide._search_peaks(th[1:2], views=some)
     monkeypatch.setattr(oc, "CHORD_BOUND_MIN_SAMPLES", 10**6)  # the dense pass everywhere: the same peaks
-    np.testing.assert_array_equal(with_bounds, wide._search_peaks(th))
+    np.testing.assert_array_equal(with_bounds[0], wide._search_peaks(th))
+    np.testing.assert_array_equal(with_bounds[1], wide._search_peaks(th[1:2], views=some))
