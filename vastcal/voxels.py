@@ -17,7 +17,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from vastcal.errors import EmptyHullError
-from vastcal.geometry import project
 
 log = logging.getLogger(__name__)
 

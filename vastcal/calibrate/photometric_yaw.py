@@ -261,13 +261,17 @@ class AbsorptionMatch:
         counts = np.maximum(1, np.ceil((hi - lo) / size)).astype(int)
         axes = [(lo[d] + hi[d]) / 2 + (np.arange(counts[d]) - (counts[d] - 1) / 2 + grid_phase[d]) * size[d] for d in range(3)]
         X = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        self.X = X[inside_all(P0, sil, X)]
-        self._Xt = np.ascontiguousarray(self.X.T)  # (3, M): a 3 × 3 camera times it is one BLAS product (M × 3 by 3 × 3 is not)
+        self._Xt = np.ascontiguousarray(X[inside_all(P0, sil, X)].T)  # (3, M): a 3 × 3 camera times it is one BLAS product (M × 3 by 3 × 3 is not)
+
+    @property
+    def X(self) -> np.ndarray:
+        """(M, 3) voxel centres, world µm (a view of the stored (3, M) array)."""
+        return self._Xt.T
 
     @property
     def n_voxels(self) -> int:
         """Voxels of the reconstruction."""
-        return int(self.X.shape[0])
+        return int(self._Xt.shape[1])
 
     def _splats(self, P: np.ndarray, i: int, voxels: slice) -> tuple[np.ndarray, np.ndarray]:
         """(pixel, weight), each (4, M'): the bilinear splat of the voxels ``voxels`` in view ``i`` (cameras ``P``):
