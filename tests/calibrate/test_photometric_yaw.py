@@ -230,3 +230,41 @@ def test_a_product_split_over_threads_is_bit_identical(monkeypatch: pytest.Monke
     assert np.array_equal(py._threaded_product(M)(x), M @ x)
     monkeypatch.setattr(py, "MIN_ENTRIES_PER_THREAD", 10**9)  # too small to split: the plain product
     assert np.array_equal(py._threaded_product(M)(x), M @ x)
+
+
+_COST_SCRIPT = """
+import importlib.util, sys
+from pathlib import Path
+from vastcal.calibrate.colour_model import fit_automatic
+from vastcal.calibrate.photometric_yaw import AbsorptionMatch, absorption_images
+from vastcal.calibrate.silhouettes import specimen_maps
+from vastcal.geometry import projection_matrices
+spec = importlib.util.spec_from_file_location("synthetic_views", sys.argv[1])
+synthetic = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(synthetic)
+theta = synthetic.truth_theta(8, seed=3)
+images = synthetic.render(theta)
+K, d = synthetic.camera()
+pf = specimen_maps(fit_automatic(images), images)
+a = absorption_images(images, pf, projection_matrices(K, d, theta[None])[0])
+match = AbsorptionMatch(a, pf, K, d, theta, sirt_iterations=12)
+off = theta.copy()
+off[0] += 0.3
+print(repr(match.s_aa), repr(match(theta)), repr(match(off)))
+"""
+
+
+def test_the_cost_does_not_depend_on_how_many_threads_blas_is_given() -> None:
+    """The CLI gives OpenBLAS one thread, a library caller perhaps all: the same E to the last bit either way (BLAS dot
+    products sum long vectors in one piece per thread)."""
+    import os
+    import subprocess
+    import sys
+
+    runs = []
+    for threads in ("1", "2"):
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
+        out = subprocess.run([sys.executable, "-c", _COST_SCRIPT, str(Path(__file__).with_name("synthetic.py"))], env=env,
+                             capture_output=True, text=True, timeout=300, check=True)
+        runs.append(out.stdout.strip())
+    assert runs[0] == runs[1]
