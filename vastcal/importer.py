@@ -17,7 +17,8 @@ Inputs, all but the images optional:
 * masks — a folder with one silhouette per image (same order and size), or a stack file; nonzero = specimen.
 * angles — a text file with one commanded angle (degrees) per view, or ``name angle`` lines;
   default: the stack's own angles when it has them (OME ``angle`` annotations, ImageJ slice labels such as
-  ``angle=12.5``), else uniform over 360° starting at 0°.
+  ``angle=12.5``), else uniform over 360° starting at 0° — unless known cameras contradict that by more than the
+  calibration's roll box (:func:`angles_of_cameras`): their own rolls then.
 * crops — frames cut from a larger sensor need their offset (``roi_offset``, ``--roi-offset``): from the
   config's ``camera.roi`` when its size is the images'; an import whose principal point (the cameras' or
   the config's) falls outside the images, or whose config ROI is another size, is refused naming ``--roi-offset``.
@@ -45,8 +46,8 @@ import numpy as np
 
 from vastcal import image_files
 from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
-from vastcal.errors import ImportDataError
-from vastcal.geometry import LENGTH_UNITS_UM, shift_pixels
+from vastcal.errors import ImportDataError, VastcalError
+from vastcal.geometry import LENGTH_UNITS_UM, decompose_circular, shift_pixels
 from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter
 
@@ -238,6 +239,31 @@ def _folder_set(source: Path, files: list[Path]) -> ImageSet:
         meta = dataclasses.replace(meta, angles_deg=None, angles_source="")  # per-file angles are not read
     _check_fits_in_memory(source, len(files), np.empty(first.shape, dtype))
     return ImageSet(source, [f.name for f in files], files, None, tuple(first.shape), first.dtype, dtype, vr, meta)
+
+
+def angles_of_cameras(P: np.ndarray, uniform: np.ndarray, roll_box_deg: float, source: str) -> tuple[np.ndarray, str]:
+    """The commanded angles (degrees) of an import that gives cameras P (N, 3, 4) but no angles, and where they come from.
+
+    Uniform steps over 360° (``uniform``) are the default guess of a stage's revolution. Known cameras measure the
+    angles: their rolls (:func:`vastcal.geometry.decompose_circular`: view 0 at 0°, increasing, as ``uniform``) are
+    taken instead when they put some view farther from its uniform angle than the calibration may move a roll
+    (``roll_box_deg``, the rig's ``calibration.bounds.roll_deg``) — a ring of more or less than one turn, or uneven
+    steps (Middlebury's dinoRing: 48 views ~7.8° apart, 368° in all). Within the box the uniform angles stay, and the
+    cameras are the calibration's reference, not its start. Cameras that do not fit circular motion leave them too.
+    """
+    try:
+        rolls = np.asarray(decompose_circular(P).motion.rolls_deg, float)
+    except VastcalError as exc:
+        log.info("%s: no circular motion to take angles from (%s); angles uniform over 360 degrees", source, exc)
+        return uniform, "uniform over 360 degrees"
+    off = np.abs((rolls - uniform + 180.0) % 360.0 - 180.0)
+    worst = int(np.argmax(off))
+    if off[worst] <= roll_box_deg:
+        return uniform, "uniform over 360 degrees"
+    why = (f"the rolls of the cameras in {source}: uniform steps over 360 degrees would put view {worst} {off[worst]:.1f} degrees "
+           f"from its camera, beyond the calibration's +/-{roll_box_deg:g} degree roll box")
+    log.warning("angles: %s", why)
+    return rolls, why
 
 
 def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
@@ -460,7 +486,7 @@ def import_folder(
         output: the session file to create.
         masks: folder of silhouettes matching the images one to one, or a stack file of them.
         angles: text file of commanded angles (degrees); default: the stack's own angles (OME annotations,
-            ImageJ slice labels) when it has them, else uniform over 360°.
+            ImageJ slice labels) when it has them, else uniform over 360° (or the cameras' rolls, :func:`angles_of_cameras`).
         cameras: ``name + 12 numbers`` file or folder of ``.pa`` files.
         pixel_origin: 0, 0.5 or 1 — the coordinate ``cameras`` give to the first pixel's centre.
         roi_offset: (x, y) of the stored frames on the sensor (px, 0-based); default from
@@ -546,6 +572,8 @@ def import_folder(
                         f"the cameras of {Path(cameras).name}")
         unit, unit_why = camera_length_unit(P_given, length_unit, cfg.optics.working_distance_um if config is not None else None)
         log.info("imported cameras: length unit %s (%s)", unit, unit_why)
+        if angles is None and meta.angles_deg is None:
+            angle_values, angle_source = angles_of_cameras(P_given, angle_values, cfg.calibration.bounds.roll_deg, Path(cameras).name)
     elif length_unit is not None:
         raise ImportDataError("--length-unit describes imported cameras; give --cameras too (without them the world is in um)")
     else:

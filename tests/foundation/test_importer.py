@@ -142,3 +142,30 @@ def test_pixel_origin_half_shifts_cameras_by_half_a_pixel(tmp_path: Path) -> Non
     assert not (tmp_path / "t.h5").exists()
     proc = run_cli("import", str(tmp_path / "img"), "-o", str(tmp_path / "u.h5"), "--cameras", str(tmp_path / "cams.txt"), "--pixel-origin", "2")
     assert proc.returncode == 2 and "--pixel-origin" in proc.stderr and not (tmp_path / "u.h5").exists()
+
+
+@pytest.mark.parametrize("step, jitter, cameras_taken", [(32.0, 0.0, True), (30.0, 1.0, False)])
+def test_cameras_give_the_angles_where_uniform_steps_would_leave_the_roll_box(tmp_path: Path, step: float, jitter: float,
+                                                                             cameras_taken: bool) -> None:
+    """Without angles a revolution is taken as uniform steps over 360°; known cameras ~12° off that at the last view (a
+    ring of 384°, roll box ±5°) give their own rolls instead, while cameras within the box (±1° of uniform) leave them."""
+    from vastcal.geometry import projection_matrices
+
+    write_images(tmp_path / "img", 12)
+    rolls = np.arange(12) * step + jitter * np.sin(np.arange(12))
+    rolls -= rolls[0]
+    K = np.array([[800.0, 0.0, 15.0], [0.0, 800.0, 10.0], [0.0, 0.0, 1.0]])
+    P = projection_matrices(K, 5000.0, np.r_[0.5, -0.3, 0.1, rolls][None])[0]
+    (tmp_path / "cams.txt").write_text("\n".join(f"view{i} " + " ".join(f"{v:.12g}" for v in P[i].ravel()) for i in range(12)))
+    import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt")
+    with Session.open(tmp_path / "s.h5") as s:
+        if cameras_taken:
+            np.testing.assert_allclose(s.angles_deg, rolls, atol=1e-6)
+            assert "rolls of the cameras in cams.txt" in s.plan["angle_source"] and "view 11" in s.plan["angle_source"]
+        else:
+            np.testing.assert_array_equal(s.angles_deg, np.arange(12) * 30.0)
+            assert s.plan["angle_source"] == "uniform over 360 degrees"
+    (tmp_path / "angles.txt").write_text("\n".join(str(a) for a in np.arange(12) * 30.0))  # given angles always win
+    import_folder(tmp_path / "img", tmp_path / "t.h5", cameras=tmp_path / "cams.txt", angles=tmp_path / "angles.txt")
+    with Session.open(tmp_path / "t.h5") as s:
+        np.testing.assert_array_equal(s.angles_deg, np.arange(12) * 30.0)

@@ -688,7 +688,8 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
                     silhouettes: np.ndarray | None = None, colour_model: ColourModel | None = None,
                     settings: CalibrationSettings | None = None, progress: ProgressCallback | None = None,
                     fixed_views: Sequence[int] = (), starts: int | None = None,
-                    reference_thetas: Sequence[np.ndarray] = (), score_thetas: Sequence[np.ndarray] = ()) -> CalibrationResult:
+                    reference_thetas: Sequence[np.ndarray] = (), reference_names: Sequence[str] = (),
+                    score_thetas: Sequence[np.ndarray] = ()) -> CalibrationResult:
     """Calibrate θ from the views themselves (pure function of arrays).
 
     Args:
@@ -709,7 +710,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         fixed_views: views whose roll stays at its commanded angle (0-based).
         starts: independent coarse-to-fine starts (default ``settings.starts``); the one of lowest final
             cost is kept, and never one costlier than θ0 (or any of ``reference_thetas``).
-        reference_thetas: extra full θ vectors the result must not be worse than (judged on the same cost).
+        reference_thetas: extra full θ vectors the result must not be worse than (judged on the same cost; e.g. a
+            session's imported cameras), each taken at θ0 in the coordinates that are not free (fixed views among them).
+        reference_names: what each of ``reference_thetas`` is, for the run's record (default "reference θ k").
         score_thetas: full θ vectors only scored on the judge cost (``result.scored_costs``; e.g. a known
             truth in a benchmark), never used as a result.
 
@@ -777,7 +780,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     X = np.stack([r.x for r in runs])
     start_costs = judge(space.theta(X))
     evals_done += len(X)
-    cands = [space.theta(np.zeros(space.n_free))[0]] + [np.asarray(t, float) for t in reference_thetas]
+    cands = [space.theta(np.zeros(space.n_free))[0]] + [np.where(space.free_mask, np.asarray(t, float), theta0) for t in reference_thetas]
     ref_costs = judge(np.stack(cands))
     evals_done += len(cands)
     best = int(np.argmin(start_costs))
@@ -818,7 +821,8 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     kept = f"start {best} (seed {seed + 10 * best})"
     r_best = int(np.argmin(ref_costs))
     if ref_costs[r_best] < f:  # never store a pose costlier than the commanded angles or a given reference
-        kept = "the commanded angles (θ0)" if r_best == 0 else f"reference θ {r_best - 1}"
+        kept = ("the commanded angles (θ0)" if r_best == 0 else reference_names[r_best - 1] if r_best - 1 < len(reference_names)
+                else f"reference θ {r_best - 1}")
         log.warning("calibration: every start ended costlier (%.6g) than %s (%.6g); keeping the latter", f, kept, ref_costs[r_best])
         theta, f = cands[r_best].copy(), float(ref_costs[r_best])
     scored = judge(np.stack([np.asarray(t, float) for t in score_thetas])).tolist() if len(score_thetas) else []

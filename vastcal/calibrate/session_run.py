@@ -37,7 +37,9 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
 
     Imported known cameras are decomposed (:func:`vastcal.geometry.decompose_circular`): K, d, yaw,
     pitch and γ come from them; otherwise K comes from the rig optics shifted by the stored ROI
-    offset and d is the working distance. The rolls of θ0 are the commanded angles.
+    offset and d is the working distance. The rolls of θ0 are the commanded angles. With imported cameras,
+    ``notes["imported_cameras_theta_deg"]`` is their own θ (their rolls, view 0 at its commanded angle): the
+    calibration's result is never costlier than they are (:func:`.run.calibrate_views`' ``reference_thetas``).
 
     Raises:
         SessionIncompleteError: no rotation angles, or non-finite ones.
@@ -50,12 +52,14 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
         fit = decompose_circular(known)
         m = fit.motion
         theta0 = np.concatenate([[m.yaw_deg, m.pitch_deg, m.gamma_deg], angles])
+        rolls = np.asarray(m.rolls_deg, float)
+        known = np.concatenate([theta0[:3], rolls + (angles[0] - rolls[0])])  # view 0 at its commanded angle, as θ0's
         cams = session.h5["/entry/vastcal/cameras"]
         unit = str(cams.attrs.get("length_unit", "um"))  # sessions imported before units were recorded: µm
         return np.asarray(m.K, float), float(m.distance), theta0, {"camera_source": "imported cameras (decompose_circular)",
                                                                       "decomposition_rms_px": fit.rms_px,
                                                                       "world_from_data": fit.world_from_data.tolist(),
-                                                                      "length_unit": unit}
+                                                                      "length_unit": unit, "imported_cameras_theta_deg": known.tolist()}
     cfg = session.rig_config()
     rx, ry = session.roi_offset_px
     h, w = session.frame_shape[:2]
@@ -134,7 +138,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
     try:
         result = calibrate_views(images, K, d, theta0, method=method, seed=seed, free=free, bounds=bounds, mask=mask, scribbles=scribbles,
                                  silhouettes=sil, settings=settings, progress=progress, fixed_views=fixed, starts=starts,
-                                 score_thetas=score_thetas)
+                                 score_thetas=score_thetas, **_imported_reference(notes))
     except VastcalError as exc:  # name the session in errors found in its data
         raise exc.about(getattr(path_or_session, "path", path_or_session)) from None
     if prior_src is not None:  # stored θ0 and delta_angle_deg stay "commanded"; the prior's centre is stored beside them
@@ -155,6 +159,14 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
             target.close()
     log.info("stored %s in %s", result.run_name, result.session_path)
     return result
+
+
+def _imported_reference(notes: dict[str, Any]) -> dict[str, Any]:
+    """calibrate_views' reference θ: the imported cameras' own, when the session has them."""
+    known = notes.get("imported_cameras_theta_deg")
+    if known is None:
+        return {}
+    return {"reference_thetas": [np.asarray(known, float)], "reference_names": ["the imported cameras"]}
 
 
 def apply_rig_prior(theta0: np.ndarray, results_dir: str | Path, notes: dict[str, Any]) -> np.ndarray:
