@@ -41,7 +41,7 @@ def main() -> None:
         t = time.perf_counter()
         r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
                                   settings=CalibrationSettings(roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0,
-                                                                roll_prior_weight=0.0))
+                                                                roll_prior_weight=0.0), judge_imported_cameras=False)
         wall = time.perf_counter() - t
     err = (r.theta_deg[3:] - r.theta_deg[3]) - true_rolls
     print(f"{method} seed {seed}: {wall:.2f} s, {r.n_evaluations} evaluations, {r.n_voxels} voxels")

@@ -117,7 +117,7 @@ def score(session: Path, true_rolls: np.ndarray, width: int, edge_lines: int) ->
     truth[3:] = true_rolls
     settings = CalibrationSettings(roll_prior_weight=0.0, polish=False, levels=(Level(width, 16000, 0.05, 12, edge_lines, scaled_steps=True),))
     r = calibrate_session(session, seed=0, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0), settings=settings, starts=1,
-                          score_thetas=[truth] + cm._view_scans(truth))
+                          score_thetas=[truth] + cm._view_scans(truth), judge_imported_cameras=False)
     costs = np.asarray(r.scored_costs[1:]).reshape(len(true_rolls) - 1, len(cm.SCAN_DEG) - 1)
     return float(r.scored_costs[0]), cm.view_minima(costs, r.scored_costs[0])
 

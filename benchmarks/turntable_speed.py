@@ -324,7 +324,7 @@ def main() -> None:
         with bar:
             r: CalibrationResult = calibrate_session(session, method="coherence", seed=a.seed, free=["rolls"],
                                                      bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0), settings=settings,
-                                                     progress=CalibrationProgress(bar), score_thetas=[truth])
+                                                     progress=CalibrationProgress(bar), score_thetas=[truth], judge_imported_cameras=False)
         if profiler is not None:
             profiler.disable()
         wall, mono1 = time.perf_counter() - t0, time.monotonic()

@@ -77,7 +77,8 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
                       use_masks: bool | None = None, settings: CalibrationSettings | None = None,
                       offset_scan_deg: float | None = None, progress: ProgressCallback | None = None,
                       fixed_views: str | Sequence[int] | None = None, starts: int | None = None,
-                      score_thetas: Sequence[np.ndarray] = (), prior_from: str | Path | None = None) -> CalibrationResult:
+                      score_thetas: Sequence[np.ndarray] = (), prior_from: str | Path | None = None,
+                      judge_imported_cameras: bool = True) -> CalibrationResult:
     """Calibrate a session and store the run (see the module docstring).
 
     Args:
@@ -97,6 +98,8 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         score_thetas: θ vectors (degrees, the session's frame) only scored on the final cost (benchmarks: the truth).
         prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default the rig
             config's ``calibration.prior_from``): see :func:`apply_rig_prior`.
+        judge_imported_cameras: never store a pose the cost rates worse than the session's imported cameras (their own
+            θ); False where those cameras are a ground truth the calibration must not see (benchmarks).
 
     Raises:
         SessionIncompleteError: incomplete session, fewer than 3 views, no angles.
@@ -138,7 +141,7 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
     try:
         result = calibrate_views(images, K, d, theta0, method=method, seed=seed, free=free, bounds=bounds, mask=mask, scribbles=scribbles,
                                  silhouettes=sil, settings=settings, progress=progress, fixed_views=fixed, starts=starts,
-                                 score_thetas=score_thetas, **_imported_reference(notes))
+                                 score_thetas=score_thetas, **(_imported_reference(notes) if judge_imported_cameras else {}))
     except VastcalError as exc:  # name the session in errors found in its data
         raise exc.about(getattr(path_or_session, "path", path_or_session)) from None
     if prior_src is not None:  # stored θ0 and delta_angle_deg stay "commanded"; the prior's centre is stored beside them
