@@ -238,8 +238,9 @@ def _calibration_digest(cal: Any) -> dict[str, Any]:
         # one definition everywhere (views 1..N-1; view 0 defines 0 deg); the report says whether the data determine it
         out["drift_rms_deg"] = drift_rms_deg(np.asarray(delta))[0]
         prior = getattr(getattr(cal, "settings", None), "roll_prior_weight", 1.0)
-        if {"rolls", "all"} & set(getattr(cal, "free", ()) or ()) and prior > 0:
-            out["drift"] = "undetermined by the images (the rolls follow the prior)"
+        widths = getattr(cal, "roll_widths", None)
+        if widths is not None and prior > 0:
+            out["drift"] = widths.describe()
     return out
 
 

@@ -374,26 +374,34 @@ def _photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
 
 
 def open_directions_sigma(n_params: int, free: Sequence[str], settings: dict[str, Any],
-                          photometric_ran: bool | None = None) -> tuple[np.ndarray, str]:
+                          photometric_ran: bool | None = None, roll_sigma: np.ndarray | None = None) -> tuple[np.ndarray, str]:
     """σ (degrees, per θ entry) of the directions the images leave open, and a line saying why.
 
-    Rolls (views 1 … N−1): the roll prior's width ``roll_prior_deg`` (default 1°) — the rig file's
-    statement of how far the stage may drift, which is what decides them (docs/calibration.md);
-    when the rolls were fixed the same width (they sit at the commanded angles, the stage's drift
-    unknown). Yaw: the photometric yaw's measured error when it ran (``photometric_ran``; None: when the settings
+    Rolls (views 1 … N−1): each view's σ measured by the calibration (``roll_sigma``, (N,) degrees,
+    :mod:`vastcal.calibrate.roll_width`: the prior's width where the images leave the roll to it, less where
+    they pin it); for runs that did not measure it, the roll prior's width ``roll_prior_deg`` (default 1°) —
+    the rig file's statement of how far the stage may drift, which decides them on near-orthographic optics
+    (docs/calibration.md); when the rolls were fixed the same width (they sit at the commanded angles, the
+    stage's drift unknown). Yaw: the photometric yaw's measured error when it ran (``photometric_ran``; None: when the settings
     turn it on and the yaw was free), else ``yaw_prior_deg`` (default 0.5°). Pitch and γ are pinned by the
     silhouettes (a few hundredths of a degree) and are not sampled.
     """
     sig = np.zeros(n_params)
     roll = float(settings.get("roll_prior_deg", 1.0) or 1.0)
     sig[4:] = roll
+    rolls_src = f"rolls of views 1..N-1: sigma {roll:g} deg (the roll prior: the images do not determine them)"
+    if roll_sigma is not None and np.size(roll_sigma) == n_params - 3:
+        measured = np.asarray(roll_sigma, float)[1:]
+        sig[4:] = np.where(np.isfinite(measured) & (measured >= 0), measured, roll)
+        rolls_src = (f"rolls of views 1..N-1: sigma per view as measured by the calibration (median {float(np.median(sig[4:])):.3g} deg; "
+                     f"the roll prior's {roll:g} deg where the images leave a roll to it)")
     free = set(free or [])
     photometric = bool(settings.get("photometric_yaw", False)) and ("yaw" in free or "all" in free)
     if photometric_ran is not None:
         photometric = photometric and photometric_ran
     yaw = PHOTOMETRIC_YAW_SIGMA_DEG if photometric else float(settings.get("yaw_prior_deg", 0.5) or 0.5)
     sig[0] = yaw
-    src = (f"rolls of views 1..N-1: sigma {roll:g} deg (the roll prior: the images do not determine them); yaw: sigma {yaw:g} deg ("
+    src = (f"{rolls_src}; yaw: sigma {yaw:g} deg ("
            + ("photometric yaw, its measured error" if photometric else "the yaw prior") + "); pitch, gamma: determined, not sampled")
     return sig, src
 
@@ -411,7 +419,8 @@ def calibration_spread_from_group(group: Any) -> CalibrationSpread | None:
     free = a.get("free", []) or []
     if isinstance(free, str):
         free = [free]
-    sig, src = open_directions_sigma(theta.size, list(free), _settings_of(a), _photometric_yaw_ran(a))
+    roll_sigma = np.asarray(group["roll_sigma_deg"][...], float) if "roll_sigma_deg" in group else None
+    sig, src = open_directions_sigma(theta.size, list(free), _settings_of(a), _photometric_yaw_ran(a), roll_sigma)
     st = sc = None
     if "starts" in group and "theta" in group["starts"] and "cost" in group["starts"]:
         st = np.asarray(group["starts"]["theta"][...], float)
@@ -508,14 +517,17 @@ def drift_rms_deg(delta_deg: np.ndarray) -> tuple[float, float]:
 
 
 def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[str] = (), settings: dict[str, Any] | None = None,
-                 starts_theta: np.ndarray | None = None) -> dict[str, Any]:
+                 starts_theta: np.ndarray | None = None, roll_sigma: np.ndarray | None = None,
+                 roll_rise: np.ndarray | None = None, prior_rise: float | None = None) -> dict[str, Any]:
     """What can be said about the stage drift (calibrated − commanded angle per view).
 
     ``status`` is ``measured`` (imported cameras: the given cameras' own rolls — as good as those
-    cameras), ``undetermined`` (a calibration run with the rolls decided by the roll prior, which is
-    the case on near-orthographic optics, docs/calibration.md — the values are shown with the
-    prior's width as their uncertainty, never as a measurement) or ``not estimated`` (rolls fixed
-    at the commanded angles).
+    cameras; or a calibration run whose images determine most free rolls: ``roll_rise``, the data cost's rise
+    over ±σ_p per view, above the prior's ``prior_rise`` for at least half of them, :mod:`vastcal.calibrate.roll_width`,
+    with the median measured ``roll_sigma`` as the per-view uncertainty), ``undetermined`` (a calibration run with the
+    rolls decided by the roll prior, which is the case on near-orthographic optics, docs/calibration.md — the values are
+    shown with the prior's width, or the median measured σ, as their uncertainty, never as a measurement) or ``not
+    estimated`` (rolls fixed at the commanded angles).
     """
     out: dict[str, Any] = {}
     if delta_deg is None or np.size(delta_deg) == 0:
@@ -530,11 +542,27 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
     if not ({"rolls", "all"} & free):
         out.update({"status": "not estimated", "reason": "the rolls were held at the commanded angles"})
         return out
-    sigma = float(settings.get("roll_prior_deg", 1.0) or 1.0)
-    out.update({"status": "undetermined", "u_per_view_deg": sigma,
-                "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: they follow the roll "
-                          f"prior (sigma {sigma:g} deg about the commanded angles); the true drift may be anywhere within about "
-                          f"+-{sigma:g} deg per view"})
+    prior = float(settings.get("roll_prior_deg", 1.0) or 1.0)
+    u, why = prior, f"they follow the roll prior (sigma {prior:g} deg about the commanded angles)"
+    rise = np.asarray(roll_rise if roll_rise is not None else [], float)
+    free_views = np.isfinite(rise)
+    if roll_sigma is not None and prior_rise is not None and np.size(roll_sigma) == rise.size and free_views.any():
+        from vastcal.calibrate.roll_width import rolls_determined
+
+        determined, n_free, most = rolls_determined(rise, float(prior_rise))
+        u = float(np.median(np.asarray(roll_sigma, float)[free_views]))
+        out.update({"determined_rolls": determined, "free_rolls": n_free})
+        if most:
+            out.update({"status": "measured", "u_per_view_deg": u,
+                        "reason": f"the images determine {determined} of {n_free} free rolls (their cost rises over +-{prior:g} deg more "
+                                  f"than the roll prior's); median sigma {u:.3g} deg per view"})
+        else:
+            why = (f"the images determine {determined} of {n_free} free rolls; the others follow the roll prior (sigma {prior:g} deg about "
+                   f"the commanded angles)")
+    if "status" not in out:
+        out.update({"status": "undetermined", "u_per_view_deg": u,
+                    "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: {why}; the true drift "
+                              f"may be anywhere within about +-{u:.3g} deg per view"})
     if starts_theta is not None and np.ndim(starts_theta) == 2 and len(starts_theta) > 1:
         spread = np.std(np.asarray(starts_theta, float)[:, 4:], axis=0)
         out["starts_spread_rms_deg"] = float(np.sqrt(np.mean(spread**2))) if spread.size else 0.0

@@ -43,6 +43,7 @@ from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE, enough_directions, expected_evaluations, finest_voxel_um, refine_yaw
 from vastcal.calibrate.region import specimen_region
 from vastcal.calibrate.roll_scan import basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan
+from vastcal.calibrate.roll_width import RollWidths, roll_widths
 from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
@@ -231,6 +232,8 @@ class CalibrationResult:
     scored_costs: list[float] = field(default_factory=list)
     """Judge costs of the ``score_thetas`` given to :func:`calibrate_views`."""
     fixed_views: tuple[int, ...] = ()
+    roll_widths: RollWidths | None = None
+    """How well the images pin each free roll (:mod:`.roll_width`); None when no roll was free."""
 
     @property
     def delta_angle_deg(self) -> np.ndarray:
@@ -246,7 +249,7 @@ class CalibrationResult:
         return (f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
                 f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
                 f"roll − commanded (views 1..N-1): RMS {drift_rms_deg(d)[0]:.3f}°, max {drift_rms_deg(d)[1]:.3f}°"
-                f"{' - undetermined by the images: the rolls follow the prior' if {'rolls', 'all'} & set(self.free) and self.settings.roll_prior_weight > 0 else ''}\n"
+                f"{' - ' + self.roll_widths.describe() if self.roll_widths is not None and self.settings.roll_prior_weight > 0 else ''}\n"
                 f"  cost {self.final_cost:.6g} (commanded angles: {self.theta0_cost:.6g}), best of {0 if self.start_costs is None else len(self.start_costs)} "
                 f"start(s), {'converged' if self.converged else 'NOT converged'}: {self.stop_reason}\n"
                 f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
@@ -889,6 +892,15 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
                                  "final_cost_without": "the yaw prior", "commanded_at_photometric_yaw_cost": float(f_cmd),
                                  "kept": kept, "scored_costs": scored})
             trace.append((evals_done, f))
+    widths = None
+    free_rolls = np.flatnonzero(space.free_mask[3:])
+    if free_rolls.size:
+        t_w = time.monotonic()
+        clock.name_phase(1, "how well the images pin each roll")
+        widths = roll_widths(judge_obj, theta, free_rolls, settings.roll_prior_deg, settings.roll_prior_weight)
+        evals_done += 2 * free_rolls.size + 1 if settings.roll_prior_weight > 0 else 0
+        eval_time += time.monotonic() - t_w
+        log.info("roll widths: %s", widths.describe())
     P = projection_matrices(K, distance, theta[None])[0]
     wall = time.monotonic() - t0
     start_thetas = space.theta(X)
@@ -896,4 +908,5 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
                              space.bounds_dict(), settings, evals_done, wall, eval_time / max(evals_done, 1), len(judge_region.voxels),
                              peak_resident_mb(), np.array(trace, float).reshape(-1, 2), reports, final_cost=f, converged=converged,
                              stop_reason=why, start_thetas=start_thetas, start_costs=np.asarray(start_costs, float),
-                             theta0_cost=float(ref_costs[0]), scored_costs=scored, fixed_views=tuple(sorted({int(v) for v in fixed_views})))
+                             theta0_cost=float(ref_costs[0]), scored_costs=scored, fixed_views=tuple(sorted({int(v) for v in fixed_views})),
+                             roll_widths=widths)

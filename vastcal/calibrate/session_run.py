@@ -216,6 +216,13 @@ def store_result(group: Any, r: CalibrationResult, notes: dict[str, Any], silhou
     if r.start_thetas is not None and r.start_costs is not None:
         ds("starts/theta", np.asarray(r.start_thetas, float), "degree", "S x (3 + N): theta where each start ended (before the polish)")
         ds("starts/cost", np.asarray(r.start_costs, float), "", "S: judged cost (finest level, batch-independent, + prior) of each start")
+    if r.roll_widths is not None:
+        w = r.roll_widths
+        ds("roll_sigma_deg", w.sigma_deg, "degree", "per view: sigma of the roll, the calibration's cost read as a posterior whose prior is "
+           "the roll prior (vastcal.calibrate.roll_width); the prior's width where the roll was not free")
+        ds("roll_data_rise", w.rise, "", f"per view: rise of the data cost over +-{w.prior_deg:g} deg of the roll (NaN: not free); "
+           f"the roll prior rises by roll_prior_rise over the same range")
+        group["roll_data_rise"].attrs["roll_prior_rise"] = w.prior_rise
     write_attrs(group, {"method": r.method, "seed": r.seed, "free": list(r.free), "bounds": r.bounds, "settings": r.settings.to_json(),
                         "distance": r.distance, "distance_units": notes.get("length_unit", "um"), "wall_time_s": r.wall_time_s, "n_evaluations": r.n_evaluations,
                         "time_per_evaluation_s": r.time_per_evaluation_s, "n_voxels": r.n_voxels, "peak_rss_mb": r.peak_rss_mb,

@@ -137,6 +137,9 @@ def _calibration_summary(s: Any, cal_run: str | None, P: np.ndarray,
 
         drift_kw: dict[str, Any] = {"source": "calibration", "free": [free] if isinstance(free, str) else list(free),
                                     "settings": _settings_of(a), "starts_theta": starts}
+        if "roll_sigma_deg" in g and "roll_data_rise" in g:
+            drift_kw.update({"roll_sigma": np.asarray(g["roll_sigma_deg"][...], float), "roll_rise": np.asarray(g["roll_data_rise"][...], float),
+                             "prior_rise": float(g["roll_data_rise"].attrs.get("roll_prior_rise", np.nan))})
     else:
         out["camera_source"] = "cameras (imported)"
         out["method"] = "imported"
