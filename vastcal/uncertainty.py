@@ -524,7 +524,8 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
     ``status`` is ``measured`` (imported cameras: the given cameras' own rolls — as good as those
     cameras; or a calibration run whose images determine most free rolls: ``roll_rise``, the data cost's rise
     over ±σ_p per view, above the prior's ``prior_rise`` for at least half of them, :mod:`vastcal.calibrate.roll_width`,
-    with the median measured ``roll_sigma`` as the per-view uncertainty), ``undetermined`` (a calibration run with the
+    with the median measured ``roll_sigma`` as the per-view uncertainty; or free rolls with no roll prior, which the
+    images alone decide), ``undetermined`` (a calibration run with the
     rolls decided by the roll prior, which is the case on near-orthographic optics, docs/calibration.md — the values are
     shown with the prior's width, or the median measured σ, as their uncertainty, never as a measurement) or ``not
     estimated`` (rolls fixed at the commanded angles).
@@ -541,6 +542,9 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
         return out
     if not ({"rolls", "all"} & free):
         out.update({"status": "not estimated", "reason": "the rolls were held at the commanded angles"})
+        return out
+    if float(settings.get("roll_prior_weight", 1.0)) <= 0:
+        out.update({"status": "measured", "reason": "the rolls were free with no roll prior: the images alone decide them (no sigma estimated)"})
         return out
     prior = float(settings.get("roll_prior_deg", 1.0) or 1.0)
     u, why = prior, f"they follow the roll prior (sigma {prior:g} deg about the commanded angles)"

@@ -50,6 +50,8 @@ def test_the_drift_is_a_measurement_when_the_images_determine_most_rolls() -> No
     assert few["status"] == "undetermined" and few["u_per_view_deg"] == pytest.approx(0.3) and "1 of 3" in few["reason"]
     old = drift_status(delta, source="calibration", free=["rolls"], settings=settings)  # a run stored before rolls were measured
     assert old["status"] == "undetermined" and old["u_per_view_deg"] == 1.0
+    no_prior = drift_status(delta, source="calibration", free=["rolls"], settings={"roll_prior_deg": 1.0, "roll_prior_weight": 0.0})
+    assert no_prior["status"] == "measured" and "no roll prior" in no_prior["reason"]
     sig, src = open_directions_sigma(3 + 4, ["rolls"], settings, roll_sigma=sigma)
     np.testing.assert_array_equal(sig[3:], [0.0, 0.3, 0.2, 0.9])  # view 0 is the gauge
     assert "measured by the calibration" in src
