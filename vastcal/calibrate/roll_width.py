@@ -14,7 +14,7 @@ the secant curvature over the prior's own width, 2 · (½(D(ω_i + σ_p) + D(ω_
 question that matters — does the data cost rise over ±σ_p by more than the prior does? — and is robust to the kinks
 of a cost built from maxima and minima (a local second difference is not).
 
-Without a roll prior (w = 0) the objective has no temperature: σ_p is kept for every roll, as before this rule.
+Without a roll prior (w = 0) the objective has no temperature: nothing is measured, and every roll keeps σ_p.
 """
 
 from __future__ import annotations

@@ -898,7 +898,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         t_w = time.monotonic()
         clock.name_phase(1, "how well the images pin each roll")
         widths = roll_widths(judge_obj, theta, free_rolls, settings.roll_prior_deg, settings.roll_prior_weight)
-        evals_done += 2 * free_rolls.size + 1 if settings.roll_prior_weight > 0 else 0
+        evals_done += (2 * free_rolls.size + 1) if settings.roll_prior_weight > 0 else 0
         eval_time += time.monotonic() - t_w
         log.info("roll widths: %s", widths.describe())
     P = projection_matrices(K, distance, theta[None])[0]

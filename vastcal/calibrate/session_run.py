@@ -53,13 +53,13 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
         m = fit.motion
         theta0 = np.concatenate([[m.yaw_deg, m.pitch_deg, m.gamma_deg], angles])
         rolls = np.asarray(m.rolls_deg, float)
-        known = np.concatenate([theta0[:3], rolls + (angles[0] - rolls[0])])  # view 0 at its commanded angle, as θ0's
+        theta_cameras = np.concatenate([theta0[:3], rolls + (angles[0] - rolls[0])])  # view 0 at its commanded angle, as θ0's
         cams = session.h5["/entry/vastcal/cameras"]
         unit = str(cams.attrs.get("length_unit", "um"))  # sessions imported before units were recorded: µm
         return np.asarray(m.K, float), float(m.distance), theta0, {"camera_source": "imported cameras (decompose_circular)",
                                                                       "decomposition_rms_px": fit.rms_px,
                                                                       "world_from_data": fit.world_from_data.tolist(),
-                                                                      "length_unit": unit, "imported_cameras_theta_deg": known.tolist()}
+                                                                      "length_unit": unit, "imported_cameras_theta_deg": theta_cameras.tolist()}
     cfg = session.rig_config()
     rx, ry = session.roi_offset_px
     h, w = session.frame_shape[:2]
