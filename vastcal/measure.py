@@ -72,6 +72,14 @@ UM3_PER_MM3 = 1e9
 UM2_PER_MM2 = 1e6
 
 
+def world_unit_words(length_unit: str) -> tuple[str, str]:
+    """(unit, why) for printing a measurement whose world unit is not known (``length_unit`` ``"px"`` or ``"unknown"``):
+    the values (stored as mm³/mm² of a world taken as µm) times :data:`UM3_PER_MM3` / :data:`UM2_PER_MM2` are in that unit."""
+    if length_unit == "px":
+        return "px", "pixel size unknown - measurements in pixels: import with --pixel-size-um or --config"
+    return "(units of the cameras)", "the cameras' length unit is unknown: give it with 'vastcal import --length-unit'"
+
+
 # ---------------------------------------------------------------------------------------------
 # Mesh
 # ---------------------------------------------------------------------------------------------
@@ -309,25 +317,26 @@ class Measurement:
         }
 
     def summary(self) -> str:
-        """Human lines with units: the values to cite with their k = 2 intervals, the verdict."""
+        """Human lines with units: the values to cite with their k = 2 intervals, the verdict. A world of unknown unit
+        (pixel size or the cameras' unit not known) is printed in that unit, never as mm."""
         u = self.uncertainty or {}
         lower = bool((self.qc or {}).get("lower_bound"))
-        vol_u = f" ± {u['U_volume_mm3']:.4f}" if u.get("U_volume_mm3") is not None else ""
-        area_u = f" ± {u['U_area_mm2']:.3f}" if u.get("U_area_mm2") is not None else ""
         k = f" (k = {u.get('k', 2):g})" if u else ""
         lb = " - a LOWER BOUND (specimen cut by the frame)" if lower else ""
         if self.provenance.get("length_unit") in ("unknown", "px"):  # the world's unit is not known: no mm, no µm
-            wu, why = (("px", "pixel size unknown - measurements in pixels: import with --pixel-size-um or --config")
-                       if self.provenance.get("length_unit") == "px" else
-                       ("(units of the cameras)", "the cameras' length unit is unknown: give it with 'vastcal import --length-unit'"))
-            return "\n".join([
-                f"volume        {self.volume_mm3 * UM3_PER_MM3:.6g} {wu}^3{lb} (voxels inside all {self.n_views} silhouettes; {why})",
-                f"surface area  {self.surface_area_mm2 * UM2_PER_MM2:.6g} {wu}^2{lb} (smoothed mesh)",
-                f"voxel size    {self.voxel_size_um:.6g} {wu}, {self.n_inside_voxels} voxels inside"])
-        lines = [f"volume        {self.volume_mm3:.4f}{vol_u} mm^3{k}{lb} (voxels inside all {self.n_views} silhouettes: the value to cite; "
-                 f"the smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3, a diagnostic)",
-                 f"surface area  {self.surface_area_mm2:.3f}{area_u} mm^2{k}{lb} (smoothed mesh, {self.mesh.n_faces} triangles)",
-                 f"voxel size    {self.voxel_size_um:.2f} um, {self.n_inside_voxels} voxels inside"]
+            wu, why = world_unit_words(str(self.provenance.get("length_unit")))
+            vol_u = f" ± {u['U_volume_mm3'] * UM3_PER_MM3:.6g}" if u.get("U_volume_mm3") is not None else ""
+            area_u = f" ± {u['U_area_mm2'] * UM2_PER_MM2:.6g}" if u.get("U_area_mm2") is not None else ""
+            lines = [f"volume        {self.volume_mm3 * UM3_PER_MM3:.6g}{vol_u} {wu}^3{k}{lb} (voxels inside all {self.n_views} silhouettes; {why})",
+                     f"surface area  {self.surface_area_mm2 * UM2_PER_MM2:.6g}{area_u} {wu}^2{k}{lb} (smoothed mesh)",
+                     f"voxel size    {self.voxel_size_um:.6g} {wu}, {self.n_inside_voxels} voxels inside"]
+        else:
+            vol_u = f" ± {u['U_volume_mm3']:.4f}" if u.get("U_volume_mm3") is not None else ""
+            area_u = f" ± {u['U_area_mm2']:.3f}" if u.get("U_area_mm2") is not None else ""
+            lines = [f"volume        {self.volume_mm3:.4f}{vol_u} mm^3{k}{lb} (voxels inside all {self.n_views} silhouettes: the value to cite; "
+                     f"the smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3, a diagnostic)",
+                     f"surface area  {self.surface_area_mm2:.3f}{area_u} mm^2{k}{lb} (smoothed mesh, {self.mesh.n_faces} triangles)",
+                     f"voxel size    {self.voxel_size_um:.2f} um, {self.n_inside_voxels} voxels inside"]
         if u.get("not_evaluated"):
             lines.append(f"uncertainty   not evaluated: {', '.join(u['not_evaluated'])} (the interval leaves them out)")
         if self.qc:

@@ -37,18 +37,25 @@ class RunSummary:
     calibration: dict[str, Any] = field(default_factory=dict)
     timings_s: dict[str, float] = field(default_factory=dict)
     truth: dict[str, Any] = field(default_factory=dict)
+    length_unit: str = "um"
+    """The world's unit: ``um`` (values in mm³/mm²), ``px`` or ``unknown`` (values in that unit, never as mm)."""
 
     def summary(self) -> str:
         """Human lines: measurements with units, calibration, timings, truth comparison."""
+        from vastcal.measure import UM2_PER_MM2, UM3_PER_MM3, world_unit_words
+
         lines = [f"session          {self.session}"]
         u = self.uncertainty
         k = f" (k = {u.get('k', 2):g})" if u else ""
+        known = self.length_unit not in ("px", "unknown")
+        unit, why = ("mm", "") if known else world_unit_words(self.length_unit)
+        fv, fa, sv, sa = (".4f", ".3f", 1.0, 1.0) if known else (".6g", ".6g", UM3_PER_MM3, UM2_PER_MM2)
         if self.volume_mm3 is not None:
-            lines.append(f"volume           {self.volume_mm3:.4f}" + (f" ± {u['U_volume_mm3']:.4f}" if u.get("U_volume_mm3") is not None else "")
-                         + f" mm^3{k}")
+            lines.append(f"volume           {self.volume_mm3 * sv:{fv}}" + (f" ± {u['U_volume_mm3'] * sv:{fv}}" if u.get("U_volume_mm3") is not None else "")
+                         + f" {unit}^3{k}" + (f" ({why})" if why else ""))
         if self.surface_area_mm2 is not None:
-            lines.append(f"surface area     {self.surface_area_mm2:.3f}" + (f" ± {u['U_area_mm2']:.3f}" if u.get("U_area_mm2") is not None else "")
-                         + f" mm^2{k}")
+            lines.append(f"surface area     {self.surface_area_mm2 * sa:{fa}}" + (f" ± {u['U_area_mm2'] * sa:{fa}}" if u.get("U_area_mm2") is not None else "")
+                         + f" {unit}^2{k}")
         if self.verdict:
             lines.append(f"verdict          {self.verdict}")
         if self.calibration:
@@ -184,6 +191,7 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
         m = reconstruct_session(path, calibration_run=calibration_run)
         res.timings_s["reconstruct"] = time.monotonic() - t
         res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)
+        res.length_unit = str((getattr(m, "provenance", None) or {}).get("length_unit", "um"))
         res.uncertainty = dict(getattr(m, "uncertainty", None) or {})
         if getattr(m, "qc", None):
             from vastcal.qc import QCResult

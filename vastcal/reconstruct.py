@@ -711,7 +711,7 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
     Cameras: the calibration run ``calibration_run`` (default: the latest), else the imported
     known cameras; ``calibration_run="imported"``: the imported cameras, even when runs exist.
     Silhouettes: the imported masks when ``use_masks``; otherwise the colour
-    model's foreground probability maps of the calibration run (float32, soft: a voxel is inside
+    model's foreground probability maps of the calibration run (with imported cameras: of the latest run; float32, soft: a voxel is inside
     when the bilinearly sampled p ≥ 0.5, :data:`FOREGROUND_THRESHOLD`; made within ``memory_mb`` and held
     compactly, :func:`session_specimen_maps`), falling back to imported masks when there is no colour model.
 
@@ -751,13 +751,15 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
         raise UserInputError(f"{path}: the session holds no masks; import them with 'vastcal import --masks' or drop --masks")
     sil: np.ndarray | None = None
     sil_src = ""
-    if not use_masks and cal is not None and "colour_model" in cal:
+    # The silhouettes do not depend on the cameras: imported cameras take the latest calibration run's colour model.
+    model_run = cal if cal is not None else session.latest_result("calibration")
+    if not use_masks and model_run is not None and "colour_model" in model_run:
         from vastcal.calibrate.colour_model import ColourModel
 
-        model = ColourModel.from_group(cal["colour_model"])
+        model = ColourModel.from_group(model_run["colour_model"])
         # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)
         sil = session_specimen_maps(session, model, memory_mb=memory_mb)
-        sil_src = f"colour_model of {cam_src} (bilinear p >= {FOREGROUND_THRESHOLD})"
+        sil_src = f"colour_model of calibration/{model_run.name.rsplit('/', 1)[-1]} (bilinear p >= {FOREGROUND_THRESHOLD})"
     elif masks is not None:
         sil = np.asarray(masks) > 0
         sil_src = "masks (imported)"

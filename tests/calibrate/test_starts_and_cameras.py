@@ -178,3 +178,7 @@ def test_a_session_s_imported_cameras_are_kept_when_the_calibration_ends_costlie
     hidden = calibrate_session(path, seed=0, settings=one_generation, fixed_views="5", judge_imported_cameras=False)
     judge = next(rep for rep in hidden.level_reports if "judge" in rep)
     assert judge["reference_costs"] == [] and judge["kept"] != "the imported cameras"
+    from vastcal.reconstruct import reconstruct_session
+
+    m = reconstruct_session(path, calibration_run="imported")  # no masks: the silhouettes of the latest run's colour model
+    assert m.provenance["camera_source"] == "cameras (imported)" and "colour_model of calibration/run_001" in m.provenance["silhouette_source"]
