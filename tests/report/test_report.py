@@ -54,6 +54,7 @@ def test_csv_is_one_row_under_a_fixed_header(report_dir: Path) -> None:
     row = rows[0]
     doc = json.loads((report_dir / "report.json").read_text())
     assert float(row["volume_mm3"]) == pytest.approx(doc["measurement"]["volume_mm3"], rel=1e-5)
+    assert row["length_unit"] == doc["measurement"]["length_unit"] == "um"  # the mm columns are what they say
     assert float(row["surface_area_mm2"]) == pytest.approx(doc["measurement"]["surface_area_mm2"], rel=1e-5)
     assert row["n_views"] == "9" and row["calibration_method"] == "pi" and float(row["drift_rms_deg"]) > 0
 

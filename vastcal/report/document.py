@@ -39,9 +39,12 @@ CSV_COLUMNS = (
     "lower_bound", "verdict", "verdict_reasons", "mesh_volume_mm3", "n_views", "voxel_size_um",
     "iso_level", "camera_source", "silhouette_source", "calibration_method", "calibration_seed", "yaw_deg", "pitch_deg", "gamma_deg",
     "drift_status", "drift_rms_deg", "drift_max_abs_deg", "final_cost", "n_evaluations", "calibration_wall_time_s", "measurement_run",
-    "report_time",
+    "report_time", "length_unit",
 )
-"""Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate)."""
+"""Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate). ``length_unit``: the world's
+unit — a known one (``um`` on a rig; ``nm`` … ``m`` for imported cameras, converted) when the ``_mm3``/``_mm2``/``_um``
+columns are what they say; ``px`` or ``unknown`` (cameras of unknown unit) when they hold 10⁻⁹ px³ / 10⁻⁹ (units of the
+cameras)³ and so on — the measurement in that unit, scaled as if it were µm."""
 
 
 @dataclass
@@ -80,6 +83,7 @@ class ReportData:
             "drift_rms_deg": c.get("drift_rms_deg"), "drift_max_abs_deg": c.get("drift_max_abs_deg"),
             "final_cost": c.get("final_cost"), "n_evaluations": c.get("n_evaluations"), "calibration_wall_time_s": c.get("wall_time_s"),
             "measurement_run": m.get("run", ""), "report_time": self.provenance.get("report_time", ""),
+            "length_unit": m.get("length_unit", "um"),
         }
 
 
@@ -242,6 +246,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         "run": mrun,
         "volume_mm3": ma.get("volume_mm3"), "mesh_volume_mm3": ma.get("mesh_volume_mm3"), "surface_area_mm2": ma.get("surface_area_mm2"),
         "raw_surface_area_mm2": ma.get("raw_surface_area_mm2"),
+        "length_unit": str((ma.get("provenance") or {}).get("length_unit", "um")),
         "units": ({"volume_mm3": "mm^3", "mesh_volume_mm3": "mm^3", "surface_area_mm2": "mm^2", "raw_surface_area_mm2": "mm^2",
                    "voxel_size_um": "um", "iso_level": "silhouettes"}
                   if (ma.get("provenance") or {}).get("length_unit") not in ("unknown", "px") else
