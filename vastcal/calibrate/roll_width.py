@@ -14,6 +14,9 @@ the secant curvature over the prior's own width, 2 · (½(D(ω_i + σ_p) + D(ω_
 question that matters — does the data cost rise over ±σ_p by more than the prior does? — and is robust to the kinks
 of a cost built from maxima and minima (a local second difference is not).
 
+D is the cost the rolls were last set on: the per-view polish's (the finest level's, its rays searched at the batch's
+mean θ), so that σ_i describes the minimum the stored rolls sit in.
+
 Without a roll prior (w = 0) the objective has no temperature: nothing is measured, and every roll keeps σ_p.
 """
 

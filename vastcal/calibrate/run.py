@@ -789,12 +789,14 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     best = int(np.argmin(start_costs))
     x, f = X[best].copy(), float(start_costs[best])
     polished = {"converged": True, "evaluations": 0}
+    width_obj = judge_obj  # the data cost each roll's width is read from: the polish's, which set the rolls, where it ran
     if settings.polish and np.any(space.free_mask[4:]):
         # view 0 through the gauge (polish_rolls) where a common rotation leaves the cost unchanged: the roll scan's rule
         gauge = settings.roll_scan and method == "coherence" and bool(np.all(space.free_mask[4:])) and settings.roll_prior_weight <= 0
         n_rolls = int(np.sum(space.free_mask[4:])) + int(gauge)
         clock.name_phase(1, "per-view polish: region")
         fast, _, _, _ = problem.level_objective(last, x)
+        width_obj = fast
         n_steps = len(settings.polish_steps_deg)
         # its evaluations, at most: x, each sweep's 2F + 1 trials and 3 moves, the final x and the judge's
         clock.start_phase(n_steps * (2 * n_rolls + 4) + 3, "per-view polish")
@@ -897,7 +899,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     if free_rolls.size:
         t_w = time.monotonic()
         clock.name_phase(1, "how well the images pin each roll")
-        widths = roll_widths(judge_obj, theta, free_rolls, settings.roll_prior_deg, settings.roll_prior_weight)
+        # One roll moved per candidate: this cost searches the rays once, at θ, and re-reads the moved views' windows only
+        # (the batch-independent judge searches every candidate's rays in full: ~14x the time, 1.4 s on ZF1).
+        widths = roll_widths(width_obj, theta, free_rolls, settings.roll_prior_deg, settings.roll_prior_weight)
         evals_done += (2 * free_rolls.size + 1) if settings.roll_prior_weight > 0 else 0
         eval_time += time.monotonic() - t_w
         log.info("roll widths: %s", widths.describe())
