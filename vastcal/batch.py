@@ -199,6 +199,7 @@ def _fields_from_report(report_json: Path) -> dict[str, Any]:
         "uid": _get(rep, "session", "uid"),
         "n_views": _get(rep, "session", "n_views"),
         "volume_mm3": m.get("volume_mm3"),
+        "length_unit": m.get("length_unit", "um"),
         "U_volume_mm3": m.get("volume_U_mm3", u.get("U_volume_mm3")),
         "area_mm2": m.get("surface_area_mm2"),
         "U_area_mm2": m.get("surface_area_U_mm2", u.get("U_area_mm2")),

@@ -33,9 +33,11 @@ COLUMNS: tuple[str, ...] = (
     "verdict", "flags",
     "n_views", "cal_method", "cal_final_cost", "cal_yaw_deg", "cal_pitch_deg", "cal_drift_rms_deg", "cal_drift_status",
     "vastcal_version", "t_calibrate_s", "t_reconstruct_s", "t_report_s", "t_total_s", "cpu_s",
-    "worker", "worker_peak_mb", "processed_at", "uid", "report", "path",
+    "worker", "worker_peak_mb", "processed_at", "uid", "report", "path", "length_unit",
 )
-"""Columns of ``measurements.csv`` in order."""
+"""Columns of ``measurements.csv`` in order. ``length_unit``: the world's unit of the row (``um`` on a rig, a known unit
+of imported cameras); ``px`` or ``unknown`` when ``volume_mm3`` … hold pixels or the cameras' own units scaled as if
+they were µm (``report.csv``'s column of the same name)."""
 
 NUMERIC: frozenset[str] = frozenset({"age_dpf", "volume_mm3", "U_volume_mm3", "area_mm2", "U_area_mm2", "k", "n_views", "cal_final_cost",
                                      "cal_yaw_deg", "cal_pitch_deg", "cal_drift_rms_deg", "t_calibrate_s", "t_reconstruct_s",

@@ -73,7 +73,7 @@ def test_batch_table_failure_and_resume(tmp_path: Path) -> None:
         assert r["status"] == "ok", r
         assert 0.12 < float(r["volume_mm3"]) < 0.2 and float(r["U_volume_mm3"]) > 0
         assert 1.5 < float(r["area_mm2"]) < 3.0 and float(r["U_area_mm2"]) > 0
-        assert r["verdict"] != "-" and r["vastcal_version"] != "-"
+        assert r["verdict"] != "-" and r["vastcal_version"] != "-" and r["length_unit"] == "um"  # the mm columns are mm
         assert (out / "reports" / name / "report.json").is_file()
     assert rows["larva1"]["specimen_id"] == "L-<1>" and rows["larva1"]["well"] == "B3" and rows["larva0"]["strain"] == "-"
     page = (out / "index.html").read_text()
