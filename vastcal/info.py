@@ -50,6 +50,9 @@ def session_summary(path: str | Path) -> dict[str, Any]:
                 a = read_attrs(s.result(stage, name))
                 keep = {k: a[k] for k in ("time", "method", "seed", "wall_time_s", "volume_mm3", "volume_U_mm3", "surface_area_mm2",
                                           "surface_area_U_mm2", "verdict", "n_evaluations") if k in a}
+                unit = a.get("volume_mm3_units")
+                if unit is not None and str(unit) != "mm^3":  # a world of unknown unit: say what the numbers are
+                    keep["volume_mm3_units"] = str(unit)
                 entries.append({"run": name, **keep})
             summary["stages"][stage] = entries
         summary["verdict"] = _verdict(s)

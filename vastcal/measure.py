@@ -72,6 +72,15 @@ UM3_PER_MM3 = 1e9
 UM2_PER_MM2 = 1e6
 
 
+def measurement_units(length_unit: str) -> tuple[str, str]:
+    """(volume, area) units of the stored ``volume_mm3``/``surface_area_mm2`` for a world of ``length_unit``: mm^3 and mm^2
+    for a known unit; for ``px`` or ``unknown`` what the numbers then are (10⁻⁹ px³, 10⁻⁹ (units of the cameras)³ …)."""
+    if length_unit not in ("px", "unknown"):
+        return "mm^3", "mm^2"
+    unit = world_unit_words(length_unit)[0]
+    return f"1e-9 {unit}^3", f"1e-6 {unit}^2"
+
+
 def world_unit_words(length_unit: str) -> tuple[str, str]:
     """(unit, why) for printing a measurement whose world unit is not known (``length_unit`` ``"px"`` or ``"unknown"``):
     the values (stored as mm³/mm² of a world taken as µm) times :data:`UM3_PER_MM3` / :data:`UM2_PER_MM2` are in that unit."""
@@ -408,12 +417,13 @@ def store_measurement(group: "h5py.Group", m: Measurement) -> None:
                             "coverage_factor_k": float(m.uncertainty.get("k", 2.0))})
     if m.qc:
         write_attrs(group, {"verdict": str(m.qc.get("verdict", "")), "lower_bound": bool(m.qc.get("lower_bound", False))})
-    write_attrs(group, {"volume_mm3_units": "mm^3", "mesh_volume_mm3_units": "mm^3", "surface_area_mm2_units": "mm^2",
+    vol_units, area_units = measurement_units(str((m.provenance or {}).get("length_unit", "um")))
+    write_attrs(group, {"volume_mm3_units": vol_units, "mesh_volume_mm3_units": vol_units, "surface_area_mm2_units": area_units,
                         "volume_method": "voxels inside all silhouettes x voxel volume (the value to cite; mesh_volume_mm3 is a diagnostic)",
                         "surface_method": f"marching cubes of silhouette counts at level {m.iso_level:g}, "
                                           f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), volume preserved"})
-    for name, value, units in (("volume_mm3", m.volume_mm3, "mm^3"), ("mesh_volume_mm3", m.mesh_volume_mm3, "mm^3"),
-                               ("surface_area_mm2", m.surface_area_mm2, "mm^2")):
+    for name, value, units in (("volume_mm3", m.volume_mm3, vol_units), ("mesh_volume_mm3", m.mesh_volume_mm3, vol_units),
+                               ("surface_area_mm2", m.surface_area_mm2, area_units)):
         ds = group.create_dataset(name, data=float(value))
         ds.attrs["units"] = units
     write_off_geometry(group.create_group("mesh"), m.mesh.vertices, m.mesh.faces,

@@ -111,3 +111,20 @@ def test_mesh_file_errors(tmp_path: Path) -> None:
     (tmp_path / "bad.stl").write_bytes(b"\0" * 84 + b"\1")
     with pytest.raises(AnalysisError, match="should be"):
         read_stl(tmp_path / "bad.stl")
+
+
+@pytest.mark.parametrize("unit, volume_units", [("um", "mm^3"), ("mm", "mm^3"), ("unknown", "1e-9 (units of the cameras)^3"), ("px", "1e-9 px^3")])
+def test_a_stored_measurement_labels_its_numbers_in_the_world_s_unit(tmp_path: Path, unit: str, volume_units: str) -> None:
+    """A world of unknown unit (imported cameras without one, images without a pixel size) is not stored as mm³."""
+    import dataclasses
+
+    import h5py
+
+    from vastcal.measure import store_measurement
+
+    m = dataclasses.replace(measure_hull(sphere_hull()), provenance={"length_unit": unit})
+    with h5py.File(tmp_path / "m.h5", "w") as f:
+        store_measurement(f.create_group("run"), m)
+        g = f["run"]
+        assert g.attrs["volume_mm3_units"] == volume_units == g["volume_mm3"].attrs["units"]
+        assert g.attrs["surface_area_mm2_units"] == volume_units.replace("1e-9", "1e-6").replace("^3", "^2")
