@@ -38,7 +38,8 @@ class RunSummary:
     timings_s: dict[str, float] = field(default_factory=dict)
     truth: dict[str, Any] = field(default_factory=dict)
     length_unit: str = "um"
-    """The world's unit: ``um`` (values in mm³/mm²), ``px`` or ``unknown`` (values in that unit, never as mm)."""
+    """The world's unit: a known one (``um`` on a rig, ``nm`` … ``m`` of imported cameras: values in mm³/mm²), or ``px`` /
+    ``unknown`` (values in that unit, never as mm)."""
 
     def summary(self) -> str:
         """Human lines: measurements with units, calibration, timings, truth comparison."""
