@@ -505,12 +505,10 @@ class CoherenceObjective:
         rays instead of the views' edge rays (any rays of those views, e.g. some edge rays repeated).
         """
         b, n, r, s = Z.shape
-        J = self._partner_table(P.shape[1])
+        J = self._partner_table(P.shape[1], views)
         own_rays = rays is None
         if own_rays:
             rays = self.rays_cam if views is None else self.rays_cam[views]
-        if views is not None:
-            J = J[views]
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
         threads = compute_threads()
@@ -528,10 +526,11 @@ class CoherenceObjective:
         run_slices(views_slice, range(0, n, step))
         return out
 
-    def _partner_table(self, n_views: int) -> np.ndarray:
-        """(N, K) partner views of every view: the table chosen at the first evaluation, or (before one) that of
-        views without angles (:func:`partner_views` of zeros)."""
-        return self.partners if self.partners is not None else partner_views(np.zeros(n_views), self.max_partners)
+    def _partner_table(self, n_views: int, views: np.ndarray | None = None) -> np.ndarray:
+        """(N, K) partner views of every view (or (n, K) of ``views``): the table chosen at the first evaluation, or
+        (before one) that of views without angles (:func:`partner_views` of zeros)."""
+        J = self.partners if self.partners is not None else partner_views(np.zeros(n_views), self.max_partners)
+        return J if views is None else J[views]
 
     def _project_sample(self, P: np.ndarray, pts4: np.ndarray, views: np.ndarray) -> np.ndarray:
         """Signed distances (..., K, M) of views ``views`` (broadcastable to (..., K)) through their cameras
@@ -677,8 +676,7 @@ class CoherenceObjective:
         c + e z is least, at z0 or z1. Both are evaluated, in float64.
         """
         rays = (self.rays_cam if views is None else self.rays_cam[views]).astype(np.float64)  # (n, R, 3)
-        J = self._partner_table(P.shape[1])
-        J = J if views is None else J[views]
+        J = self._partner_table(P.shape[1], views)
         Rd = R.astype(np.float64)
         D = rays[None] @ Rd  # (B, n, R, 3): world direction per unit depth
         X0 = (self.distance * rays[None] - t.astype(np.float64)[:, None, None, :]) @ Rd

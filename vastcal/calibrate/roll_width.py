@@ -55,6 +55,12 @@ class RollWidths:
     prior_rise: float
     prior_deg: float
 
+    @property
+    def n_evaluations(self) -> int:
+        """Evaluations of the data cost the widths took: θ and ±σ_p on each measured roll (none when nothing was measured)."""
+        measured = int(np.isfinite(self.rise).sum())
+        return 2 * measured + 1 if measured else 0
+
     def describe(self) -> str:
         """One line: how many free rolls the images determine, and their median σ."""
         determined, n_free, most = rolls_determined(self.rise, self.prior_rise)

@@ -902,7 +902,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         # One roll moved per candidate: this cost searches the rays once, at θ, and re-reads the moved views' windows only
         # (the batch-independent judge searches every candidate's rays in full: ~14x the time, 1.4 s on ZF1).
         widths = roll_widths(width_obj, theta, free_rolls, settings.roll_prior_deg, settings.roll_prior_weight)
-        evals_done += (2 * free_rolls.size + 1) if settings.roll_prior_weight > 0 else 0
+        evals_done += widths.n_evaluations
         eval_time += time.monotonic() - t_w
         log.info("roll widths: %s", widths.describe())
     P = projection_matrices(K, distance, theta[None])[0]

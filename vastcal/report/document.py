@@ -170,6 +170,24 @@ def _calibration_summary(s: Any, cal_run: str | None, P: np.ndarray,
     return out, delta, cost
 
 
+#: What report.json says of a world whose unit is not known (its numbers are in that unit, scaled as if it were µm).
+_UNKNOWN_UNIT_NOTES = {"px": "pixel size unknown - measurements in pixels (vastcal import --pixel-size-um or --config)",
+                       "unknown": "the cameras' length unit is unknown (vastcal import --length-unit): values are in the cameras' own units"}
+
+
+def _measurement_units(length_unit: str) -> dict[str, str]:
+    """report.json's ``units`` of a measurement in a world of ``length_unit`` (the stored labels,
+    :func:`vastcal.measure.measurement_units`)."""
+    from vastcal.measure import measurement_units, world_unit_words
+
+    volume, area = measurement_units(length_unit)
+    units = {"volume_mm3": volume, "mesh_volume_mm3": volume, "surface_area_mm2": area, "raw_surface_area_mm2": area}
+    if length_unit not in _UNKNOWN_UNIT_NOTES:
+        return {**units, "voxel_size_um": "um", "iso_level": "silhouettes"}
+    return {**units, "voxel_size_um": world_unit_words(length_unit)[0].strip("()"), "iso_level": "silhouettes",
+            "note": _UNKNOWN_UNIT_NOTES[length_unit]}
+
+
 def cost_trace_columns(trace: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(evaluations so far, best cost) of a stored ``cost_trace``.
 
@@ -242,22 +260,13 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
     points = np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
 
     qc_doc = ma.get("qc") if isinstance(ma.get("qc"), dict) else None
+    length_unit = str((ma.get("provenance") or {}).get("length_unit", "um"))
     measurement = {
         "run": mrun,
         "volume_mm3": ma.get("volume_mm3"), "mesh_volume_mm3": ma.get("mesh_volume_mm3"), "surface_area_mm2": ma.get("surface_area_mm2"),
         "raw_surface_area_mm2": ma.get("raw_surface_area_mm2"),
-        "length_unit": str((ma.get("provenance") or {}).get("length_unit", "um")),
-        "units": ({"volume_mm3": "mm^3", "mesh_volume_mm3": "mm^3", "surface_area_mm2": "mm^2", "raw_surface_area_mm2": "mm^2",
-                   "voxel_size_um": "um", "iso_level": "silhouettes"}
-                  if (ma.get("provenance") or {}).get("length_unit") not in ("unknown", "px") else
-                  {"volume_mm3": "1e-9 px^3", "mesh_volume_mm3": "1e-9 px^3", "surface_area_mm2": "1e-6 px^2",
-                   "raw_surface_area_mm2": "1e-6 px^2", "voxel_size_um": "px", "iso_level": "silhouettes",
-                   "note": "pixel size unknown - measurements in pixels (vastcal import --pixel-size-um or --config)"}
-                  if (ma.get("provenance") or {}).get("length_unit") == "px" else
-                  {"volume_mm3": "1e-9 (units of the cameras)^3", "mesh_volume_mm3": "1e-9 (units of the cameras)^3",
-                   "surface_area_mm2": "1e-6 (units of the cameras)^2", "raw_surface_area_mm2": "1e-6 (units of the cameras)^2",
-                   "voxel_size_um": "units of the cameras", "iso_level": "silhouettes",
-                   "note": "the cameras' length unit is unknown (vastcal import --length-unit): values are in the cameras' own units"}),
+        "length_unit": length_unit,
+        "units": _measurement_units(length_unit),
         "volume_method": ma.get("volume_method", ""), "surface_method": ma.get("surface_method", ""),
         "n_views": ma.get("n_views"), "voxel_size_um": ma.get("voxel_size_um"), "n_inside_voxels": ma.get("n_inside_voxels"),
         "iso_level": ma.get("iso_level"), "n_mesh_vertices": ma.get("n_mesh_vertices"), "n_mesh_faces": ma.get("n_mesh_faces"),
