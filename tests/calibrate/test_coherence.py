@@ -77,6 +77,21 @@ def test_walls_are_not_taken_for_the_specimen(scene: tuple[np.ndarray, np.ndarra
     assert np.all((e.uv[..., 1][e.weight > 0] > 8) & (e.uv[..., 1][e.weight > 0] < pf.shape[1] - 9))
 
 
+def test_edges_are_the_largest_regions_outline_wherever_the_axis_is() -> None:
+    """A statue standing off the turntable's axis: its outline is found although the axis misses it, on both sides of
+    a gap between its legs, and a smaller blob on the axis (a patch of the turntable) is not taken for it."""
+    pf = np.zeros((3, 60, 80), np.float32)
+    pf[:, 30:51, 10:71] = 1.0  # the specimen, 20-40 rows away from the axis's image
+    pf[:, 38:46, 30:41] = 0.0  # the gap between the legs, closed by the base: two runs on those lines
+    pf[:, 8:13, 20:26] = 1.0  # a smaller region through which the axis runs
+    axis = np.stack(np.broadcast_arrays(np.arange(80.0)[None, :], np.full((3, 80), 10.0)), -1)  # (N, W, 2): row 10
+    e = silhouette_edges(pf, axis, max_lines=80)
+    for i in range(3):
+        uv = e.uv[i][e.weight[i] > 0]
+        assert sorted(set(np.rint(uv[:, 0]).astype(int))) == list(range(10, 71))  # every line of the specimen, no other
+        assert np.allclose(np.sort(uv[:, 1].reshape(-1, 2), axis=1), [29.5, 50.5])  # its outermost crossings
+
+
 def test_no_specimen_is_a_clear_error() -> None:
     K, d = synthetic.camera()
     pf = np.zeros((4, 40, 60), np.float32)

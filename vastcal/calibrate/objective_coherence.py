@@ -56,6 +56,7 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.sampling import Atlas
+from vastcal.calibrate.specimen_parts import largest_region
 from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.errors import AnalysisError
 from vastcal.geometry import project, rot_x, rot_y, rot_z
@@ -118,22 +119,26 @@ def _crossings(profiles: np.ndarray, line: np.ndarray, a: np.ndarray, level: flo
 
 
 def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, level: float = 0.5, min_run_px: int = 3,
-                     all_runs: bool = False, max_axis_gap: float = 0.08, full_views: int = 41, min_lines: int = 8) -> EdgeSamples:
+                     all_runs: bool = False, full_views: int = 41, min_lines: int = 8) -> EdgeSamples:
     """Boundary samples of the specimen in every view, on scan lines across the rotation axis.
 
     Scan lines run perpendicular to the image of the axis (image columns when the axis is closer to
-    horizontal, rows otherwise). On each line, the run of ``pf > level`` that contains the axis (or
-    is nearest to it) is the specimen; static structures such as the capillary walls form other runs
-    and are ignored. Runs touching the image border are skipped (the specimen is cut there).
-    The ``max_lines`` scan lines are chosen evenly among the lines that have edges.
+    horizontal, rows otherwise). The specimen is the largest connected region of ``pf > level`` in
+    its view (one rigid body; static structures such as capillary walls, once :mod:`.silhouettes`
+    has cut them off, and debris are other regions). On each line its edges are the region's
+    outermost crossings — the first rise and the last fall — whatever lies between them (the gap
+    between a statue's legs, a pale notochord) and wherever the axis is: a statue standing off the
+    turntable's axis, or a larva beside it, is found as well as one the axis runs through. Lines where
+    the region reaches the image border are skipped (the specimen is cut there). The ``max_lines``
+    scan lines are chosen evenly among the lines that have edges.
 
     Args:
         pf: (N, H, W) foreground posteriors.
-        axis_uv: (N, L, 2) where the axis crosses each scan line in each view (``axis_crossings``).
+        axis_uv: (N, L, 2) where the axis crosses each scan line in each view (``axis_crossings``): it sets
+            the direction of the scan lines.
         max_lines: at most this many scan lines per view (evenly chosen among the usable ones).
-        all_runs: take the edges of every run, not only the one around the axis (for internal
-            features such as the eyes, which appear as one or two runs depending on the angle).
-        max_axis_gap: a specimen run must reach within this fraction of the scan line's length of the axis.
+        all_runs: take the edges of every run of every region, not only the specimen's outline (for
+            internal features such as the eyes, which appear as one or two runs depending on the angle).
         full_views, min_lines: up to ``full_views`` views every view gets ``max_lines`` scan lines; more
             views share the edge samples of ``full_views`` views (``max_lines`` × ``full_views`` / N lines
             each, at least ``min_lines``), so that an evaluation's cost stops growing with the views while
@@ -145,23 +150,19 @@ def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, l
     horizontal = axis_uv.shape[1] == w
     per_view: list[np.ndarray] = []
     for i in range(n):
+        inside = pf[i] > level
+        if not all_runs:
+            count, labels, big = largest_region(inside)
+            inside = labels == big if count > 2 else inside
         profiles = pf[i] if horizontal else pf[i].T  # (length, lines): column c is scan line c
         length = profiles.shape[0]
-        line, start, end = _line_runs(profiles > level)
+        line, start, end = _line_runs(inside if horizontal else inside.T)
+        if not all_runs and line.size:  # per line, the region's first start and last end (runs are ordered by line, then start)
+            first = np.r_[True, line[1:] != line[:-1]]
+            last = np.r_[line[1:] != line[:-1], True]
+            line, start, end = line[first], start[first], end[last]
         ok = (end - start >= min_run_px) & (start > 0) & (end < length)  # runs touching the border are cut
         line, start, end = line[ok], start[ok], end[ok]
-        if not all_runs and line.size:
-            # The specimen's run holds the axis (a tail tip may miss it by a little); a run far from the
-            # axis is a static structure such as a capillary wall. Per line, the run holding the axis or,
-            # failing that, the nearest (the first of equals).
-            a_pos = (axis_uv[i, :, 1] if horizontal else axis_uv[i, :, 0])[line]
-            margin = max_axis_gap * length
-            near = (start - margin <= a_pos) & (a_pos < end + margin)
-            line, start, end, a_pos = line[near], start[near], end[near], a_pos[near]
-            gap = np.where((start <= a_pos) & (a_pos < end), 0.0, np.minimum(np.abs(start - a_pos), np.abs(end - 1 - a_pos)))
-            order = np.lexsort((np.arange(line.size), gap, line))
-            first = order[np.unique(line[order], return_index=True)[1]]
-            line, start, end = line[first], start[first], end[first]
         lines = np.unique(line)
         if lines.size > max_lines:
             lines = lines[np.round(np.linspace(0, lines.size - 1, max_lines)).astype(int)]
