@@ -204,9 +204,15 @@ class PhaseProgress:
                 self._line(f"{self.label}: {self.current.name}  {100 * f:3.0f} %  "  # type: ignore[union-attr]
                            f"{format_duration(now - self.records[-1].t0)} elapsed  ETA {format_duration(eta)}")
 
-    def close(self) -> None:
-        """End the phase under way and the live display (call once, also on error)."""
-        self._end(self.clock())
+    def close(self, *, failed: bool | None = None) -> None:
+        """End the phase under way and the live display (call once, also on error).
+
+        ``failed``: the phase ended by an error, so it is reported as "stopped after …", not "done in …"; None (the
+        default) tells from whether an exception is propagating through the caller's ``finally``.
+        """
+        if failed is None:
+            failed = sys.exc_info()[0] is not None
+        self._end(self.clock(), failed=failed)
         if self._rich is not None:
             try:
                 self._rich.stop()
@@ -217,10 +223,10 @@ class PhaseProgress:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self.close()
+        self.close(failed=exc[0] is not None)
 
     # -- drawing --------------------------------------------------------------------------------
-    def _end(self, now: float) -> None:
+    def _end(self, now: float, *, failed: bool = False) -> None:
         cur = self.current
         if cur is None:
             return
@@ -228,9 +234,10 @@ class PhaseProgress:
         if not self.enabled:
             return
         if self.tty and self._rich is not None and self._task is not None:
-            self._rich.update(self._task, completed=1.0, done=True)
+            self._rich.update(self._task, done=True, failed=failed, **({} if failed else {"completed": 1.0}))
         elif not self.tty:
-            self._line(f"{self.label}: {cur.name}  done in {format_duration(now - cur.t0)}")
+            ending = "stopped after" if failed else "done in"
+            self._line(f"{self.label}: {cur.name}  {ending} {format_duration(now - cur.t0)}")
 
     def _line(self, text: str) -> None:
         try:
@@ -251,7 +258,7 @@ class PhaseProgress:
             def render(self, task: Any) -> Text:
                 eta, at = task.fields.get("eta_s", float("nan")), task.fields.get("eta_at", 0.0)
                 if task.fields.get("done"):
-                    return Text("ETA done")
+                    return Text("stopped" if task.fields.get("failed") else "ETA done")
                 return Text("ETA " + format_duration(max(0.0, eta - (clock() - at)) if eta == eta else eta))
 
         if self._rich is None:
@@ -266,7 +273,7 @@ class PhaseProgress:
                                   TextColumn("{task.fields[extra]}", table_column=Column(min_width=0, **fixed)),
                                   console=console, transient=False, refresh_per_second=4)
             self._rich.start()
-        self._task = self._rich.add_task(name, total=1.0, eta_s=float("nan"), eta_at=0.0, done=False, extra="")
+        self._task = self._rich.add_task(name, total=1.0, eta_s=float("nan"), eta_at=0.0, done=False, failed=False, extra="")
 
     def _rich_update(self, f: float, eta: float, extra: str) -> None:
         if self._rich is not None and self._task is not None:
@@ -354,12 +361,12 @@ class CountProgress:
         else:
             self.bar.update(0.0, text)
 
-    def close(self) -> None:
-        """End the phase and the live display (call once, also on error)."""
-        self.bar.close()
+    def close(self, *, failed: bool | None = None) -> None:
+        """End the phase and the live display (call once, also on error; ``failed`` as :meth:`PhaseProgress.close`)."""
+        self.bar.close(failed=failed)
 
     def __enter__(self) -> "CountProgress":
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self.close()
+        self.close(failed=exc[0] is not None)

@@ -54,6 +54,30 @@ def test_plain_mode_writes_one_line_per_phase_start_step_and_end_without_carriag
     assert all(e < 1e-9 for e in bar.records[0].eta_errors())  # steady rate: the ETA is exact
 
 
+def test_a_phase_ended_by_an_error_is_stopped_not_done() -> None:
+    """`vastcal calibrate foreign.h5` printed "colour model and specimen maps  done in 0.0 s" before its error line."""
+    clock, out = Clock(), io.StringIO()
+    bar = PhaseProgress("calibrate", out, tty=False, clock=clock)
+    with pytest.raises(ValueError):
+        try:
+            bar.phase("colour model and specimen maps")
+            clock.now += 1.5
+            raise ValueError("not a session")
+        finally:
+            bar.close()
+    assert out.getvalue().splitlines()[-1] == "calibrate: colour model and specimen maps  stopped after 1.5 s"
+    out2 = io.StringIO()
+    with pytest.raises(KeyError), PhaseProgress("import", out2, tty=False, clock=clock) as bar2:
+        bar2.phase("reading")
+        raise KeyError("x")
+    assert out2.getvalue().splitlines()[-1] == "import: reading  stopped after 0.0 s"
+    out3 = io.StringIO()
+    with PhaseProgress("measure", out3, tty=True) as bar3:  # on a terminal the bar says so too
+        bar3.phase("visual hull")
+        bar3.close(failed=True)
+    assert "stopped" in out3.getvalue()
+
+
 def test_terminal_mode_draws_with_rich_and_quiet_draws_nothing() -> None:
     out = io.StringIO()
     with PhaseProgress("calibrate", out, tty=True) as bar:
