@@ -543,8 +543,17 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
     if not ({"rolls", "all"} & free):
         out.update({"status": "not estimated", "reason": "the rolls were held at the commanded angles"})
         return out
+    spread = _starts_spread_deg(starts_theta)
+    if spread is not None:
+        out["starts_spread_rms_deg"] = spread
     if float(settings.get("roll_prior_weight", 1.0)) <= 0:
-        out.update({"status": "measured", "reason": "the rolls were free with no roll prior: the images alone decide them (no sigma estimated)"})
+        if spread is None:
+            out.update({"status": "measured", "reason": "the rolls were free with no roll prior: the images alone decide them (no sigma estimated)"})
+        else:  # the cost has no temperature without a prior: the starts' disagreement is the one dispersion measured
+            out.update({"status": "measured", "u_per_view_deg": spread,
+                        "reason": f"the rolls were free with no roll prior: the images alone decide them; the starts end {spread:.3g} deg "
+                                  f"apart per view (RMS over views of the standard deviation across {len(starts_theta)} starts; a repeatability, "
+                                  "not an accuracy)"})
         return out
     prior = float(settings.get("roll_prior_deg", 1.0) or 1.0)
     u, why = prior, f"they follow the roll prior (sigma {prior:g} deg about the commanded angles)"
@@ -567,10 +576,15 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
         out.update({"status": "undetermined", "u_per_view_deg": u,
                     "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: {why}; the true drift "
                               f"may be anywhere within about +-{u:.3g} deg per view"})
-    if starts_theta is not None and np.ndim(starts_theta) == 2 and len(starts_theta) > 1:
-        spread = np.std(np.asarray(starts_theta, float)[:, 4:], axis=0)
-        out["starts_spread_rms_deg"] = float(np.sqrt(np.mean(spread**2))) if spread.size else 0.0
     return out
+
+
+def _starts_spread_deg(starts_theta: np.ndarray | None) -> float | None:
+    """RMS over views 1 … N−1 of the rolls' standard deviation across the starts (S, 3 + N), degrees; None for fewer than 2."""
+    if starts_theta is None or np.ndim(starts_theta) != 2 or len(starts_theta) < 2:
+        return None
+    sd = np.std(np.asarray(starts_theta, float)[:, 4:], axis=0)
+    return float(np.sqrt(np.mean(sd**2))) if sd.size else 0.0
 
 
 # ---------------------------------------------------------------------------------------------

@@ -43,6 +43,20 @@ def test_drift_has_one_definition_and_a_status() -> None:
     assert U.drift_status(delta, source="imported")["status"] == "measured"
 
 
+def test_rolls_free_without_a_prior_state_the_starts_spread_as_their_dispersion() -> None:
+    """A turntable run with no roll prior (ETH David's rig file) stated no per-view uncertainty at all."""
+    delta = np.array([0.0, 0.3, -0.4, 0.1])
+    starts = np.zeros((3, 7))
+    starts[:, 4:] = [[0.1, -0.2, 0.0], [0.3, 0.0, 0.2], [0.2, -0.1, 0.1]]
+    kw = {"source": "calibration", "free": ["rolls"], "settings": {"roll_prior_weight": 0.0}}
+    st = U.drift_status(delta, starts_theta=starts, **kw)
+    sd = np.std(starts[:, 4:], axis=0)
+    assert st["status"] == "measured" and st["u_per_view_deg"] == pytest.approx(np.sqrt(np.mean(sd**2)))
+    assert st["starts_spread_rms_deg"] == st["u_per_view_deg"] and "3 starts" in st["reason"] and "repeatability" in st["reason"]
+    one = U.drift_status(delta, starts_theta=starts[:1], **kw)  # one start: nothing to compare, nothing claimed
+    assert one["status"] == "measured" and "u_per_view_deg" not in one and "no sigma" in one["reason"]
+
+
 def _with_calibration_run(path: Path, views: PhantomViews, starts: tuple[np.ndarray, list[float]] | None = None) -> Path:
     """Add a calibration run in the calibration's own layout (θ, K, distance, settings, bounds), at the true pose."""
     from vastcal.geometry import decompose_circular

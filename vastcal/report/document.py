@@ -458,8 +458,8 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
     drift = dict(c.get("drift") or {})
     drift.setdefault("status", "not available")
     drift.setdefault("reason", "")
-    drift_value = (f"{_num(c.get('drift_rms_deg'), '.3f')}° ± {_num(drift.get('u_per_view_deg'), 'g')}° per view"
-                   if drift["status"] == "undetermined" else f"{_num(c.get('drift_rms_deg'), '.3f')}°")
+    drift_value = (f"{_num(c.get('drift_rms_deg'), '.3f')}° ± {_num(drift.get('u_per_view_deg'), '.3g')}° per view"
+                   if drift.get("u_per_view_deg") is not None else f"{_num(c.get('drift_rms_deg'), '.3f')}°")
 
     def col(name: str, i: int) -> Any:
         vals = per_view.get(name) or []
