@@ -250,6 +250,13 @@ def _calibration_digest(cal: Any) -> dict[str, Any]:
         widths = getattr(cal, "roll_widths", None)
         if widths is not None and prior > 0:
             out["drift"] = widths.describe()
+        elif prior <= 0:
+            from vastcal.uncertainty import starts_spread_deg
+
+            starts = getattr(cal, "start_thetas", None)
+            spread = starts_spread_deg(starts)
+            out["drift"] = "measured by the images alone (no roll prior)" + (
+                f"; the {len(starts)} starts end {spread:.3g}° apart per view (a repeatability)" if spread is not None else "")
     return out
 
 

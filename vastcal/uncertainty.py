@@ -543,7 +543,7 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
     if not ({"rolls", "all"} & free):
         out.update({"status": "not estimated", "reason": "the rolls were held at the commanded angles"})
         return out
-    spread = _starts_spread_deg(starts_theta)
+    spread = starts_spread_deg(starts_theta)
     if spread is not None:
         out["starts_spread_rms_deg"] = spread
     if float(settings.get("roll_prior_weight", 1.0)) <= 0:
@@ -579,7 +579,7 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
     return out
 
 
-def _starts_spread_deg(starts_theta: np.ndarray | None) -> float | None:
+def starts_spread_deg(starts_theta: np.ndarray | None) -> float | None:
     """RMS over views 1 … N−1 of the rolls' standard deviation across the starts (S, 3 + N), degrees; None for fewer than 2."""
     if starts_theta is None or np.ndim(starts_theta) != 2 or len(starts_theta) < 2:
         return None

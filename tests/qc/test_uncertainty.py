@@ -57,6 +57,22 @@ def test_rolls_free_without_a_prior_state_the_starts_spread_as_their_dispersion(
     assert one["status"] == "measured" and "u_per_view_deg" not in one and "no sigma" in one["reason"]
 
 
+def test_run_summary_says_how_a_roll_without_prior_was_decided() -> None:
+    """`vastcal run` on a ground-truth test (no roll prior) printed the drift's RMS with nothing about it."""
+    from types import SimpleNamespace
+
+    from vastcal.pipeline import _calibration_digest
+
+    starts = np.zeros((3, 7))
+    starts[:, 4:] = [[0.1, -0.2, 0.0], [0.3, 0.0, 0.2], [0.2, -0.1, 0.1]]
+    cal = SimpleNamespace(delta_angle_deg=np.array([0.0, 0.3, -0.4, 0.1]), settings=SimpleNamespace(roll_prior_weight=0.0),
+                          roll_widths=None, start_thetas=starts)
+    text = _calibration_digest(cal)["drift"]
+    assert text.startswith("measured by the images alone (no roll prior)") and f"{U.starts_spread_deg(starts):.3g}° apart" in text
+    cal.start_thetas = None
+    assert _calibration_digest(cal)["drift"] == "measured by the images alone (no roll prior)"
+
+
 def _with_calibration_run(path: Path, views: PhantomViews, starts: tuple[np.ndarray, list[float]] | None = None) -> Path:
     """Add a calibration run in the calibration's own layout (θ, K, distance, settings, bounds), at the true pose."""
     from vastcal.geometry import decompose_circular
