@@ -509,7 +509,7 @@ class CoherenceObjective:
         J = self._partner_table(P.shape[1], views)
         own_rays = rays is None
         if own_rays:
-            rays = self.rays_cam if views is None else self.rays_cam[views]
+            rays = self._rays(views)
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
         threads = compute_threads()
@@ -526,6 +526,10 @@ class CoherenceObjective:
 
         run_slices(views_slice, range(0, n, step))
         return out
+
+    def _rays(self, views: np.ndarray | None = None) -> np.ndarray:
+        """Camera-frame directions (N, R, 3) of every view's edge rays, or (n, R, 3) of ``views``."""
+        return self.rays_cam if views is None else self.rays_cam[views]
 
     def _partner_table(self, n_views: int, views: np.ndarray | None = None) -> np.ndarray:
         """(N, K) partner views of every view (or (n, K) of ``views``): the table chosen at the first evaluation, or
@@ -676,7 +680,7 @@ class CoherenceObjective:
         derivative (b c − a e) / (c + e z)² has a constant numerator: the speed is largest where the partner's depth
         c + e z is least, at z0 or z1. Both are evaluated, in float64.
         """
-        rays = (self.rays_cam if views is None else self.rays_cam[views]).astype(np.float64)  # (n, R, 3)
+        rays = self._rays(views).astype(np.float64)  # (n, R, 3)
         J = self._partner_table(P.shape[1], views)
         Rd = R.astype(np.float64)
         D = rays[None] @ Rd  # (B, n, R, 3): world direction per unit depth
@@ -704,7 +708,7 @@ class CoherenceObjective:
         ±ρ/|D_yz| around it (D the ray's world direction per unit depth), an upper bound of the
         exact chord. Depths stay in front of the camera.
         """
-        rays = self.rays_cam if views is None else self.rays_cam[views]
+        rays = self._rays(views)
         D = rays[None] @ R  # (B, N, R, 3): rows (Rᵀ ray)ᵀ
         C = -(t[:, None, None, :] @ R)[:, :, 0]  # (B, N, 3) camera centres in the world: −Rᵀ t
         dyz = D[..., 1:]
