@@ -248,7 +248,7 @@ def _calibration_digest(cal: Any) -> dict[str, Any]:
         out["drift_rms_deg"] = drift_rms_deg(np.asarray(delta))[0]
         prior = getattr(getattr(cal, "settings", None), "roll_prior_weight", 1.0)
         widths = getattr(cal, "roll_widths", None)
-        if widths is not None and prior > 0:
+        if widths is not None:
             out["drift"] = widths.describe()
         elif prior <= 0:
             from vastcal.uncertainty import starts_spread_deg

@@ -233,7 +233,7 @@ class CalibrationResult:
     """Judge costs of the ``score_thetas`` given to :func:`calibrate_views`."""
     fixed_views: tuple[int, ...] = ()
     roll_widths: RollWidths | None = None
-    """How well the images pin each free roll (:mod:`.roll_width`); None when no roll was free."""
+    """How well the images pin each free roll (:mod:`.roll_width`); None when no roll was free or there was no roll prior."""
 
     @property
     def delta_angle_deg(self) -> np.ndarray:
@@ -249,7 +249,7 @@ class CalibrationResult:
         return (f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
                 f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
                 f"roll − commanded (views 1..N-1): RMS {drift_rms_deg(d)[0]:.3f}°, max {drift_rms_deg(d)[1]:.3f}°"
-                f"{' - ' + self.roll_widths.describe() if self.roll_widths is not None and self.settings.roll_prior_weight > 0 else ''}\n"
+                f"{' - ' + self.roll_widths.describe() if self.roll_widths is not None else ''}\n"
                 f"  cost {self.final_cost:.6g} (commanded angles: {self.theta0_cost:.6g}), best of {0 if self.start_costs is None else len(self.start_costs)} "
                 f"start(s), {'converged' if self.converged else 'NOT converged'}: {self.stop_reason}\n"
                 f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
@@ -896,7 +896,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             trace.append((evals_done, f))
     widths = None
     free_rolls = np.flatnonzero(space.free_mask[3:])
-    if free_rolls.size:
+    if free_rolls.size and settings.roll_prior_weight > 0:  # without a prior the cost has no temperature (see .roll_width)
         t_w = time.monotonic()
         clock.name_phase(1, "how well the images pin each roll")
         # One roll moved per candidate: this cost searches the rays once, at θ, and re-reads the moved views' windows only
