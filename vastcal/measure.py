@@ -89,6 +89,17 @@ def world_unit_words(length_unit: str) -> tuple[str, str]:
     return "(units of the cameras)", "the cameras' length unit is unknown: give it with 'vastcal import --length-unit'"
 
 
+def quantity_text(value_mm: float, u_mm: float | None, power: int, length_unit: str) -> str:
+    """``value ± U unit^power`` of a stored volume (``power`` 3, mm³) or area (2, mm²): mm with 4 or 3 decimals for a
+    known world unit; for ``px``/``unknown`` the stored value × 10⁹ or 10⁶ in :func:`world_unit_words`' unit, 6 digits."""
+    if length_unit not in ("px", "unknown"):
+        fmt, scale, unit = (".4f" if power == 3 else ".3f"), 1.0, "mm"
+    else:
+        fmt, scale, unit = ".6g", (UM3_PER_MM3 if power == 3 else UM2_PER_MM2), world_unit_words(length_unit)[0]
+    pm = f" ± {u_mm * scale:{fmt}}" if u_mm is not None else ""
+    return f"{value_mm * scale:{fmt}}{pm} {unit}^{power}"
+
+
 # ---------------------------------------------------------------------------------------------
 # Mesh
 # ---------------------------------------------------------------------------------------------
@@ -332,19 +343,18 @@ class Measurement:
         lower = bool((self.qc or {}).get("lower_bound"))
         k = f" (k = {u.get('k', 2):g})" if u else ""
         lb = " - a LOWER BOUND (specimen cut by the frame)" if lower else ""
-        if self.provenance.get("length_unit") in ("unknown", "px"):  # the world's unit is not known: no mm, no µm
-            wu, why = world_unit_words(str(self.provenance.get("length_unit")))
-            vol_u = f" ± {u['U_volume_mm3'] * UM3_PER_MM3:.6g}" if u.get("U_volume_mm3") is not None else ""
-            area_u = f" ± {u['U_area_mm2'] * UM2_PER_MM2:.6g}" if u.get("U_area_mm2") is not None else ""
-            lines = [f"volume        {self.volume_mm3 * UM3_PER_MM3:.6g}{vol_u} {wu}^3{k}{lb} (voxels inside all {self.n_views} silhouettes; {why})",
-                     f"surface area  {self.surface_area_mm2 * UM2_PER_MM2:.6g}{area_u} {wu}^2{k}{lb} (smoothed mesh)",
+        lu = str(self.provenance.get("length_unit", "um"))
+        volume = quantity_text(self.volume_mm3, u.get("U_volume_mm3"), 3, lu) + f"{k}{lb}"
+        area = quantity_text(self.surface_area_mm2, u.get("U_area_mm2"), 2, lu) + f"{k}{lb}"
+        if lu in ("unknown", "px"):  # the world's unit is not known: no mm, no µm
+            wu, why = world_unit_words(lu)
+            lines = [f"volume        {volume} (voxels inside all {self.n_views} silhouettes; {why})",
+                     f"surface area  {area} (smoothed mesh)",
                      f"voxel size    {self.voxel_size_um:.6g} {wu}, {self.n_inside_voxels} voxels inside"]
         else:
-            vol_u = f" ± {u['U_volume_mm3']:.4f}" if u.get("U_volume_mm3") is not None else ""
-            area_u = f" ± {u['U_area_mm2']:.3f}" if u.get("U_area_mm2") is not None else ""
-            lines = [f"volume        {self.volume_mm3:.4f}{vol_u} mm^3{k}{lb} (voxels inside all {self.n_views} silhouettes: the value to cite; "
+            lines = [f"volume        {volume} (voxels inside all {self.n_views} silhouettes: the value to cite; "
                      f"the smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3, a diagnostic)",
-                     f"surface area  {self.surface_area_mm2:.3f}{area_u} mm^2{k}{lb} (smoothed mesh, {self.mesh.n_faces} triangles)",
+                     f"surface area  {area} (smoothed mesh, {self.mesh.n_faces} triangles)",
                      f"voxel size    {self.voxel_size_um:.2f} um, {self.n_inside_voxels} voxels inside"]
         if u.get("not_evaluated"):
             lines.append(f"uncertainty   not evaluated: {', '.join(u['not_evaluated'])} (the interval leaves them out)")

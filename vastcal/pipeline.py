@@ -43,20 +43,16 @@ class RunSummary:
 
     def summary(self) -> str:
         """Human lines: measurements with units, calibration, timings, truth comparison."""
-        from vastcal.measure import UM2_PER_MM2, UM3_PER_MM3, world_unit_words
+        from vastcal.measure import quantity_text, world_unit_words
 
         lines = [f"session          {self.session}"]
         u = self.uncertainty
         k = f" (k = {u.get('k', 2):g})" if u else ""
-        known = self.length_unit not in ("px", "unknown")
-        unit, why = ("mm", "") if known else world_unit_words(self.length_unit)
-        fv, fa, sv, sa = (".4f", ".3f", 1.0, 1.0) if known else (".6g", ".6g", UM3_PER_MM3, UM2_PER_MM2)
+        why = world_unit_words(self.length_unit)[1] if self.length_unit in ("px", "unknown") else ""
         if self.volume_mm3 is not None:
-            lines.append(f"volume           {self.volume_mm3 * sv:{fv}}" + (f" ± {u['U_volume_mm3'] * sv:{fv}}" if u.get("U_volume_mm3") is not None else "")
-                         + f" {unit}^3{k}" + (f" ({why})" if why else ""))
+            lines.append(f"volume           {quantity_text(self.volume_mm3, u.get('U_volume_mm3'), 3, self.length_unit)}{k}" + (f" ({why})" if why else ""))
         if self.surface_area_mm2 is not None:
-            lines.append(f"surface area     {self.surface_area_mm2 * sa:{fa}}" + (f" ± {u['U_area_mm2'] * sa:{fa}}" if u.get("U_area_mm2") is not None else "")
-                         + f" {unit}^2{k}")
+            lines.append(f"surface area     {quantity_text(self.surface_area_mm2, u.get('U_area_mm2'), 2, self.length_unit)}{k}")
         if self.verdict:
             lines.append(f"verdict          {self.verdict}")
         if self.calibration:

@@ -170,22 +170,17 @@ def _calibration_summary(s: Any, cal_run: str | None, P: np.ndarray,
     return out, delta, cost
 
 
-#: What report.json says of a world whose unit is not known (its numbers are in that unit, scaled as if it were µm).
-_UNKNOWN_UNIT_NOTES = {"px": "pixel size unknown - measurements in pixels (vastcal import --pixel-size-um or --config)",
-                       "unknown": "the cameras' length unit is unknown (vastcal import --length-unit): values are in the cameras' own units"}
-
-
 def _measurement_units(length_unit: str) -> dict[str, str]:
     """report.json's ``units`` of a measurement in a world of ``length_unit`` (the stored labels,
-    :func:`vastcal.measure.measurement_units`)."""
+    :func:`vastcal.measure.measurement_units`; for a world of unknown unit, :func:`vastcal.measure.world_unit_words`' note)."""
     from vastcal.measure import measurement_units, world_unit_words
 
     volume, area = measurement_units(length_unit)
     units = {"volume_mm3": volume, "mesh_volume_mm3": volume, "surface_area_mm2": area, "raw_surface_area_mm2": area}
-    if length_unit not in _UNKNOWN_UNIT_NOTES:
+    if length_unit not in ("px", "unknown"):
         return {**units, "voxel_size_um": "um", "iso_level": "silhouettes"}
-    return {**units, "voxel_size_um": world_unit_words(length_unit)[0].strip("()"), "iso_level": "silhouettes",
-            "note": _UNKNOWN_UNIT_NOTES[length_unit]}
+    unit, why = world_unit_words(length_unit)
+    return {**units, "voxel_size_um": unit.strip("()"), "iso_level": "silhouettes", "note": why}
 
 
 def cost_trace_columns(trace: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
