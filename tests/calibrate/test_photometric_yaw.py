@@ -268,3 +268,21 @@ def test_the_cost_does_not_depend_on_how_many_threads_blas_is_given() -> None:
                              capture_output=True, text=True, timeout=300, check=True)
         runs.append(out.stdout.strip())
     assert runs[0] == runs[1]
+
+
+def test_splats_off_the_frame_stay_within_their_own_view() -> None:
+    """A specimen cut by the frame in every view (simulated larvae 24 and 28 of the battery) has voxels whose splats fall
+    off the frame; their pixel index was 0 — view 0's — so a later view's row sums (bincount of its indices less its
+    offset) met negative indices and the calibration stopped with an internal error."""
+    from types import SimpleNamespace
+
+    h, w = 8, 10
+    K = np.array([[100.0, 0.0, 4.5], [0.0, 100.0, 3.5], [0.0, 0.0, 1.0]])
+    P = projection_matrices(K, 1000.0, np.array([[0.0, 0.0, 0.0, 0.0, 90.0]]))[0]
+    X = np.array([[0.0, 0.0, 0.0], [0.0, 300.0, 0.0], [0.0, 0.0, -300.0], [400.0, 0.0, 0.0]])  # one inside, three off the frame
+    match = SimpleNamespace(shape=(2, h, w), _Xt=np.ascontiguousarray(X.T), voxel_um=1.0, voxel_across_um=1.0, K=K)
+    for i in range(2):
+        pixel, weight = AbsorptionMatch._splats(match, P, i, slice(None))
+        assert np.all((pixel >= i * h * w) & (pixel < (i + 1) * h * w))
+        assert np.all(np.isfinite(weight)) and weight.sum(axis=0)[0] > 0 and np.any(weight == 0)
+        np.bincount(pixel.ravel() - i * h * w, weight.ravel(), minlength=h * w)  # the row sums of system()

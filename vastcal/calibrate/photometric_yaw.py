@@ -275,7 +275,8 @@ class AbsorptionMatch:
 
     def _splats(self, P: np.ndarray, i: int, voxels: slice) -> tuple[np.ndarray, np.ndarray]:
         """(pixel, weight), each (4, M'): the bilinear splat of the voxels ``voxels`` in view ``i`` (cameras ``P``):
-        flat pixel indices of the maps (0 with weight 0 outside the frame) and line-integral weights."""
+        flat pixel indices of the maps, all within view ``i``'s (its first pixel, with weight 0, where a corner falls off
+        the frame) and line-integral weights."""
         _, h, w = self.shape
         x = P[i, :, :3] @ self._Xt[:, voxels] + P[i, :, 3:]
         u, v, z = x[0] / x[2], x[1] / x[2], x[2]
@@ -287,7 +288,7 @@ class AbsorptionMatch:
         for k, (du, dv, wt) in enumerate(((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))):
             uu, vv = u0 + du, v0 + dv
             ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-            pixel[k] = np.where(ok, i * h * w + vv * w + uu, 0)
+            pixel[k] = i * h * w + np.where(ok, vv * w + uu, 0)  # off the frame: the view's first pixel, with weight 0
             weight[k] = np.where(ok, wt, 0.0) * scale
         return pixel, weight
 
