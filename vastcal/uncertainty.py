@@ -302,8 +302,10 @@ def edge_component(mesh: "Mesh", P: np.ndarray, sigma_px: float) -> tuple[Compon
         return Component("edge", None, None, "silhouette edge localisation", "no view with a measurable edge (blank or uniform frames)"), {}
     centre = mesh.vertices.mean(axis=0)
     scale = float(np.mean(um_per_px(P, centre)))
-    dv, da = normal_shift_sensitivity(mesh)
     shift = sigma_px * scale
+    # The derivative over the shift itself: a fixed step is far beyond it for a specimen that is small in µm (a world of
+    # unknown unit, read as µm), whose mesh then turns inside out where it is thin.
+    dv, da = normal_shift_sensitivity(mesh, step_um=shift if shift > 0 else 1e-3 * scale)
     comp = Component("edge", abs(dv) * shift, abs(da) * shift,
                      f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
                      "volume and area re-measured",

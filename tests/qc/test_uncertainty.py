@@ -213,3 +213,22 @@ def test_the_yaw_sigma_is_the_prior_s_when_the_photometric_yaw_did_not_run() -> 
                                ({}, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw")):
         sig, src = open_directions_sigma(3 + 6, ["yaw", "pitch", "gamma", "rolls"], settings, _photometric_yaw_ran(attrs))
         assert sig[0] == sigma and says in src
+
+
+def test_edge_sensitivity_is_taken_over_the_edge_shift_not_a_fixed_micrometre() -> None:
+    """A specimen 0.3 µm thick (a world of unknown unit is read as µm: ETH David's statue is ~2 units tall) moved 1 µm
+    along its normals turns inside out where it is thin; its edge line then overstated dV/dn (1.45 × the area here; ETH
+    David's statue ~7 ×, a ±2.9 units³ interval on 1.1 units³). The derivative is taken over the σ_edge shift itself:
+    dV/dn = area (fails on the previous code)."""
+    from vastcal.measure import marching_cubes_mesh
+
+    h = 0.02
+    ax = np.arange(-170, 171) * h
+    X, Y, Z = np.meshgrid(ax, np.arange(-20, 21) * h, np.arange(-20, 21) * h, indexing="ij")
+    field = (1.0 - np.sqrt((X / 3.0) ** 2 + (Y / 0.3) ** 2 + (Z / 0.3) ** 2)).astype(np.float32)
+    mesh = marching_cubes_mesh(field, 0.0, np.array([ax[0], -20 * h, -20 * h]), h)
+    f, distance = 1000.0, 100.0  # 0.1 µm per pixel at the specimen
+    P = np.array([[f, 0, 500, 500 * distance], [0, f, 500, 500 * distance], [0, 0, 1, distance]])
+    comp, details = U.edge_component(mesh, P[None], sigma_px=0.5)
+    assert details["um_per_px"] == pytest.approx(0.1, rel=0.02)
+    assert comp.u_volume_mm3 * 1e9 / details["edge_shift_um"] == pytest.approx(mesh.area_um2(), rel=0.03)
