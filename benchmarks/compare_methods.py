@@ -13,6 +13,8 @@ as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel samp
   its data README's; dinoRing: brightest channel > 0.19 of full scale, Middlebury's; the largest connected region,
   closed by 5 px; object 230, background 20): how well clean binary silhouettes pin the rolls down, apart from the
   colour model.
+* ``--mask-view V``: the colour model from view V's silhouette by that rule, given as a user's ``calibrate --mask``
+  (everything outside it, the turntable included, marked background).
 * ``--start-at-truth``: the same runs with the commanded angles at the truth (no offset views): a search that finds its
   cost's minimum stays within 0.1° mean unless that minimum is not at the truth (compare the cost columns).
 * ``--fixed-unperturbed``: the paper's protocol — the views that are not offset keep their (true) commanded rolls
@@ -24,7 +26,7 @@ level's batch-independent cost), printed beside the final cost. Usage (CPU-heavy
 CPU per start, dinoRing several):
 
     python benchmarks/compare_methods.py [--data zf,david,dino] [--methods coherence,pi,vr] [--seeds 0] [--starts 1] [--start-at-truth]
-                                         [--threshold-masks] [--fixed-unperturbed]
+                                         [--threshold-masks] [--mask-view V] [--fixed-unperturbed]
 """
 
 from __future__ import annotations
@@ -70,15 +72,22 @@ def threshold_mask_images(src: Path, out: Path, pattern: str, keep: str) -> Path
 
     out.mkdir(parents=True, exist_ok=True)
     for f in sorted(src.glob(pattern)):
-        im = cv2.imread(str(f))
-        fg = (cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) > 100 if f.suffix == ".jpg" else im.max(axis=-1) > 0.19 * 255).astype(np.uint8)
-        _, labels, stats, _ = cv2.connectedComponentsWithStats(fg)
-        mask = cv2.morphologyEx((labels == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8), cv2.MORPH_CLOSE,
-                               np.ones((5, 5), np.uint8))
+        mask = threshold_mask(f)
         cv2.imwrite(str(out / f.with_suffix(".png").name), np.where(mask[..., None] > 0, np.uint8([230] * 3), np.uint8([20] * 3)))
     for p in src.glob(keep):
         shutil.copy(p, out / p.name)
     return out
+
+
+def threshold_mask(image: Path) -> np.ndarray:
+    """The silhouette (H, W) uint8 0/1 of one image of a ground-truth set by its own rule (:func:`threshold_mask_images`)."""
+    import cv2
+
+    im = cv2.imread(str(image))
+    fg = (cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) > 100 if image.suffix == ".jpg" else im.max(axis=-1) > 0.19 * 255).astype(np.uint8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(fg)
+    return cv2.morphologyEx((labels == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8), cv2.MORPH_CLOSE,
+                            np.ones((5, 5), np.uint8))
 
 
 def _gauge_free(theta: np.ndarray, true_rolls: np.ndarray) -> np.ndarray:
@@ -157,8 +166,10 @@ OFFSET_VIEWS = {"david": np.arange(1, 18, 2)[:9].tolist() + [16], "dino": list(r
 
 
 def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], starts: int, at_truth: bool = False,
-                  threshold_masks: bool = False, fixed_unperturbed: bool = False) -> None:
+                  threshold_masks: bool = False, fixed_unperturbed: bool = False, mask_view: int | None = None) -> None:
     offset = OFFSET_VIEWS[name]
+    images = sorted((DATA / "eth_david").glob("david_*.jpg")) if name == "david" else sorted((DATA / "middlebury_dinoRing").glob("dinoR0*.png"))
+    mask = None if mask_view is None else (mask_view, threshold_mask(images[mask_view]))
     if name == "david":
         folder = threshold_mask_images(DATA / "eth_david", tmp / "masks", "david_*.jpg", "david_*.pa") if threshold_masks else DATA / "eth_david"
         s, true_rolls = _truth_session(tmp, name, folder, folder, 18, [] if at_truth else offset, 0.5, None)
@@ -176,6 +187,7 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
     truth[3:] = true_rolls
     start_mean, start_max = _angle_errors(theta0, true_rolls)
     masks = " on the threshold masks" if threshold_masks else ""
+    masks += f", colour model from view {mask_view}'s threshold mask" if mask is not None else ""
     protocol = f", views {offset} free, the others fixed (errors over the free views, absolute)" if fixed else ""
     print(f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)")
     print(f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
@@ -186,7 +198,7 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
             t = time.perf_counter()
             scan = _view_scans(truth) if at_truth else []
             r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                                  settings=settings, starts=starts, score_thetas=[truth] + scan, fixed_views=fixed,
+                                  settings=settings, starts=starts, score_thetas=[truth] + scan, fixed_views=fixed, mask=mask,
                                   judge_imported_cameras=False)  # the truth: not to be seen
             wall = time.perf_counter() - t
             if fixed:  # the fixed views pin the common roll: absolute errors, summarised over the free views
@@ -238,6 +250,9 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=1)
     ap.add_argument("--start-at-truth", action="store_true", help="commanded angles = the true ones (no offset views)")
     ap.add_argument("--threshold-masks", action="store_true", help="the data's own threshold silhouettes as the images (ground-truth sets)")
+    ap.add_argument("--mask-view", type=int, default=None,
+                    help="ground-truth sets: the colour model from this view's mask by the data's own threshold rule, as a user's "
+                         "`calibrate --mask VIEW:FILE` (a turntable marked as background)")
     ap.add_argument("--fixed-unperturbed", action="store_true", help="the paper's protocol: only the offset views' rolls free")
     a = ap.parse_args()
     methods = a.methods.split(",")
@@ -247,7 +262,8 @@ def main() -> None:
             if name == "zf":
                 run_zebrafish(Path(tmp), methods, seeds, a.starts)
             else:
-                run_truth_set(Path(tmp), name, methods, seeds, a.starts, a.start_at_truth, a.threshold_masks, a.fixed_unperturbed)
+                run_truth_set(Path(tmp), name, methods, seeds, a.starts, a.start_at_truth, a.threshold_masks, a.fixed_unperturbed,
+                              a.mask_view)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,8 @@ top where the feet stand, dark grey (albedo 0.22) with paler blotches (up to +0.
 with the figure — between the background's brightness and the figure's, partly taken for the specimen by the
 automatic colour model, as the real turntable is. The truth is still the cameras; the cost at the truth rises
 twelvefold (0.0245 → 0.29 with stop 31's edges): what a turntable in the silhouettes does to the calibration.
+``--mask`` gives the calibration view 0's figure mask (the pixels that see the figure first), as a user's ``vastcal
+calibrate --mask 0:FILE`` marks the turntable as background (:mod:`vastcal.calibrate.marks`).
 
 The frames (PNG) and a ``name K R t`` camera file (Middlebury's format, 0-based pixel centres) are imported with
 ``vastcal.importer.import_folder``; as in benchmarks/calibrate_david.py the commanded angles of 10 views are offset
@@ -39,7 +41,7 @@ cProfile sees only the main thread, so ``--profile`` sets ``VASTCAL_THREADS=1`` 
 thread) unless it is set; profiling also slows the run: take the wall time from a run without it.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/turntable_speed.py [--seed N] [--views 36] [--width 720 --height 576]
-        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable] [--chords bounded|dense|verify] [--profile]
+        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable [--mask]] [--chords bounded|dense|verify] [--profile]
 """
 
 from __future__ import annotations
@@ -148,8 +150,8 @@ def disc_texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def cast(rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellipsoid], ambient: float,
-         disc: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """(hit, radiance 0..1) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest intersection,
+         disc: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest intersection,
     Lambert-shaded from the direction ``light`` (unit, towards the lamp) plus the ``ambient`` share of the light,
     with a texture fixed to the object. ``disc``: the rays also meet the turntable (:data:`DISC_RADIUS` …), textured by
     :func:`disc_texture`."""
@@ -189,7 +191,7 @@ def cast(rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellips
                       0.86 + 0.14 * np.sin(7.0 * p[:, 0]) * np.sin(6.0 * p[:, 1] + 1.0) * np.sin(5.0 * p[:, 2]))
     value = np.zeros(len(rays))
     value[seen] = albedo * (ambient + (1.0 - ambient) * np.clip(n @ light, 0.0, None))
-    return seen, value
+    return seen, value, seen & ~table
 
 
 def bounding_box(K: np.ndarray, R: np.ndarray, t: np.ndarray, body: list[Ellipsoid], disc: bool = False) -> tuple[int, int, int, int]:
@@ -222,7 +224,7 @@ def render(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
     light = R.T @ lamp / np.linalg.norm(lamp)
     to_world = R.T @ np.linalg.inv(K)
     gy, gx = np.mgrid[y0:y1, x0:x1].astype(float)
-    h, v = cast(np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1) @ to_world.T, eye, light, body, ambient, disc)
+    h, v, _ = cast(np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1) @ to_world.T, eye, light, body, ambient, disc)
     hit = np.zeros((height, width), bool)
     value = np.zeros((height, width))
     hit[y0:y1, x0:x1], value[y0:y1, x0:x1] = h.reshape(gx.shape), v.reshape(gx.shape)
@@ -232,7 +234,7 @@ def render(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
     sub = (np.arange(SUPERSAMPLE) + 0.5) / SUPERSAMPLE - 0.5
     sy, sx = (a.ravel() for a in np.meshgrid(sub, sub, indexing="ij"))
     pix = np.stack([(ex[:, None] + sx).ravel(), (ey[:, None] + sy).ravel(), np.ones(ex.size * sx.size)], 1)
-    h, v = cast(pix @ to_world.T, eye, light, body, ambient, disc)
+    h, v, _ = cast(pix @ to_world.T, eye, light, body, ambient, disc)
     cover = h.reshape(ex.size, -1).mean(1)
     shade = v.reshape(ex.size, -1).sum(1) / np.maximum(h.reshape(ex.size, -1).sum(1), 1)
     background = np.repeat(18.0 + 10.0 * (np.arange(height) / height)[:, None], width, 1)  # a dim gradient
@@ -244,9 +246,23 @@ def render(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
     return np.clip(np.round(rgb), 0, 255).astype(np.uint8)
 
 
+def figure_mask(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int, body: list[Ellipsoid],
+                disc: bool) -> np.ndarray:
+    """The pixels (H, W) uint8 0/255 whose centre sees the figure first (not the turntable in front of it): the mask a
+    user would draw of the view."""
+    x0, y0, x1, y1 = bounding_box(K, R, t, body, disc)
+    gy, gx = np.mgrid[y0:y1, x0:x1].astype(float)
+    eye = -R.T @ t
+    _, _, fig = cast(np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1) @ (R.T @ np.linalg.inv(K)).T, eye,
+                     np.array([0.0, 0.0, 1.0]), body, 0.5, disc)
+    out = np.zeros((height, width), np.uint8)
+    out[y0:y1, x0:x1] = 255 * fig.reshape(gx.shape)
+    return out
+
+
 def write_set(folder: Path, n: int, width: int, height: int, scene_seed: int, ambient: float, disc: bool = False) -> np.ndarray:
-    """Render the set into ``folder`` (``view_NN.png``) and write ``cameras.txt`` (``name K R t``) beside it;
-    returns the cameras (n, 3, 4)."""
+    """Render the set into ``folder`` (``images/view_NN.png``) and write ``cameras.txt`` (``name K R t``) and view 0's
+    figure mask (``mask_00.png``, :func:`figure_mask`) beside it; returns the cameras (n, 3, 4)."""
     rng = np.random.default_rng(scene_seed)
     K, R, t = cameras(n, width, height, rng)
     body = statuette()
@@ -258,6 +274,7 @@ def write_set(folder: Path, n: int, width: int, height: int, scene_seed: int, am
         cv2.imwrite(str(images / name), cv2.cvtColor(render(K, R[i], t[i], width, height, body, rng, ambient, disc), cv2.COLOR_RGB2BGR))
         lines.append(" ".join([name] + [f"{x:.12g}" for x in (*K.ravel(), *R[i].ravel(), *t[i])]))
     (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
+    cv2.imwrite(str(folder / "mask_00.png"), figure_mask(K, R[0], t[0], width, height, body, disc))
     return K @ np.concatenate([R, t[:, :, None]], 2)
 
 
@@ -336,6 +353,7 @@ def main() -> None:
                     help="the coherence cost's search along the chords (see the module docstring)")
     ap.add_argument("--profile", action="store_true", help="run the calibration under cProfile (slower)")
     ap.add_argument("--turntable", action="store_true", help="stand the figure on a textured grey turntable (see the module docstring)")
+    ap.add_argument("--mask", action="store_true", help="the colour model from view 0's figure mask, as `calibrate --mask 0:FILE`")
     a = ap.parse_args()
     n = a.views
     if a.profile and not os.environ.get(THREADS_ENV):
@@ -369,7 +387,8 @@ def main() -> None:
         with bar:
             r: CalibrationResult = calibrate_session(session, method="coherence", seed=a.seed, free=["rolls"],
                                                      bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0), settings=settings,
-                                                     progress=CalibrationProgress(bar), score_thetas=[truth], judge_imported_cameras=False)
+                                                     progress=CalibrationProgress(bar), score_thetas=[truth], judge_imported_cameras=False,
+                                                     mask=(0, cv2.imread(str(tmp / "mask_00.png"), cv2.IMREAD_GRAYSCALE)) if a.mask else None)
         if profiler is not None:
             profiler.disable()
         wall, mono1 = time.perf_counter() - t0, time.monotonic()

@@ -48,6 +48,8 @@ from vastcal.errors import ColourModelError, UserInputError
 log = logging.getLogger(__name__)
 
 Space = Literal["rgb", "grey"]
+#: How a marked background is modelled (:func:`fit_from_scribbles`).
+Background = Literal["dominant", "mixture"]
 
 #: χ² quantiles used by the robust fits, by number of channels (1 or 3).
 _CHI2_975 = {1: 5.024, 3: 9.348}
@@ -65,6 +67,10 @@ PIXEL_CHUNK = 1 << 20
 #: 1024 × 320 frames). The fit draws ``max_samples`` pixels from them: more views add no information about two
 #: colour clusters, only memory (a float32 feature per pixel and channel).
 MAX_FIT_PIXELS = 24_000_000
+
+#: Marked background pixels a :class:`GaussianMixture` is fitted from at most (drawn reproducibly): enough for
+#: five full-covariance RGB components many times over, and a fit of well under a second.
+MAX_MIXTURE_SAMPLES = 20_000
 
 #: Variance floor of every channel (features in [0, 1]): σ ≥ 0.01, i.e. 2.5 levels of 8 bits, so that
 #: a saturated or quantised background does not make a needle-thin Gaussian.
@@ -239,7 +245,104 @@ class Gaussian:
         return out.reshape(x.shape[:-1]).astype(np.float32)
 
 
-def bhattacharyya(a: Gaussian, b: Gaussian) -> float:
+@dataclass(frozen=True)
+class GaussianMixture:
+    """Σ_k w_k N(x; μ_k, Σ_k) over pixel features: a background of several materials.
+
+    A marked background is often not one colour: the backdrop, a grey turntable and its paler lit
+    patches, a floor, capillary walls. One Gaussian fitted to all of it is wide enough to claim the
+    specimen's paler or darker parts; fitted robustly to its dominant cluster (the backdrop) it leaves
+    the other materials to the specimen, whose wide Gaussian then explains them better. A mixture gives
+    each material its own component. Where one colour of the background is asked for (the contrast of
+    an edge, the gate of faint halos, the separation check) its *dominant* component — the largest weight,
+    the backdrop — stands for it.
+    """
+
+    weights: np.ndarray
+    parts: tuple[Gaussian, ...]
+
+    @property
+    def dominant(self) -> Gaussian:
+        """The component of largest weight."""
+        return self.parts[int(np.argmax(self.weights))]
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.dominant.mean
+
+    @property
+    def cov(self) -> np.ndarray:
+        return self.dominant.cov
+
+    def mahalanobis2(self, x: np.ndarray) -> np.ndarray:
+        """Squared Mahalanobis distance of features x (…, C) from the dominant component."""
+        return self.dominant.mahalanobis2(x)
+
+    def log_pdf(self, x: np.ndarray) -> np.ndarray:
+        """log Σ_k w_k N(x; μ_k, Σ_k) for features x (…, C), float32."""
+        logs = [g.log_pdf(x) + np.float32(np.log(w)) for w, g in zip(self.weights, self.parts)]
+        out = logs[0]
+        for lk in logs[1:]:
+            out = np.logaddexp(out, lk)
+        return out.astype(np.float32)
+
+    @classmethod
+    def fit(cls, samples: np.ndarray, *, max_components: int = 5, rounds: int = 40, tol: float = 1e-5) -> "GaussianMixture":
+        """The mixture of 1 … ``max_components`` components of least BIC, each fitted by EM.
+
+        BIC = −2 log L + p ln M (p parameters, M samples) chooses the number of materials from the data:
+        a one-colour background gets one component (a plain fit), a turntable scene several. EM starts from
+        the samples split into equal-count groups along their first principal axis (deterministic) and stops
+        when the mean log-likelihood changes by less than ``tol`` or after ``rounds``; a component left with
+        too few samples to fit is dropped.
+        """
+        s = np.asarray(samples, np.float64)
+        m, c = s.shape
+        best: tuple[float, GaussianMixture] | None = None
+        for k in range(1, max(1, int(max_components)) + 1):
+            if m < k * (4 * c + 4):
+                break
+            mix, loglik = cls._em(s, k, rounds, tol)
+            k_eff = len(mix.parts)
+            bic = -2.0 * loglik + (k_eff * (c + c * (c + 1) / 2) + k_eff - 1) * np.log(m)
+            if best is None or bic < best[0]:
+                best = (bic, mix)
+        if best is None:
+            raise ColourModelError(f"too few pixels ({m}) to fit a colour model")
+        return best[1]
+
+    @classmethod
+    def _em(cls, s: np.ndarray, k: int, rounds: int, tol: float) -> tuple["GaussianMixture", float]:
+        m, c = s.shape
+        d = s - s.mean(axis=0)
+        axis = np.linalg.svd(d[:: max(1, m // 20000)], full_matrices=False)[2][0]
+        order = np.argsort(d @ axis, kind="stable")
+        resp = np.zeros((m, k))
+        resp[order, np.minimum(np.arange(m) * k // m, k - 1)] = 1.0
+        s32 = s.astype(np.float32)
+        outer = (s[:, :, None] * s[:, None, :]).reshape(m, c * c)  # x xᵀ of every sample: the M-step's second moments
+        last = loglik = -np.inf
+        for _ in range(max(1, rounds)):
+            mass = resp.sum(axis=0)
+            keep = mass >= 2 * c + 2
+            resp, mass = resp[:, keep], mass[keep]
+            means = (resp.T @ s) / mass[:, None]
+            second = (resp.T @ outer).reshape(-1, c, c) / mass[:, None, None]
+            covs = second - means[:, :, None] * means[:, None, :] + MIN_VAR * np.eye(c)
+            parts = tuple(Gaussian(mu, cov) for mu, cov in zip(means, covs))
+            weights = mass / m
+            logs = np.stack([g.log_pdf(s32) for g in parts], axis=1).astype(np.float64) + np.log(weights)
+            top = logs.max(axis=1, keepdims=True)
+            total = top[:, 0] + np.log(np.exp(logs - top).sum(axis=1))
+            resp = np.exp(logs - total[:, None])
+            loglik = float(total.sum())
+            if abs(loglik - last) <= tol * m:
+                break
+            last = loglik
+        return cls(np.asarray(weights, float), parts), loglik
+
+
+def bhattacharyya(a: Gaussian | GaussianMixture, b: Gaussian | GaussianMixture) -> float:
     """Bhattacharyya distance between two Gaussians (0 = identical; > 1 well separated)."""
     S = (a.cov + b.cov) / 2
     d = a.mean - b.mean
@@ -255,7 +358,9 @@ class ColourModel:
     """Foreground and background Gaussians, the foreground prior and the feature space.
 
     Attributes:
-        fg, bg: the two Gaussians over features in [0, 1].
+        fg: the specimen's Gaussian over features in [0, 1].
+        bg: the background's Gaussian, or a :class:`GaussianMixture` of its materials (models fitted from a
+            user's mask or scribbles).
         prior_fg: π_f, prior probability of a specimen pixel.
         space: ``"rgb"`` or ``"grey"`` (the images it applies to).
         source: how it was learned (``"automatic"``, ``"mask:view 3"``, ``"scribbles:view 0"``).
@@ -263,7 +368,7 @@ class ColourModel:
     """
 
     fg: Gaussian
-    bg: Gaussian
+    bg: Gaussian | GaussianMixture
     prior_fg: float
     space: Space
     source: str = "automatic"
@@ -324,10 +429,18 @@ class ColourModel:
 
     # -- storage -------------------------------------------------------------------------------
     def to_group(self, group: h5py.Group) -> None:
-        """Write ``fg_mean``, ``fg_cov``, ``bg_mean``, ``bg_cov`` and attrs space, prior, source, eps."""
+        """Write ``fg_mean``, ``fg_cov``, ``bg_mean``, ``bg_cov`` and attrs space, prior, source, eps.
+
+        A mixture background also writes ``bg_weights`` (K,), ``bg_means`` (K, C) and ``bg_covs`` (K, C, C);
+        ``bg_mean``/``bg_cov`` are then its dominant component's.
+        """
         for name, g in (("fg", self.fg), ("bg", self.bg)):
             group.create_dataset(f"{name}_mean", data=np.asarray(g.mean, float))
             group.create_dataset(f"{name}_cov", data=np.asarray(g.cov, float))
+        if isinstance(self.bg, GaussianMixture):
+            group.create_dataset("bg_weights", data=np.asarray(self.bg.weights, float))
+            group.create_dataset("bg_means", data=np.stack([np.asarray(g.mean, float) for g in self.bg.parts]))
+            group.create_dataset("bg_covs", data=np.stack([np.asarray(g.cov, float) for g in self.bg.parts]))
         group.attrs["space"] = self.space
         group.attrs["prior"] = float(self.prior_fg)
         group.attrs["source"] = self.source
@@ -341,7 +454,11 @@ class ColourModel:
         def s(v: object) -> str:
             return v.decode() if isinstance(v, bytes) else str(v)
 
-        return cls(Gaussian(group["fg_mean"][...], group["fg_cov"][...]), Gaussian(group["bg_mean"][...], group["bg_cov"][...]),
+        bg: Gaussian | GaussianMixture = Gaussian(group["bg_mean"][...], group["bg_cov"][...])
+        if "bg_weights" in group:
+            bg = GaussianMixture(np.asarray(group["bg_weights"][...], float),
+                                 tuple(Gaussian(mu, cov) for mu, cov in zip(group["bg_means"][...], group["bg_covs"][...])))
+        return cls(Gaussian(group["fg_mean"][...], group["fg_cov"][...]), bg,
                    float(group.attrs["prior"]), s(group.attrs["space"]),  # type: ignore[arg-type]
                    s(group.attrs.get("source", "stored")), float(group.attrs.get("eps", 1e-4)))
 
@@ -360,25 +477,45 @@ def _prior(p: float) -> float:
     return float(np.clip(p, 0.02, 0.5))
 
 
-def fit_from_mask(image: np.ndarray, mask: np.ndarray, *, view: int = 0, min_separation: float = 0.5) -> ColourModel:
+def fit_from_mask(image: np.ndarray, mask: np.ndarray, *, view: int = 0, min_separation: float = 0.5,
+                  background: Background = "dominant") -> ColourModel:
     """Colour models from a rough mask (H, W), nonzero = specimen, on one image (H, W[, 3]).
+
+    ``background``: as in :func:`fit_from_scribbles`.
 
     Raises:
         UserInputError: the mask's size differs from the image's.
         ColourModelError: a mask with (almost) no specimen or no background, or no separation.
+    """
+    return fit_from_scribbles(image, mask_labels(image, mask, view=view), view=view, min_separation=min_separation,
+                              background=background, _source=f"mask:view {view}")
+
+
+def mask_labels(image: np.ndarray, mask: np.ndarray, *, view: int = 0) -> np.ndarray:
+    """A mask (H, W[, C]), nonzero = specimen, as scribble labels (H, W) uint8: 1 specimen, 2 background.
+
+    Raises:
+        UserInputError: the mask's size differs from the image's (H, W[, 3]).
     """
     mask = np.asarray(mask)
     if mask.ndim == 3:
         mask = mask.max(axis=2)
     if mask.shape != image.shape[:2]:
         raise UserInputError(f"mask is {mask.shape[1]} x {mask.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px")
-    m = mask > 0
-    return fit_from_scribbles(image, np.where(m, 1, 2).astype(np.uint8), view=view, min_separation=min_separation, _source=f"mask:view {view}")
+    return np.where(mask > 0, 1, 2).astype(np.uint8)
 
 
 def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, min_separation: float = 0.5,
-                       _source: str | None = None) -> ColourModel:
+                       background: Background = "dominant", _source: str | None = None) -> ColourModel:
     """Colour models from scribbles: a label image (H, W) with 0 unknown, 1 specimen, 2 background.
+
+    The marked background holds other things than the backdrop (capillary walls and the dim strips beside
+    them, a turntable and its lit patches). ``background="dominant"`` fits one Gaussian to its dominant
+    cluster (:meth:`Gaussian.fit_robust`): the other materials are left to the specimen's wide Gaussian and
+    to the silhouette rules, which clear walls and stray regions — but not a turntable joined to the
+    specimen. ``"mixture"`` gives every material its own component (:meth:`GaussianMixture.fit`) — but a
+    material as pale as a clear fin then takes the fin too. :func:`.marks.fit_from_marks` fits both and keeps the one
+    whose silhouette of the marked view agrees better with the marks.
 
     The prior π_f is the specimen fraction among labelled pixels when the labels cover the whole
     image (a mask), otherwise it is estimated from the posterior mean over the image.
@@ -401,9 +538,17 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
     fg_px, bg_px = f[labels == 1], f[labels == 2]
     if fg_px.shape[0] < 20 or bg_px.shape[0] < 20:
         raise ColourModelError(f"view {view}: the mask/scribbles mark {fg_px.shape[0]} specimen and {bg_px.shape[0]} background pixels; need at least 20 of each")
-    # The marked background holds static structures too (capillary walls, the dim strip beside them):
-    # fit its dominant cluster, or a widened background Gaussian swallows the pale parts of the specimen.
-    fg, bg = Gaussian.fit(fg_px), Gaussian.fit_robust(bg_px)
+    # One Gaussian widened over every marked material would swallow the pale parts of the specimen.
+    fg = Gaussian.fit(fg_px)
+    bg: Gaussian | GaussianMixture
+    if background == "mixture":
+        if bg_px.shape[0] > MAX_MIXTURE_SAMPLES:
+            bg_px = bg_px[np.random.default_rng(0).choice(bg_px.shape[0], MAX_MIXTURE_SAMPLES, replace=False)]
+        bg = GaussianMixture.fit(bg_px)
+    elif background == "dominant":
+        bg = Gaussian.fit_robust(bg_px)
+    else:
+        raise UserInputError(f"background model {background!r}: expected 'dominant' or 'mixture'")
     if np.all(labels > 0):
         prior = fg_px.shape[0] / labels.size
     else:

@@ -32,7 +32,8 @@ from typing import Any, Callable, Literal, Sequence
 import cv2
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, fit_from_mask, fit_from_scribbles
+from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, mask_labels
+from vastcal.calibrate.marks import fit_from_marks
 from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, coherence_atlas,
                                                    dark_feature_probability, signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
@@ -324,9 +325,8 @@ def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scrib
             raise UserInputError(f"{name}: expected (view index, image array)") from None
         if not 0 <= view < images.shape[0]:
             raise UserInputError(f"{name}: view {view} does not exist (views 0–{images.shape[0] - 1})")
-        if name == "mask":
-            return fit_from_mask(images[view], arr, view=view)
-        return fit_from_scribbles(images[view], arr, view=view)
+        labels = mask_labels(images[view], arr, view=view) if name == "mask" else arr
+        return fit_from_marks(images[view], labels, view=view, source=f"{name}:view {view}")
     return fit_automatic(images, seed=seed)
 
 

@@ -1,0 +1,82 @@
+"""A user's marks of one view: the background as its dominant colour or as a mixture of its materials,
+whichever reproduces the marks (vastcal.calibrate.marks)."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+
+from vastcal.calibrate.colour_model import ColourModel, GaussianMixture, fit_from_mask
+from vastcal.calibrate.run import _colour_model
+from vastcal.calibrate.silhouettes import specimen_maps
+
+
+def _turntable_scene(views: int = 3, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A white figure standing on a grey turntable with paler lit patches, on a dark backdrop (ETH David's scene):
+    (frames (N, 200, 240, 3) uint8, figure masks, turntable masks, lit-patch masks)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:200, :240]
+    frames, figures, tables, patches = [], [], [], []
+    for v in range(views):
+        img = np.full((200, 240), 28.0)
+        table = ((xx - 120) / 95.0) ** 2 + ((yy - 150) / 22.0) ** 2 < 1
+        img[table] = 72.0
+        cx = 95 + 25 * v
+        patch = table & (((xx - cx) / 18.0) ** 2 + ((yy - 152) / 7.0) ** 2 < 1)
+        img[patch] = 120.0  # lit, between the table's grey and the figure's white
+        figure = (np.abs(xx - 120) < 14 - 0.05 * (yy - 40)) & (yy > 30) & (yy < 150)
+        img[figure] = 215.0 - 35.0 * (xx[figure] > 124)  # a shaded side
+        frames.append(np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8))
+        figures.append(figure)
+        tables.append(table & ~figure & ~patch)
+        patches.append(patch & ~figure)
+    return np.repeat(np.stack(frames)[..., None], 3, axis=-1), np.stack(figures), np.stack(tables), np.stack(patches)
+
+
+def test_a_turntable_marked_as_background_leaves_the_silhouettes() -> None:
+    """A mask of one view marks the turntable as background; its one-Gaussian (dominant) background model leaves
+    the grey turntable and its lit patches to the specimen, joined to the figure's base. The marks pick a mixture
+    of the background's materials, and the turntable leaves every view's silhouette (fails on the previous code,
+    which always fitted the dominant colour)."""
+    frames, figures, tables, patches = _turntable_scene()
+    model = _colour_model(frames, (0, figures[0].astype(np.uint8) * 255), None, None, 0)
+    assert isinstance(model.bg, GaussianMixture) and len(model.bg.parts) >= 2
+    maps = specimen_maps(model, frames) > 0.5
+    assert np.mean(maps[figures]) > 0.97
+    assert np.mean(maps[tables | patches]) < 0.01
+    dominant = specimen_maps(fit_from_mask(frames[0], figures[0]), frames) > 0.5
+    assert np.mean(dominant[patches]) > 0.5  # what the test guards against
+
+
+def test_pale_background_strips_as_pale_as_the_fin_keep_the_dominant_model() -> None:
+    """Dim strips beside capillary walls are as pale as a larva's clear fin: a mixture's component for them would take
+    the fin too. The marks keep the dominant background, and the fin stays specimen."""
+    rng = np.random.default_rng(1)
+    img = np.full((120, 300), 235.0)
+    img[10:14] = img[106:110] = 60.0  # walls …
+    img[14:20] = img[100:106] = 205.0  # … and the dim strips beside them
+    yy, xx = np.mgrid[:120, :300]
+    body = ((xx - 150) / 100.0) ** 2 + ((yy - 60) / 30.0) ** 2 < 1
+    img[body] = 205.0  # a clear fin, as pale as the strips …
+    img[body & (xx < 170)] = 80.0  # … behind a dark body
+    frame = np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8)
+    model = _colour_model(frame[None], (0, body.astype(np.uint8)), None, None, 0)
+    assert not isinstance(model.bg, GaussianMixture)
+    fin = body & (xx > 180) & (xx < 240)
+    assert np.mean(model.foreground_probability(frame[None])[0][fin] > 0.5) > 0.95
+    assert np.mean(specimen_maps(model, frame[None])[0][14:20] > 0.5) == 0.0  # the strips: cleared by the wall rules
+    mixture = fit_from_mask(frame, body, background="mixture")
+    assert np.mean(mixture.foreground_probability(frame[None])[0][fin] > 0.5) < 0.05  # what the choice avoids
+
+
+def test_a_mixture_background_round_trips_through_hdf5(tmp_path) -> None:
+    frames, figures, _, _ = _turntable_scene(views=1)
+    model = fit_from_mask(frames[0], figures[0], background="mixture")
+    assert isinstance(model.bg, GaussianMixture)
+    with h5py.File(tmp_path / "m.h5", "w") as f:
+        model.to_group(f.create_group("colour_model"))
+    with h5py.File(tmp_path / "m.h5", "r") as f:
+        back = ColourModel.from_group(f["colour_model"])
+        assert f["colour_model/bg_weights"].shape == (len(model.bg.parts),)
+    assert isinstance(back.bg, GaussianMixture)
+    np.testing.assert_allclose(back.foreground_probability(frames), model.foreground_probability(frames), atol=1e-6)

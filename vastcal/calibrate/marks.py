@@ -1,0 +1,56 @@
+"""A user's marks of one view (a mask or scribbles) → the colour model that reproduces them best.
+
+Colour alone cannot tell whether a colour of the marked background that is neither the backdrop's nor the
+specimen's is a material of the scene (a grey turntable, the lit patches on it) or shared with the specimen
+(the dim strip beside a capillary wall is as pale as a clear fin). Two background models answer differently
+(:func:`.colour_model.fit_from_scribbles`): its dominant colour alone, leaving the other materials to the
+specimen and the silhouette rules; or a mixture of all its materials. The marks themselves decide: the
+specimen map of the marked view (:func:`.silhouettes.specimen_maps`, every rule included) is made with
+each, and the model whose silhouette agrees better with the marks — the intersection over union of the
+marked specimen, counted over the marked pixels only — is kept, the simpler (dominant) on a tie.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from vastcal.calibrate.colour_model import ColourModel, GaussianMixture, fit_from_scribbles
+from vastcal.calibrate.silhouettes import specimen_maps
+
+log = logging.getLogger(__name__)
+
+
+def marks_agreement(silhouette: np.ndarray, labels: np.ndarray) -> float:
+    """Intersection over union of a silhouette (H, W) bool and the marked specimen (``labels == 1``),
+    counted over the marked pixels (labels 1 and 2; 0 is unknown). 1 = the marks reproduced exactly."""
+    marked = labels > 0
+    specimen = labels == 1
+    inside = silhouette & marked
+    union = np.count_nonzero(inside | specimen)
+    return float(np.count_nonzero(inside & specimen)) / union if union else 0.0
+
+
+def fit_from_marks(image: np.ndarray, labels: np.ndarray, *, view: int, source: str, min_separation: float = 0.5) -> ColourModel:
+    """The colour model of a view's marks (labels (H, W): 0 unknown, 1 specimen, 2 background) whose
+    specimen map of that view agrees best with them (module docstring); ``source`` names the marks
+    (``"mask:view 3"``).
+
+    Raises:
+        UserInputError, ColourModelError: as :func:`.colour_model.fit_from_scribbles`.
+    """
+    candidates = []
+    for background in ("dominant", "mixture"):
+        model = fit_from_scribbles(image, labels, view=view, min_separation=min_separation, background=background, _source=source)
+        agreement = marks_agreement(specimen_maps(model, np.asarray(image)[None])[0] > 0.5, labels)
+        candidates.append((agreement, model, background))
+    best = max(candidates, key=lambda c: c[0])  # the first (dominant) on a tie
+    log.info("colour model (%s): the specimen map of view %d agrees with the marks to IoU %s; background modelled as its %s",
+             source, view, " / ".join(f"{a:.4f} ({b})" for a, _, b in candidates),
+             "dominant colour" if best[2] == "dominant" else "materials (a mixture)")
+    bg = best[1].bg
+    if isinstance(bg, GaussianMixture) and len(bg.parts) > 1:
+        log.info("colour model: the marked background's materials: weights %s, mean colours %s", np.round(bg.weights, 3).tolist(),
+                 [np.round(g.mean, 3).tolist() for g in bg.parts])
+    return best[1]
