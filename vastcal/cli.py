@@ -238,18 +238,33 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     _check_session_arg(args.session)
     from vastcal.calibrate import calibrate_session
 
-    if args.mask and args.scribbles:
-        raise UserInputError("give either --mask or --scribbles for the colour models, not both")
+    mask, scribbles = _marks_args(args)
     bar = PhaseProgress(f"calibrate ({args.method or 'rig config method'})", enabled=not args.quiet)
     try:
         bar.phase("colour model and specimen maps")
         res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
-                                fixed_views=args.fixed_views, starts=args.starts,
-                                mask=_view_image_arg("--mask", args.mask), scribbles=_view_image_arg("--scribbles", args.scribbles), progress=CalibrationProgress(bar))
+                                fixed_views=args.fixed_views, starts=args.starts, mask=mask, scribbles=scribbles,
+                                progress=CalibrationProgress(bar))
     finally:
         bar.close()
     print(res.summary() if hasattr(res, "summary") else f"stored calibration run in {args.session}")
     return 0
+
+
+def _marks_args(args: argparse.Namespace) -> tuple[Any, Any]:
+    """(mask, scribbles) of ``--mask``/``--scribbles`` VIEW:FILE, each (view, image array) or None.
+
+    Raises:
+        UserInputError: both given, or a malformed VIEW:FILE.
+    """
+    if args.mask and args.scribbles:
+        raise UserInputError("give either --mask or --scribbles for the colour models, not both")
+    return _view_image_arg("--mask", args.mask), _view_image_arg("--scribbles", args.scribbles)
+
+
+def _add_marks_options(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)")
+    s.add_argument("--scribbles", help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background")
 
 
 def _view_image_arg(option: str, spec: str | None) -> Any:
@@ -334,16 +349,19 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """vastcal run S.h5 [-o DIR] [--force] [--cameras imported] [--keep-runs N]: calibrate → reconstruct → report."""
+    """vastcal run S.h5 [-o DIR] [--force] [--cameras imported] [--keep-runs N] [--mask|--scribbles VIEW:FILE]: calibrate → reconstruct → report."""
     _check_session_arg(args.session)
     from vastcal.pipeline import check_camera_choice, default_report_dir, run_session
 
     out = Path(args.output) if args.output else default_report_dir(args.session)
     check_report_folder(out, force=args.force, option="-o" if args.output else "the default report folder")
     _check_session_opens(args.session)
+    if args.cameras == "imported" and (args.mask or args.scribbles):
+        raise UserInputError("--mask/--scribbles guide the calibration's colour model; with --cameras imported nothing is calibrated")
     check_camera_choice(args.session, "imported" if args.cameras == "imported" else None)
+    mask, scribbles = _marks_args(args)
     res = run_session(args.session, out, method=args.method, seed=args.seed, quiet=args.quiet, starts=args.starts,
-                      cameras=args.cameras, keep_runs=args.keep_runs)
+                      cameras=args.cameras, keep_runs=args.keep_runs, mask=mask, scribbles=scribbles)
     print(res.summary())
     return 0
 
@@ -539,8 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "published; vr: voxel residual baseline")
     s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None, help="random seed of CMA-ES (default from the rig config)")
     s.add_argument("--free", nargs="+", default=None, help="parameters to optimise: yaw pitch gamma rolls | all (default from the rig config)")
-    s.add_argument("--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)")
-    s.add_argument("--scribbles", help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background")
+    _add_marks_options(s)
     s.add_argument("--offset-scan", type=_float_in(0.0, inclusive=True), default=None, metavar="DEG",
                    help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
                         "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)")
@@ -578,6 +595,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "reconstruct with the session's imported cameras (e.g. ETH/Middlebury ground truth)")
     s.add_argument("--keep-runs", type=_int_in(1), default=None, metavar="N",
                    help="afterwards, delete all but the newest N runs of every stage from the session (default: keep all)")
+    _add_marks_options(s)
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("prune", help="delete old calibration/reconstruction/measurement runs from a session")

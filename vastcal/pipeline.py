@@ -141,7 +141,8 @@ def prune_runs(session: str | Path, *, keep: int, dry_run: bool = False) -> dict
 
 def run_session(session: str | Path, report_dir: str | Path | None = None, *, method: str | None = None, seed: int | None = None,
                 quiet: bool = False, starts: int = 3, cameras: str = "calibrated", keep_runs: int | None = None,
-                truth_path: Path | None = None, prior_from: str | Path | None = None) -> RunSummary:
+                truth_path: Path | None = None, prior_from: str | Path | None = None,
+                mask: tuple[int, Any] | None = None, scribbles: tuple[int, Any] | None = None) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
     Args:
@@ -158,6 +159,8 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
         prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default: the stored rig
             configuration's ``calibration.prior_from``).
         truth_path: a simulated session's hidden truth: scored (:func:`score_against_truth`) and shown in the report.
+        mask, scribbles: (view, image) marks of one view for the calibration's colour model (as ``vastcal calibrate
+            --mask``/``--scribbles``; a scene with a turntable): every start uses them.
     """
     from vastcal.calibrate import calibrate_session
     from vastcal.reconstruct import reconstruct_session
@@ -175,7 +178,7 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
         try:
             bar.phase("colour model and specimen maps")
             cal = calibrate_session(path, method=method, seed=seed, starts=starts, prior_from=prior_from,
-                                    progress=CalibrationProgress(bar))
+                                    progress=CalibrationProgress(bar), mask=mask, scribbles=scribbles)
         finally:
             bar.close()
         res.timings_s["calibrate"] = time.monotonic() - t

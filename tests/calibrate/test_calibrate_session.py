@@ -159,6 +159,35 @@ def test_scribbles_option_passes_labels_and_refuses_other_values(session_path: P
         fit_from_scribbles(views[0], labels * 120)
 
 
+def test_run_takes_a_mask_for_every_start_and_refuses_it_with_imported_cameras(session_path: Path, truth: np.ndarray, tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch,
+                                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """`vastcal run --mask VIEW:FILE` (a turntable scene: the user marks it as background) reaches the calibration's
+    colour model, as `vastcal calibrate --mask` does; with `--cameras imported` nothing is calibrated: one line, exit 2."""
+    import cv2
+
+    import vastcal.calibrate as cal
+    from vastcal.cli import main
+
+    mask = tmp_path / "mask.png"
+    cv2.imwrite(str(mask), sy.silhouettes(truth)[0].astype(np.uint8) * 255)
+    seen: dict = {}
+
+    def stop(path: object, **kw: object) -> None:
+        seen.update(kw)
+        raise KeyboardInterrupt  # no calibration needed: only what reached it
+
+    monkeypatch.setattr(cal, "calibrate_session", stop)
+    before = _digest(session_path)
+    assert main(["run", str(session_path), "-o", str(tmp_path / "r"), "--mask", f"0:{mask}"]) != 0
+    view, arr = seen["mask"]
+    assert view == 0 and arr.shape[:2] == sy.silhouettes(truth)[0].shape and seen["scribbles"] is None and seen["starts"] == 3
+    capsys.readouterr()
+    assert main(["run", str(session_path), "-o", str(tmp_path / "r2"), "--mask", f"0:{mask}", "--cameras", "imported"]) == 2
+    assert "nothing is calibrated" in capsys.readouterr().err
+    assert _digest(session_path) == before
+
+
 def test_a_negative_seed_is_one_line_not_a_traceback(session_path: Path) -> None:
     """cma seeds NumPy's legacy generator, which refuses negative seeds with a ValueError deep inside."""
     from vastcal.cli import main
