@@ -13,7 +13,9 @@ veto a voxel with log 0 = −∞.
 Where the models come from
 --------------------------
 * :func:`fit_from_mask` — a rough mask on one view (nonzero = specimen).
-* :func:`fit_from_scribbles` — a label image on one view: 0 unknown, 1 specimen, 2 background.
+* :func:`fit_from_scribbles` — a label image on one view: 0 unknown, 1 specimen, 2 background. The marked
+  background is its dominant colour (one Gaussian), or a :class:`GaussianMixture` of its materials, each
+  present only where the marks saw it; :mod:`.marks` chooses by the marks themselves.
 * :func:`fit_automatic` — no user input. Assumptions, stated so they can be checked:
 
   1. The image border (the outer ``border_frac`` of rows and columns of every view) is mostly
@@ -260,6 +262,7 @@ class GaussianMixture:
 
     weights: np.ndarray
     parts: tuple[Gaussian, ...]
+    regions: np.ndarray | None = None
 
     @property
     def dominant(self) -> Gaussian:
@@ -278,13 +281,62 @@ class GaussianMixture:
         """Squared Mahalanobis distance of features x (…, C) from the dominant component."""
         return self.dominant.mahalanobis2(x)
 
-    def log_pdf(self, x: np.ndarray) -> np.ndarray:
-        """log Σ_k w_k N(x; μ_k, Σ_k) for features x (…, C), float32."""
-        logs = [g.log_pdf(x) + np.float32(np.log(w)) for w, g in zip(self.weights, self.parts)]
-        out = logs[0]
-        for lk in logs[1:]:
-            out = np.logaddexp(out, lk)
-        return out.astype(np.float32)
+    def log_pdf(self, x: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
+        """log Σ_k w_k N(x; μ_k, Σ_k) for features x (…, C), float32.
+
+        ``where`` (K, …) bool: the components present at each of the features' pixels (:meth:`present`); the mixture
+        of those present, their weights renormalised. None: every component everywhere.
+        """
+        out: np.ndarray | None = None
+        norm: np.ndarray | None = None
+        for k, (w, g) in enumerate(zip(self.weights, self.parts)):
+            lk = g.log_pdf(x) + np.float32(np.log(w))
+            wk = np.float32(w)
+            if where is not None:
+                lk = np.where(where[k], lk, np.float32(-np.inf))
+                wk = np.where(where[k], wk, np.float32(0.0))
+            out = lk if out is None else np.logaddexp(out, lk)
+            norm = wk if norm is None else norm + wk
+        assert out is not None and norm is not None
+        return (out - np.log(np.maximum(norm, np.float32(1e-30)))).astype(np.float32)
+
+    def present(self, height: int, width: int) -> np.ndarray | None:
+        """(K, height · width) bool: where each component is present in frames of that size (``regions`` resized,
+        nearest), or None when every component is present everywhere."""
+        if self.regions is None:
+            return None
+        return np.stack([cv2.resize(r.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).ravel() > 0
+                         for r in self.regions])
+
+    def localised(self, features_of_view: np.ndarray, background: np.ndarray) -> "GaussianMixture":
+        """This mixture with each material present only where a view's marks saw it.
+
+        A material of the scene other than the backdrop — a turntable, a stand, a capillary wall — holds still in the
+        image while the specimen turns (a turntable is round about the axis: its image is the same in every view). The
+        specimen's own shadows may share its colour; outside the material's place they stay specimen. Each pixel of the
+        marked background (``background`` (H, W) bool, features (H, W, C)) goes to its most responsible component; a
+        non-dominant component's place is the convex hull of each of its connected regions (a turntable partly hidden
+        behind the specimen in the marked view is whole in the others). The dominant component (the backdrop) is
+        everywhere.
+        """
+        h, w = background.shape
+        f = features_of_view.reshape(-1, features_of_view.shape[-1])
+        logs = np.stack([g.log_pdf(f) + np.float32(np.log(wk)) for wk, g in zip(self.weights, self.parts)])
+        owner = np.argmax(logs, axis=0).reshape(h, w)
+        dominant = int(np.argmax(self.weights))
+        regions = np.zeros((len(self.parts), h, w), bool)
+        regions[dominant] = True
+        for k in range(len(self.parts)):
+            if k == dominant:
+                continue
+            mine = ((owner == k) & background).astype(np.uint8)
+            n, labels, stats, _ = cv2.connectedComponentsWithStats(mine, connectivity=8)
+            hulls = np.zeros((h, w), np.uint8)
+            for j in range(1, n):
+                ys, xs = np.nonzero(labels == j)
+                cv2.fillConvexPoly(hulls, cv2.convexHull(np.stack([xs, ys], 1).astype(np.int32)), 1)
+            regions[k] = hulls > 0
+        return GaussianMixture(self.weights, self.parts, regions)
 
     @classmethod
     def fit(cls, samples: np.ndarray, *, max_components: int = 5, rounds: int = 40, tol: float = 1e-5) -> "GaussianMixture":
@@ -407,13 +459,17 @@ class ColourModel:
         c = f.shape[-1]
         flat = f.reshape(-1, c)
         out = np.empty(flat.shape[0], np.float32)
+        present = self.bg.present(*f.shape[-3:-1]) if isinstance(self.bg, GaussianMixture) and f.ndim >= 3 else None
         for s in range(0, flat.shape[0], PIXEL_CHUNK):
-            out[s:s + PIXEL_CHUNK] = self._log_foreground_chunk(flat[s:s + PIXEL_CHUNK])
+            where = None
+            if present is not None:  # the chunk's pixels' places in their frames
+                where = present[:, np.arange(s, min(s + PIXEL_CHUNK, flat.shape[0])) % present.shape[1]]
+            out[s:s + PIXEL_CHUNK] = self._log_foreground_chunk(flat[s:s + PIXEL_CHUNK], where)
         return out.reshape(f.shape[:-1])
 
-    def _log_foreground_chunk(self, f: np.ndarray) -> np.ndarray:
+    def _log_foreground_chunk(self, f: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
         lf = self.fg.log_pdf(f) + np.float32(np.log(self.prior_fg))
-        lb = self.bg.log_pdf(f) + np.float32(np.log1p(-self.prior_fg))
+        lb = (self.bg.log_pdf(f, where) if where is not None else self.bg.log_pdf(f)) + np.float32(np.log1p(-self.prior_fg))
         # log p_f = −log(1 + exp(lb − lf)), stable for either sign of the difference.
         diff = np.clip(lb - lf, -80.0, 80.0)
         logp = -np.logaddexp(np.float32(0.0), diff)
@@ -432,7 +488,7 @@ class ColourModel:
         """Write ``fg_mean``, ``fg_cov``, ``bg_mean``, ``bg_cov`` and attrs space, prior, source, eps.
 
         A mixture background also writes ``bg_weights`` (K,), ``bg_means`` (K, C) and ``bg_covs`` (K, C, C);
-        ``bg_mean``/``bg_cov`` are then its dominant component's.
+        ``bg_mean``/``bg_cov`` are then its dominant component's, and ``bg_regions`` (K, H, W) bool each component's place.
         """
         for name, g in (("fg", self.fg), ("bg", self.bg)):
             group.create_dataset(f"{name}_mean", data=np.asarray(g.mean, float))
@@ -441,6 +497,8 @@ class ColourModel:
             group.create_dataset("bg_weights", data=np.asarray(self.bg.weights, float))
             group.create_dataset("bg_means", data=np.stack([np.asarray(g.mean, float) for g in self.bg.parts]))
             group.create_dataset("bg_covs", data=np.stack([np.asarray(g.cov, float) for g in self.bg.parts]))
+            if self.bg.regions is not None:
+                group.create_dataset("bg_regions", data=np.asarray(self.bg.regions, bool), compression="gzip", shuffle=True)
         group.attrs["space"] = self.space
         group.attrs["prior"] = float(self.prior_fg)
         group.attrs["source"] = self.source
@@ -457,7 +515,8 @@ class ColourModel:
         bg: Gaussian | GaussianMixture = Gaussian(group["bg_mean"][...], group["bg_cov"][...])
         if "bg_weights" in group:
             bg = GaussianMixture(np.asarray(group["bg_weights"][...], float),
-                                 tuple(Gaussian(mu, cov) for mu, cov in zip(group["bg_means"][...], group["bg_covs"][...])))
+                                 tuple(Gaussian(mu, cov) for mu, cov in zip(group["bg_means"][...], group["bg_covs"][...])),
+                                 np.asarray(group["bg_regions"][...], bool) if "bg_regions" in group else None)
         return cls(Gaussian(group["fg_mean"][...], group["fg_cov"][...]), bg,
                    float(group.attrs["prior"]), s(group.attrs["space"]),  # type: ignore[arg-type]
                    s(group.attrs.get("source", "stored")), float(group.attrs.get("eps", 1e-4)))
@@ -542,9 +601,15 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
     fg = Gaussian.fit(fg_px)
     bg: Gaussian | GaussianMixture
     if background == "mixture":
+        sample = bg_px
         if bg_px.shape[0] > MAX_MIXTURE_SAMPLES:
-            bg_px = bg_px[np.random.default_rng(0).choice(bg_px.shape[0], MAX_MIXTURE_SAMPLES, replace=False)]
-        bg = GaussianMixture.fit(bg_px)
+            sample = bg_px[np.random.default_rng(0).choice(bg_px.shape[0], MAX_MIXTURE_SAMPLES, replace=False)]
+        bg = GaussianMixture.fit(sample)
+        marked = labels == 2
+        if not np.all(labels > 0):  # scribbles: a stroke on the turntable stands for the turntable it lies on
+            unmarked = ColourModel(fg, bg, 0.5, image_space(np.asarray(image))).foreground_probability(np.asarray(image)[None])[0] < 0.5
+            marked = marked | ((labels == 0) & unmarked)
+        bg = bg.localised(f, marked)
     elif background == "dominant":
         bg = Gaussian.fit_robust(bg_px)
     else:

@@ -4,7 +4,8 @@ Colour alone cannot tell whether a colour of the marked background that is neith
 specimen's is a material of the scene (a grey turntable, the lit patches on it) or shared with the specimen
 (the dim strip beside a capillary wall is as pale as a clear fin). Two background models answer differently
 (:func:`.colour_model.fit_from_scribbles`): its dominant colour alone, leaving the other materials to the
-specimen and the silhouette rules; or a mixture of all its materials. The marks themselves decide: the
+specimen and the silhouette rules; or a mixture of all its materials, each present only where the marks saw it
+(:meth:`.colour_model.GaussianMixture.localised`). The marks themselves decide: the
 specimen map of the marked view (:func:`.silhouettes.specimen_maps`, every rule included) is made with
 each, and the model whose silhouette agrees better with the marks — the intersection over union of the
 marked specimen, counted over the marked pixels only — is kept, the simpler (dominant) on a tie.
