@@ -7,8 +7,8 @@ from a lamp up left of the camera) at 720 × 576 for one scene seed (the stage's
 ambient share of the light drawn from it (0.35–0.7: the shadow sides from ~45 to ~90 grey against an 18–28 backdrop),
 in three settings: the figure alone; standing on the textured grey turntable (``--turntable``); and on the turntable with
 view 0's figure mask given to the calibration, as a user's ``vastcal calibrate --mask 0:FILE``. Each is imported with its
-cameras (``name K R t``, unit unknown) and ``config/eth-david.yaml`` and run through the command line: ``vastcal run``, or
-``calibrate --mask`` + ``reconstruct`` + ``report``. The reference is the visual hull of the figure's exact pixel masks
+cameras (``name K R t``, unit unknown) and ``config/eth-david.yaml`` and run through the command line: ``vastcal run``
+(3 starts), with ``--mask 0:FILE`` in the third setting. The reference is the visual hull of the figure's exact pixel masks
 (the pixels whose centre sees the figure first) through the true cameras (``reconstruct --masks --cameras imported`` on a
 copy of the session): what the calibrated silhouettes' hull should be, quantised to whole pixels.
 
@@ -75,12 +75,8 @@ def run_case(root: Path, seed: int, setting: str, views: int) -> dict[str, Any]:
     shutil.copy(s, ref)
     vastcal("reconstruct", str(ref), "--masks", "--cameras", "imported")
     vastcal("report", str(ref), "-o", str(d / "ref-report"))
-    if setting == "turntable+mask":
-        vastcal("calibrate", str(s), "--mask", f"0:{d / 'mask_00.png'}")
-        vastcal("reconstruct", str(s))
-        vastcal("report", str(s), "-o", str(d / "report"))
-    else:
-        vastcal("run", str(s), "-o", str(d / "report"))
+    marks = ["--mask", f"0:{d / 'mask_00.png'}"] if setting == "turntable+mask" else []
+    vastcal("run", str(s), "-o", str(d / "report"), *marks)
     return {"seed": seed, "setting": setting, "ambient": ambient, "ref": measurement(d / "ref-report"), "got": measurement(d / "report")}
 
 
