@@ -54,6 +54,21 @@ def test_a_turntable_marked_as_background_leaves_the_silhouettes() -> None:
     assert np.mean(dominant[patches]) > 0.5  # what the test guards against
 
 
+def test_scribbles_on_part_of_the_turntable_take_all_of_it_out() -> None:
+    """Scribbles mark a stroke, not a region: a stroke across the turntable stands for the turntable it lies on (the
+    unmarked pixels the mixture calls background count as seen), so the whole disc leaves the silhouettes."""
+    frames, figures, tables, patches = _turntable_scene()
+    labels = np.zeros(figures[0].shape, np.uint8)
+    labels[60:120, 112:130] = 1  # a stroke down the figure, over its lit and its shaded side
+    labels[10:14, 10:230] = 2  # one across the backdrop …
+    labels[149:152, 40:90] = 2  # … and one across the turntable
+    model = _colour_model(frames, None, (0, labels), None, 0)
+    assert isinstance(model.bg, GaussianMixture)
+    maps = specimen_maps(model, frames) > 0.5
+    assert np.mean(maps[figures]) > 0.97
+    assert np.mean(maps[tables | patches]) < 0.02
+
+
 def test_a_background_material_as_pale_as_the_fin_is_background_only_where_the_marks_saw_it() -> None:
     """Dim strips beside capillary walls are as pale as a larva's clear fin. A mixture component for them, present
     everywhere, takes the fin too; present only where the marks saw the strips (their convex hulls, along the walls),
