@@ -106,3 +106,16 @@ def test_a_mixture_background_round_trips_through_hdf5(tmp_path) -> None:
     assert isinstance(back.bg, GaussianMixture)
     assert back.bg.regions is not None and np.array_equal(back.bg.regions, model.bg.regions)
     np.testing.assert_allclose(back.foreground_probability(frames), model.foreground_probability(frames), atol=1e-6)
+
+
+def test_components_that_are_one_material_are_merged() -> None:
+    """EM keeps identical the components that start inside one tight cluster (Middlebury dinoRing's black backdrop,
+    quantised to a few grey levels: three components of weight 0.304 and the same mean, one density counted as three
+    materials); a fit's components are merged when they are the same Gaussian, weights summed."""
+    rng = np.random.default_rng(2)
+    black = rng.choice([0.0, 1 / 255, 2 / 255], size=(18000, 3), p=[0.6, 0.3, 0.1])
+    lit = np.clip(rng.normal(0.07, 0.015, (2000, 3)), 0, 1)
+    started, _ = GaussianMixture._em(np.concatenate([black, lit]), 4, 40, 1e-5)
+    assert len(started.parts) == 4  # three of them the backdrop
+    merged = started._merged()
+    assert len(merged.parts) == 2 and np.isclose(merged.weights.sum(), 1.0) and merged.weights.max() > 0.85

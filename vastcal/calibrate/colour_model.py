@@ -359,6 +359,7 @@ class GaussianMixture:
             if m < k * (4 * c + 4):
                 break
             mix, loglik = cls._em(s, k, rounds, tol)
+            mix = mix._merged()
             k_eff = len(mix.parts)
             bic = -2.0 * loglik + (k_eff * (c + c * (c + 1) / 2) + k_eff - 1) * np.log(m)
             if best is None or bic < best[0]:
@@ -366,6 +367,25 @@ class GaussianMixture:
         if best is None:
             raise ColourModelError(f"too few pixels ({m}) to fit a colour model")
         return best[1]
+
+    def _merged(self, same: float = 1e-3) -> "GaussianMixture":
+        """Components that are one material (Bhattacharyya distance below ``same``) as one, their weights summed.
+
+        EM keeps identical the components that start inside one tight cluster (a black backdrop quantised to a few grey
+        levels takes most of the equal-count groups): the same density, counted as several materials.
+        """
+        keep: list[int] = []
+        weights: list[float] = []
+        for k, g in enumerate(self.parts):
+            twin = next((j for j, i in enumerate(keep) if bhattacharyya(self.parts[i], g) < same), None)
+            if twin is None:
+                keep.append(k)
+                weights.append(float(self.weights[k]))
+            else:
+                weights[twin] += float(self.weights[k])
+        if len(keep) == len(self.parts):
+            return self
+        return GaussianMixture(np.asarray(weights), tuple(self.parts[i] for i in keep), None)
 
     @classmethod
     def _em(cls, s: np.ndarray, k: int, rounds: int, tol: float) -> tuple["GaussianMixture", float]:
