@@ -391,20 +391,28 @@ def open_directions_sigma(n_params: int, free: Sequence[str], settings: dict[str
     sig = np.zeros(n_params)
     roll = float(settings.get("roll_prior_deg", 1.0) or 1.0)
     sig[4:] = roll
-    rolls_src = f"rolls of views 1..N-1: sigma {roll:g} deg (the roll prior: the images do not determine them)"
+    free = set(free or [])
+    if not ({"rolls", "all"} & free):
+        why = "the rolls were held at the commanded angles; the rig file's roll_prior_deg bounds the stage's drift"
+    elif float(settings.get("roll_prior_weight", 1.0)) <= 0:
+        why = "no roll prior, so how well the images pin each roll was not measured; the rig file's roll_prior_deg bounds it"
+    else:
+        why = "the roll prior: the images do not determine them"
+    rolls_src = f"rolls of views 1..N-1: sigma {roll:g} deg ({why})"
     if roll_sigma is not None and np.size(roll_sigma) == n_params - 3:
         measured = np.asarray(roll_sigma, float)[1:]
         sig[4:] = np.where(np.isfinite(measured) & (measured >= 0), measured, roll)
         rolls_src = (f"rolls of views 1..N-1: sigma per view as measured by the calibration (median {float(np.median(sig[4:])):.3g} deg; "
                      f"the roll prior's {roll:g} deg where the images leave a roll to it)")
-    free = set(free or [])
-    photometric = bool(settings.get("photometric_yaw", False)) and ("yaw" in free or "all" in free)
+    yaw_free = bool({"yaw", "all"} & free)
+    photometric = bool(settings.get("photometric_yaw", False)) and yaw_free
     if photometric_ran is not None:
         photometric = photometric and photometric_ran
     yaw = PHOTOMETRIC_YAW_SIGMA_DEG if photometric else float(settings.get("yaw_prior_deg", 0.5) or 0.5)
     sig[0] = yaw
-    src = (f"{rolls_src}; yaw: sigma {yaw:g} deg ("
-           + ("photometric yaw, its measured error" if photometric else "the yaw prior") + "); pitch, gamma: determined, not sampled")
+    yaw_why = ("photometric yaw, its measured error" if photometric else "the yaw prior" if yaw_free
+               else "held at its starting value; the rig file's yaw_prior_deg bounds its error")
+    src = f"{rolls_src}; yaw: sigma {yaw:g} deg ({yaw_why}); pitch, gamma: determined, not sampled"
     return sig, src
 
 

@@ -55,6 +55,13 @@ def test_the_drift_is_a_measurement_when_the_images_determine_most_rolls() -> No
     sig, src = open_directions_sigma(3 + 4, ["rolls"], settings, roll_sigma=sigma)
     np.testing.assert_array_equal(sig[3:], [0.0, 0.3, 0.2, 0.9])  # view 0 is the gauge
     assert "measured by the calibration" in src
+    # Without a roll prior nothing was measured, and the line says so rather than "the images do not determine them"
+    # (ETH David's and every ground-truth turntable's rig file); a yaw that was not free was not the yaw prior's either.
+    sig, src = open_directions_sigma(3 + 4, ["rolls"], {"roll_prior_deg": 1.0, "roll_prior_weight": 0.0})
+    assert np.all(sig[4:] == 1.0) and "no roll prior" in src and "do not determine" not in src
+    assert "held at its starting value" in src and "the yaw prior)" not in src
+    sig, src = open_directions_sigma(3 + 4, ["yaw", "pitch", "gamma"], settings)
+    assert "held at the commanded angles" in src and "the yaw prior)" in src
 
 
 def test_a_calibration_stores_each_roll_s_sigma(session_path: Path) -> None:
