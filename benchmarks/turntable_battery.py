@@ -3,7 +3,7 @@
     python benchmarks/turntable_battery.py [--seeds 0,1,2,3] [--views 18] [--dir /tmp/vastcal-turntables] [--jobs 2]
 
 Every case renders ``benchmarks/turntable_speed.py``'s figure (seven ellipsoids, 1.25 units off the axis, Lambert-shaded
-from a lamp up left of the camera) at 720 × 576 for one scene seed (the stage's step irregularity and the noise) and an
+from a lamp up left of the camera; head and arms joined to the torso, one solid) at 720 × 576 for one scene seed (the stage's step irregularity and the noise) and an
 ambient share of the light drawn from it (0.35–0.7: the shadow sides from ~45 to ~90 grey against an 18–28 backdrop),
 in three settings: the figure alone; standing on the textured grey turntable (``--turntable``); and on the turntable with
 view 0's figure mask given to the calibration, as a user's ``vastcal calibrate --mask 0:FILE``. Each is imported with its
@@ -41,10 +41,10 @@ def render_case(folder: Path, seed: int, views: int, disc: bool) -> float:
     """Frames, cameras, view 0's mask and every view's figure mask (``masks/``) into ``folder``; returns the ambient."""
     ambient = float(np.random.default_rng(1000 + seed).uniform(0.35, 0.7))
     folder.mkdir(parents=True, exist_ok=True)
-    ts.write_set(folder, views, 720, 576, seed, ambient, disc)
+    body = ts.statuette(joined=True)
+    ts.write_set(folder, views, 720, 576, seed, ambient, disc, body)
     K, R, t = ts.cameras(views, 720, 576, np.random.default_rng(seed))  # write_set's draw, repeated
     (folder / "masks").mkdir()
-    body = ts.statuette()
     for i in range(views):
         cv2.imwrite(str(folder / "masks" / f"view_{i:02d}.png"), ts.figure_mask(K, R[i], t[i], 720, 576, body, disc))
     return ambient

@@ -100,9 +100,13 @@ def rotation(axis: str, deg: float) -> np.ndarray:
     return r
 
 
-def statuette() -> list[Ellipsoid]:
+def statuette(joined: bool = False) -> list[Ellipsoid]:
     """Seven ellipsoids (world z up, the rotation axis through the origin): a figure ~4.1 units tall standing
-    ``OFF_AXIS`` from the axis, one arm raised towards the shoulder, the other hanging, the weight on one leg."""
+    ``OFF_AXIS`` from the axis, one arm raised towards the shoulder, the other hanging, the weight on one leg.
+
+    The head and arms float just clear of the torso (the calibration benchmarks' figure); ``joined`` moves them in to
+    overlap it — one solid, as a real specimen is, whose visual hull a measurement keeps whole (a reconstruction
+    keeps the largest connected part: the floating raised arm is dropped)."""
     parts = [  # (centre relative to the figure, semi-axes, tilt about y then z, degrees)
         ((0.24, 0.0, -1.25), (0.22, 0.24, 0.85), (4.0, 0.0)),     # standing leg
         ((-0.26, 0.05, -1.2), (0.2, 0.22, 0.85), (-12.0, 10.0)),   # free leg, stepping aside
@@ -112,6 +116,10 @@ def statuette() -> list[Ellipsoid]:
         ((0.78, 0.12, 0.9), (0.16, 0.17, 0.62), (-35.0, 20.0)),    # raised arm
         ((-0.74, -0.05, 0.15), (0.15, 0.16, 0.7), (10.0, 0.0)),    # hanging arm
     ]
+    if joined:
+        parts[4] = ((0.05, 0.08, 1.55),) + parts[4][1:]    # head on the torso
+        parts[5] = ((0.62, 0.1, 0.95),) + parts[5][1:]     # raised arm at the shoulder
+        parts[6] = ((-0.6, -0.05, 0.2),) + parts[6][1:]    # hanging arm at the side
     where = np.array([OFF_AXIS, 0.0, 0.0])
     out = []
     for centre, axes, (tilt_y, tilt_z) in parts:
@@ -260,12 +268,14 @@ def figure_mask(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height:
     return out
 
 
-def write_set(folder: Path, n: int, width: int, height: int, scene_seed: int, ambient: float, disc: bool = False) -> np.ndarray:
+def write_set(folder: Path, n: int, width: int, height: int, scene_seed: int, ambient: float, disc: bool = False,
+              body: list[Ellipsoid] | None = None) -> np.ndarray:
     """Render the set into ``folder`` (``images/view_NN.png``) and write ``cameras.txt`` (``name K R t``) and view 0's
-    figure mask (``mask_00.png``, :func:`figure_mask`) beside it; returns the cameras (n, 3, 4)."""
+    figure mask (``mask_00.png``, :func:`figure_mask`) beside it; returns the cameras (n, 3, 4). ``body``: the figure
+    (default :func:`statuette`)."""
     rng = np.random.default_rng(scene_seed)
     K, R, t = cameras(n, width, height, rng)
-    body = statuette()
+    body = statuette() if body is None else body
     images = folder / "images"
     images.mkdir()
     lines = [str(n)]
