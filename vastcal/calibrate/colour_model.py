@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Sequence
 
 import h5py
 import cv2
@@ -77,6 +77,11 @@ MAX_MIXTURE_SAMPLES = 20_000
 #: Marked background pixels this close to the marked specimen (px, Chebyshev) are left out of a mixture background's
 #: fit and places (:func:`fit_from_scribbles`): a hand-drawn outline's error, and the pixels the blur mixes.
 MARK_EDGE_PX = 3
+
+#: A marked material other than the backdrop is background by place only if it holds its place in the other views
+#: (:meth:`GaussianMixture.held_still`): there it owns at least this share of what it owns of its place in the marked
+#: view — half, since the specimen hides part of a turntable in every view, while a shadow it casts moves off.
+HELD_STILL = 0.5
 
 #: Variance floor of every channel (features in [0, 1]): σ ≥ 0.01, i.e. 2.5 levels of 8 bits, so that
 #: a saturated or quantised background does not make a needle-thin Gaussian.
@@ -324,9 +329,7 @@ class GaussianMixture:
         everywhere.
         """
         h, w = background.shape
-        f = features_of_view.reshape(-1, features_of_view.shape[-1])
-        logs = np.stack([g.log_pdf(f) + np.float32(np.log(wk)) for wk, g in zip(self.weights, self.parts)])
-        owner = np.argmax(logs, axis=0).reshape(h, w)
+        owner = self.owners(features_of_view).reshape(h, w)
         dominant = int(np.argmax(self.weights))
         regions = np.zeros((len(self.parts), h, w), bool)
         regions[dominant] = True
@@ -341,6 +344,44 @@ class GaussianMixture:
                 cv2.fillConvexPoly(hulls, cv2.convexHull(np.stack([xs, ys], 1).astype(np.int32)), 1)
             regions[k] = hulls > 0
         return GaussianMixture(self.weights, self.parts, regions)
+
+    def owners(self, f: np.ndarray) -> np.ndarray:
+        """The most responsible component of each feature (…, C) → (…) int."""
+        flat = f.reshape(-1, f.shape[-1])
+        logs = np.stack([g.log_pdf(flat) + np.float32(np.log(wk)) for wk, g in zip(self.weights, self.parts)])
+        return np.argmax(logs, axis=0).reshape(f.shape[:-1])
+
+    def held_still(self, marked_features: np.ndarray, other_features: list[np.ndarray],
+                   keep: float = HELD_STILL) -> "GaussianMixture":
+        """This placed mixture without the materials that do not hold their places in other views.
+
+        A place (:meth:`localised`) stands for every view only if the material stays there: a turntable, a stand, a
+        wall do; a shadow the specimen casts on the backdrop turns with the specimen, and its place in the marked view
+        is where the specimen's own shading lies in others. A material keeps its place when, in the median of the
+        other views, it owns (:meth:`owners`) at least ``keep`` of the share of its place it owns in the marked view
+        (the specimen hides part of a turntable in every view). The others are dropped, their weight given back.
+        """
+        if self.regions is None or not other_features:
+            return self
+        dominant = int(np.argmax(self.weights))
+        mine = self.owners(marked_features)
+        kept = []
+        for k, place in enumerate(self.regions):
+            if k == dominant or not place.any():
+                kept.append(k)
+                continue
+            there = float(np.mean(mine[place] == k))
+            elsewhere = float(np.median([np.mean(self.owners(f)[place] == k) for f in other_features]))
+            if elsewhere >= keep * there:
+                kept.append(k)
+            else:
+                log.info("colour model: the marked material of mean colour %s does not hold its place in the other views "
+                         "(it owns %.0f %% of it there, %.0f %% in the marked view): not background by place",
+                         np.round(self.parts[k].mean, 3).tolist(), 100 * elsewhere, 100 * there)
+        if len(kept) == len(self.parts):
+            return self
+        w = np.asarray([self.weights[k] for k in kept])
+        return GaussianMixture(w / w.sum(), tuple(self.parts[k] for k in kept), self.regions[kept])
 
     @classmethod
     def fit(cls, samples: np.ndarray, *, max_components: int = 5, rounds: int = 40, tol: float = 1e-5) -> "GaussianMixture":
@@ -561,17 +602,17 @@ def _prior(p: float) -> float:
 
 
 def fit_from_mask(image: np.ndarray, mask: np.ndarray, *, view: int = 0, min_separation: float = 0.5,
-                  background: Background = "dominant") -> ColourModel:
+                  background: Background = "dominant", others: Sequence[np.ndarray] = ()) -> ColourModel:
     """Colour models from a rough mask (H, W), nonzero = specimen, on one image (H, W[, 3]).
 
-    ``background``: as in :func:`fit_from_scribbles`.
+    ``background``, ``others``: as in :func:`fit_from_scribbles`.
 
     Raises:
         UserInputError: the mask's size differs from the image's.
         ColourModelError: a mask with (almost) no specimen or no background, or no separation.
     """
     return fit_from_scribbles(image, mask_labels(image, mask, view=view), view=view, min_separation=min_separation,
-                              background=background, _source=f"mask:view {view}")
+                              background=background, others=others, _source=f"mask:view {view}")
 
 
 def mask_labels(image: np.ndarray, mask: np.ndarray, *, view: int = 0) -> np.ndarray:
@@ -589,16 +630,19 @@ def mask_labels(image: np.ndarray, mask: np.ndarray, *, view: int = 0) -> np.nda
 
 
 def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, min_separation: float = 0.5,
-                       background: Background = "dominant", _source: str | None = None) -> ColourModel:
+                       background: Background = "dominant", others: Sequence[np.ndarray] = (),
+                       _source: str | None = None) -> ColourModel:
     """Colour models from scribbles: a label image (H, W) with 0 unknown, 1 specimen, 2 background.
 
     The marked background holds other things than the backdrop (capillary walls and the dim strips beside
     them, a turntable and its lit patches). ``background="dominant"`` fits one Gaussian to its dominant
     cluster (:meth:`Gaussian.fit_robust`): the other materials are left to the specimen's wide Gaussian and
     to the silhouette rules, which clear walls and stray regions — but not a turntable joined to the
-    specimen. ``"mixture"`` gives every material its own component (:meth:`GaussianMixture.fit`) — but a
-    material as pale as a clear fin then takes the fin too. :func:`.marks.fit_from_marks` fits both and keeps the one
-    whose silhouette of the marked view agrees better with the marks.
+    specimen. ``"mixture"`` gives every material its own component (:meth:`GaussianMixture.fit`), each present
+    only where the marks saw it (:meth:`GaussianMixture.localised`; a material as pale as a clear fin would
+    otherwise take the fin) and only if it holds that place in ``others`` (other views' images,
+    :meth:`GaussianMixture.held_still`: a shadow the specimen casts does not). :func:`.marks.fit_from_marks` fits
+    both and keeps the one whose silhouette of the marked view agrees better with the marks.
 
     The prior π_f is the specimen fraction among labelled pixels when the labels cover the whole
     image (a mask), otherwise it is estimated from the posterior mean over the image.
@@ -638,7 +682,7 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
         if not np.all(labels > 0):  # scribbles: a stroke on the turntable stands for the turntable it lies on
             unmarked = ColourModel(fg, bg, 0.5, image_space(np.asarray(image))).foreground_probability(np.asarray(image)[None])[0] < 0.5
             marked = marked | ((labels == 0) & unmarked)
-        bg = bg.localised(f, marked)
+        bg = bg.localised(f, marked).held_still(f, [features(o) for o in others])
     elif background == "dominant":
         bg = Gaussian.fit_robust(bg_px)
     else:

@@ -5,15 +5,17 @@ specimen's is a material of the scene (a grey turntable, the lit patches on it) 
 (the dim strip beside a capillary wall is as pale as a clear fin). Two background models answer differently
 (:func:`.colour_model.fit_from_scribbles`): its dominant colour alone, leaving the other materials to the
 specimen and the silhouette rules; or a mixture of all its materials, each present only where the marks saw it
-(:meth:`.colour_model.GaussianMixture.localised`). The marks themselves decide: the
-specimen map of the marked view (:func:`.silhouettes.specimen_maps`, every rule included) is made with
-each, and the model whose silhouette agrees better with the marks — the intersection over union of the
+(:meth:`.colour_model.GaussianMixture.localised`) and only if it holds that place in other views
+(:meth:`.colour_model.GaussianMixture.held_still`: a turntable does, a shadow the specimen casts does not). The marks
+themselves decide: the specimen map of the marked view (:func:`.silhouettes.specimen_maps`, every rule included) is
+made with each, and the model whose silhouette agrees better with the marks — the intersection over union of the
 marked specimen, counted over the marked pixels only — is kept, the simpler (dominant) on a tie.
 """
 
 from __future__ import annotations
 
 import logging
+from typing import Sequence
 
 import numpy as np
 
@@ -33,17 +35,19 @@ def marks_agreement(silhouette: np.ndarray, labels: np.ndarray) -> float:
     return float(np.count_nonzero(inside & specimen)) / union if union else 0.0
 
 
-def fit_from_marks(image: np.ndarray, labels: np.ndarray, *, view: int, source: str, min_separation: float = 0.5) -> ColourModel:
+def fit_from_marks(image: np.ndarray, labels: np.ndarray, *, view: int, source: str, others: Sequence[np.ndarray] = (),
+                   min_separation: float = 0.5) -> ColourModel:
     """The colour model of a view's marks (labels (H, W): 0 unknown, 1 specimen, 2 background) whose
     specimen map of that view agrees best with them (module docstring); ``source`` names the marks
-    (``"mask:view 3"``).
+    (``"mask:view 3"``); ``others``: images of other views, where a marked material must hold its place.
 
     Raises:
         UserInputError, ColourModelError: as :func:`.colour_model.fit_from_scribbles`.
     """
     candidates = []
     for background in ("dominant", "mixture"):
-        model = fit_from_scribbles(image, labels, view=view, min_separation=min_separation, background=background, _source=source)
+        model = fit_from_scribbles(image, labels, view=view, min_separation=min_separation, background=background,
+                                   others=others if background == "mixture" else (), _source=source)
         agreement = marks_agreement(specimen_maps(model, np.asarray(image)[None])[0] > 0.5, labels)
         candidates.append((agreement, model, background))
     best = max(candidates, key=lambda c: c[0])  # the first (dominant) on a tie

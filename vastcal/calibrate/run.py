@@ -312,6 +312,10 @@ def _area_resize(images: np.ndarray, factor: float) -> np.ndarray:
     return np.stack([cv2.resize(im, size, interpolation=cv2.INTER_AREA) for im in images])
 
 
+#: Other views, evenly spread over the turn, in which a marked background material must hold its place (:mod:`.marks`).
+MARKS_OTHER_VIEWS = 6
+
+
 def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scribbles: tuple[int, np.ndarray] | None,
                   colour_model: ColourModel | None, seed: int) -> ColourModel:
     if colour_model is not None:
@@ -326,7 +330,10 @@ def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scrib
         if not 0 <= view < images.shape[0]:
             raise UserInputError(f"{name}: view {view} does not exist (views 0–{images.shape[0] - 1})")
         labels = mask_labels(images[view], arr, view=view) if name == "mask" else arr
-        return fit_from_marks(images[view], labels, view=view, source=f"{name}:view {view}")
+        n = images.shape[0]
+        others = [images[int(j)] for j in np.unique(np.round(view + np.arange(1, MARKS_OTHER_VIEWS + 1) * n / (MARKS_OTHER_VIEWS + 1)) % n)
+                  if int(j) != view]
+        return fit_from_marks(images[view], labels, view=view, source=f"{name}:view {view}", others=others)
     return fit_automatic(images, seed=seed)
 
 
