@@ -72,8 +72,8 @@ def test_scribbles_on_part_of_the_turntable_take_all_of_it_out() -> None:
 def test_a_background_material_as_pale_as_the_fin_is_background_only_where_the_marks_saw_it() -> None:
     """Dim strips beside capillary walls are as pale as a larva's clear fin. A mixture component for them, present
     everywhere, takes the fin too; present only where the marks saw the strips (their convex hulls, along the walls),
-    it leaves the fin to the specimen (fails on the previous code: the fin lost). The marks then keep the dominant model:
-    both reproduce them, the simpler wins."""
+    it leaves the fin to the specimen (fails on the previous code: the fin lost), and the strips are cleared whichever
+    model the marks keep."""
     rng = np.random.default_rng(1)
     img = np.full((120, 300), 235.0)
     img[10:14] = img[106:110] = 60.0  # walls …

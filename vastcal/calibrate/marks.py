@@ -9,7 +9,8 @@ specimen and the silhouette rules; or a mixture of all its materials, each prese
 (:meth:`.colour_model.GaussianMixture.held_still`: a turntable does, a shadow the specimen casts does not). The marks
 themselves decide: the specimen map of the marked view (:func:`.silhouettes.specimen_maps`, every rule included) is
 made with each, and the model whose silhouette agrees better with the marks — the intersection over union of the
-marked specimen, counted over the marked pixels only — is kept, the simpler (dominant) on a tie.
+marked specimen, counted over the marked pixels only — is kept; on a tie the mixture, which keeps every material the
+marks name as background (scribbles mark a few strokes, which both models often reproduce exactly).
 """
 
 from __future__ import annotations
@@ -50,7 +51,9 @@ def fit_from_marks(image: np.ndarray, labels: np.ndarray, *, view: int, source: 
                                    others=others if background == "mixture" else (), _source=source)
         agreement = marks_agreement(specimen_maps(model, np.asarray(image)[None])[0] > 0.5, labels)
         candidates.append((agreement, model, background))
-    best = max(candidates, key=lambda c: c[0])  # the first (dominant) on a tie
+    # On a tie the mixture: the marks name its materials background, and nothing in them says otherwise (scribbles, whose
+    # strokes both models reproduce, would otherwise leave a marked turntable to the specimen).
+    best = candidates[1] if candidates[1][0] >= candidates[0][0] else candidates[0]
     log.info("colour model (%s): the specimen map of view %d agrees with the marks to IoU %s; background modelled as its %s",
              source, view, " / ".join(f"{a:.4f} ({b})" for a, _, b in candidates),
              "dominant colour" if best[2] == "dominant" else "materials (a mixture)")
