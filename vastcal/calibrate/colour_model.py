@@ -296,18 +296,17 @@ class GaussianMixture:
         ``where`` (K, …) bool: the components present at each of the features' pixels (:meth:`present`); the mixture
         of those present, their weights renormalised. None: every component everywhere.
         """
-        out: np.ndarray | None = None
-        norm: np.ndarray | None = None
-        for k, (w, g) in enumerate(zip(self.weights, self.parts)):
-            lk = g.log_pdf(x) + np.float32(np.log(w))
-            wk = np.float32(w)
-            if where is not None:
-                lk = np.where(where[k], lk, np.float32(-np.inf))
-                wk = np.where(where[k], wk, np.float32(0.0))
-            out = lk if out is None else np.logaddexp(out, lk)
-            norm = wk if norm is None else norm + wk
-        assert out is not None and norm is not None
+        logs = self._component_logs(x)
+        if where is None:
+            return np.logaddexp.reduce(logs, axis=0).astype(np.float32)
+        w = np.asarray(self.weights, np.float32).reshape((-1,) + (1,) * (logs.ndim - 1))
+        norm = np.where(where, w, np.float32(0.0)).sum(axis=0)
+        out = np.logaddexp.reduce(np.where(where, logs, np.float32(-np.inf)), axis=0)
         return (out - np.log(np.maximum(norm, np.float32(1e-30)))).astype(np.float32)
+
+    def _component_logs(self, x: np.ndarray) -> np.ndarray:
+        """log w_k + log N(x; μ_k, Σ_k) of every component, (K, …) float32."""
+        return np.stack([g.log_pdf(x) + np.float32(np.log(w)) for w, g in zip(self.weights, self.parts)])
 
     def present(self, height: int, width: int) -> np.ndarray | None:
         """(K, height · width) bool: where each component is present in frames of that size (``regions`` resized,
@@ -347,9 +346,7 @@ class GaussianMixture:
 
     def owners(self, f: np.ndarray) -> np.ndarray:
         """The most responsible component of each feature (…, C) → (…) int."""
-        flat = f.reshape(-1, f.shape[-1])
-        logs = np.stack([g.log_pdf(flat) + np.float32(np.log(wk)) for wk, g in zip(self.weights, self.parts)])
-        return np.argmax(logs, axis=0).reshape(f.shape[:-1])
+        return np.argmax(self._component_logs(f.reshape(-1, f.shape[-1])), axis=0).reshape(f.shape[:-1])
 
     def held_still(self, marked_features: np.ndarray, other_features: list[np.ndarray],
                    keep: float = HELD_STILL) -> "GaussianMixture":
@@ -365,13 +362,14 @@ class GaussianMixture:
             return self
         dominant = int(np.argmax(self.weights))
         mine = self.owners(marked_features)
+        theirs = [self.owners(f) for f in other_features]  # once per view, for every material
         kept = []
         for k, place in enumerate(self.regions):
             if k == dominant or not place.any():
                 kept.append(k)
                 continue
             there = float(np.mean(mine[place] == k))
-            elsewhere = float(np.median([np.mean(self.owners(f)[place] == k) for f in other_features]))
+            elsewhere = float(np.median([np.mean(o[place] == k) for o in theirs]))
             if elsewhere >= keep * there:
                 kept.append(k)
             else:
@@ -680,7 +678,7 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
             sample = sample[np.random.default_rng(0).choice(sample.shape[0], MAX_MIXTURE_SAMPLES, replace=False)]
         bg = GaussianMixture.fit(sample)
         if not np.all(labels > 0):  # scribbles: a stroke on the turntable stands for the turntable it lies on
-            unmarked = ColourModel(fg, bg, 0.5, image_space(np.asarray(image))).foreground_probability(np.asarray(image)[None])[0] < 0.5
+            unmarked = ColourModel(fg, bg, 0.5, image_space(np.asarray(image))).log_foreground_probability_of_features(f) < np.log(0.5)
             marked = marked | ((labels == 0) & unmarked)
         bg = bg.localised(f, marked).held_still(f, [features(o) for o in others])
     elif background == "dominant":
