@@ -79,6 +79,11 @@ class Level:
     scaled_steps: bool = False
     """Start CMA-ES with per-coordinate steps inversely proportional to how far each coordinate moves
     the specimen's image (:meth:`.ParameterSpace.image_sensitivity`), instead of equal box fractions."""
+    local_zooms: int = 0
+    """Zoom stages refining each candidate's maximum along every edge ray (coherence cost,
+    :meth:`.objective_coherence.CoherenceObjective._local_max`): without them a candidate away from the batch
+    mean is read on a 0.5 px grid whose under-estimate of a kinked maximum the mean does not pay, which pulls
+    the search towards the mean. The last level ends the search, where that pull decides where it stops."""
     max_initial_step_px: float | None = None
     """Cap of each coordinate's initial CMA-ES step, in pixels of image motion at this level (None: no
     cap). The coherence cost searches every candidate's rays around the population mean's maxima, a
@@ -153,8 +158,13 @@ class CalibrationSettings:
             have for that view (the edges' penalty cap over the image motion of its roll); a view whose box range is no
             wider than that is not scanned, so on a microscope, whose rolls barely move the image, it costs nothing.
             With it the polish moves view 0 through the gauge too, where that is exact (no roll prior).
-        polish: after the starts, a per-view compass search of every free roll on the judge cost
-            (:func:`polish_rolls`), steps ``polish_steps_deg`` (degrees, largest first).
+        polish: after the starts, a per-view compass search of every free roll on the last level's cost, its rays
+            searched at θ (:func:`polish_rolls`), steps ``polish_steps_deg`` (degrees, largest first); kept when the
+            judge rates it lower.
+        polish_zooms: zoom stages of the polish's cost along every edge ray
+            (:class:`.objective_coherence.CoherenceObjective`'s ``local_zooms``): its trials θ ± h are read as finely as
+            θ, the batch mean, whose rays sit on their own maxima; without them every trial looked costlier than θ by
+            the 0.5 px grid's under-estimate and the polish stopped short (0: the window alone).
         memory_mb: memory budget, MB: the photometric yaw uses as many views (evenly spread) as fit in it
             (:mod:`.view_budget`); the silhouette cost's time and memory grow linearly with the views.
     """
@@ -186,6 +196,7 @@ class CalibrationSettings:
     roll_scan: bool = True
     polish: bool = True
     polish_steps_deg: tuple[float, ...] = (0.2, 0.1, 0.05, 0.025)
+    polish_zooms: int = 2
     memory_mb: float = 1536.0
 
     def to_json(self) -> str:
@@ -403,7 +414,7 @@ class _Problem:
                 self._atlas = None  # the previous level's, before the next is made
                 self._atlas = (li, coherence_atlas(maps_pf))  # held over the specimen's window only
             obj = CoherenceObjective(self._atlas[1], edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                     trim=st.coherence_trim, per_candidate=per_candidate)
+                                     trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=lv.local_zooms)
             if st.dark_weight > 0:  # the images at the level's size are only needed for the dark features
                 level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in self.images])
                 pdark = dark_feature_probability(level_images, maps_pf)
@@ -411,7 +422,7 @@ class _Problem:
                     dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2,
                                                   all_runs=True)
                     dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                              trim=st.coherence_trim, per_candidate=per_candidate)
+                                              trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=lv.local_zooms)
                     obj = SumObjective([obj, dark], [1.0, st.dark_weight])
         elif self.method == "pi":
             lmap = np.clip(np.log(np.clip(maps_pf, st.eps, 1 - st.eps)), np.log(st.eps), np.log1p(-st.eps))
@@ -803,6 +814,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         n_rolls = int(np.sum(space.free_mask[4:])) + int(gauge)
         clock.name_phase(1, "per-view polish: region")
         fast, _, _, _ = problem.level_objective(last, x)
+        for part in getattr(fast, "parts", None) or [fast]:
+            if hasattr(part, "local_zooms"):
+                part.local_zooms = settings.polish_zooms
         width_obj = fast
         n_steps = len(settings.polish_steps_deg)
         # its evaluations, at most: x, each sweep's 2F + 1 trials and 3 moves, the final x and the judge's
