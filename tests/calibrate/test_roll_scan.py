@@ -11,7 +11,8 @@ import pytest
 
 from vastcal.calibrate.objective_coherence import CoherenceObjective, axis_crossings, signed_distance_maps, silhouette_edges
 from vastcal.calibrate.parameters import ParameterSpace
-from vastcal.calibrate.roll_scan import basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan
+from vastcal.calibrate.roll_scan import (MAX_OUTLIER_VIEWS, basin_half_widths_deg, outlier_views, plan_grid, roll_motion_px_per_deg,
+                                        roll_scan, scan_outlier_views)
 from vastcal.calibrate.run import POLISH_REACH, polish_rolls, roll_share
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import projection_matrices
@@ -191,3 +192,37 @@ def test_views_moved_by_the_scan_double_the_next_level_s_budget(monkeypatch: pyt
                         settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, polish=False))
     assert r.level_reports[0]["roll_scan"]["moved"] == [8]
     assert r.level_reports[1]["max_evaluations"] == int(MOVED_BUDGET_SCALE * 200) > 200
+
+
+def test_an_outlier_view_is_scanned_on_the_judge_and_brought_back(scene: tuple) -> None:
+    """View 8 12° off after the levels: its own rays' cost stands out of the others' by far (robust z), its whole box
+    is scored on the batch-independent cost and it comes back; at the truth nothing stands out and nothing moves."""
+    theta, fast, exact, points = scene
+    K, d = synthetic.camera()
+    for off, moved in ((12.0, True), (0.0, False)):
+        commanded = theta.copy()
+        commanded[3 + 8] += off
+        space = ParameterSpace.build(commanded, ["rolls"], BOX)
+        x0 = np.zeros(space.n_free)
+        f0 = float(exact(space.theta(x0))[0])
+        w = basin_half_widths_deg(roll_motion_px_per_deg(K, d, space.theta(x0)[0], points), fast.cap_px)
+        x, f, evals, report = scan_outlier_views(exact, exact.view_costs, space, x0, f0, w)
+        if moved:
+            assert list(report["flagged"])[0] == "8" and list(report["moved"]) == ["8"]
+            assert abs(space.theta(x)[0][3 + 8] - theta[3 + 8]) < 1.0 and f < 0.7 * f0
+            others = np.delete(np.arange(12), 8)
+            np.testing.assert_allclose(space.theta(x)[0][3 + others], theta[3 + others])
+            assert evals > 1 + 15.0 / w[8]  # the whole box of the view, on a grid of half its basin
+        else:
+            assert report["moved"] == {} and np.array_equal(x, x0) and f == f0
+
+
+def test_outlier_views_are_judged_by_the_median_and_its_absolute_deviation() -> None:
+    costs = np.array([1.0, 1.1, 0.9, 1.05, 0.95, 1.0, 1.02, 9.0, 0.98, 30.0, 1.0, 1.0])
+    flagged = outlier_views(costs, np.arange(1, 12))
+    assert [v for v, _ in flagged] == [9, 7] and flagged[0][1] > flagged[1][1] > 5.0
+    assert outlier_views(costs, np.array([1, 2, 3])) == []  # only free views are candidates
+    assert outlier_views(np.ones(12), np.arange(1, 12)) == []  # no spread: nothing stands out
+    many = np.r_[np.linspace(0.9, 1.1, 8), [50.0, 60.0, 70.0, 80.0]]
+    assert len(outlier_views(many, np.arange(1, 12))) == MAX_OUTLIER_VIEWS
+

@@ -340,6 +340,12 @@ class SumObjective:
         self.n_evaluations += th.shape[0]
         return sum(w * p(th) for p, w in zip(self.parts, self.weights))
 
+    def view_costs(self, theta_deg: np.ndarray) -> np.ndarray:
+        """(B, N): each view's edge rays' share of the cost (summed over the views: the cost)."""
+        th = np.atleast_2d(theta_deg)
+        self.n_evaluations += th.shape[0]
+        return sum(w * p.view_costs(th) for p, w in zip(self.parts, self.weights))
+
 
 class CoherenceObjective:
     """C(θ) for a population of θ (see the module docstring); lower is better.
@@ -820,8 +826,8 @@ class CoherenceObjective:
         out[..., 3, :, :] = 1.0
         return out
 
-    def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
-        """Costs (B,) for θ (B, 3 + N) degrees."""
+    def _weighted_penalties(self, theta_deg: np.ndarray) -> np.ndarray:
+        """(B, N, R): every edge ray's penalty softplus(−r/σ)·σ (capped), times its weight."""
         th = np.atleast_2d(theta_deg)
         r = self.residuals(th)
         sig = self.sigma
@@ -829,4 +835,12 @@ class CoherenceObjective:
         if self.cap_px > 0:  # redescending: an edge far off every other view (mis-segmented) stops pulling
             pen = self.cap_px * np.tanh(pen / self.cap_px)
         self.n_evaluations += th.shape[0]
-        return (pen * self.weight).sum(axis=(1, 2)).astype(np.float64)
+        return pen * self.weight
+
+    def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
+        """Costs (B,) for θ (B, 3 + N) degrees."""
+        return self._weighted_penalties(theta_deg).sum(axis=(1, 2)).astype(np.float64)
+
+    def view_costs(self, theta_deg: np.ndarray) -> np.ndarray:
+        """(B, N): each view's edge rays' share of the cost (B,) (summed over the views: :meth:`__call__`)."""
+        return self._weighted_penalties(theta_deg).sum(axis=2).astype(np.float64)

@@ -43,7 +43,7 @@ from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.photometric_yaw import SCHEDULE, enough_directions, expected_evaluations, finest_voxel_um, refine_yaw
 from vastcal.calibrate.region import specimen_region
-from vastcal.calibrate.roll_scan import basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan
+from vastcal.calibrate.roll_scan import basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan, scan_outlier_views
 from vastcal.calibrate.roll_width import RollWidths, roll_widths
 from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
@@ -601,6 +601,26 @@ def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np
     return x, n_scan + 1, report
 
 
+def _outlier_scan_stage(problem: _Problem, judge_obj: Any, judge: Callable[[np.ndarray], np.ndarray], region: Any, K_lv: np.ndarray,
+                        x: np.ndarray, f: float, clock: ProgressClock, evals_before: int) -> tuple[np.ndarray, float, int, dict[str, Any]]:
+    """The outlier views' scan (:func:`.roll_scan.scan_outlier_views`) on the judge, from the kept start x (judged
+    cost f); returns (x, its judged cost, evaluations, report). Basin widths as in :func:`_roll_scan_stage`, at the
+    judge's level; a progress phase per scanned view."""
+    space = problem.space
+    points = region.voxels[:: max(1, len(region.voxels) // 2000)]
+    cap = min(float(p.cap_px) for p in (getattr(judge_obj, "parts", None) or [judge_obj]))
+    widths = basin_half_widths_deg(roll_motion_px_per_deg(K_lv, problem.distance, space.theta(x)[0], points), cap)
+    clock.name_phase(1, "outlier views")
+
+    def started(k: int, planned: int) -> None:
+        clock.name_phase(planned, f"outlier views: roll scan {k + 1}")
+
+    x, f, n, report = scan_outlier_views(judge, judge_obj.view_costs, space, x, f, widths, on_view=started)
+    clock.update(evals_before + n, f)
+    report["ran"] = True
+    return x, f, n, report
+
+
 def roll_share(obj: Any, n_views: int) -> float:
     """The fraction of ``obj``'s cost that one view's roll enters: for the coherence cost, the rays of that view and of
     the views that check their rays against it, K + 1 of N views on average (K partners,
@@ -796,7 +816,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     t_j = time.monotonic()
     last = len(settings.levels) - 1
     clock.name_phase(1, "judging the starts")
-    judge_obj, judge_region, _, _ = problem.level_objective(last, runs[0].x, exact=True)
+    judge_obj, judge_region, judge_K, _ = problem.level_objective(last, runs[0].x, exact=True)
     judge = problem.cost_fn(judge_obj)
     X = np.stack([r.x for r in runs])
     start_costs = judge(space.theta(X))
@@ -806,6 +826,10 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     evals_done += len(cands)
     best = int(np.argmin(start_costs))
     x, f = X[best].copy(), float(start_costs[best])
+    outliers: dict[str, Any] = {"ran": False}
+    if method == "coherence" and settings.roll_scan and np.any(space.free_mask[4:]):
+        x, f, n_out, outliers = _outlier_scan_stage(problem, judge_obj, judge, judge_region, judge_K, x, f, clock, evals_done)
+        evals_done += n_out
     polished = {"converged": True, "evaluations": 0}
     width_obj = judge_obj  # the data cost each roll's width is read from: the polish's, which set the rolls, where it ran
     if settings.polish and np.any(space.free_mask[4:]):
@@ -861,7 +885,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     reports = [rep for r in runs for rep in r.reports]
     judge_report: dict[str, Any] = {"judge": "finest level, batch-independent cost + prior", "start_costs": start_costs.tolist(),
                                     "theta0_cost": float(ref_costs[0]), "reference_costs": ref_costs[1:].tolist(), "kept": kept,
-                                    "final_cost": f, "polish": polished, "converged": converged, "stop_reason": why,
+                                    "final_cost": f, "outlier_scan": outliers, "polish": polished, "converged": converged, "stop_reason": why,
                                     "cma_levels_converged": level_converged, "scored_costs": scored}
     reports.append(judge_report)
     trace = [t for r in runs for t in r.trace] + [(evals_done, f)]
