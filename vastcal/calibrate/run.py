@@ -79,11 +79,6 @@ class Level:
     scaled_steps: bool = False
     """Start CMA-ES with per-coordinate steps inversely proportional to how far each coordinate moves
     the specimen's image (:meth:`.ParameterSpace.image_sensitivity`), instead of equal box fractions."""
-    local_zooms: int = 0
-    """Zoom stages refining each candidate's maximum along every edge ray (coherence cost,
-    :meth:`.objective_coherence.CoherenceObjective._local_max`): without them a candidate away from the batch
-    mean is read on a 0.5 px grid whose under-estimate of a kinked maximum the mean does not pay, which pulls
-    the search towards the mean. The last level ends the search, where that pull decides where it stops."""
     max_initial_step_px: float | None = None
     """Cap of each coordinate's initial CMA-ES step, in pixels of image motion at this level (None: no
     cap). The coherence cost searches every candidate's rays around the population mean's maxima, a
@@ -414,7 +409,7 @@ class _Problem:
                 self._atlas = None  # the previous level's, before the next is made
                 self._atlas = (li, coherence_atlas(maps_pf))  # held over the specimen's window only
             obj = CoherenceObjective(self._atlas[1], edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                     trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=lv.local_zooms)
+                                     trim=st.coherence_trim, per_candidate=per_candidate)
             if st.dark_weight > 0:  # the images at the level's size are only needed for the dark features
                 level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in self.images])
                 pdark = dark_feature_probability(level_images, maps_pf)
@@ -422,7 +417,7 @@ class _Problem:
                     dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2,
                                                   all_runs=True)
                     dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                              trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=lv.local_zooms)
+                                              trim=st.coherence_trim, per_candidate=per_candidate)
                     obj = SumObjective([obj, dark], [1.0, st.dark_weight])
         elif self.method == "pi":
             lmap = np.clip(np.log(np.clip(maps_pf, st.eps, 1 - st.eps)), np.log(st.eps), np.log1p(-st.eps))
