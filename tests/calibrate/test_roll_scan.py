@@ -226,3 +226,17 @@ def test_outlier_views_are_judged_by_the_median_and_its_absolute_deviation() -> 
     many = np.r_[np.linspace(0.9, 1.1, 8), [50.0, 60.0, 70.0, 80.0]]
     assert len(outlier_views(many, np.arange(1, 12))) == MAX_OUTLIER_VIEWS
 
+
+
+def test_a_moved_outlier_view_is_named_in_the_calibration_summary() -> None:
+    from vastcal.calibrate.run import CalibrationResult, CalibrationSettings
+
+    def result(scan: dict) -> CalibrationResult:
+        th = np.zeros(3 + 4)
+        return CalibrationResult("coherence", th, th, np.eye(3), 1.0, np.zeros((4, 3, 4)), None, 0, ("rolls",), {}, CalibrationSettings(),
+                                 10, 1.0, 0.1, 100, 50.0, np.zeros((1, 2)), level_reports=[{"judge": "…", "outlier_scan": scan}])
+
+    moved = result({"flagged": {"2": 77.2}, "moved": {"2": -17.04}})
+    assert "outlier view(s) moved by a scan of their whole roll box: 2 (-17.04°, z 77)" in moved.summary()
+    assert "outlier" not in result({"flagged": {"2": 6.1}, "moved": {}}).summary()
+    assert "outlier" not in result({"ran": False}).summary()

@@ -254,6 +254,7 @@ class CalibrationResult:
         d = self.delta_angle_deg
         where = f" → {self.session_path}:{self.run_name}" if self.run_name else ""
         return (f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
+                f"{self._outlier_line()}"
                 f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
                 f"roll − commanded (views 1..N-1): RMS {drift_rms_deg(d)[0]:.3f}°, max {drift_rms_deg(d)[1]:.3f}°"
                 f"{' - ' + self.roll_widths.describe() if self.roll_widths is not None else ''}\n"
@@ -261,6 +262,17 @@ class CalibrationResult:
                 f"start(s), {'converged' if self.converged else 'NOT converged'}: {self.stop_reason}\n"
                 f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
                 f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB")
+
+
+    def _outlier_line(self) -> str:
+        """A line for the outlier views the judge's whole-box scan moved (:func:`.roll_scan.scan_outlier_views`), or ""."""
+        scan = next((r["outlier_scan"] for r in self.level_reports if isinstance(r.get("outlier_scan"), dict)), {})
+        moved = scan.get("moved") or {}
+        if not moved:
+            return ""
+        z = scan.get("flagged", {})
+        views = ", ".join(f"{v} ({float(m):+.2f}°, z {z.get(v, float('nan')):.0f})" for v, m in moved.items())
+        return f"  outlier view(s) moved by a scan of their whole roll box: {views} - their edges stood out of the others' hull\n"
 
 
 def roll_prior(theta: np.ndarray, theta0: np.ndarray, sigma_deg: float) -> np.ndarray:
