@@ -216,6 +216,14 @@ def test_an_outlier_view_is_scanned_on_the_judge_and_brought_back(scene: tuple) 
         else:
             assert report["moved"] == {} and np.array_equal(x, x0) and f == f0
 
+    def unasked(th: np.ndarray) -> np.ndarray:
+        raise AssertionError("a box within one basin needs no view's cost")
+
+    narrow = ParameterSpace.build(theta, ["rolls"], CalibrationBounds(0.0, 0.0, 0.0, 1.5))  # ±1.5°: inside one basin
+    w = basin_half_widths_deg(roll_motion_px_per_deg(K, d, theta, points), fast.cap_px)
+    x, f, evals, report = scan_outlier_views(exact, unasked, narrow, np.zeros(narrow.n_free), 1.0, w)
+    assert evals == 0 and report["moved"] == {} and f == 1.0
+
 
 def test_outlier_views_are_judged_by_the_median_and_its_absolute_deviation() -> None:
     costs = np.array([1.0, 1.1, 0.9, 1.05, 0.95, 1.0, 1.02, 9.0, 0.98, 30.0, 1.0, 1.0])

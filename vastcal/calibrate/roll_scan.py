@@ -350,24 +350,28 @@ def scan_outlier_views(judge: CostFn, view_costs: Callable[[np.ndarray], np.ndar
     so its share of the cost stands out (z = 77 there; the other views' z < 2). Its roll is scored on a grid of
     :data:`STEP_FRACTION` × its narrowest basin half-width (``half_width_deg`` (N,)) — one batch of single-roll moves,
     each searched in full — and moved to the grid's best point when that lowers the judged cost (the per-view
-    polish that follows refines it). Views whose box range lies within one basin are not scanned.
-    ``on_view(k, evaluations)`` is told each scanned view's planned evaluations. Returns (x, judged cost,
-    evaluations, report).
+    polish that follows refines it). Views whose box range lies within one basin are not scanned; when no free view's
+    does (a microscope), nothing is evaluated. ``on_view(k, evaluations)`` is told each scanned view's planned
+    evaluations. Returns (x, judged cost, evaluations, report).
     """
     th = space.theta(x)[0]
-    free_views = np.flatnonzero(space.free_mask[3:])
-    free_views = free_views[free_views > 0]
+    free_views = np.flatnonzero(space.free_mask[3:])  # view 0 is never free (parameters module)
+    w = np.asarray(half_width_deg, float)
+    span = space.upper[3:] - space.lower[3:]
+    scannable = np.isfinite(w) & (span > w)
+    f = float(f_judged)
+    if not scannable[free_views].any():
+        return x, f, 0, {"flagged": {}, "moved": {}, "evaluations": 0, "judged_after": f,
+                         "why": "every free roll's box lies within one basin of its cost"}
     costs = np.asarray(view_costs(th[None]), float)[0]
     evals = 1
     flagged = outlier_views(costs, free_views)
     report: dict[str, Any] = {"flagged": {str(v): round(z, 1) for v, z in flagged}, "moved": {}}
-    f = float(f_judged)
     for k, (v, _) in enumerate(flagged):
-        lo, hi = float(space.lower[3 + v]), float(space.upper[3 + v])
-        w = float(half_width_deg[v])
-        if not np.isfinite(w) or hi - lo <= w:
+        if not scannable[v]:
             continue
-        grid = np.arange(lo, hi + 1e-9, STEP_FRACTION * w)
+        lo, hi = float(space.lower[3 + v]), float(space.upper[3 + v])
+        grid = np.arange(lo, hi + 1e-9, STEP_FRACTION * w[v])
         TH = np.repeat(th[None], grid.size + 1, axis=0)
         TH[1:, 3 + v] = grid
         if on_view is not None:

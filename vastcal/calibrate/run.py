@@ -263,7 +263,6 @@ class CalibrationResult:
                 f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
                 f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB")
 
-
     def _outlier_line(self) -> str:
         """A line for the outlier views the judge's whole-box scan moved (:func:`.roll_scan.scan_outlier_views`), or ""."""
         scan = next((r["outlier_scan"] for r in self.level_reports if isinstance(r.get("outlier_scan"), dict)), {})
@@ -372,11 +371,12 @@ class _Problem:
         del self.pf, self.sil_src
         self._region0 = None
 
-    def level_objective(self, li: int, x: np.ndarray, *, exact: bool = False) -> tuple[Any, Any, np.ndarray, tuple[int, ...]]:
+    def level_objective(self, li: int, x: np.ndarray, *, exact: bool = False, local_zooms: int = 0) -> tuple[Any, Any, np.ndarray, tuple[int, ...]]:
         """(objective, region, K of the level, map shape) of level ``li`` built around the free coordinates ``x``.
 
         ``exact``: the coherence cost searches every candidate's own rays (its value does not depend on the
-        rest of the batch: the cost that judges starts and polishes the result).
+        rest of the batch: the cost that judges the starts and the polish's result). ``local_zooms``: the coherence
+        cost's zoom stages around each ray's best window sample (:class:`.objective_coherence.CoherenceObjective`).
         """
         st, space, distance = self.settings, self.space, self.distance
         lv = st.levels[li]
@@ -421,7 +421,7 @@ class _Problem:
                 self._atlas = None  # the previous level's, before the next is made
                 self._atlas = (li, coherence_atlas(maps_pf))  # held over the specimen's window only
             obj = CoherenceObjective(self._atlas[1], edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                     trim=st.coherence_trim, per_candidate=per_candidate)
+                                     trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=local_zooms)
             if st.dark_weight > 0:  # the images at the level's size are only needed for the dark features
                 level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in self.images])
                 pdark = dark_feature_probability(level_images, maps_pf)
@@ -429,7 +429,7 @@ class _Problem:
                     dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2,
                                                   all_runs=True)
                     dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                              trim=st.coherence_trim, per_candidate=per_candidate)
+                                              trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=local_zooms)
                     obj = SumObjective([obj, dark], [1.0, st.dark_weight])
         elif self.method == "pi":
             lmap = np.clip(np.log(np.clip(maps_pf, st.eps, 1 - st.eps)), np.log(st.eps), np.log1p(-st.eps))
@@ -567,6 +567,18 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
 MOVED_BUDGET_SCALE = 2.0
 
 
+def _basin_widths(problem: _Problem, obj: Any, region: Any, K_lv: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """θ (3 + N,) degrees → every view's narrowest basin half-width (N,) degrees of ``obj``'s cost at a level of
+    camera K_lv: its penalty cap over the image motion of the level region's points (a subset of ≤ ~2000) under each
+    roll (:func:`.roll_scan.basin_half_widths_deg`)."""
+    points = region.voxels[:: max(1, len(region.voxels) // 2000)]
+    cap = min(float(p.cap_px) for p in (getattr(obj, "parts", None) or [obj]))
+
+    def widths(theta: np.ndarray) -> np.ndarray:
+        return basin_half_widths_deg(roll_motion_px_per_deg(K_lv, problem.distance, theta, points), cap)
+    return widths
+
+
 def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np.ndarray, x: np.ndarray, clock: ProgressClock,
                      evals_before: int, name: str) -> tuple[np.ndarray, int, dict[str, Any]]:
     """The per-view roll scan (:func:`.roll_scan.roll_scan`) from x after level ``li`` on that level's fast cost ``obj``,
@@ -577,13 +589,7 @@ def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np
     is free. A progress phase per round, of the round's planned evaluations.
     """
     space, st = problem.space, problem.settings
-    points = region.voxels[:: max(1, len(region.voxels) // 2000)]
-    parts = getattr(obj, "parts", None) or [obj]
-    cap = min(float(p.cap_px) for p in parts)
-
-    def widths(theta: np.ndarray) -> np.ndarray:
-        return basin_half_widths_deg(roll_motion_px_per_deg(K_lv, problem.distance, theta, points), cap)
-
+    widths = _basin_widths(problem, obj, region, K_lv)
     gauge = bool(np.all(space.free_mask[4:]))
     first = plan_grid(space, x, widths(space.theta(x)[0]), gauge)
     spread = [float(np.min(first.half_width_deg)), float(np.max(first.half_width_deg))]
@@ -614,9 +620,7 @@ def _outlier_scan_stage(problem: _Problem, judge_obj: Any, judge: Callable[[np.n
     cost f); returns (x, its judged cost, evaluations, report). Basin widths as in :func:`_roll_scan_stage`, at the
     judge's level; a progress phase per scanned view."""
     space = problem.space
-    points = region.voxels[:: max(1, len(region.voxels) // 2000)]
-    cap = min(float(p.cap_px) for p in (getattr(judge_obj, "parts", None) or [judge_obj]))
-    widths = basin_half_widths_deg(roll_motion_px_per_deg(K_lv, problem.distance, space.theta(x)[0], points), cap)
+    widths = _basin_widths(problem, judge_obj, region, K_lv)(space.theta(x)[0])
     clock.name_phase(1, "outlier views")
 
     def started(k: int, planned: int) -> None:
@@ -844,10 +848,7 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         gauge = settings.roll_scan and method == "coherence" and bool(np.all(space.free_mask[4:])) and settings.roll_prior_weight <= 0
         n_rolls = int(np.sum(space.free_mask[4:])) + int(gauge)
         clock.name_phase(1, "per-view polish: region")
-        fast, _, _, _ = problem.level_objective(last, x)
-        for part in getattr(fast, "parts", None) or [fast]:
-            if hasattr(part, "local_zooms"):
-                part.local_zooms = settings.polish_zooms
+        fast, _, _, _ = problem.level_objective(last, x, local_zooms=settings.polish_zooms)
         width_obj = fast
         n_steps = len(settings.polish_steps_deg)
         # its evaluations, at most: x, each sweep's 2F + 1 trials and 3 moves, the final x and the judge's
