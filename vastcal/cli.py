@@ -530,7 +530,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--masks", help="folder of silhouettes, one per image, or a stack file of them")
     s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: a stack's own angles - OME 'angle' "
                                     "annotations, ImageJ slice labels 'angle=12.5' - else uniform over 360)")
-    s.add_argument("--cameras", help="known cameras: a 'name + 12 numbers (P)' or 'name + K(9) R(9) t(3)' file, or a folder of .pa files")
+    s.add_argument("--cameras", help="known 3 x 4 cameras: a text file ('[name] p11 .. p34' or '[name] K(9) R(9) t(3)' per line, or 3 rows of 4 "
+                        "numbers per view), a folder of .pa or PMVS .txt files, or an .npy/.npz/.mat array (README: import)")
     s.add_argument("--length-unit", choices=("nm", "um", "mm", "cm", "m"), default=None,
                    help="world unit of --cameras (default: um when their distance to the axis matches --config's working distance, "
                         "else unknown: measurements in units of the cameras)")

@@ -70,6 +70,11 @@ def length_unit_um(unit: str | None) -> float | None:
     return LENGTH_UNITS_UM.get(u)
 
 
+
+def natural_key(name: str) -> list[object]:
+    """Sort key that orders embedded numbers numerically (``a2`` < ``a10``): the order of a folder's views."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
 @dataclass(frozen=True)
 class ImageMetadata:
     """What a file says about its optics and views.

@@ -22,9 +22,9 @@ Inputs, all but the images optional:
 * crops — frames cut from a larger sensor need their offset (``roi_offset``, ``--roi-offset``): from the
   config's ``camera.roi`` when its size is the images'; an import whose principal point (the cameras' or
   the config's) falls outside the images, or whose config ROI is another size, is refused naming ``--roi-offset``.
-* cameras — known projection matrices, either one text file with ``name p11 … p34`` per line
-  (12 numbers, row-major 3 × 4; the zebrafish authors' format) or a folder of ``*.pa`` files
-  with one 3 × 4 matrix each (ETH's format). ``pixel_origin`` is the coordinate those cameras give to the
+* cameras — known projection matrices in any format of :mod:`vastcal.camera_files` (a text file with
+  ``name p11 … p34`` or ``name K R t`` per line or matrices row by row, a folder of ``*.pa`` or PMVS ``*.txt``
+  files, ``.npy``/``.npz``/``.mat`` arrays). ``pixel_origin`` is the coordinate those cameras give to the
   *centre* of the first pixel: 0 (0-based centres), 1 (1-based, MATLAB) or 0.5 (pixel corners at
   integers, the continuous-image convention); ``roi_offset`` (x, y) says where the stored frames sit on the sensor the cameras
   were given for. The matrices are stored exactly as given (``cameras/P_given``) and converted
@@ -36,7 +36,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import re
 import warnings
 from pathlib import Path
 from typing import Callable, Sequence
@@ -45,9 +44,11 @@ import cv2
 import numpy as np
 
 from vastcal import image_files
+from vastcal.camera_files import MAX_TEXT_BYTES, read_cameras
 from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError, VastcalError
 from vastcal.geometry import LENGTH_UNITS_UM, decompose_circular, shift_pixels
+from vastcal.image_files import natural_key
 from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter
 
@@ -57,11 +58,6 @@ log = logging.getLogger(__name__)
 PIXEL_ORIGINS = (0.0, 0.5, 1.0)
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bmp")
-
-
-def natural_key(name: str) -> list[object]:
-    """Sort key that orders embedded numbers numerically (``a2`` < ``a10``)."""
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
 def list_images(folder: Path) -> list[Path]:
@@ -82,8 +78,6 @@ MAX_IMAGE_PIXELS = 1 << 28
 """Most pixels one imported image may have: 268 M (16384 x 16384), beyond any camera sensor; a
 header that claims more is refused before the pixels are decoded."""
 
-MAX_TEXT_BYTES = 16 << 20
-"""Largest angle or camera file read, bytes (one line per view)."""
 
 
 def image_size(path: Path) -> tuple[int, int] | None:
@@ -304,64 +298,6 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
 
 
 
-def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
-    """Known cameras as given: (N, 3, 4) from a camera file or a folder of ``.pa`` files.
-
-    A camera file has one line per view: the view name, then either 12 numbers (row-major 3 × 4 P; the
-    zebrafish authors' format) or 21 numbers ``K(9) R(9) t(3)`` (row-major K and R, then t; P = K·[R | t];
-    Middlebury's format). A first line holding only the number of views (Middlebury's) is skipped, and so
-    are blank lines and ``#`` comments. Cameras may be right- or left-handed (det of P's left 3 × 3 of either
-    sign; see :func:`vastcal.geometry.decompose_projection`).
-
-    Raises:
-        ImportDataError: wrong format or a count different from ``n``.
-    """
-    mats: list[np.ndarray] = []
-    names: list[str] = []
-    if path.is_dir():
-        files = sorted((f for f in path.glob("*.pa") if f.is_file()), key=lambda p: natural_key(p.name))  # no FIFO: it would block
-        for f in files:
-            try:
-                m = np.loadtxt(f, dtype=float)
-            except ValueError as exc:
-                raise ImportDataError(f"{f}: expected a 3 x 4 matrix of numbers ({exc})") from None
-            if m.shape != (3, 4):
-                raise ImportDataError(f"{f}: expected a 3 x 4 matrix, got shape {m.shape}")
-            mats.append(m)
-            names.append(f.stem)
-    elif path.is_file():
-        if path.stat().st_size > MAX_TEXT_BYTES:
-            raise ImportDataError(f"{path}: larger than {MAX_TEXT_BYTES} bytes; expected one camera per line")
-        first = True
-        for lineno, ln in enumerate(path.read_text().splitlines(), 1):
-            tok = ln.split()
-            if not tok or tok[0].startswith("#"):
-                continue
-            if first and len(tok) == 1 and tok[0].isdigit():  # Middlebury's count line
-                first = False
-                continue
-            first = False
-            try:
-                nums = [float(t) for t in tok[1:]]
-            except ValueError:
-                nums = []
-            if len(nums) == 12:
-                P = np.asarray(nums).reshape(3, 4)
-            elif len(nums) == 21:
-                Km, Rm, tv = np.asarray(nums[:9]).reshape(3, 3), np.asarray(nums[9:18]).reshape(3, 3), np.asarray(nums[18:])
-                P = Km @ np.c_[Rm, tv]
-            else:
-                raise ImportDataError(f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P) "
-                                      f"or 21 numbers (K(9) R(9) t(3)), got {len(tok) - 1} fields")
-            mats.append(P)
-            names.append(tok[0])
-    else:
-        raise ImportDataError(f"{path}: no such camera file or folder")
-    if len(mats) != n:
-        raise ImportDataError(f"{path}: {len(mats)} cameras for {n} images")
-    return np.asarray(mats), names
-
-
 def camera_length_unit(P: np.ndarray, given: str | None, working_distance_um: float | None) -> tuple[str, str]:
     """(unit, how it was decided) of the world of imported cameras ``P`` (N, 3, 4).
 
@@ -487,7 +423,7 @@ def import_folder(
         masks: folder of silhouettes matching the images one to one, or a stack file of them.
         angles: text file of commanded angles (degrees); default: the stack's own angles (OME annotations,
             ImageJ slice labels) when it has them, else uniform over 360° (or the cameras' rolls, :func:`angles_of_cameras`).
-        cameras: ``name + 12 numbers`` file or folder of ``.pa`` files.
+        cameras: a camera file or folder of any format of :mod:`vastcal.camera_files`.
         pixel_origin: 0, 0.5 or 1 — the coordinate ``cameras`` give to the first pixel's centre.
         roi_offset: (x, y) of the stored frames on the sensor (px, 0-based); default from
             ``config.camera.roi`` when its size is the images', (0, 0) when the images are the whole sensor.

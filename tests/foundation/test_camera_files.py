@@ -1,0 +1,138 @@
+"""Camera files of recorded sets (:mod:`vastcal.camera_files`): every format gives the same matrices, and a
+malformed file is refused naming the file and line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import scipy.io
+
+from vastcal import cli
+from vastcal.camera_files import read_cameras
+from vastcal.errors import ImportDataError
+from vastcal.session import Session
+
+N = 4
+
+
+def _cameras(n: int = N) -> np.ndarray:
+    """n cameras 36° apart about the world y axis, 10 units away, f = 800 px."""
+    K = np.array([[800.0, 0.0, 160.0], [0.0, 790.0, 120.0], [0.0, 0.0, 1.0]])
+    out = []
+    for a in np.radians(np.arange(n) * 36.0):
+        R = np.array([[np.cos(a), 0.0, -np.sin(a)], [0.0, 1.0, 0.0], [np.sin(a), 0.0, np.cos(a)]])
+        out.append(K @ np.c_[R, [0.0, 0.0, 10.0]])
+    return np.asarray(out)
+
+
+def _fmt(x: np.ndarray) -> str:
+    return " ".join(f"{v:.17g}" for v in np.ravel(x))
+
+
+def _write(kind: str, P: np.ndarray, folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    if kind == "name+P":
+        (f := folder / "c.txt").write_text("".join(f"{i:03d} {_fmt(p)}\n" for i, p in enumerate(P)))
+    elif kind == "P":
+        (f := folder / "c.txt").write_text("# P, row-major\n" + "".join(f"{_fmt(p)}\n" for p in P))
+    elif kind == "KRt":
+        K = P[0] @ np.linalg.pinv(np.c_[np.eye(3), np.zeros(3)])  # the left 3 × 3 of view 0 is K (its R is I)
+        rows = [f"{_fmt(K)} {_fmt(np.linalg.solve(K, p)[:, :3])} {_fmt(np.linalg.solve(K, p)[:, 3])}" for p in P]
+        (f := folder / "c_par.txt").write_text(f"{len(P)}\n" + "".join(f"v{i}.png {r}\n" for i, r in enumerate(rows)))
+    elif kind == "rows":
+        (f := folder / "c.txt").write_text("".join(f"P{i}:\n" + "".join(f"{_fmt(r)}\n" for r in p) + "\n" for i, p in enumerate(P)))
+    elif kind == "rows-unnamed":
+        (f := folder / "c.txt").write_text("".join(f"{_fmt(r)}\n" for p in P for r in p))
+    elif kind == "pa":
+        for i, p in enumerate(P):
+            (folder / f"v_{i:02d}.pa").write_text("".join(f"{_fmt(r)}\n" for r in p))
+        f = folder
+    elif kind == "pmvs":
+        for i, p in enumerate(P):
+            (folder / f"{i:08d}.txt").write_text("CONTOUR\n" + "".join(f"{_fmt(r)}\n" for r in p))
+        f = folder
+    elif kind == "npy":
+        np.save(f := folder / "P.npy", P)
+    elif kind == "npz":
+        np.savez(f := folder / "cams.npz", P=P, K=P[:, :, :3])
+    elif kind == "mat-cell":  # the Oxford sets' *_Ps.mat: a 1 × N cell array named P
+        cell = np.empty((1, len(P)), dtype=object)
+        for i, p in enumerate(P):
+            cell[0, i] = p
+        scipy.io.savemat(f := folder / "dino_Ps.mat", {"P": cell})
+    elif kind == "mat-3x4xN":
+        scipy.io.savemat(f := folder / "cams.mat", {"cams": np.moveaxis(P, 0, 2)})
+    else:
+        raise AssertionError(kind)
+    return f
+
+
+KINDS = ["name+P", "P", "KRt", "rows", "rows-unnamed", "pa", "pmvs", "npy", "npz", "mat-cell", "mat-3x4xN"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_format_gives_the_same_cameras(kind: str, tmp_path: Path) -> None:
+    P = _cameras()
+    got, names = read_cameras(_write(kind, P, tmp_path / kind), N)
+    np.testing.assert_allclose(got, P, rtol=1e-12, atol=1e-9)
+    assert len(names) == N and len(set(names)) == N
+    if kind == "name+P":
+        assert names == ["000", "001", "002", "003"]  # a numeric name is still a name
+    if kind == "rows":
+        assert names == ["P0", "P1", "P2", "P3"]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("1 2 3 4\n5 6 7 8\n", r"c\.txt: line 1: a matrix with 2 of its 3 rows"),
+        ("P0:\n1 2 3 4\nP1:\n", r"c\.txt: line 3: the matrix begun on line 1 has 1 of its 3 rows"),
+        ("v0 1 2 3 4 5 6 7 8 9 10 11\n", r"c\.txt: line 1: expected a view name and 12 numbers"),
+        ("v0 1 2 3 4 5 6 7 8 9 10 11 x12\n", r"c\.txt: line 1: expected a view name and 12 numbers"),
+    ],
+    ids=["two-rows", "name-then-one-row", "eleven-numbers", "not-a-number"],
+)
+def test_a_malformed_text_file_names_its_line(text: str, expected: str, tmp_path: Path) -> None:
+    (tmp_path / "c.txt").write_text(text)
+    with pytest.raises(ImportDataError, match=expected):
+        read_cameras(tmp_path / "c.txt", 1)
+
+
+def test_arrays_that_are_not_cameras_are_refused(tmp_path: Path) -> None:
+    scipy.io.savemat(tmp_path / "none.mat", {"K": np.eye(3)})
+    with pytest.raises(ImportDataError, match=r"none\.mat: holds no \(N, 3, 4\) array.*variables: K"):
+        read_cameras(tmp_path / "none.mat", N)
+    scipy.io.savemat(tmp_path / "two.mat", {"a": _cameras(), "b": _cameras()})
+    with pytest.raises(ImportDataError, match=r"two\.mat: several variables could be the cameras \(a, b\)"):
+        read_cameras(tmp_path / "two.mat", N)
+    (tmp_path / "junk.mat").write_bytes(b"MATLAB 5.0 MAT-file" + bytes(200))
+    with pytest.raises(ImportDataError, match=r"junk\.mat: not a readable \.mat file"):
+        read_cameras(tmp_path / "junk.mat", N)
+    np.save(tmp_path / "P.npy", _cameras(3))
+    with pytest.raises(ImportDataError, match=r"P\.npy: 3 cameras for 4 images"):
+        read_cameras(tmp_path / "P.npy", N)
+    (tmp_path / "pa").mkdir()
+    (tmp_path / "pa" / "v0.pa").write_text("CONTOUR\n1 2 3\n")
+    with pytest.raises(ImportDataError, match=r"v0\.pa: expected a 3 x 4 matrix \(12 numbers, after an optional CONTOUR line\), got 3"):
+        read_cameras(tmp_path / "pa", 1)
+
+
+def test_import_takes_the_oxford_mat_file_as_the_text_file(tmp_path: Path) -> None:
+    """`vastcal import --cameras dino_Ps.mat` stores the same cameras as the same matrices given as text."""
+    P = _cameras()
+    (img := tmp_path / "img").mkdir()
+    for i in range(N):
+        cv2.imwrite(str(img / f"viff.{i:03d}.ppm"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    stored = []
+    for kind in ("mat-cell", "name+P"):
+        out = tmp_path / f"{kind}.h5"
+        code = cli.main(["-q", "import", str(img), "-o", str(out), "--cameras", str(_write(kind, P, tmp_path / kind)),
+                         "--pixel-origin", "1"])
+        assert code == 0
+        with Session.open(out) as s:
+            stored.append(s.known_cameras)
+    assert stored[0] is not None and stored[1] is not None
+    np.testing.assert_array_equal(stored[0], stored[1])

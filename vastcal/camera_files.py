@@ -1,0 +1,226 @@
+"""Camera files of recorded multi-view sets: the 3 × 4 projection matrices ``vastcal import --cameras`` reads.
+
+Every format gives one matrix P per view, in the order of the images, mapping world points (homogeneous) to
+pixels (homogeneous): ``x ~ P · X``. What the formats hold:
+
+* a text file with one camera per line — a view name, then 12 numbers (row-major P; the zebrafish authors'
+  format) or 21 numbers ``K(9) R(9) t(3)`` (row-major K and R, then t; P = K·[R | t]; Middlebury's
+  ``*_par.txt``); the name may be left out (a line of numbers only). A first line holding only the number of
+  views (Middlebury's) is skipped, and so are blank lines and ``#`` comments;
+* a text file of matrices written row by row — three lines of four numbers per view, each matrix optionally
+  preceded by a line holding only its name (e.g. ``P0:`` or ``view_003``);
+* a folder of one file per view (natural order): ``*.pa`` (ETH's format: the 12 numbers), else ``*.txt``
+  whose 12 numbers may follow a ``CONTOUR`` line (the camera files of PMVS and VisualSFM);
+* a NumPy ``.npy`` array (N, 3, 4), or an ``.npz`` holding one such array (or one named ``P``);
+* a MATLAB ``.mat`` file (up to version 7.2, read with SciPy) holding an (N, 3, 4) or (3, 4, N) array or a cell
+  array of N 3 × 4 matrices — the variable named ``P`` or ``Ps`` when several would fit (the Oxford
+  turntable sets' ``*_Ps.mat``).
+
+Nothing here decides what the matrices' pixels or world units are: ``--pixel-origin`` and ``--length-unit`` of
+the import say that (:mod:`vastcal.importer`).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vastcal.errors import ImportDataError
+from vastcal.image_files import natural_key
+
+MAX_TEXT_BYTES = 16 << 20
+"""Largest angle or camera text file read, bytes (one line per view)."""
+
+MAX_ARRAY_BYTES = 64 << 20
+"""Largest ``.npy``/``.npz``/``.mat`` camera file read, bytes (a million cameras take 96 MB of float64)."""
+
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$|^[+-]?(nan|inf|infinity)$", re.IGNORECASE)
+
+PREFERRED_NAMES = ("P", "Ps")
+"""Variable names taken first from a ``.mat``/``.npz`` file that holds several arrays of cameras."""
+
+
+def _is_number(token: str) -> bool:
+    return bool(_NUMBER.match(token))
+
+
+def _krt(nums: list[float]) -> np.ndarray:
+    K, R, t = np.asarray(nums[:9]).reshape(3, 3), np.asarray(nums[9:18]).reshape(3, 3), np.asarray(nums[18:])
+    return K @ np.c_[R, t]
+
+
+def read_camera_text(path: Path) -> tuple[np.ndarray, list[str]]:
+    """Cameras (N, 3, 4) and their names from one text file (a camera per line, or three rows per camera).
+
+    Views without a name in the file are named ``view <index>`` (0-based).
+
+    Raises:
+        ImportDataError: a line that is neither, or a matrix left with fewer than three rows; naming the line.
+    """
+    if path.stat().st_size > MAX_TEXT_BYTES:
+        raise ImportDataError(f"{path}: larger than {MAX_TEXT_BYTES} bytes; expected one camera per line")
+    mats: list[np.ndarray] = []
+    names: list[str] = []
+    rows: list[list[float]] = []  # rows of a matrix written row by row
+    row_name: str | None = None
+    row_start = 0
+    first = True
+
+    def name_or_index(name: str | None) -> str:
+        return name if name is not None else f"view {len(mats)}"
+
+    for lineno, ln in enumerate(path.read_text().splitlines(), 1):
+        tok = ln.split()
+        if not tok or tok[0].startswith("#"):
+            continue
+        if first and len(tok) == 1 and tok[0].isdigit():  # Middlebury's count line
+            first = False
+            continue
+        first = False
+        if len(tok) == 1:  # the name of the matrix whose rows follow
+            if rows:
+                raise ImportDataError(f"{path}: line {lineno}: the matrix begun on line {row_start} has {len(rows)} of its 3 rows "
+                                      f"of 4 numbers")
+            row_name, row_start = tok[0].rstrip(":"), lineno
+            continue
+        if len(tok) == 4 and all(_is_number(t) for t in tok):  # a row of a matrix written row by row
+            if not rows and row_name is None:
+                row_start = lineno
+            rows.append([float(t) for t in tok])
+            if len(rows) == 3:
+                mats.append(np.asarray(rows))
+                names.append(name_or_index(row_name))
+                rows, row_name = [], None
+            continue
+        if rows or row_name is not None:
+            raise ImportDataError(f"{path}: line {lineno}: the matrix begun on line {row_start} has {len(rows)} of its 3 rows "
+                                  f"of 4 numbers")
+        named = len(tok) in (13, 22)  # a name (which may itself be a number, e.g. 001) and the numbers
+        body = tok[1:] if named else tok
+        nums = [float(t) for t in body] if all(_is_number(t) for t in body) else []
+        if len(nums) == 12:
+            P = np.asarray(nums).reshape(3, 4)
+        elif len(nums) == 21:
+            P = _krt(nums)
+        else:
+            raise ImportDataError(f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P) "
+                                  f"or 21 numbers (K(9) R(9) t(3)), or a row of 4 numbers of a matrix written row by row; "
+                                  f"got {len(tok)} fields")
+        names.append(tok[0] if named else name_or_index(None))
+        mats.append(P)
+    if rows or row_name is not None:
+        raise ImportDataError(f"{path}: line {row_start}: a matrix with {len(rows)} of its 3 rows of 4 numbers at the end of the file")
+    return np.asarray(mats).reshape(-1, 3, 4), names
+
+
+def _read_matrix_file(f: Path) -> np.ndarray:
+    """The 12 numbers of one per-view camera file (``.pa``, or PMVS's ``.txt`` after its ``CONTOUR`` line) as 3 × 4."""
+    if f.stat().st_size > MAX_TEXT_BYTES:
+        raise ImportDataError(f"{f}: larger than {MAX_TEXT_BYTES} bytes; expected one 3 x 4 matrix")
+    tok = f.read_text().split()
+    if tok and tok[0].upper() == "CONTOUR":
+        tok = tok[1:]
+    if len(tok) != 12 or not all(_is_number(t) for t in tok):
+        raise ImportDataError(f"{f}: expected a 3 x 4 matrix (12 numbers, after an optional CONTOUR line), got "
+                              f"{len(tok)} fields" + ("" if all(_is_number(t) for t in tok) else " that are not all numbers"))
+    return np.asarray([float(t) for t in tok]).reshape(3, 4)
+
+
+def read_camera_folder(path: Path) -> tuple[np.ndarray, list[str]]:
+    """Cameras (N, 3, 4) and names (file stems) from a folder of per-view files: ``*.pa``, else ``*.txt``.
+
+    Raises:
+        ImportDataError: no such files, or one that is not a 3 × 4 matrix (naming it).
+    """
+    for suffix in (".pa", ".txt"):
+        files = sorted((f for f in path.iterdir() if f.suffix.lower() == suffix and f.is_file()),  # no FIFO: it would block
+                       key=lambda p: natural_key(p.name))
+        if files:
+            return np.asarray([_read_matrix_file(f) for f in files]), [f.stem for f in files]
+    raise ImportDataError(f"{path}: no camera files in the folder (expected one .pa, or PMVS-style .txt, file per view)")
+
+
+def _as_cameras(value: Any) -> np.ndarray | None:
+    """(N, 3, 4) float from an array shaped (N, 3, 4), (3, 4, N) or (3, 4), or a cell array of 3 × 4; else None."""
+    arr = np.asarray(value)
+    if arr.dtype == object:  # a MATLAB cell array: each cell one matrix
+        cells = [np.asarray(c) for c in arr.ravel()]
+        if cells and all(c.shape == (3, 4) and np.issubdtype(c.dtype, np.number) for c in cells):
+            return np.asarray(cells, float)
+        return None
+    if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
+        return None
+    if arr.shape == (3, 4):
+        return arr[None].astype(float)
+    if arr.ndim == 3 and arr.shape[1:] == (3, 4):
+        return arr.astype(float)
+    if arr.ndim == 3 and arr.shape[:2] == (3, 4):  # MATLAB's habit: the views along the last axis
+        return np.moveaxis(arr, 2, 0).astype(float)
+    return None
+
+
+def _pick(path: Path, variables: dict[str, Any]) -> tuple[np.ndarray, list[str]]:
+    found = {k: c for k, c in ((k, _as_cameras(v)) for k, v in variables.items() if not k.startswith("__")) if c is not None}
+    if not found:
+        raise ImportDataError(f"{path}: holds no (N, 3, 4) array or cell array of 3 x 4 cameras "
+                              f"(variables: {', '.join(k for k in variables if not k.startswith('__')) or 'none'})")
+    key = next((k for k in PREFERRED_NAMES if k in found), None)
+    if key is None and len(found) > 1:
+        raise ImportDataError(f"{path}: several variables could be the cameras ({', '.join(sorted(found))}); name one P")
+    key = key or next(iter(found))
+    P = found[key]
+    return P, [f"{key}[{i}]" for i in range(len(P))]
+
+
+def read_camera_array(path: Path) -> tuple[np.ndarray, list[str]]:
+    """Cameras (N, 3, 4) and names (``P[i]``) from a ``.npy``, ``.npz`` or MATLAB ``.mat`` file.
+
+    Raises:
+        ImportDataError: unreadable, too large, or no array that can be the cameras.
+    """
+    if path.stat().st_size > MAX_ARRAY_BYTES:
+        raise ImportDataError(f"{path}: larger than {MAX_ARRAY_BYTES} bytes; expected an array of 3 x 4 cameras")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            variables = {"P": np.load(path, allow_pickle=False)}
+        elif suffix == ".npz":
+            with np.load(path, allow_pickle=False) as z:
+                variables = {k: z[k] for k in z.files}
+        else:
+            import scipy.io
+
+            variables = scipy.io.loadmat(str(path))
+    except NotImplementedError:  # SciPy's answer to a v7.3 (HDF5) MAT-file
+        raise ImportDataError(f"{path}: a MATLAB v7.3 file; save the cameras with save(..., '-v7') or as text "
+                              f"(one 'name p11 ... p34' line per view)") from None
+    except (OSError, ValueError, TypeError, EOFError) as exc:
+        raise ImportDataError(f"{path}: not a readable {suffix} file of cameras ({exc})") from None
+    return _pick(path, variables)
+
+
+ARRAY_SUFFIXES = (".npy", ".npz", ".mat")
+
+
+def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
+    """Known cameras as given: (N, 3, 4) and one name per view, from any format of the module docstring.
+
+    Cameras may be right- or left-handed (det of P's left 3 × 3 of either sign; see
+    :func:`vastcal.geometry.decompose_projection`).
+
+    Raises:
+        ImportDataError: wrong format or a count different from ``n``.
+        UnicodeDecodeError: a binary file given where text was expected (the caller names it).
+    """
+    if path.is_dir():
+        mats, names = read_camera_folder(path)
+    elif path.is_file():
+        mats, names = read_camera_array(path) if path.suffix.lower() in ARRAY_SUFFIXES else read_camera_text(path)
+    else:
+        raise ImportDataError(f"{path}: no such camera file or folder")
+    if len(mats) != n:
+        raise ImportDataError(f"{path}: {len(mats)} cameras for {n} images")
+    return mats, names
