@@ -249,13 +249,12 @@ def _calibration_digest(cal: Any) -> dict[str, Any]:
         widths = getattr(cal, "roll_widths", None)
         if widths is not None:
             out["drift"] = widths.describe()
-        elif prior <= 0:
-            from vastcal.uncertainty import starts_spread_deg
+        elif prior <= 0:  # worded as the report's drift (one statement of what the images decide)
+            from vastcal.uncertainty import drift_status
 
-            starts = getattr(cal, "start_thetas", None)
-            spread = starts_spread_deg(starts)
-            out["drift"] = "measured by the images alone (no roll prior)" + (
-                f"; the {len(starts)} starts end {spread:.3g}° apart per view (a repeatability)" if spread is not None else "")
+            st = drift_status(np.asarray(delta), source="calibration", free=["rolls"], settings={"roll_prior_weight": 0.0},
+                              starts_theta=getattr(cal, "start_thetas", None))
+            out["drift"] = f"{st['status']}: {st['reason']}"
     return out
 
 

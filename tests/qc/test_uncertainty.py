@@ -68,9 +68,11 @@ def test_run_summary_says_how_a_roll_without_prior_was_decided() -> None:
     cal = SimpleNamespace(delta_angle_deg=np.array([0.0, 0.3, -0.4, 0.1]), settings=SimpleNamespace(roll_prior_weight=0.0),
                           roll_widths=None, start_thetas=starts)
     text = _calibration_digest(cal)["drift"]
-    assert text.startswith("measured by the images alone (no roll prior)") and f"{U.starts_spread_deg(starts):.3g}° apart" in text
+    assert text.startswith("measured: the rolls were free with no roll prior") and f"{U.starts_spread_deg(starts):.3g} deg apart" in text
+    assert text.endswith(U.drift_status(cal.delta_angle_deg, source="calibration", free=["rolls"], settings={"roll_prior_weight": 0.0},
+                                        starts_theta=starts)["reason"])  # the report's words
     cal.start_thetas = None
-    assert _calibration_digest(cal)["drift"] == "measured by the images alone (no roll prior)"
+    assert "no sigma estimated" in _calibration_digest(cal)["drift"]
 
 
 def _with_calibration_run(path: Path, views: PhantomViews, starts: tuple[np.ndarray, list[float]] | None = None) -> Path:

@@ -326,6 +326,11 @@ def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
     return np.ascontiguousarray(order[:, pos])
 
 
+def coherence_parts(objective: object) -> list:
+    """The single objectives of ``objective``: a :class:`SumObjective`'s parts, else the objective itself."""
+    return list(getattr(objective, "parts", None) or [objective])
+
+
 class SumObjective:
     """Sum of objectives over the same θ (e.g. body silhouettes + dark internal features)."""
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, mask_labels
 from vastcal.calibrate.marks import fit_from_marks
-from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, coherence_atlas,
+from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, coherence_parts, coherence_atlas,
                                                    dark_feature_probability, signed_distance_maps, silhouette_edges)
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
@@ -463,7 +463,7 @@ class _Start:
 def _research_deg(obj: Any) -> float | None:
     """The θ move (degrees, any entry) of a batch's mean after which ``obj`` repeats its full search along the rays
     (the least of a sum's parts); None when it has no such rule (other costs, or every candidate searched alone)."""
-    parts = getattr(obj, "parts", None) or [obj]
+    parts = coherence_parts(obj)
     found = [float(p.research_deg) for p in parts if getattr(p, "research_deg", None) is not None and not getattr(p, "per_candidate", False)]
     return min(found) if found and len(found) == len(parts) else None
 
@@ -572,7 +572,7 @@ def _basin_widths(problem: _Problem, obj: Any, region: Any, K_lv: np.ndarray) ->
     camera K_lv: its penalty cap over the image motion of the level region's points (a subset of ≤ ~2000) under each
     roll (:func:`.roll_scan.basin_half_widths_deg`)."""
     points = region.voxels[:: max(1, len(region.voxels) // 2000)]
-    cap = min(float(p.cap_px) for p in (getattr(obj, "parts", None) or [obj]))
+    cap = min(float(p.cap_px) for p in coherence_parts(obj))
 
     def widths(theta: np.ndarray) -> np.ndarray:
         return basin_half_widths_deg(roll_motion_px_per_deg(K_lv, problem.distance, theta, points), cap)
@@ -637,7 +637,7 @@ def roll_share(obj: Any, n_views: int) -> float:
     the views that check their rays against it, K + 1 of N views on average (K partners,
     :func:`.objective_coherence.partner_views`); 1 for a cost without partners (every view's term is then taken as
     the whole cost's scale, as before)."""
-    parts = getattr(obj, "parts", None) or [obj]
+    parts = coherence_parts(obj)
     ks = [getattr(p, "max_partners", None) for p in parts]
     if n_views < 2 or any(k is None for k in ks):
         return 1.0
