@@ -13,7 +13,11 @@ The model (``../shared/DESIGN.md``)::
 
     P_i = K · [R_axis | t_axis] · [Rx(ω_i) | 0]
     R_axis = Rz(pitch) · Ry(yaw)         tilt of the rotation axis
-    t_axis = d · [0, sin γ, cos γ]       axis at distance d, γ moves it off-centre (vertically)
+    t_axis = d · Rz(pitch) · [0, sin γ, cos γ]
+                                         axis at distance d, γ moves it off-centre across its image; the
+                                         origin is the axis point nearest the principal ray
+                                         (:func:`axis_origin_in_camera`; for pitch ≈ 0 the paper's
+                                         t_axis = d · [0, sin γ, cos γ])
 
 θ = [yaw, pitch, γ, ω_0 … ω_{N−1}] in degrees. ω_0 is normally held at the commanded angle of
 view 0 (0°): it only fixes the specimen's orientation about the axis.
@@ -102,7 +106,7 @@ class CircularMotion:
         K: 3×3 intrinsics in pixels of the stored frames (0-based). May be a full matrix, skew too.
         distance: distance d from the camera centre to the rotation axis, in world units (µm).
         yaw_deg, pitch_deg: axis tilt, degrees (R_axis = Rz(pitch)·Ry(yaw)).
-        gamma_deg: axis placement angle γ, degrees (t_axis = d·[0, sin γ, cos γ]).
+        gamma_deg: axis placement angle γ, degrees (t_axis = d·Rz(pitch)·[0, sin γ, cos γ], :func:`axis_origin_in_camera`).
         rolls_deg: ω_i for every view, degrees, shape (N,).
     """
 
@@ -132,6 +136,21 @@ class CircularMotion:
         return projection_matrices(self.K, self.distance, self.theta()[None, :])[0]
 
 
+def axis_origin_in_camera(distance: float, pitch_rad: np.ndarray, gamma_rad: np.ndarray) -> np.ndarray:
+    """t (…, 3): the world origin in camera coordinates, d·Rz(pitch)·[0, sin γ, cos γ] (world units).
+
+    The origin is the axis point nearest the camera's principal ray: t lies in the plane through the principal
+    ray perpendicular to the axis image's direction (cos pitch, sin pitch) (t_x cos p + t_y sin p = 0), and γ is
+    its angle from the principal ray in that plane. For the microscope (axis ≈ image rows, pitch ≈ 0) the
+    origin is where the axis crosses the plane x_cam = 0 and γ tilts it along the image columns; for a turntable
+    (axis ≈ image columns, pitch ≈ ±90°) γ is the axis's sideways offset — a gauge that holds for any axis
+    direction not along the principal ray (a fixed x_cam = 0 has no such point when an upright axis misses the
+    principal point's column).
+    """
+    p, g = np.asarray(pitch_rad, float), np.asarray(gamma_rad, float)
+    return distance * np.stack([-np.sin(g) * np.sin(p), np.sin(g) * np.cos(p), np.cos(g)], -1)
+
+
 def projection_matrices(K: np.ndarray, distance: float, theta_deg: np.ndarray) -> np.ndarray:
     """Batched P for a population of θ vectors.
 
@@ -147,7 +166,7 @@ def projection_matrices(K: np.ndarray, distance: float, theta_deg: np.ndarray) -
     yaw, pitch, gamma, rolls = th[:, 0], th[:, 1], th[:, 2], th[:, 3:]
     R_axis = rot_z(pitch) @ rot_y(yaw)  # (B,3,3)
     R = R_axis[:, None] @ rot_x(rolls)  # (B,N,3,3)
-    t = distance * np.stack([np.zeros_like(gamma), np.sin(gamma), np.cos(gamma)], -1)  # (B,3)
+    t = axis_origin_in_camera(distance, pitch, gamma)  # (B,3)
     Rt = np.concatenate([R, np.broadcast_to(t[:, None, :, None], R.shape[:-1] + (1,))], -1)
     return np.einsum("ij,bnjk->bnik", np.asarray(K, float), Rt)
 
@@ -203,15 +222,29 @@ def decompose_projection(P: np.ndarray, front: np.ndarray | None = None) -> tupl
     return K, R, t
 
 
-def _rotation_axis_angle(R: np.ndarray) -> tuple[np.ndarray, float]:
-    """Unit axis and angle (radians, in [0, π]) of a rotation matrix."""
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    s = np.linalg.norm(w) / 2.0
-    c = (np.trace(R) - 1.0) / 2.0
-    angle = float(np.arctan2(s, c))
-    if s < 1e-12:
-        return np.array([1.0, 0.0, 0.0]), angle
-    return w / (2.0 * s), angle
+def _common_rotation_axis(Rs: np.ndarray) -> np.ndarray:
+    """Unit axis (world frame) about which cameras with rotations Rs (N, 3, 3) turn, oriented so that successive
+    views turn positively about it.
+
+    Each relative rotation R_0ᵀR_i = Rot(a_i, θ_i) has the symmetric part (R + Rᵀ)/2 − cos θ_i·I = (1 − cos θ_i)·a_i a_iᵀ;
+    their sum is a scatter matrix whose principal eigenvector is the common axis, each view weighted by 1 − cos θ_i
+    (its axis is the better defined the more it turns). Unlike the antisymmetric part (2 sin θ_i·a_i), this holds at
+    θ = 180°, where a view facing view 0 — every even ring of uniform steps has one — leaves sin θ = 0 and the
+    antisymmetric part only its noise. The sign comes from the antisymmetric parts of the successive steps
+    R_iᵀR_(i+1) (their angles are small, their sines large).
+
+    Raises:
+        AnalysisError: no relative rotation above 1°.
+    """
+    rel = np.einsum("ji,njk->nik", Rs[0], Rs[1:])
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    if not np.any(cos < np.cos(np.radians(1.0))):
+        raise AnalysisError("the cameras do not rotate: no relative rotation above 1°")
+    sym = (rel + np.transpose(rel, (0, 2, 1))) / 2.0 - cos[:, None, None] * np.eye(3)
+    a = np.linalg.eigh(sym.sum(axis=0))[1][:, -1]
+    steps = np.einsum("nji,njk->nik", Rs[:-1], Rs[1:])
+    turn = np.stack([steps[:, 2, 1] - steps[:, 1, 2], steps[:, 0, 2] - steps[:, 2, 0], steps[:, 1, 0] - steps[:, 0, 1]], 1)
+    return -a if float(np.sum(turn @ a)) < 0 else a
 
 
 @dataclass(frozen=True)
@@ -232,8 +265,8 @@ class CircularFit:
 def decompose_circular(P: np.ndarray, check_points: np.ndarray | None = None) -> CircularFit:
     """Fit the circular-motion model to known cameras P (N, 3, 4), 0-based pixels.
 
-    The axis direction is the mean axis of the relative rotations R_0ᵀR_i; its sign makes the
-    roll angles increase with the view index. The origin is placed on the axis where
+    The axis direction is the common axis of the relative rotations R_0ᵀR_i (:func:`_common_rotation_axis`); its
+    sign makes the roll angles increase with the view index. The origin is placed on the axis where
     t_axis has no x component, and view 0 gets roll 0°.
 
     Raises:
@@ -252,19 +285,7 @@ def decompose_circular(P: np.ndarray, check_points: np.ndarray | None = None) ->
     ts = np.array(ts)
     centres = -np.einsum("nji,nj->ni", Rs, ts)
 
-    axes = []
-    for i in range(1, n):
-        a, ang = _rotation_axis_angle(Rs[0].T @ Rs[i])
-        if ang > np.radians(1.0):
-            axes.append(a * np.sign(a @ axes[0]) if axes else a)
-    if not axes:
-        raise AnalysisError("the cameras do not rotate: no relative rotation above 1°")
-    a = np.mean(axes, axis=0)
-    a /= np.linalg.norm(a)
-    # Orientation: successive views turn positively about the axis.
-    a_rel, ang = _rotation_axis_angle(Rs[0].T @ Rs[1])
-    if a_rel @ a < 0 and ang < np.pi - 1e-6:
-        a = -a
+    a = _common_rotation_axis(Rs)
 
     # Circle centre: least squares in the plane ⟂ a (|C − c|² = r² algebraically).
     u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -281,14 +302,19 @@ def decompose_circular(P: np.ndarray, check_points: np.ndarray | None = None) ->
     yaw0, pitch0, roll0 = _zyx_angles(M)
     Q = rot_x(roll0) @ Qp
     R_axis = rot_z(pitch0) @ rot_y(yaw0)
+    # Origin: the axis point nearest the principal ray (axis_origin_in_camera): slide c along the axis until the
+    # mean of t = R_i c + t_i has no component along the axis image's direction (cos pitch, sin pitch).
     tp = np.einsum("nij,j->ni", Rs, c) + ts
-    ex_cam = R_axis[:, 0]
-    delta = -np.mean(tp[:, 0]) / ex_cam[0] if abs(ex_cam[0]) > 1e-9 else 0.0
-    c = c + delta * a
+    ex_cam = R_axis[:, 0]  # the axis direction in the camera (the same in every view: it is the roll axis)
+    image_dir = np.array([np.cos(pitch0), np.sin(pitch0)])
+    along = float(ex_cam[:2] @ image_dir)
+    if abs(along) < 1e-9:
+        raise AnalysisError("the cameras look along the rotation axis: circular motion cannot be told from these views")
+    c = c - float(np.mean(tp[:, :2] @ image_dir)) / along * a
     tp = np.einsum("nij,j->ni", Rs, c) + ts
     t_mean = tp.mean(axis=0)
     d = float(np.linalg.norm(t_mean))
-    gamma = float(np.degrees(np.arctan2(t_mean[1], t_mean[2])))
+    gamma = float(np.degrees(np.arctan2(t_mean[:2] @ np.array([-np.sin(pitch0), np.cos(pitch0)]), t_mean[2])))
     rolls = []
     for R in Rs:
         Rx_i = R_axis.T @ R @ Q.T

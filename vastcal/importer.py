@@ -235,6 +235,28 @@ def _folder_set(source: Path, files: list[Path]) -> ImageSet:
     return ImageSet(source, [f.name for f in files], files, None, tuple(first.shape), first.dtype, dtype, vr, meta)
 
 
+CIRCULAR_FIT_WARN_PX = 1.0
+"""RMS reprojection difference (px) between imported cameras and their circular-motion fit above which the import
+warns: the calibration's model (one K, one circle of camera centres about one axis) then cannot reproduce the given
+cameras to the ~1 px that silhouette edges are located to, so comparisons with those cameras are limited by it."""
+
+
+def circular_fit_note(P: np.ndarray, source: str) -> dict[str, object]:
+    """How well circular motion describes imported cameras P (N, 3, 4): ``{"circular_fit_rms_px": x}``, or
+    ``{"circular_fit_error": why}`` when they do not rotate about one axis (calibrate then refuses them); warns
+    beyond :data:`CIRCULAR_FIT_WARN_PX`."""
+    try:
+        rms = float(decompose_circular(P).rms_px)
+    except VastcalError as exc:
+        log.warning("%s: the cameras do not describe circular motion (%s): `calibrate` and `run` will refuse this session; "
+                    "`reconstruct --cameras imported` can still use them", source, exc)
+        return {"circular_fit_error": str(exc)}
+    if rms > CIRCULAR_FIT_WARN_PX:
+        log.warning("%s: circular motion reproduces these cameras to %.2f px RMS only (per-view intrinsics or centres off "
+                    "one circle); calibrated poses cannot come closer to them than that", source, rms)
+    return {"circular_fit_rms_px": rms}
+
+
 def angles_of_cameras(P: np.ndarray, uniform: np.ndarray, roll_box_deg: float, source: str) -> tuple[np.ndarray, str]:
     """The commanded angles (degrees) of an import that gives cameras P (N, 3, 4) but no angles, and where they come from.
 
@@ -497,12 +519,14 @@ def import_folder(
                                      sensor_height_px=max(optics.sensor_height_px, roi_offset[1] + h))
     cfg = dataclasses.replace(cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h)))
     P_given = names = None
+    circular: dict[str, object] = {}
     if cameras is not None:
         try:
             P_given, names = read_cameras(Path(cameras), n)
         except UnicodeDecodeError:  # an image or other binary file given as --cameras
             raise ImportDataError(f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)") from None
         check_cameras(P_given, Path(cameras), names)
+        circular = circular_fit_note(P_given, Path(cameras).name)
         if not roi_given:
             _check_crop(h, w, _principal_point(shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])),
                         f"the cameras of {Path(cameras).name}")
@@ -547,7 +571,7 @@ def import_folder(
             P = shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])
             writer.write_cameras(P, source=str(Path(cameras).resolve()), P_given=P_given,
                                  attrs={"pixel_origin": float(pixel_origin), "roi_offset": list(roi_offset), "names": names,
-                                        "length_unit": unit, "length_unit_source": unit_why})
+                                        "length_unit": unit, "length_unit_source": unit_why, **circular})
         writer.finish("success", views_planned=n)
     log.info("imported %d views %s %s of %r into %s", n, views.shape, views.dtype, title, out)
     return out

@@ -38,6 +38,9 @@ def session_summary(path: str | Path) -> dict[str, Any]:
             "known_cameras": s.known_cameras is not None,
             "stages": {},
         }
+        if s.known_cameras is not None:  # how well the calibration's circular model describes them (vastcal.importer)
+            cams = read_attrs(s.h5["/entry/vastcal/cameras"])
+            summary.update({k: cams[k] for k in ("circular_fit_rms_px", "circular_fit_error", "length_unit") if k in cams})
         rb = table.get("readback_usteps")
         if rb is not None and len(rb) and (rb >= 0).any():
             cycle = s.plan.get("usteps_per_revolution")
@@ -91,7 +94,10 @@ def format_summary(summary: dict[str, Any]) -> str:
            "pixel size unknown - measurements in pixels (import again with --pixel-size-um or --config), ")
         + f"ROI offset {summary['roi_offset_px'][0]}, {summary['roi_offset_px'][1]} px",
         "angles       " + (f"{len(a)} commanded, {a[0]:g} .. {a[-1]:g} deg" + (f", step {a[1] - a[0]:.4f} deg" if len(a) > 1 else "") if a else "none"),
-        f"masks        {'yes' if summary['masks'] else 'no'}; known cameras {'yes' if summary['known_cameras'] else 'no'}",
+        f"masks        {'yes' if summary['masks'] else 'no'}; known cameras {'yes' if summary['known_cameras'] else 'no'}"
+        + (f" (circular fit {summary['circular_fit_rms_px']:.2g} px RMS, world unit {summary.get('length_unit', 'um')})"
+           if "circular_fit_rms_px" in summary else
+           f" (not circular motion: {summary['circular_fit_error']})" if "circular_fit_error" in summary else ""),
     ]
     if "readback_max_error_usteps" in summary:
         lines.append(f"stage        {summary['usteps_per_revolution']} usteps/rev, max read-back error {summary['readback_max_error_usteps']} usteps")

@@ -7,11 +7,11 @@ and calibration results compare directly:
 * world = specimen frame, µm; the rotation axis is world x through the origin;
 * camera frame x right, y down, z forward (µm); pixels 0-based in the stored (ROI) frame;
 * view at stage angle ω:  x_cam = R·X + t  with  R = Rz(pitch)·Ry(yaw)·Rx(ω),
-  t = d·[0, sin γ, cos γ];  P = K·[R | t];
+  t = d·Rz(pitch)·[0, sin γ, cos γ] (the axis point nearest the principal ray);  P = K·[R | t];
 * K = [[f, 0, cx], [0, f, cy], [0, 0, 1]], f = working_distance·magnification/pixel_size
   (px), (cx, cy) = principal point (default sensor centre ((W−1)/2, (H−1)/2)) minus the ROI
   offset;
-* the axis offset (µm, perpendicular to the optical axis, vertical in the image) is d·sin γ.
+* the axis offset (µm, perpendicular to the optical axis, across the axis image) is d·sin γ.
 
 Only :mod:`vastcal.config` is imported (for the dataclasses that describe the rig).
 """
@@ -114,8 +114,8 @@ class PinholeIntrinsics:
 def camera_pose(truth: RigTruth, angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """(R, t) of the view at stage angle ``angle_deg``: x_cam = R·X_world + t (µm)."""
     R = _rz(math.radians(truth.pitch_deg)) @ _ry(math.radians(truth.yaw_deg)) @ _rx(math.radians(angle_deg))
-    g = math.radians(truth.gamma_deg)
-    t = truth.distance_um * np.array([0.0, math.sin(g), math.cos(g)])
+    g, p = math.radians(truth.gamma_deg), math.radians(truth.pitch_deg)
+    t = truth.distance_um * np.array([-math.sin(g) * math.sin(p), math.sin(g) * math.cos(p), math.cos(g)])  # the axis point nearest the principal ray
     return R, t
 
 

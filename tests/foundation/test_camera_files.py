@@ -136,3 +136,46 @@ def test_import_takes_the_oxford_mat_file_as_the_text_file(tmp_path: Path) -> No
             stored.append(s.known_cameras)
     assert stored[0] is not None and stored[1] is not None
     np.testing.assert_array_equal(stored[0], stored[1])
+
+
+def _import(tmp_path: Path, P: np.ndarray, name: str) -> Path:
+    img = tmp_path / "img"
+    if not img.exists():
+        img.mkdir()
+        for i in range(len(P)):
+            cv2.imwrite(str(img / f"v{i:02d}.png"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    np.save(cams := tmp_path / f"{name}.npy", P)
+    assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / f"{name}.h5"), "--cameras", str(cams)]) == 0
+    return out
+
+
+def test_import_says_how_well_circular_motion_describes_the_cameras(tmp_path: Path, caplog: pytest.LogCaptureFixture,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """A ring fits to ~0 px; a view with its own focal length (2 % longer) or cameras that turn about no common axis
+    are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot reach them."""
+    from vastcal.importer import CIRCULAR_FIT_WARN_PX
+
+    P = _cameras(8)
+    zoomed = P.copy()
+    zoomed[3, :2] *= 1.02  # view 3's f and principal point 2 % larger: ~2-3 px at the frame's edge
+    rng = np.random.default_rng(1)
+    tumbling = np.asarray([np.c_[cv2.Rodrigues(rng.normal(scale=0.8, size=3))[0], [0.0, 0.0, 10.0]] for _ in range(8)])
+    tumbling = np.einsum("ij,njk->nik", P[0, :, :3], tumbling)
+    for name, cams in (("ring", P), ("zoomed", zoomed), ("tumbling", tumbling)):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="vastcal.importer"):
+            out = _import(tmp_path, cams, name)
+        warned = " ".join(r.getMessage() for r in caplog.records)
+        capsys.readouterr()
+        assert cli.main(["info", str(out)]) == 0
+        line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("masks"))
+        if name == "ring":
+            assert "circular motion" not in warned and "circular fit" in line
+            assert float(line.split("circular fit ")[1].split()[0]) < 1e-3
+        elif name == "zoomed":
+            assert "px RMS only" in warned
+            assert float(line.split("circular fit ")[1].split()[0]) > CIRCULAR_FIT_WARN_PX
+        elif "not circular motion" in line:  # no common axis found at all
+            assert "do not describe circular motion" in warned
+        else:  # or one found that reproduces them hundreds of px off
+            assert "px RMS only" in warned and float(line.split("circular fit ")[1].split()[0]) > 10 * CIRCULAR_FIT_WARN_PX

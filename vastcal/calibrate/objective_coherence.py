@@ -59,7 +59,7 @@ from vastcal.calibrate.sampling import Atlas
 from vastcal.calibrate.specimen_parts import largest_region
 from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.errors import AnalysisError
-from vastcal.geometry import project, rot_x, rot_y, rot_z
+from vastcal.geometry import axis_origin_in_camera, project, rot_x, rot_y, rot_z
 
 log = logging.getLogger(__name__)
 
@@ -423,9 +423,7 @@ class CoherenceObjective:
         th = np.radians(np.atleast_2d(theta_deg))
         R_axis = rot_z(th[:, 1]) @ rot_y(th[:, 0])
         R = R_axis[:, None] @ rot_x(th[:, 3:])  # (B, N, 3, 3)
-        g = th[:, 2]
-        t = self.distance * np.stack([np.zeros_like(g), np.sin(g), np.cos(g)], -1)  # (B, 3)
-        return R, t
+        return R, axis_origin_in_camera(self.distance, th[:, 1], th[:, 2])  # t (B, 3)
 
     def residuals(self, theta_deg: np.ndarray) -> np.ndarray:
         """r (B, N, R) in pixels: how far the others' hull reaches beyond each edge ray (≥ 0 coherent).
