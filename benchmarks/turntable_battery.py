@@ -1,6 +1,6 @@
 """The measurement on simulated turntables, end to end as a user runs it: the stated interval against the true hull.
 
-    python benchmarks/turntable_battery.py [--seeds 0,1,2,3] [--views 18] [--dir /tmp/vastcal-turntables] [--jobs 2]
+    python benchmarks/turntable_battery.py [--seeds 0,1,2,3] [--views 18] [--dir /tmp/vastcal-turntables] [--jobs 2] [--aim-offset 0.5]
 
 Every case renders ``benchmarks/turntable_speed.py``'s figure (seven ellipsoids, 1.25 units off the axis, Lambert-shaded
 from a lamp up left of the camera; head and arms joined to the torso, one solid) at 720 × 576 for one scene seed (the stage's step irregularity and the noise) and an
@@ -37,13 +37,13 @@ import turntable_speed as ts  # noqa: E402
 SETTINGS = ("figure", "turntable", "turntable+mask")
 
 
-def render_case(folder: Path, seed: int, views: int, disc: bool) -> float:
+def render_case(folder: Path, seed: int, views: int, disc: bool, aim_offset: float = 0.0) -> float:
     """Frames, cameras, view 0's mask and every view's figure mask (``masks/``) into ``folder``; returns the ambient."""
     ambient = float(np.random.default_rng(1000 + seed).uniform(0.35, 0.7))
     folder.mkdir(parents=True, exist_ok=True)
     body = ts.statuette(joined=True)
-    ts.write_set(folder, views, 720, 576, seed, ambient, disc, body)
-    K, R, t = ts.cameras(views, 720, 576, np.random.default_rng(seed))  # write_set's draw, repeated
+    ts.write_set(folder, views, 720, 576, seed, ambient, disc, body, aim_offset=aim_offset)
+    K, R, t = ts.cameras(views, 720, 576, np.random.default_rng(seed), aim_offset)  # write_set's draw, repeated
     (folder / "masks").mkdir()
     for i in range(views):
         cv2.imwrite(str(folder / "masks" / f"view_{i:02d}.png"), ts.figure_mask(K, R[i], t[i], 720, 576, body, disc))
@@ -64,10 +64,10 @@ def measurement(report: Path) -> dict[str, Any]:
             "UA": (m.get("surface_area_U_mm2") or np.nan) * 1e6, "verdict": m.get("verdict", "?"), "reasons": m.get("verdict_reasons", [])}
 
 
-def run_case(root: Path, seed: int, setting: str, views: int) -> dict[str, Any]:
+def run_case(root: Path, seed: int, setting: str, views: int, aim_offset: float = 0.0) -> dict[str, Any]:
     d = root / f"seed{seed}-{setting}"
     shutil.rmtree(d, ignore_errors=True)
-    ambient = render_case(d, seed, views, setting != "figure")
+    ambient = render_case(d, seed, views, setting != "figure", aim_offset)
     s = d / "s.h5"
     vastcal("import", str(d / "images"), "-o", str(s), "--cameras", str(d / "cameras.txt"), "--pixel-origin", "0",
             "--config", str(REPO / "config" / "eth-david.yaml"), "--masks", str(d / "masks"))
@@ -87,6 +87,8 @@ def main() -> None:
     ap.add_argument("--dir", default="/tmp/vastcal-turntables")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--settings", default=",".join(SETTINGS))
+    ap.add_argument("--aim-offset", type=float, default=0.0,
+                    help="the levelled camera aims this many units beside the axis (the axis images upright beside the principal point)")
     a = ap.parse_args()
     root = Path(a.dir)
     root.mkdir(parents=True, exist_ok=True)
@@ -95,7 +97,7 @@ def main() -> None:
           f"{'area ± U':>18s} {'ref':>8s} {'dA %':>7s} {'in':>3s}  verdict", flush=True)
     rows = []
     with ThreadPoolExecutor(a.jobs) as pool:
-        for r in pool.map(lambda c: run_case(root, c[0], c[1], a.views), cases):
+        for r in pool.map(lambda c: run_case(root, c[0], c[1], a.views, a.aim_offset), cases):
             g, f = r["got"], r["ref"]
             dv, da = 100 * (g["V"] / f["V"] - 1), 100 * (g["A"] / f["A"] - 1)
             r["in_V"], r["in_A"] = abs(g["V"] - f["V"]) <= g["UV"], abs(g["A"] - f["A"]) <= g["UA"]
