@@ -185,20 +185,23 @@ def read_camera_array(path: Path) -> tuple[np.ndarray, list[str]]:
         raise ImportDataError(f"{path}: larger than {MAX_ARRAY_BYTES} bytes; expected an array of 3 x 4 cameras")
     suffix = path.suffix.lower()
     try:
-        if suffix == ".npy":
-            variables = {"P": np.load(path, allow_pickle=False)}
-        elif suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                variables = {k: z[k] for k in z.files}
-        else:
-            import scipy.io
+        with open(path, "rb") as fh:  # our handle: a parser that fails half-way must not leave the file open
+            if suffix == ".npy":
+                variables = {"P": np.load(fh, allow_pickle=False)}
+            elif suffix == ".npz":
+                with np.load(fh, allow_pickle=False) as z:
+                    variables = {k: z[k] for k in z.files}
+            else:
+                import scipy.io
 
-            variables = scipy.io.loadmat(str(path))
+                variables = scipy.io.loadmat(fh)
     except NotImplementedError:  # SciPy's answer to a v7.3 (HDF5) MAT-file
         raise ImportDataError(f"{path}: a MATLAB v7.3 file; save the cameras with save(..., '-v7') or as text "
                               f"(one 'name p11 ... p34' line per view)") from None
-    except (OSError, ValueError, TypeError, EOFError) as exc:
-        raise ImportDataError(f"{path}: not a readable {suffix} file of cameras ({exc})") from None
+    except MemoryError:
+        raise
+    except Exception as exc:  # a truncated or foreign file: the parsers raise anything from BadZipFile to IndexError
+        raise ImportDataError(f"{path}: not a readable {suffix} file of cameras ({type(exc).__name__}: {exc})") from None
     return _pick(path, variables)
 
 

@@ -111,6 +111,11 @@ def test_arrays_that_are_not_cameras_are_refused(tmp_path: Path) -> None:
     (tmp_path / "junk.mat").write_bytes(b"MATLAB 5.0 MAT-file" + bytes(200))
     with pytest.raises(ImportDataError, match=r"junk\.mat: not a readable \.mat file"):
         read_cameras(tmp_path / "junk.mat", N)
+    for name in ("cut.npz", "cut.mat", "cut.npy"):  # truncated files: their parsers raise BadZipFile, IndexError, ...
+        f = _write({"cut.npz": "npz", "cut.mat": "mat-cell", "cut.npy": "npy"}[name], _cameras(), tmp_path / name.replace(".", "_"))
+        (tmp_path / name).write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+        with pytest.raises(ImportDataError, match=rf"{name.replace('.', '[.]')}: not a readable"):
+            read_cameras(tmp_path / name, N)
     np.save(tmp_path / "P.npy", _cameras(3))
     with pytest.raises(ImportDataError, match=r"P\.npy: 3 cameras for 4 images"):
         read_cameras(tmp_path / "P.npy", N)
