@@ -32,7 +32,9 @@ Layout (``SCHEMA_VERSION`` 3)::
                            empty while the writer is at work (or after it was killed)
         resumed/stop_NNN   earlier endings of a resumed acquisition
         masks              optional (N, H, W) uint8 silhouettes (0/255), imported
-        cameras/           optional known cameras: P (N, 3, 4), 0-based pixels of the stored frames
+        cameras/           optional known cameras: P (N, 3, 4), 0-based pixels of the stored frames; P_given
+                           (as the file gave them); attrs source, names, pixel_origin, roi_offset, length_unit
+                           (+ _source), circular_fit_rms_px (or circular_fit_error), vastcal.importer
         geometry           attrs: roi_x, roi_y (offset of the stored frames on the sensor, px)
         calibration/run_NNN, reconstruction/run_NNN, measurement/run_NNN   later stages
                            (a reconstruction run is an NXdata of the silhouette counts on x, y, z
