@@ -71,6 +71,10 @@ def length_unit_um(unit: str | None) -> float | None:
 
 
 
+IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bmp")
+"""Suffixes of the single-image files a folder of views may hold."""
+
+
 def natural_key(name: str) -> list[object]:
     """Sort key that orders embedded numbers numerically (``a2`` < ``a10``): the order of a folder's views."""
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]

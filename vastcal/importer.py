@@ -44,11 +44,11 @@ import cv2
 import numpy as np
 
 from vastcal import image_files
-from vastcal.camera_files import MAX_TEXT_BYTES, read_cameras
+from vastcal.camera_files import MAX_TEXT_BYTES, match_cameras_to_images, read_cameras
 from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError, VastcalError
 from vastcal.geometry import LENGTH_UNITS_UM, decompose_circular, shift_pixels
-from vastcal.image_files import natural_key
+from vastcal.image_files import IMAGE_SUFFIXES, natural_key
 from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter
 
@@ -57,7 +57,6 @@ log = logging.getLogger(__name__)
 #: Accepted coordinates of the first pixel's centre in imported cameras (0-based, corner-origin, 1-based).
 PIXEL_ORIGINS = (0.0, 0.5, 1.0)
 
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bmp")
 
 
 def list_images(folder: Path) -> list[Path]:
@@ -523,6 +522,10 @@ def import_folder(
     if cameras is not None:
         try:
             P_given, names = read_cameras(Path(cameras), n)
+            P_given, names, reordered = match_cameras_to_images(P_given, names, views.names, Path(cameras))
+            if reordered:
+                log.warning("%s lists the views in another order than the images' natural order: cameras matched to "
+                            "images by name", Path(cameras).name)
         except UnicodeDecodeError:  # an image or other binary file given as --cameras
             raise ImportDataError(f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)") from None
         check_cameras(P_given, Path(cameras), names)

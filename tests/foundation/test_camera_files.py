@@ -184,3 +184,32 @@ def test_import_says_how_well_circular_motion_describes_the_cameras(tmp_path: Pa
             assert "do not describe circular motion" in warned
         else:  # or one found that reproduces them hundreds of px off
             assert "px RMS only" in warned and float(line.split("circular fit ")[1].split()[0]) > 10 * CIRCULAR_FIT_WARN_PX
+
+
+def test_named_cameras_are_matched_to_the_images_by_name(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A camera file that lists its views in another order than the images' natural order (img10 before img2, or any
+    shuffle) pairs each image with its own camera; names matching only some images are refused naming them."""
+    P = _cameras(12)
+    (img := tmp_path / "img").mkdir()
+    for i in range(12):
+        cv2.imwrite(str(img / f"img{i}.png"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    in_order = tmp_path / "in_order.txt"
+    in_order.write_text("".join(f"img{i}.png {_fmt(P[i])}\n" for i in range(12)))
+    lexical = tmp_path / "lexical.txt"  # img0, img1, img10, img11, img2, ...: a lexical sort of the names
+    lexical.write_text("".join(f"img{i}.png {_fmt(P[i])}\n" for i in sorted(range(12), key=str)))
+    stored = []
+    for cams in (in_order, lexical):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="vastcal.importer"):
+            assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / f"{cams.stem}.h5"), "--cameras", str(cams)]) == 0
+        assert ("matched to images by name" in caplog.text) == (cams is lexical)
+        with Session.open(out) as s:
+            stored.append(s.known_cameras)
+    np.testing.assert_array_equal(stored[0], stored[1])
+    partial = tmp_path / "partial.txt"
+    partial.write_text("".join(f"{'img' if i < 6 else 'shot'}{i}.png {_fmt(P[i])}\n" for i in range(12)))
+    with pytest.raises(ImportDataError, match=r"partial\.txt: its view names match 6 of 12 images: cameras shot6, shot7, shot8 name no image"):
+        from vastcal.importer import import_folder
+
+        import_folder(img, tmp_path / "p.h5", cameras=partial)
+    assert not (tmp_path / "p.h5").exists()
