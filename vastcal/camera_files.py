@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from vastcal.errors import ImportDataError
-from vastcal.image_files import IMAGE_SUFFIXES, natural_key
+from vastcal.image_files import natural_key, order_by_view_names
 
 MAX_TEXT_BYTES = 16 << 20
 """Largest angle or camera text file read, bytes (one line per view)."""
@@ -206,41 +206,15 @@ def read_camera_array(path: Path) -> tuple[np.ndarray, list[str]]:
     return _pick(path, variables)
 
 
-IMAGE_NAME_SUFFIXES = (*IMAGE_SUFFIXES, ".pa", ".txt")
-"""Suffixes a camera's name may carry beside the view's name (an image's, or its own file's)."""
-
-
-def _stem(name: str) -> str:
-    """A view's name without an image file's suffix (``dinoR0001.png`` → ``dinoR0001``; ``001`` stays)."""
-    p = Path(name)
-    return p.stem if p.suffix.lower() in IMAGE_NAME_SUFFIXES else name
-
-
 def match_cameras_to_images(P: np.ndarray, names: list[str], image_names: list[str], source: Path) -> tuple[np.ndarray, list[str], bool]:
-    """The cameras in the images' order when their names name the images: (P, names, reordered).
-
-    A camera file that names its views (``dinoR0001.png``, ``001``, ``david_00.pa``) is matched to the image files by
-    name, without suffixes, so that a file listing them in another order (``img10`` before ``img2``) cannot pair a view
-    with another's camera. Names that match no image at all (``view 3``, ``P[3]``) keep the file's order.
+    """The cameras in the images' order when their names name the images (:func:`.image_files.order_by_view_names`):
+    (P, names, reordered).
 
     Raises:
         ImportDataError: some names match images and others do not, or one names two cameras.
     """
-    keys = [_stem(n) for n in names]
-    stems = [_stem(n) for n in image_names]
-    matched = [k for k in keys if k in set(stems)]
-    if not matched:
-        return P, names, False
-    missing = [k for k in keys if k not in set(stems)]
-    uncovered = [s for s in stems if s not in set(keys)]
-    if missing or uncovered or len(set(keys)) != len(keys):
-        dupes = sorted({k for k in keys if keys.count(k) > 1})
-        what = (f"cameras {', '.join(missing[:3])} name no image" if missing else
-                f"images {', '.join(uncovered[:3])} have no camera" if uncovered else f"cameras named twice: {', '.join(dupes[:3])}")
-        raise ImportDataError(f"{source}: its view names match {len(set(matched))} of {len(stems)} images: {what} "
-                              f"(names are matched without their file suffix)")
-    order = [keys.index(s) for s in stems]
-    if order == list(range(len(order))):
+    order = order_by_view_names(names, image_names, source, "cameras")
+    if order is None:
         return P, names, False
     return P[order], [names[i] for i in order], True
 

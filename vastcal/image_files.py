@@ -75,6 +75,45 @@ IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bm
 """Suffixes of the single-image files a folder of views may hold."""
 
 
+NAME_SUFFIXES = (*IMAGE_SUFFIXES, ".pa", ".txt")
+"""Suffixes a view's name may carry in a camera or angle file (an image's, or a per-view file's own)."""
+
+
+def view_stem(name: str) -> str:
+    """A view's name without an image or per-view file's suffix (``dinoR0001.png`` → ``dinoR0001``; ``001`` stays)."""
+    p = Path(name)
+    return p.stem if p.suffix.lower() in NAME_SUFFIXES else name
+
+
+def order_by_view_names(names: list[str], image_names: list[str], source: Path, what: str) -> list[int] | None:
+    """Where each image's entry sits in a file that names its views (camera or angle files): ``order[i]`` is the
+    entry of image i; None when the file lists them in the images' order already, or names no image at all
+    (``view 3``, ``P[3]``: then the file's order is the images'). Names are compared without suffixes
+    (:func:`view_stem`), so ``dinoR0001.png``, ``001`` and ``david_00.pa`` name ``dinoR0001.png``, ``001.tif`` and
+    ``david_00.jpg``; a file that lists them in another order (a lexical sort: ``img10`` before ``img2``) cannot pair an
+    image with another view's entry.
+
+    Raises:
+        ImportDataError: some names match images and others do not, or one view is named twice.
+    """
+    keys = [view_stem(n) for n in names]
+    stems = [view_stem(n) for n in image_names]
+    known = set(stems)
+    matched = {k for k in keys if k in known}
+    if not matched:
+        return None
+    missing = [k for k in keys if k not in known]
+    uncovered = [s for s in stems if s not in set(keys)]
+    if missing or uncovered or len(set(keys)) != len(keys):
+        dupes = sorted({k for k in keys if keys.count(k) > 1})
+        why = (f"{what} {', '.join(missing[:3])} name no image" if missing else
+               f"images {', '.join(uncovered[:3])} have none" if uncovered else f"views named twice: {', '.join(dupes[:3])}")
+        raise ImportDataError(f"{source}: its view names match {len(matched)} of {len(stems)} images: {why} "
+                              f"(names are matched without their file suffix)")
+    order = [keys.index(s) for s in stems]
+    return None if order == list(range(len(order))) else order
+
+
 def natural_key(name: str) -> list[object]:
     """Sort key that orders embedded numbers numerically (``a2`` < ``a10``): the order of a folder's views."""
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]

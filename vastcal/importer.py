@@ -48,7 +48,7 @@ from vastcal.camera_files import MAX_TEXT_BYTES, match_cameras_to_images, read_c
 from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError, VastcalError
 from vastcal.geometry import LENGTH_UNITS_UM, decompose_circular, shift_pixels
-from vastcal.image_files import IMAGE_SUFFIXES, natural_key
+from vastcal.image_files import IMAGE_SUFFIXES, natural_key, order_by_view_names
 from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter
 
@@ -282,7 +282,8 @@ def angles_of_cameras(P: np.ndarray, uniform: np.ndarray, roll_box_deg: float, s
 
 
 def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
-    """Commanded angles (degrees) from a text file: one number per line, or ``name angle``.
+    """Commanded angles (degrees) from a text file: one number per line (in the images' order), or ``name angle``
+    (matched to the images by name, :func:`.image_files.order_by_view_names`, when the names are the images').
 
     Raises:
         ImportDataError: unreadable, not numbers, not finite, one angle given twice (the same
@@ -302,6 +303,11 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
         raise ImportDataError(f"{path}: expected one angle in degrees per line ({str(exc)[:120]})") from None
     if len(values) != n:
         raise ImportDataError(f"{path}: {len(values)} angles for {n} images")
+    if all(len(r) >= 2 for _, r in lines):  # `name angle` lines: the images' own angles, whatever order the file lists them in
+        order = order_by_view_names([r[0] for _, r in lines], list(names), path, "angles")
+        if order is not None:
+            log.warning("%s lists the views in another order than the images' natural order: angles matched to images by name", path.name)
+            lines, values = [lines[i] for i in order], [values[i] for i in order]
     angles = np.asarray(values, float)
     for (lineno, _), a in zip(lines, angles):
         if not np.isfinite(a):

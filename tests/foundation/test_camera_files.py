@@ -213,3 +213,14 @@ def test_named_cameras_are_matched_to_the_images_by_name(tmp_path: Path, caplog:
 
         import_folder(img, tmp_path / "p.h5", cameras=partial)
     assert not (tmp_path / "p.h5").exists()
+
+
+def test_named_angles_are_matched_to_the_images_by_name(tmp_path: Path) -> None:
+    """`--angles` with `name angle` lines in a lexical order gives each image its own angle, as cameras do."""
+    (img := tmp_path / "img").mkdir()
+    for i in range(12):
+        cv2.imwrite(str(img / f"img{i}.png"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    (angles := tmp_path / "angles.txt").write_text("".join(f"img{i}.png {i * 30.0}\n" for i in sorted(range(12), key=str)))
+    assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / "s.h5"), "--angles", str(angles)]) == 0
+    with Session.open(out) as s:
+        np.testing.assert_allclose(s.angles_deg, np.arange(12) * 30.0)
