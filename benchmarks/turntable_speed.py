@@ -128,11 +128,13 @@ def statuette(joined: bool = False) -> list[Ellipsoid]:
     return out
 
 
-def cameras(n: int, width: int, height: int, rng: np.random.Generator, aim_offset: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cameras(n: int, width: int, height: int, rng: np.random.Generator, aim_offset: float = 0.0,
+            spin_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """K (3, 3), R (n, 3, 3), t (n, 3) of ``n`` views in circular motion (x right, y down, z forward); the views'
     true angles are the nominal steps plus the stage's irregularity (view 0 exact). The camera is levelled (the axis
     images upright) and aims at the axis, or ``aim_offset`` units beside it (the axis then images beside the principal
-    point, as on a turntable nobody centred to the pixel)."""
+    point, as on a turntable nobody centred to the pixel); ``spin_deg`` rolls the camera about its principal ray (the
+    axis images slanted by that much)."""
     K = np.array([[685.0 * width / 640, 0.0, 322.6 * width / 640],
                   [0.0, 685.0 * width / 640, 232.1 * height / 480],
                   [0.0, 0.0, 1.0]])
@@ -145,7 +147,7 @@ def cameras(n: int, width: int, height: int, rng: np.random.Generator, aim_offse
         forward /= np.linalg.norm(forward)
         right = np.cross([0.0, 0.0, -1.0], forward)
         right /= np.linalg.norm(right)
-        R[i] = np.stack([right, np.cross(forward, right), forward])
+        R[i] = rotation("z", spin_deg) @ np.stack([right, np.cross(forward, right), forward])
         t[i] = -R[i] @ centre
     return K, R, t
 
@@ -272,12 +274,12 @@ def figure_mask(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height:
 
 
 def write_set(folder: Path, n: int, width: int, height: int, scene_seed: int, ambient: float, disc: bool = False,
-              body: list[Ellipsoid] | None = None, aim_offset: float = 0.0) -> np.ndarray:
+              body: list[Ellipsoid] | None = None, aim_offset: float = 0.0, spin_deg: float = 0.0) -> np.ndarray:
     """Render the set into ``folder`` (``images/view_NN.png``) and write ``cameras.txt`` (``name K R t``) and view 0's
     figure mask (``mask_00.png``, :func:`figure_mask`) beside it; returns the cameras (n, 3, 4). ``body``: the figure
     (default :func:`statuette`)."""
     rng = np.random.default_rng(scene_seed)
-    K, R, t = cameras(n, width, height, rng, aim_offset)
+    K, R, t = cameras(n, width, height, rng, aim_offset, spin_deg)
     body = statuette() if body is None else body
     images = folder / "images"
     images.mkdir()
@@ -370,6 +372,7 @@ def main() -> None:
     ap.add_argument("--aim-offset", type=float, default=0.0,
                     help="the levelled camera aims this many units beside the axis (0.5: ~35 px at 720 x 576): an upright axis "
                          "image beside the principal point")
+    ap.add_argument("--spin", type=float, default=0.0, help="the camera rolled about its principal ray, degrees (the axis images slanted)")
     a = ap.parse_args()
     n = a.views
     if a.profile and not os.environ.get(THREADS_ENV):
@@ -377,7 +380,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp_s:
         tmp = Path(tmp_s)
         t0 = time.perf_counter()
-        P = write_set(tmp, n, a.width, a.height, a.scene_seed, a.ambient, a.turntable, aim_offset=a.aim_offset)
+        P = write_set(tmp, n, a.width, a.height, a.scene_seed, a.ambient, a.turntable, aim_offset=a.aim_offset, spin_deg=a.spin)
         t_render = time.perf_counter() - t0
         motion = decompose_circular(P).motion  # as the session decomposes the imported cameras
         true_rolls = motion.rolls_deg - motion.rolls_deg[0]
