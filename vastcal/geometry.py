@@ -247,6 +247,12 @@ def _common_rotation_axis(Rs: np.ndarray) -> np.ndarray:
     return -a if float(np.sum(turn @ a)) < 0 else a
 
 
+CIRCULAR_FIT_WARN_PX = 1.0
+"""RMS reprojection difference (px) between given cameras and their circular-motion fit above which import and
+calibration warn: the model (one K, one circle of camera centres about one axis) then cannot reproduce the given
+cameras to the ~1 px that silhouette edges are located to, so comparisons with those cameras are limited by it."""
+
+
 @dataclass(frozen=True)
 class CircularFit:
     """Result of :func:`decompose_circular`.

@@ -47,7 +47,7 @@ from vastcal import image_files
 from vastcal.camera_files import MAX_TEXT_BYTES, match_cameras_to_images, read_cameras
 from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError, VastcalError
-from vastcal.geometry import LENGTH_UNITS_UM, decompose_circular, shift_pixels
+from vastcal.geometry import CIRCULAR_FIT_WARN_PX, LENGTH_UNITS_UM, decompose_circular, shift_pixels
 from vastcal.image_files import IMAGE_SUFFIXES, natural_key, order_by_view_names
 from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter
@@ -232,12 +232,6 @@ def _folder_set(source: Path, files: list[Path]) -> ImageSet:
         meta = dataclasses.replace(meta, angles_deg=None, angles_source="")  # per-file angles are not read
     _check_fits_in_memory(source, len(files), np.empty(first.shape, dtype))
     return ImageSet(source, [f.name for f in files], files, None, tuple(first.shape), first.dtype, dtype, vr, meta)
-
-
-CIRCULAR_FIT_WARN_PX = 1.0
-"""RMS reprojection difference (px) between imported cameras and their circular-motion fit above which the import
-warns: the calibration's model (one K, one circle of camera centres about one axis) then cannot reproduce the given
-cameras to the ~1 px that silhouette edges are located to, so comparisons with those cameras are limited by it."""
 
 
 def circular_fit_note(P: np.ndarray, source: str) -> dict[str, object]:
