@@ -272,11 +272,12 @@ def decompose_circular(P: np.ndarray, check_points: np.ndarray | None = None) ->
     """Fit the circular-motion model to known cameras P (N, 3, 4), 0-based pixels.
 
     The axis direction is the common axis of the relative rotations R_0ᵀR_i (:func:`_common_rotation_axis`); its
-    sign makes the roll angles increase with the view index. The origin is placed on the axis where
-    t_axis has no x component, and view 0 gets roll 0°.
+    sign makes the roll angles increase with the view index. The origin is the axis point nearest the principal
+    ray (the same point for every view of a circular motion), as the model places it (:func:`axis_origin_in_camera`),
+    and view 0 gets roll 0°.
 
     Raises:
-        AnalysisError: fewer than 3 views, or views that do not rotate about a common axis.
+        AnalysisError: fewer than 3 views, views that do not rotate, or cameras that look along the axis.
     """
     P = np.asarray(P, float)
     n = P.shape[0]
