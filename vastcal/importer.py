@@ -58,7 +58,6 @@ log = logging.getLogger(__name__)
 PIXEL_ORIGINS = (0.0, 0.5, 1.0)
 
 
-
 def list_images(folder: Path) -> list[Path]:
     """Image files of ``folder`` in natural order.
 
@@ -76,7 +75,6 @@ def list_images(folder: Path) -> list[Path]:
 MAX_IMAGE_PIXELS = 1 << 28
 """Most pixels one imported image may have: 268 M (16384 x 16384), beyond any camera sensor; a
 header that claims more is refused before the pixels are decoded."""
-
 
 
 def image_size(path: Path) -> tuple[int, int] | None:
@@ -315,8 +313,6 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
                                   f"({angles[i]:g} degrees)")
         seen[a] = i
     return angles
-
-
 
 
 def camera_length_unit(P: np.ndarray, given: str | None, working_distance_um: float | None) -> tuple[str, str]:
