@@ -8,8 +8,8 @@ in the images' order. What the formats hold:
   format) or 21 numbers ``K(9) R(9) t(3)`` (row-major K and R, then t; P = K·[R | t]; Middlebury's
   ``*_par.txt``); the name may be left out (a line of numbers only). A first line holding only the number of
   views (Middlebury's) is skipped, and so are blank lines and ``#`` comments;
-* a text file of matrices written row by row — three lines of four numbers per view, each matrix optionally
-  preceded by a line holding only its name (e.g. ``P0:`` or ``view_003``);
+* a text file of matrices written row by row — three lines of four numbers per view — or of the 12 (21) numbers on
+  one line, each optionally preceded by a line holding only its name (e.g. ``P0:`` or ``view_003``);
 * a folder of one file per view (natural order): ``*.pa`` (ETH's format: the 12 numbers), else ``*.txt``
   whose 12 numbers may follow a ``CONTOUR`` line (the camera files of PMVS and VisualSFM);
 * a NumPy ``.npy`` array (N, 3, 4), or an ``.npz`` holding one such array (or one named ``P``);
@@ -96,10 +96,12 @@ def read_camera_text(path: Path) -> tuple[np.ndarray, list[str]]:
                 names.append(name_or_index(row_name))
                 rows, row_name = [], None
             continue
-        if rows or row_name is not None:
+        if rows:
             raise ImportDataError(f"{path}: line {lineno}: the matrix begun on line {row_start} has {len(rows)} of its 3 rows "
                                   f"of 4 numbers")
         named = len(tok) in (13, 22)  # a name (which may itself be a number, e.g. 001) and the numbers
+        if named and row_name is not None:
+            raise ImportDataError(f"{path}: line {lineno}: a named camera after the name {row_name!r} on line {row_start}")
         body = tok[1:] if named else tok
         nums = [float(t) for t in body] if all(_is_number(t) for t in body) else []
         if len(nums) == 12:
@@ -110,8 +112,9 @@ def read_camera_text(path: Path) -> tuple[np.ndarray, list[str]]:
             raise ImportDataError(f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P) "
                                   f"or 21 numbers (K(9) R(9) t(3)), or a row of 4 numbers of a matrix written row by row; "
                                   f"got {len(tok)} fields")
-        names.append(tok[0] if named else name_or_index(None))
+        names.append(tok[0] if named else name_or_index(row_name))  # a name may stand on the line before its numbers
         mats.append(P)
+        row_name = None
     if rows or row_name is not None:
         raise ImportDataError(f"{path}: line {row_start}: a matrix with {len(rows)} of its 3 rows of 4 numbers at the end of the file")
     return np.asarray(mats).reshape(-1, 3, 4), names

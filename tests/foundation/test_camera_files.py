@@ -44,6 +44,8 @@ def _write(kind: str, P: np.ndarray, folder: Path) -> Path:
         (f := folder / "c_par.txt").write_text(f"{len(P)}\n" + "".join(f"v{i}.png {r}\n" for i, r in enumerate(rows)))
     elif kind == "rows":
         (f := folder / "c.txt").write_text("".join(f"P{i}:\n" + "".join(f"{_fmt(r)}\n" for r in p) + "\n" for i, p in enumerate(P)))
+    elif kind == "name-line":  # each name on its own line, its 12 numbers on the next
+        (f := folder / "c.txt").write_text("".join(f"P{i}:\n{_fmt(p)}\n" for i, p in enumerate(P)))
     elif kind == "rows-unnamed":
         (f := folder / "c.txt").write_text("".join(f"{_fmt(r)}\n" for p in P for r in p))
     elif kind == "pa":
@@ -70,7 +72,7 @@ def _write(kind: str, P: np.ndarray, folder: Path) -> Path:
     return f
 
 
-KINDS = ["name+P", "P", "KRt", "rows", "rows-unnamed", "pa", "pmvs", "npy", "npz", "mat-cell", "mat-3x4xN"]
+KINDS = ["name+P", "P", "KRt", "rows", "name-line", "rows-unnamed", "pa", "pmvs", "npy", "npz", "mat-cell", "mat-3x4xN"]
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -81,7 +83,7 @@ def test_every_format_gives_the_same_cameras(kind: str, tmp_path: Path) -> None:
     assert len(names) == N and len(set(names)) == N
     if kind == "name+P":
         assert names == ["000", "001", "002", "003"]  # a numeric name is still a name
-    if kind == "rows":
+    if kind in ("rows", "name-line"):
         assert names == ["P0", "P1", "P2", "P3"]
 
 
@@ -90,10 +92,11 @@ def test_every_format_gives_the_same_cameras(kind: str, tmp_path: Path) -> None:
     [
         ("1 2 3 4\n5 6 7 8\n", r"c\.txt: line 1: a matrix with 2 of its 3 rows"),
         ("P0:\n1 2 3 4\nP1:\n", r"c\.txt: line 3: the matrix begun on line 1 has 1 of its 3 rows"),
+        ("P0:\nP0 1 2 3 4 5 6 7 8 9 10 11 12\n", r"c\.txt: line 2: a named camera after the name 'P0' on line 1"),
         ("v0 1 2 3 4 5 6 7 8 9 10 11\n", r"c\.txt: line 1: expected a view name and 12 numbers"),
         ("v0 1 2 3 4 5 6 7 8 9 10 11 x12\n", r"c\.txt: line 1: expected a view name and 12 numbers"),
     ],
-    ids=["two-rows", "name-then-one-row", "eleven-numbers", "not-a-number"],
+    ids=["two-rows", "name-then-one-row", "two-names", "eleven-numbers", "not-a-number"],
 )
 def test_a_malformed_text_file_names_its_line(text: str, expected: str, tmp_path: Path) -> None:
     (tmp_path / "c.txt").write_text(text)
