@@ -34,6 +34,16 @@ def pipelines(points_u: np.ndarray, points_v: np.ndarray, image: np.ndarray, rep
     return total
 
 
+def side_by_side(workers: list[threading.Thread] | list[mp.Process]) -> float:
+    """Wall time (s) from starting every worker to the last one's end."""
+    t = time.perf_counter()
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    return time.perf_counter() - t
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default="20000,200000,2000000", help="points per pipeline (multiples of 1000)")
@@ -50,20 +60,9 @@ def main() -> None:
         t = time.perf_counter()
         pipelines(u, v, image, reps)
         one = time.perf_counter() - t
-        threads = [threading.Thread(target=pipelines, args=(u, v, image, reps // 2)) for _ in range(2)]
-        t = time.perf_counter()
-        for th in threads:
-            th.start()
-        for th in threads:
-            th.join()
-        two_t = time.perf_counter() - t
-        procs = [mp.get_context("fork").Process(target=pipelines, args=(u, v, image, reps // 2)) for _ in range(2)]
-        t = time.perf_counter()
-        for p in procs:
-            p.start()
-        for p in procs:
-            p.join()
-        two_p = time.perf_counter() - t
+        half = (u, v, image, reps // 2)
+        two_t = side_by_side([threading.Thread(target=pipelines, args=half) for _ in range(2)])
+        two_p = side_by_side([mp.get_context("fork").Process(target=pipelines, args=half) for _ in range(2)])
         print(f"{n:>10} {one:>10.2f}s {two_t:>7.2f}s ({one / two_t:.2f}x) {two_p:>7.2f}s ({one / two_p:.2f}x)")
 
 

@@ -253,6 +253,15 @@ calibration warn: the model (one K, one circle of camera centres about one axis)
 cameras to the ~1 px that silhouette edges are located to, so comparisons with those cameras are limited by it."""
 
 
+def circular_fit_shortfall(rms_px: float) -> str | None:
+    """What import and calibration say of given cameras that circular motion reproduces to ``rms_px`` RMS; None
+    within :data:`CIRCULAR_FIT_WARN_PX`."""
+    if rms_px <= CIRCULAR_FIT_WARN_PX:
+        return None
+    return (f"the imported cameras fit circular motion to {rms_px:.2f} px RMS only (per-view intrinsics or centres off one "
+            f"circle): calibrated poses cannot come closer to them than that")
+
+
 @dataclass(frozen=True)
 class CircularFit:
     """Result of :func:`decompose_circular`.

@@ -70,7 +70,6 @@ def length_unit_um(unit: str | None) -> float | None:
     return LENGTH_UNITS_UM.get(u)
 
 
-
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bmp")
 """Suffixes of the single-image files a folder of views may hold."""
 
@@ -102,21 +101,23 @@ def order_by_view_names(names: list[str], image_names: list[str], source: Path, 
     matched = {k for k in keys if k in known}
     if not matched:
         return None
+    entry: dict[str, int] = {}  # each name's first entry
+    dupes = sorted({k for i, k in enumerate(keys) if entry.setdefault(k, i) != i})
     missing = [k for k in keys if k not in known]
-    uncovered = [s for s in stems if s not in set(keys)]
-    if missing or uncovered or len(set(keys)) != len(keys):
-        dupes = sorted({k for k in keys if keys.count(k) > 1})
+    uncovered = [s for s in stems if s not in entry]
+    if missing or uncovered or dupes:
         why = (f"{what} {', '.join(missing[:3])} name no image" if missing else
                f"images {', '.join(uncovered[:3])} have none" if uncovered else f"views named twice: {', '.join(dupes[:3])}")
         raise ImportDataError(f"{source}: its view names match {len(matched)} of {len(stems)} images: {why} "
                               f"(names are matched without their file suffix)")
-    order = [keys.index(s) for s in stems]
+    order = [entry[s] for s in stems]
     return None if order == list(range(len(order))) else order
 
 
 def natural_key(name: str) -> list[object]:
     """Sort key that orders embedded numbers numerically (``a2`` < ``a10``): the order of a folder's views."""
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
 
 @dataclass(frozen=True)
 class ImageMetadata:

@@ -47,7 +47,7 @@ from vastcal import image_files
 from vastcal.camera_files import MAX_TEXT_BYTES, match_cameras_to_images, read_cameras
 from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError, VastcalError
-from vastcal.geometry import CIRCULAR_FIT_WARN_PX, LENGTH_UNITS_UM, decompose_circular, shift_pixels
+from vastcal.geometry import LENGTH_UNITS_UM, circular_fit_shortfall, decompose_circular, shift_pixels
 from vastcal.image_files import IMAGE_SUFFIXES, natural_key, order_by_view_names
 from vastcal.outputs import check_output_file
 from vastcal.session import SessionWriter
@@ -235,16 +235,16 @@ def _folder_set(source: Path, files: list[Path]) -> ImageSet:
 def circular_fit_note(P: np.ndarray, source: str) -> dict[str, object]:
     """How well circular motion describes imported cameras P (N, 3, 4): ``{"circular_fit_rms_px": x}``, or
     ``{"circular_fit_error": why}`` when they do not rotate about one axis (calibrate then refuses them); warns
-    beyond :data:`CIRCULAR_FIT_WARN_PX`."""
+    beyond :data:`.geometry.CIRCULAR_FIT_WARN_PX` (:func:`.geometry.circular_fit_shortfall`)."""
     try:
         rms = float(decompose_circular(P).rms_px)
     except VastcalError as exc:
         log.warning("%s: the cameras do not describe circular motion (%s): `calibrate` and `run` will refuse this session; "
                     "`reconstruct --cameras imported` can still use them", source, exc)
         return {"circular_fit_error": str(exc)}
-    if rms > CIRCULAR_FIT_WARN_PX:
-        log.warning("%s: circular motion reproduces these cameras to %.2f px RMS only (per-view intrinsics or centres off "
-                    "one circle); calibrated poses cannot come closer to them than that", source, rms)
+    shortfall = circular_fit_shortfall(rms)
+    if shortfall:
+        log.warning("%s: %s", source, shortfall)
     return {"circular_fit_rms_px": rms}
 
 

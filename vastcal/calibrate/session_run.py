@@ -22,7 +22,7 @@ from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method
 from vastcal.calibrate.view_budget import SessionFrames
 from vastcal.config import CalibrationBounds, CalibrationConfig, RoiConfig, check_setting
 from vastcal.errors import SessionIncompleteError, UserInputError, VastcalError
-from vastcal.geometry import CIRCULAR_FIT_WARN_PX, decompose_circular, intrinsics_from_optics
+from vastcal.geometry import circular_fit_shortfall, decompose_circular, intrinsics_from_optics
 from vastcal.session import Session, software_versions, write_attrs
 
 log = logging.getLogger(__name__)
@@ -50,9 +50,9 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
     known = session.known_cameras
     if known is not None:
         fit = decompose_circular(known)
-        if fit.rms_px > CIRCULAR_FIT_WARN_PX:
-            log.warning("%s: the imported cameras fit circular motion to %.2f px RMS only: calibrated poses cannot come closer "
-                        "to them than that", session.path.name, fit.rms_px)
+        shortfall = circular_fit_shortfall(fit.rms_px)
+        if shortfall:
+            log.warning("%s: %s", session.path.name, shortfall)
         m = fit.motion
         theta0 = np.concatenate([[m.yaw_deg, m.pitch_deg, m.gamma_deg], angles])
         rolls = np.asarray(m.rolls_deg, float)
