@@ -28,6 +28,14 @@ def _cameras(n: int = N) -> np.ndarray:
     return np.asarray(out)
 
 
+def _images(folder: Path, names: list[str]) -> Path:
+    """``folder`` with one small frame per name (each a different grey)."""
+    folder.mkdir()
+    for i, name in enumerate(names):
+        cv2.imwrite(str(folder / name), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    return folder
+
+
 def _fmt(x: np.ndarray) -> str:
     return " ".join(f"{v:.17g}" for v in np.ravel(x))
 
@@ -131,9 +139,7 @@ def test_arrays_that_are_not_cameras_are_refused(tmp_path: Path) -> None:
 def test_import_takes_the_oxford_mat_file_as_the_text_file(tmp_path: Path) -> None:
     """`vastcal import --cameras dino_Ps.mat` stores the same cameras as the same matrices given as text."""
     P = _cameras()
-    (img := tmp_path / "img").mkdir()
-    for i in range(N):
-        cv2.imwrite(str(img / f"viff.{i:03d}.ppm"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    img = _images(tmp_path / "img", [f"viff.{i:03d}.ppm" for i in range(N)])
     stored = []
     for kind in ("mat-cell", "name+P"):
         out = tmp_path / f"{kind}.h5"
@@ -149,9 +155,7 @@ def test_import_takes_the_oxford_mat_file_as_the_text_file(tmp_path: Path) -> No
 def _import(tmp_path: Path, P: np.ndarray, name: str) -> Path:
     img = tmp_path / "img"
     if not img.exists():
-        img.mkdir()
-        for i in range(len(P)):
-            cv2.imwrite(str(img / f"v{i:02d}.png"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+        _images(img, [f"v{i:02d}.png" for i in range(len(P))])
     np.save(cams := tmp_path / f"{name}.npy", P)
     assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / f"{name}.h5"), "--cameras", str(cams)]) == 0
     return out
@@ -198,9 +202,7 @@ def test_named_cameras_are_matched_to_the_images_by_name(tmp_path: Path, caplog:
     """A camera file that lists its views in another order than the images' natural order (img10 before img2, or any
     shuffle) pairs each image with its own camera; names matching only some images are refused naming them."""
     P = _cameras(12)
-    (img := tmp_path / "img").mkdir()
-    for i in range(12):
-        cv2.imwrite(str(img / f"img{i}.png"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    img = _images(tmp_path / "img", [f"img{i}.png" for i in range(12)])
     in_order = tmp_path / "in_order.txt"
     in_order.write_text("".join(f"img{i}.png {_fmt(P[i])}\n" for i in range(12)))
     lexical = tmp_path / "lexical.txt"  # img0, img1, img10, img11, img2, ...: a lexical sort of the names
@@ -225,9 +227,7 @@ def test_named_cameras_are_matched_to_the_images_by_name(tmp_path: Path, caplog:
 
 def test_named_angles_are_matched_to_the_images_by_name(tmp_path: Path) -> None:
     """`--angles` with `name angle` lines in a lexical order gives each image its own angle, as cameras do."""
-    (img := tmp_path / "img").mkdir()
-    for i in range(12):
-        cv2.imwrite(str(img / f"img{i}.png"), np.full((240, 320, 3), 40 + 10 * i, np.uint8))
+    img = _images(tmp_path / "img", [f"img{i}.png" for i in range(12)])
     (angles := tmp_path / "angles.txt").write_text("".join(f"img{i}.png {i * 30.0}\n" for i in sorted(range(12), key=str)))
     assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / "s.h5"), "--angles", str(angles)]) == 0
     with Session.open(out) as s:
