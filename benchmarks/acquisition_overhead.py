@@ -43,8 +43,9 @@ import tempfile
 import threading
 import time
 import urllib.parse
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -127,13 +128,20 @@ def _ms(values: list[float] | np.ndarray) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--views", type=int, default=21)
-    ap.add_argument("--roi", choices=("full", "config"), default="full", help="full: 1024 x 1024 (default); config: the ROI of simulated.yaml")
+    ap.add_argument(
+        "--roi",
+        choices=("full", "config"),
+        default="full",
+        help="full: 1024 x 1024 (default); config: the ROI of simulated.yaml",
+    )
     ap.add_argument("--dir", default=None, help="folder for the temporary session (default: system temp)")
     args = ap.parse_args()
 
     cfg = load_config(None)
     if args.roi == "full":
-        roi = dataclasses.replace(cfg.camera.roi, x=0, y=0, width=cfg.optics.sensor_width_px, height=cfg.optics.sensor_height_px)
+        roi = dataclasses.replace(
+            cfg.camera.roi, x=0, y=0, width=cfg.optics.sensor_width_px, height=cfg.optics.sensor_height_px
+        )
         cfg = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, roi=roi, pixel_format="Mono12"))
     timed = _Timed()
     original_append, original_create = SessionWriter.append_view, SessionWriter.__dict__["create"]
@@ -151,8 +159,15 @@ def main() -> None:
                 renderer.render = _timing(renderer.render, lambda dt, _: timed._render_pending.append(dt))
                 on_view = _timing(rig.on_view, lambda dt, _: timed.truth.append(dt))
                 t0 = time.perf_counter()
-                result = acquire(_StageProxy(rig.stage, timed), _CameraProxy(rig.camera, timed), cfg, out,  # type: ignore[arg-type]
-                                 views=args.views, start_info=rig.start_info, on_view=on_view)
+                result = acquire(
+                    _StageProxy(rig.stage, timed),
+                    _CameraProxy(rig.camera, timed),
+                    cfg,
+                    out,  # type: ignore[arg-type]
+                    views=args.views,
+                    start_info=rig.start_info,
+                    on_view=on_view,
+                )
                 total = time.perf_counter() - t0
     finally:
         SessionWriter.append_view, SessionWriter.create = original_append, original_create  # type: ignore[method-assign]
@@ -168,25 +183,37 @@ def main() -> None:
     view_wall = np.array(result.overhead_s) + np.array(timed.move_reported) + exposure_s + cfg.stage.settle_s
     stage_protocol = move_wall - mechanical
     camera = snap_wall - render
-    overhead = view_wall - mechanical - render - truth - cfg.stage.settle_s  # the simulated camera spends no exposure time
+    overhead = (
+        view_wall - mechanical - render - truth - cfg.stage.settle_s
+    )  # the simulated camera spends no exposure time
     create = np.zeros(n)
     create[0] = sum(timed.create)  # the session file is created once the first frame gives its shape
     glue = overhead - stage_protocol - camera - append - create
     h, w = cfg.camera.roi.height, cfg.camera.roi.width
 
-    print(f"acquisition overhead on the simulated rig: {n} views, {w} x {h} {cfg.camera.pixel_format}, "
-          f"stage time scale {scale:g}, settle {cfg.stage.settle_s:g} s, exposure {cfg.camera.exposure_us:g} us (not waited by the simulator)")
+    print(
+        f"acquisition overhead on the simulated rig: {n} views, {w} x {h} {cfg.camera.pixel_format}, "
+        f"stage time scale {scale:g}, settle {cfg.stage.settle_s:g} s, exposure {cfg.camera.exposure_us:g} us (not waited by the simulator)"
+    )
     print(f"  run wall time            {total:8.3f} s  ({total / n * 1e3:.1f} ms per view)")
     print(f"  view wall time           {_ms(view_wall)}")
     print("  not overhead:")
     print(f"    mechanical motion      {_ms(mechanical)}   (simulator's motion profile / time scale)")
     print(f"    render (simulator)     {_ms(render)}")
     print(f"    truth sidecar (sim.)   {_ms(truth)}")
-    verdict = ", ".join(f"{what} {'met' if v <= 0.020 else 'NOT met'}" for what, v in
-                        (("mean", float(np.mean(overhead))), ("max", float(np.max(overhead))), ("max after view 0", float(np.max(overhead[1:])))))
+    verdict = ", ".join(
+        f"{what} {'met' if v <= 0.020 else 'NOT met'}"
+        for what, v in (
+            ("mean", float(np.mean(overhead))),
+            ("max", float(np.max(overhead))),
+            ("max after view 0", float(np.max(overhead[1:]))),
+        )
+    )
     print(f"  OVERHEAD per view        {_ms(overhead)}   target <= 20 ms: {verdict}")
-    print(f"    stage protocol         {_ms(stage_protocol)}   (move wall - mechanical; polls at "
-          f"{rig.stage.timing.poll_interval_s * 1e3:g} ms)")  # type: ignore[attr-defined]
+    print(
+        f"    stage protocol         {_ms(stage_protocol)}   (move wall - mechanical; polls at "
+        f"{rig.stage.timing.poll_interval_s * 1e3:g} ms)"
+    )  # type: ignore[attr-defined]
     print(f"    camera (beyond render) {_ms(camera)}")
     print(f"    session append+flush   {_ms(append)}   ({h * w * 2 / 1e6:.2f} MB per frame)")
     print(f"    session create         {sum(timed.create) * 1e3:7.2f} ms once, in view 0 (file skeleton, start record)")

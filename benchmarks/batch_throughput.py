@@ -52,18 +52,30 @@ def main() -> int:
     ap.add_argument("--starts", type=int, default=3, help="calibration starts per session (vastcal default 3)")
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster workers (default: one per core)")
     ap.add_argument("--skip-sequential", action="store_true")
-    ap.add_argument("--sequential-threads", type=int, default=None, metavar="T",
-                    help="VASTCAL_THREADS of the sequential runs (default: vastcal's own, the usable CPUs; 1: one core, "
-                         "as each batch worker has)")
-    ap.add_argument("--sequential", type=int, default=None, metavar="K",
-                    help="time sequential vastcal run on K evenly spread sessions only and extrapolate to N (said in the output)")
+    ap.add_argument(
+        "--sequential-threads",
+        type=int,
+        default=None,
+        metavar="T",
+        help="VASTCAL_THREADS of the sequential runs (default: vastcal's own, the usable CPUs; 1: one core, "
+        "as each batch worker has)",
+    )
+    ap.add_argument(
+        "--sequential",
+        type=int,
+        default=None,
+        metavar="K",
+        help="time sequential vastcal run on K evenly spread sessions only and extrapolate to N (said in the output)",
+    )
     a = ap.parse_args()
 
     battery = a.workdir / "battery"
     battery.mkdir(parents=True, exist_ok=True)
     missing = [k for k in range(a.n) if not (battery / f"larva_{k:03d}.h5").exists()]
     if missing:
-        cmd = [sys.executable, str(HERE / "make_battery.py"), str(a.n), str(battery)] + (["--views", str(a.views)] if a.views else [])
+        cmd = [sys.executable, str(HERE / "make_battery.py"), str(a.n), str(battery)] + (
+            ["--views", str(a.views)] if a.views else []
+        )
         print("making the battery:", " ".join(cmd), flush=True)
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     sessions = [battery / f"larva_{k:03d}.h5" for k in range(a.n)]
@@ -84,13 +96,21 @@ def main() -> int:
         seq_env = dict(os.environ)
         if a.sequential_threads:
             seq_env["VASTCAL_THREADS"] = str(a.sequential_threads)
-        print(f"  sequential vastcal run with VASTCAL_THREADS={seq_env.get('VASTCAL_THREADS', 'unset (the usable CPUs)')}", flush=True)
+        print(
+            f"  sequential vastcal run with VASTCAL_THREADS={seq_env.get('VASTCAL_THREADS', 'unset (the usable CPUs)')}",
+            flush=True,
+        )
         for s in timed:
             copy = Path(shutil.copy(s, seq / s.name))
             t = time.monotonic()
             c = resource.getrusage(resource.RUSAGE_CHILDREN)
-            code = subprocess.run(_vastcal("run", str(copy), "-o", str(seq / (s.stem + "-report")), "--starts", str(a.starts), "-q"),
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=seq_env).returncode
+            code = subprocess.run(
+                _vastcal("run", str(copy), "-o", str(seq / (s.stem + "-report")), "--starts", str(a.starts), "-q"),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+                env=seq_env,
+            ).returncode
             per_session.append(time.monotonic() - t)
             c2 = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu_seq.append(c2.ru_utime + c2.ru_stime - c.ru_utime - c.ru_stime)
@@ -98,8 +118,11 @@ def main() -> int:
             print(f"  sequential {s.name}: {per_session[-1]:.1f} s wall, {cpu_seq[-1]:.1f} s CPU{failed}", flush=True)
         seq_s = time.monotonic() - t0
         if len(per_session) < len(sessions):
-            print(f"  sequential timed on {len(per_session)} of {len(sessions)} sessions (evenly spread); extrapolated: "
-                  f"{seq_s:.1f} s x {len(sessions)}/{len(per_session)}", flush=True)
+            print(
+                f"  sequential timed on {len(per_session)} of {len(sessions)} sessions (evenly spread); extrapolated: "
+                f"{seq_s:.1f} s x {len(sessions)}/{len(per_session)}",
+                flush=True,
+            )
             seq_s *= len(sessions) / len(per_session)
 
     par = a.workdir / "batch-input"
@@ -109,12 +132,16 @@ def main() -> int:
     par.mkdir()
     for s in sessions:
         shutil.copy(s, par / s.name)
-    cmd = _vastcal("batch", str(par), "-o", str(res), "--starts", str(a.starts)) + (["--workers", str(a.workers)] if a.workers else [])
+    cmd = _vastcal("batch", str(par), "-o", str(res), "--starts", str(a.starts)) + (
+        ["--workers", str(a.workers)] if a.workers else []
+    )
     print(f"load average before the batch: {os.getloadavg()}", flush=True)
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stderr is not None
-    lines = [(time.monotonic(), line.rstrip("\n")) for line in proc.stderr]  # the progress lines a log gets, as they come
+    lines = [
+        (time.monotonic(), line.rstrip("\n")) for line in proc.stderr
+    ]  # the progress lines a log gets, as they come
     proc.wait()
     batch_s = time.monotonic() - t0
     batch_eta(lines)
@@ -127,29 +154,45 @@ def main() -> int:
             peaks[r["worker"]] = max(peaks.get(r["worker"], 0.0), float(r["worker_peak_mb"]))
     workers = len(peaks) or (a.workers or len(os.sched_getaffinity(0)))
     print(f"load average after: {os.getloadavg()}")
-    print(f"sessions: {len(sessions)} ({len(ok)} ok in the batch, exit {proc.returncode}); views {a.views or 'rig default'}; starts {a.starts}")
+    print(
+        f"sessions: {len(sessions)} ({len(ok)} ok in the batch, exit {proc.returncode}); views {a.views or 'rig default'}; starts {a.starts}"
+    )
     if per_session:
-        print(f"sequential vastcal run: {seq_s:.1f} s = {3600 * len(sessions) / seq_s:.1f} sessions/h "
-              f"(per session mean {sum(per_session) / len(per_session):.1f} s, min {min(per_session):.1f}, max {max(per_session):.1f})")
-    print(f"vastcal batch, {workers} workers: {batch_s:.1f} s = {3600 * len(sessions) / batch_s:.1f} sessions/h "
-          f"(includes cluster start-up)")
+        print(
+            f"sequential vastcal run: {seq_s:.1f} s = {3600 * len(sessions) / seq_s:.1f} sessions/h "
+            f"(per session mean {sum(per_session) / len(per_session):.1f} s, min {min(per_session):.1f}, max {max(per_session):.1f})"
+        )
+    print(
+        f"vastcal batch, {workers} workers: {batch_s:.1f} s = {3600 * len(sessions) / batch_s:.1f} sessions/h "
+        f"(includes cluster start-up)"
+    )
     if per_session:
         print(f"speed-up over sequential: {seq_s / batch_s:.2f}x")
     cpu_batch = [float(r["cpu_s"]) for r in ok if r.get("cpu_s", "-") != "-"]
     if cpu_batch:
-        print(f"CPU per session in the batch workers: mean {sum(cpu_batch) / len(cpu_batch):.1f} s"
-              + (f"; sequential vastcal run: mean {sum(cpu_seq) / len(cpu_seq):.1f} s (includes process start-up)" if cpu_seq else "")
-              + f" -> {3600 * len(cpu_batch) / sum(cpu_batch):.0f} sessions per hour per fully used core")
+        print(
+            f"CPU per session in the batch workers: mean {sum(cpu_batch) / len(cpu_batch):.1f} s"
+            + (
+                f"; sequential vastcal run: mean {sum(cpu_seq) / len(cpu_seq):.1f} s (includes process start-up)"
+                if cpu_seq
+                else ""
+            )
+            + f" -> {3600 * len(cpu_batch) / sum(cpu_batch):.0f} sessions per hour per fully used core"
+        )
     cpu_of = {Path(r["path"]).stem: float(r["cpu_s"]) for r in ok if r.get("cpu_s", "-") != "-"}
     both = [(cpu_of[s.stem], c) for s, c in zip(timed_sessions, cpu_seq) if s.stem in cpu_of]
     if both:  # the same sessions both ways: what running two at a time costs each (sampling differences cancel)
         b, q = sum(x for x, _ in both), sum(y for _, y in both)
-        print(f"the {len(both)} sessions timed both ways: {b:.1f} CPU s in the batch workers against {q:.1f} s as sequential "
-              f"vastcal run (ratio {b / q:.3f})")
+        print(
+            f"the {len(both)} sessions timed both ways: {b:.1f} CPU s in the batch workers against {q:.1f} s as sequential "
+            f"vastcal run (ratio {b / q:.3f})"
+        )
     print("peak resident memory per worker (MB): " + ", ".join(f"{v:.0f}" for v in sorted(peaks.values())))
     per = sum(cpu_batch) / len(cpu_batch) if cpu_batch else batch_s * workers / len(sessions)
-    print(f"10 000-larva screen at {per:.1f} CPU s per session per worker (a worker = one unshared core like these; "
-          "perfect scaling, no I/O limit):")
+    print(
+        f"10 000-larva screen at {per:.1f} CPU s per session per worker (a worker = one unshared core like these; "
+        "perfect scaling, no I/O limit):"
+    )
     for n in (1, 2, 8, 32, 128):
         hours = 10_000 * per / n / 3600
         print(f"  {n:4d} workers: {hours:8.1f} h  ({hours * n:.0f} worker-hours)")
@@ -175,13 +218,23 @@ def batch_eta(lines: list[tuple[float, str]]) -> None:
         print("batch ETA: no progress lines with an ETA seen (fewer than 10 sessions?)")
         return
     t_end = done[-1][0]
-    t_start = t_end - _seconds(done[-1][1].split(" done in ")[1])  # the phase starts before its first line (at the batch's submit)
-    errs = [(int(m["pct"]), abs(_seconds(m["eta"]) - (t_end - t)) / (t_end - t) if _seconds(m["eta"]) == _seconds(m["eta"]) else 1.0)
-            for t, m in shown if t - t_start >= 0.5 * (t_end - t_start) and t_end - t > 0.01 * (t_end - t_start)]
+    t_start = t_end - _seconds(
+        done[-1][1].split(" done in ")[1]
+    )  # the phase starts before its first line (at the batch's submit)
+    errs = [
+        (
+            int(m["pct"]),
+            abs(_seconds(m["eta"]) - (t_end - t)) / (t_end - t) if _seconds(m["eta"]) == _seconds(m["eta"]) else 1.0,
+        )
+        for t, m in shown
+        if t - t_start >= 0.5 * (t_end - t_start) and t_end - t > 0.01 * (t_end - t_start)
+    ]
     text = ", ".join(f"{p} %: {100 * e:.0f} %" for p, e in errs)
     relaxed = [e for _, e in errs[:-2]]
-    print(f"batch ETA over the second half of its sessions phase ({len(errs)} lines): {text or '-'}; "
-          f"within 30 %: {'yes' if all(e <= 0.3 for _, e in errs) else 'no'}, all but the last two: {'yes' if all(e <= 0.3 for e in relaxed) else 'no'}")
+    print(
+        f"batch ETA over the second half of its sessions phase ({len(errs)} lines): {text or '-'}; "
+        f"within 30 %: {'yes' if all(e <= 0.3 for _, e in errs) else 'no'}, all but the last two: {'yes' if all(e <= 0.3 for e in relaxed) else 'no'}"
+    )
 
 
 def stage_error_recovery(battery: Path, results: Path, names: list[str]) -> None:
@@ -213,13 +266,17 @@ def stage_error_recovery(battery: Path, results: Path, names: list[str]) -> None
     resid = y - beta * x
     sigma = float(np.sqrt(resid @ resid / max(1, x.size - 1)))
     se = sigma / float(np.sqrt(x @ x)) if x @ x > 0 else float("nan")
-    print(f"stage error ({len(xs)} sessions, {x.size} views): true drift RMS {np.sqrt(np.mean(x ** 2)):.3f} deg; calibrated - commanded "
-          f"RMS {np.sqrt(np.mean(y ** 2)):.3f} deg; slope beta = {beta:.3f} +- {se:.3f} (1 = recovered, 0 = not seen); "
-          f"residual sigma {sigma:.3f} deg per view")
+    print(
+        f"stage error ({len(xs)} sessions, {x.size} views): true drift RMS {np.sqrt(np.mean(x**2)):.3f} deg; calibrated - commanded "
+        f"RMS {np.sqrt(np.mean(y**2)):.3f} deg; slope beta = {beta:.3f} +- {se:.3f} (1 = recovered, 0 = not seen); "
+        f"residual sigma {sigma:.3f} deg per view"
+    )
     try:
         h = json.loads((results / "rig_health.json").read_text())
-        print(f"rig_health.json: {h.get('n_sessions')} sessions, {h.get('n_rolls_informative')} with informative rolls, "
-              f"angle error at {len(h.get('angle_error') or [])} commanded angles; notes: {' | '.join(h.get('notes') or [])}")
+        print(
+            f"rig_health.json: {h.get('n_sessions')} sessions, {h.get('n_rolls_informative')} with informative rolls, "
+            f"angle error at {len(h.get('angle_error') or [])} commanded angles; notes: {' | '.join(h.get('notes') or [])}"
+        )
     except (OSError, ValueError):
         print("rig_health.json: missing")
 

@@ -39,21 +39,33 @@ def main() -> None:
         s = Path(tmp) / "david.h5"
         import_folder(DATA, s, angles=angles, cameras=DATA, pixel_origin=0.5)
         t = time.perf_counter()
-        r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                                  settings=CalibrationSettings(roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0,
-                                                                roll_prior_weight=0.0), judge_imported_cameras=False)
+        r = calibrate_session(
+            s,
+            method=method,
+            seed=seed,
+            free=["rolls"],
+            bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
+            settings=CalibrationSettings(
+                roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0, roll_prior_weight=0.0
+            ),
+            judge_imported_cameras=False,
+        )
         wall = time.perf_counter() - t
     err = (r.theta_deg[3:] - r.theta_deg[3]) - true_rolls
     print(f"{method} seed {seed}: {wall:.2f} s, {r.n_evaluations} evaluations, {r.n_voxels} voxels")
-    print(f"angle error: mean |e| {np.mean(np.abs(err[1:])):.3f}°, max {np.max(np.abs(err[1:])):.3f}° "
-          f"(targets 0.1° / 0.2°; start: mean {np.mean(np.abs(commanded - true_rolls)[1:]):.2f}°)")
+    print(
+        f"angle error: mean |e| {np.mean(np.abs(err[1:])):.3f}°, max {np.max(np.abs(err[1:])):.3f}° "
+        f"(targets 0.1° / 0.2°; start: mean {np.mean(np.abs(commanded - true_rolls)[1:]):.2f}°)"
+    )
     print("per view:", np.round(err, 2).tolist())
     # A common roll of every view is unobservable; view 0 fixes it. benchmarks/david_ground_truth_check.py finds
     # the ground truth's views 0 and 1 (its only irregular steps) ~0.5-0.7 deg off the images' consensus, so
     # also print the error with the median offset removed, over all views and over views 2-17.
     d = err - np.median(err)
-    print(f"median offset {np.median(err):+.3f}° removed: mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°; "
-          f"views 2-17: mean |e| {np.mean(np.abs(d[2:])):.3f}°, max {np.max(np.abs(d[2:])):.3f}°")
+    print(
+        f"median offset {np.median(err):+.3f}° removed: mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°; "
+        f"views 2-17: mean |e| {np.mean(np.abs(d[2:])):.3f}°, max {np.max(np.abs(d[2:])):.3f}°"
+    )
 
 
 if __name__ == "__main__":

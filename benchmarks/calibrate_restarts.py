@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from compare_methods import DATA, _angle_errors, _truth_session
+
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.run import CalibrationSettings
 from vastcal.calibrate.session_run import session_camera_model
@@ -39,29 +39,46 @@ def main() -> None:
     S = a.starts
     with tempfile.TemporaryDirectory() as tmp:
         folder = DATA / "eth_david"
-        s, true_rolls = _truth_session(Path(tmp), "david", folder, folder, 18, np.arange(1, 18, 2)[:9].tolist() + [16], 0.5, None)
+        s, true_rolls = _truth_session(
+            Path(tmp), "david", folder, folder, 18, np.arange(1, 18, 2)[:9].tolist() + [16], 0.5, None
+        )
         with Session.open(s) as ss:
             _, _, theta0, _ = session_camera_model(ss)
         truth = theta0.copy()
         truth[3:] = true_rolls
         base = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
         print(f"ETH David, +10° on 10 views; equal budget: {S} starts vs one run with {S}× each level's evaluations")
-        print(f"{'variant':12s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'evals':>6s} {'time s':>7s}")
+        print(
+            f"{'variant':12s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'evals':>6s} {'time s':>7s}"
+        )
         for seed in [int(x) for x in a.seeds.split(",")]:
             for v in a.variants.split(","):
                 if v == "starts":
                     settings, starts = base, S
                 else:
-                    levels = tuple(dataclasses.replace(lv, max_evaluations=S * lv.max_evaluations) for lv in base.levels)
+                    levels = tuple(
+                        dataclasses.replace(lv, max_evaluations=S * lv.max_evaluations) for lv in base.levels
+                    )
                     settings, starts = dataclasses.replace(base, restarts=v, levels=levels), 1
                 t = time.perf_counter()
-                r = calibrate_session(s, method="coherence", seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                                      settings=settings, starts=starts, score_thetas=[truth], judge_imported_cameras=False)
+                r = calibrate_session(
+                    s,
+                    method="coherence",
+                    seed=seed,
+                    free=["rolls"],
+                    bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
+                    settings=settings,
+                    starts=starts,
+                    score_thetas=[truth],
+                    judge_imported_cameras=False,
+                )
                 wall = time.perf_counter() - t
                 mean, mx = _angle_errors(r.theta_deg, true_rolls)
                 name = f"starts {S}" if v == "starts" else v
-                print(f"{name:12s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.n_evaluations:6d} {wall:7.1f}",
-                      flush=True)
+                print(
+                    f"{name:12s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.n_evaluations:6d} {wall:7.1f}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

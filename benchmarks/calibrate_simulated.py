@@ -40,7 +40,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         for k in range(n_rigs):
             assert base.simulation is not None
-            cfg = dataclasses.replace(base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k))
+            cfg = dataclasses.replace(
+                base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k)
+            )
             session, truth = Path(d) / f"sim{k}.h5", Path(d) / f"sim{k}.truth.json"
             with connect_rig(cfg, truth_path=truth) as rig:
                 res = acquire(rig.stage, rig.camera, cfg, session, start_info=rig.start_info, on_view=rig.on_view)
@@ -54,17 +56,28 @@ def main() -> None:
             e_cmd = (cal.theta0_deg[3:] - cal.theta0_deg[3]) - (actual - actual[0])
             rms_cmd = float(np.sqrt(np.mean(e_cmd[1:] ** 2)))
             photo = next((r for r in cal.level_reports if r.get("stage") == "photometric yaw"), None)
-            photo_text = ("no photometric yaw" if photo is None else f"photometric yaw {photo['time_s']:.1f} s, "
-                          f"{photo.get('final_iterations', '?')} iterations{'' if photo.get('converged', True) else ' (cap)'}")
+            photo_text = (
+                "no photometric yaw"
+                if photo is None
+                else f"photometric yaw {photo['time_s']:.1f} s, "
+                f"{photo.get('final_iterations', '?')} iterations{'' if photo.get('converged', True) else ' (cap)'}"
+            )
             worse = np.flatnonzero(np.abs(e_cal) > np.abs(e_cmd) + 0.1).tolist()
-            rows.append((s["angle_rms_error_deg"], s["yaw_error_deg"], s["pitch_error_deg"], cal.n_evaluations, wall, rms_cmd))
-            print(f"rig seed {cfg.simulation.seed}: roll RMS error {s['angle_rms_error_deg']:.3f}° (commanded {rms_cmd:.3f}°; views > 0.1° "
-                  f"farther than commanded: {worse}), yaw error {s['yaw_error_deg']:+.3f}°, pitch error {s['pitch_error_deg']:+.3f}°, "
-                  f"cost {cal.final_cost:.5g} (commanded {cal.theta0_cost:.5g}), {cal.n_evaluations} evaluations, {wall:.1f} s ({photo_text})", flush=True)
+            rows.append(
+                (s["angle_rms_error_deg"], s["yaw_error_deg"], s["pitch_error_deg"], cal.n_evaluations, wall, rms_cmd)
+            )
+            print(
+                f"rig seed {cfg.simulation.seed}: roll RMS error {s['angle_rms_error_deg']:.3f}° (commanded {rms_cmd:.3f}°; views > 0.1° "
+                f"farther than commanded: {worse}), yaw error {s['yaw_error_deg']:+.3f}°, pitch error {s['pitch_error_deg']:+.3f}°, "
+                f"cost {cal.final_cost:.5g} (commanded {cal.theta0_cost:.5g}), {cal.n_evaluations} evaluations, {wall:.1f} s ({photo_text})",
+                flush=True,
+            )
     a = np.array(rows)
-    print(f"mean over {n_rigs} rigs: roll RMS error {a[:, 0].mean():.3f}° (commanded {a[:, 5].mean():.3f}°), |yaw| {np.abs(a[:, 1]).mean():.3f}° "
-          f"(max {np.abs(a[:, 1]).max():.3f}°), |pitch| {np.abs(a[:, 2]).mean():.3f}° (max {np.abs(a[:, 2]).max():.3f}°; targets <= 0.05°), "
-          f"{a[:, 4].mean():.1f} s per calibration; load average {os.getloadavg()[0]:.2f}")
+    print(
+        f"mean over {n_rigs} rigs: roll RMS error {a[:, 0].mean():.3f}° (commanded {a[:, 5].mean():.3f}°), |yaw| {np.abs(a[:, 1]).mean():.3f}° "
+        f"(max {np.abs(a[:, 1]).max():.3f}°), |pitch| {np.abs(a[:, 2]).mean():.3f}° (max {np.abs(a[:, 2]).max():.3f}°; targets <= 0.05°), "
+        f"{a[:, 4].mean():.1f} s per calibration; load average {os.getloadavg()[0]:.2f}"
+    )
 
 
 if __name__ == "__main__":

@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.calibrate.photometric_yaw import SCHEDULE, refine_yaw
+from vastcal.calibrate.run import CalibrationSettings
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.config import load_config
 from vastcal.pipeline import acquire_simulated
@@ -41,12 +41,20 @@ def main() -> None:
     assert base.simulation is not None
     with tempfile.TemporaryDirectory() as d:
         for k in rigs:
-            cfg = dataclasses.replace(base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k))
+            cfg = dataclasses.replace(
+                base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k)
+            )
             session = Path(d) / f"sim{k}.h5"
             truth = json.loads(acquire_simulated(cfg, session).read_text())
             c = cfg.calibration
-            settings = CalibrationSettings(roll_offset_scan_deg=c.offset_scan_deg, roll_prior_weight=c.prior_weight, roll_prior_deg=c.roll_prior_deg,
-                                           yaw_prior_deg=c.yaw_prior_deg, photometric_yaw=False, memory_mb=c.memory_mb)
+            settings = CalibrationSettings(
+                roll_offset_scan_deg=c.offset_scan_deg,
+                roll_prior_weight=c.prior_weight,
+                roll_prior_deg=c.roll_prior_deg,
+                yaw_prior_deg=c.yaw_prior_deg,
+                photometric_yaw=False,
+                memory_mb=c.memory_mb,
+            )
             cal = calibrate_session(session, settings=settings)
             with Session.open(session) as s:
                 images = s.projections()
@@ -57,11 +65,20 @@ def main() -> None:
             th_true[3:] = cal.theta_deg[3] + (actual - actual[0])
             box = (float(cal.theta0_deg[0] - c.bounds.yaw_deg), float(cal.theta0_deg[0] + c.bounds.yaw_deg))
             half = SCHEDULE[:-1] + ((512, SCHEDULE[-1][1], SCHEDULE[-1][2]),)
-            runs = [("silhouettes' rolls", cal.theta_deg, {}), ("true rolls", th_true, {}),
-                    ("isotropic 1/2-width maps", cal.theta_deg, {"schedule": half, "across_width_px": None})]
+            runs = [
+                ("silhouettes' rolls", cal.theta_deg, {}),
+                ("true rolls", th_true, {}),
+                ("isotropic 1/2-width maps", cal.theta_deg, {"schedule": half, "across_width_px": None}),
+            ]
             if long:
-                runs += [("1/2-width, 1600 iterations", cal.theta_deg, {"schedule": half, "across_width_px": None, "final_iterations": (1600, 1600)}),
-                         ("default maps, 800 iterations", cal.theta_deg, {"final_iterations": (800, 800)})]
+                runs += [
+                    (
+                        "1/2-width, 1600 iterations",
+                        cal.theta_deg,
+                        {"schedule": half, "across_width_px": None, "final_iterations": (1600, 1600)},
+                    ),
+                    ("default maps, 800 iterations", cal.theta_deg, {"final_iterations": (800, 800)}),
+                ]
             e = (cal.theta_deg[3:] - cal.theta_deg[3]) - (actual - actual[0])
             parts = []
             for name, th, kw in runs:
@@ -69,9 +86,14 @@ def main() -> None:
                 r = refine_yaw(images, pf, cal.K, cal.distance, th, box, **kw)
                 err = float("nan") if r is None else r.yaw_deg - truth["yaw_deg"]
                 its = 0 if r is None else r.final_iterations
-                parts.append(f"{name} {err:+.3f}° ({its} it{'' if r is None or r.converged else ', cap'}, {time.perf_counter() - t:.0f} s)")
-            print(f"rig seed {cfg.simulation.seed} (silhouette yaw error {cal.theta_deg[0] - truth['yaw_deg']:+.3f}°, rolls RMS "
-                  f"{np.sqrt(np.mean(e[1:] ** 2)):.2f}° off): photometric yaw error with " + "; ".join(parts), flush=True)
+                parts.append(
+                    f"{name} {err:+.3f}° ({its} it{'' if r is None or r.converged else ', cap'}, {time.perf_counter() - t:.0f} s)"
+                )
+            print(
+                f"rig seed {cfg.simulation.seed} (silhouette yaw error {cal.theta_deg[0] - truth['yaw_deg']:+.3f}°, rolls RMS "
+                f"{np.sqrt(np.mean(e[1:] ** 2)):.2f}° off): photometric yaw error with " + "; ".join(parts),
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

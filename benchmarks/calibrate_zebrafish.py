@@ -33,7 +33,12 @@ def main() -> None:
     auth = decompose_circular(shift_pixels(P_auth, 1, 1 + 387)).motion
     with tempfile.TemporaryDirectory() as tmp:
         s = Path(tmp) / "zf.h5"
-        import_folder(DATA / "images", s, masks=DATA / "silhouettes", config=load_config(ROOT / "config" / "guo2019-zebrafish.yaml"))
+        import_folder(
+            DATA / "images",
+            s,
+            masks=DATA / "silhouettes",
+            config=load_config(ROOT / "config" / "guo2019-zebrafish.yaml"),
+        )
         thetas = []
         for seed in range(n_seeds):
             t = time.perf_counter()
@@ -41,9 +46,11 @@ def main() -> None:
             wall = time.perf_counter() - t
             thetas.append(r.theta_deg)
             d_auth = (r.theta_deg[3:] - r.theta_deg[3]) - auth.rolls_deg
-            print(f"seed {seed}: {wall:.2f} s end to end, {r.n_evaluations} evaluations, {1e3 * r.time_per_evaluation_s:.2f} ms/evaluation, "
-                  f"{r.n_voxels} voxels, peak RSS {r.peak_rss_mb:.0f} MB; yaw {r.theta_deg[0]:+.3f} pitch {r.theta_deg[1]:+.3f} "
-                  f"γ {r.theta_deg[2]:+.3f}; RMS vs authors' rolls {np.sqrt(np.mean(d_auth[1:] ** 2)):.3f}°")
+            print(
+                f"seed {seed}: {wall:.2f} s end to end, {r.n_evaluations} evaluations, {1e3 * r.time_per_evaluation_s:.2f} ms/evaluation, "
+                f"{r.n_voxels} voxels, peak RSS {r.peak_rss_mb:.0f} MB; yaw {r.theta_deg[0]:+.3f} pitch {r.theta_deg[1]:+.3f} "
+                f"γ {r.theta_deg[2]:+.3f}; RMS vs authors' rolls {np.sqrt(np.mean(d_auth[1:] ** 2)):.3f}°"
+            )
     th = np.array(thetas)
     if len(th) > 1:
         spread = np.sqrt(np.mean((th[:, 4:] - th[:, 4:].mean(0)) ** 2))

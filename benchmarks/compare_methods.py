@@ -48,8 +48,17 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 
 
-def _truth_session(tmp: Path, name: str, folder: Path, cameras: Path, n: int, offset_views: list[int], pixel_origin: float,
-                   unit: str | None, image_folder: Path | None = None) -> tuple[Path, np.ndarray]:
+def _truth_session(
+    tmp: Path,
+    name: str,
+    folder: Path,
+    cameras: Path,
+    n: int,
+    offset_views: list[int],
+    pixel_origin: float,
+    unit: str | None,
+    image_folder: Path | None = None,
+) -> tuple[Path, np.ndarray]:
     """Import a ground-truth set with some commanded angles offset +10°; returns (session, true θ)."""
     P, _ = read_cameras(cameras, n)
     true_rolls = decompose_circular(shift_pixels(P, pixel_origin, pixel_origin)).motion.rolls_deg
@@ -58,7 +67,9 @@ def _truth_session(tmp: Path, name: str, folder: Path, cameras: Path, n: int, of
     angles = tmp / f"{name}_angles.txt"
     angles.write_text("\n".join(f"{a:.6f}" for a in commanded))
     s = tmp / f"{name}.h5"
-    import_folder(image_folder or folder, s, angles=angles, cameras=cameras, pixel_origin=pixel_origin, length_unit=unit)
+    import_folder(
+        image_folder or folder, s, angles=angles, cameras=cameras, pixel_origin=pixel_origin, length_unit=unit
+    )
     return s, true_rolls
 
 
@@ -73,7 +84,10 @@ def threshold_mask_images(src: Path, out: Path, pattern: str, keep: str) -> Path
     out.mkdir(parents=True, exist_ok=True)
     for f in sorted(src.glob(pattern)):
         mask = threshold_mask(f)
-        cv2.imwrite(str(out / f.with_suffix(".png").name), np.where(mask[..., None] > 0, np.uint8([230] * 3), np.uint8([20] * 3)))
+        cv2.imwrite(
+            str(out / f.with_suffix(".png").name),
+            np.where(mask[..., None] > 0, np.uint8([230] * 3), np.uint8([20] * 3)),
+        )
     for p in src.glob(keep):
         shutil.copy(p, out / p.name)
     return out
@@ -84,10 +98,15 @@ def threshold_mask(image: Path) -> np.ndarray:
     import cv2
 
     im = cv2.imread(str(image))
-    fg = (cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) > 100 if image.suffix == ".jpg" else im.max(axis=-1) > 0.19 * 255).astype(np.uint8)
+    fg = (
+        cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) > 100 if image.suffix == ".jpg" else im.max(axis=-1) > 0.19 * 255
+    ).astype(np.uint8)
     _, labels, stats, _ = cv2.connectedComponentsWithStats(fg)
-    return cv2.morphologyEx((labels == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8), cv2.MORPH_CLOSE,
-                            np.ones((5, 5), np.uint8))
+    return cv2.morphologyEx(
+        (labels == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8),
+        cv2.MORPH_CLOSE,
+        np.ones((5, 5), np.uint8),
+    )
 
 
 def _gauge_free(theta: np.ndarray, true_rolls: np.ndarray) -> np.ndarray:
@@ -122,7 +141,7 @@ def view_minima(costs: np.ndarray, at_truth: float) -> np.ndarray:
     mins = []
     for c in full:
         k = int(np.clip(np.argmin(c), 1, len(c) - 2))
-        x, y = SCAN_DEG[k - 1: k + 2], c[k - 1: k + 2]
+        x, y = SCAN_DEG[k - 1 : k + 2], c[k - 1 : k + 2]
         a, b, _ = np.polyfit(x, y, 2)
         mins.append(float(np.clip(-b / (2 * a), SCAN_DEG[0], SCAN_DEG[-1])) if a > 0 else float(SCAN_DEG[np.argmin(c)]))
     return np.asarray(mins)
@@ -132,17 +151,22 @@ def _print_view_minima(costs: np.ndarray, at_truth: float, cut: np.ndarray | Non
     """Where the judge cost itself puts each view, relative to its true angle (:func:`view_minima`)."""
     mins = view_minima(costs, at_truth)
     m = np.abs(mins)
-    print(f"{'':15s} each view's own cost minimum (others at the truth), views 1..N-1: mean |offset| {m.mean():.3f}°, "
-          f"max {m.max():.3f}° (scan ±{SCAN_DEG[-1]}°); offsets {np.round(mins, 2).tolist()}")
+    print(
+        f"{'':15s} each view's own cost minimum (others at the truth), views 1..N-1: mean |offset| {m.mean():.3f}°, "
+        f"max {m.max():.3f}° (scan ±{SCAN_DEG[-1]}°); offsets {np.round(mins, 2).tolist()}"
+    )
     if cut is not None:
         c = cut[1:]
-        print(f"{'':15s} views cut by the frame: {np.flatnonzero(cut).tolist()}; mean |offset| cut {m[c].mean():.3f}°, "
-              f"whole {m[~c].mean():.3f}°")
+        print(
+            f"{'':15s} views cut by the frame: {np.flatnonzero(cut).tolist()}; mean |offset| cut {m[c].mean():.3f}°, "
+            f"whole {m[~c].mean():.3f}°"
+        )
 
 
 def _cut_views(session: Path) -> np.ndarray:
     """(N,) bool: the object (max channel > 0.19 of full scale, Middlebury's threshold) reaches the frame edge."""
     from vastcal.session import Session
+
     with Session.open(session) as ss:
         imgs = ss.projections()
     fg = (imgs.max(axis=-1) if imgs.ndim == 4 else imgs) > 0.19 * 255
@@ -155,7 +179,8 @@ def _measure(session: Path, r: object) -> tuple[float, float]:
     mm³/mm², or units³/units² of the cameras for ETH David, whose unit is unknown)."""
     from vastcal.measure import UM2_PER_MM2, UM3_PER_MM3
     from vastcal.reconstruct import reconstruct_session
-    m = reconstruct_session(session, calibration_run=getattr(r, "run_name"))
+
+    m = reconstruct_session(session, calibration_run=r.run_name)
     if m.provenance.get("length_unit") in ("unknown", "px"):
         return float(m.volume_mm3 * UM3_PER_MM3), float(m.surface_area_mm2 * UM2_PER_MM2)
     return float(m.volume_mm3), float(m.surface_area_mm2)
@@ -165,22 +190,42 @@ def _measure(session: Path, r: object) -> tuple[float, float]:
 OFFSET_VIEWS = {"david": np.arange(1, 18, 2)[:9].tolist() + [16], "dino": list(range(1, 11))}
 
 
-def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], starts: int, at_truth: bool = False,
-                  threshold_masks: bool = False, fixed_unperturbed: bool = False, mask_view: int | None = None) -> None:
+def run_truth_set(
+    tmp: Path,
+    name: str,
+    methods: list[str],
+    seeds: list[int],
+    starts: int,
+    at_truth: bool = False,
+    threshold_masks: bool = False,
+    fixed_unperturbed: bool = False,
+    mask_view: int | None = None,
+) -> None:
     offset = OFFSET_VIEWS[name]
-    images = sorted((DATA / "eth_david").glob("david_*.jpg")) if name == "david" else sorted((DATA / "middlebury_dinoRing").glob("dinoR0*.png"))
+    images = (
+        sorted((DATA / "eth_david").glob("david_*.jpg"))
+        if name == "david"
+        else sorted((DATA / "middlebury_dinoRing").glob("dinoR0*.png"))
+    )
     mask = None if mask_view is None else (mask_view, threshold_mask(images[mask_view]))
     if name == "david":
-        folder = threshold_mask_images(DATA / "eth_david", tmp / "masks", "david_*.jpg", "david_*.pa") if threshold_masks else DATA / "eth_david"
+        folder = (
+            threshold_mask_images(DATA / "eth_david", tmp / "masks", "david_*.jpg", "david_*.pa")
+            if threshold_masks
+            else DATA / "eth_david"
+        )
         s, true_rolls = _truth_session(tmp, name, folder, folder, 18, [] if at_truth else offset, 0.5, None)
     else:  # all 48 views: the 48th is the 2nd camera photographed again (365°, a turn later)
         folder = DATA / "middlebury_dinoRing"
         if threshold_masks:
             folder = threshold_mask_images(folder, tmp / "masks", "dinoR0*.png", "dinoR_*.txt")
-        s, true_rolls = _truth_session(tmp, name, folder, folder / "dinoR_par.txt", 48, [] if at_truth else offset, 0.0, "m")
+        s, true_rolls = _truth_session(
+            tmp, name, folder, folder / "dinoR_par.txt", 48, [] if at_truth else offset, 0.0, "m"
+        )
     fixed = [v for v in range(len(true_rolls)) if v not in offset] if fixed_unperturbed else []
-    from vastcal.session import Session
     from vastcal.calibrate.session_run import session_camera_model
+    from vastcal.session import Session
+
     with Session.open(s) as ss:
         _, _, theta0, _ = session_camera_model(ss)
     truth = theta0.copy()
@@ -189,57 +234,95 @@ def run_truth_set(tmp: Path, name: str, methods: list[str], seeds: list[int], st
     masks = " on the threshold masks" if threshold_masks else ""
     masks += f", colour model from view {mask_view}'s threshold mask" if mask is not None else ""
     protocol = f", views {offset} free, the others fixed (errors over the free views, absolute)" if fixed else ""
-    print(f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)")
-    print(f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
-          f"{'volume':>9s} {'area':>9s}")
+    print(
+        f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)"
+    )
+    print(
+        f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+        f"{'volume':>9s} {'area':>9s}"
+    )
     for method in methods:
         for seed in seeds:
             settings = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
             t = time.perf_counter()
             scan = _view_scans(truth) if at_truth else []
-            r = calibrate_session(s, method=method, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                                  settings=settings, starts=starts, score_thetas=[truth] + scan, fixed_views=fixed, mask=mask,
-                                  judge_imported_cameras=False)  # the truth: not to be seen
+            r = calibrate_session(
+                s,
+                method=method,
+                seed=seed,
+                free=["rolls"],
+                bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
+                settings=settings,
+                starts=starts,
+                score_thetas=[truth] + scan,
+                fixed_views=fixed,
+                mask=mask,
+                judge_imported_cameras=False,
+            )  # the truth: not to be seen
             wall = time.perf_counter() - t
             if fixed:  # the fixed views pin the common roll: absolute errors, summarised over the free views
                 e, e0 = r.theta_deg[3:] - true_rolls, theta0[3:] - true_rolls
                 mean, mx = float(np.mean(np.abs(e[offset]))), float(np.max(np.abs(e[offset])))
             else:
                 e = _gauge_free(r.theta_deg, true_rolls)
-                e0 = (theta0[3:] - theta0[3]) - (true_rolls - true_rolls[0])  # the start's error (0 or 10°), view 0 the reference
+                e0 = (theta0[3:] - theta0[3]) - (
+                    true_rolls - true_rolls[0]
+                )  # the start's error (0 or 10°), view 0 the reference
                 mean, mx = _angle_errors(r.theta_deg, true_rolls)
             vol, area = _measure(s, r)
-            print(f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
-                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}", flush=True)
+            print(
+                f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
+                f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}",
+                flush=True,
+            )
             worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
-            print(f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}")
+            print(
+                f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}"
+            )
             if at_truth:
-                _print_view_minima(np.asarray(r.scored_costs[1:]).reshape(len(true_rolls) - 1, len(SCAN_DEG) - 1), r.scored_costs[0],
-                                   _cut_views(s) if name == "dino" else None)
+                _print_view_minima(
+                    np.asarray(r.scored_costs[1:]).reshape(len(true_rolls) - 1, len(SCAN_DEG) - 1),
+                    r.scored_costs[0],
+                    _cut_views(s) if name == "dino" else None,
+                )
 
 
 def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) -> None:
     folder = DATA / "zf_3dpf_s001"
     s = tmp / "zf.h5"
-    import_folder(folder / "images", s, masks=folder / "silhouettes", config=load_config(ROOT / "config" / "guo2019-zebrafish.yaml"))
+    import_folder(
+        folder / "images",
+        s,
+        masks=folder / "silhouettes",
+        config=load_config(ROOT / "config" / "guo2019-zebrafish.yaml"),
+    )
     print("\n== ZF1 (no truth): all of θ free as in config/guo2019-zebrafish.yaml")
-    print(f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
-          f"{'mm³':>9s} {'mm²':>9s}")
+    print(
+        f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+        f"{'mm³':>9s} {'mm²':>9s}"
+    )
     for method in methods:
         rolls = []
         for seed in seeds:
             t = time.perf_counter()
-            r = calibrate_session(s, method=method, seed=seed, starts=starts, judge_imported_cameras=False)  # each method's own result
+            r = calibrate_session(
+                s, method=method, seed=seed, starts=starts, judge_imported_cameras=False
+            )  # each method's own result
             wall = time.perf_counter() - t
             th = r.theta_deg
             rolls.append(th[3:])
             vol, area = _measure(s, r)
-            print(f"{method:10s} {seed:4d} {th[0]:+8.4f} {th[1]:+8.4f} {th[2]:+8.4f} {r.final_cost:9.5g} {r.theta0_cost:9.5g} "
-                  f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}", flush=True)
+            print(
+                f"{method:10s} {seed:4d} {th[0]:+8.4f} {th[1]:+8.4f} {th[2]:+8.4f} {r.final_cost:9.5g} {r.theta0_cost:9.5g} "
+                f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}",
+                flush=True,
+            )
         if len(rolls) > 1:
             R = np.array(rolls)
             spread = np.sqrt(np.mean((R - R.mean(axis=0)) ** 2, axis=0))
-            print(f"{method:10s} roll spread over {len(rolls)} seeds: RMS per view {np.sqrt(np.mean(spread ** 2)):.3f}°, max {spread.max():.3f}°")
+            print(
+                f"{method:10s} roll spread over {len(rolls)} seeds: RMS per view {np.sqrt(np.mean(spread**2)):.3f}°, max {spread.max():.3f}°"
+            )
 
 
 def main() -> None:
@@ -249,11 +332,21 @@ def main() -> None:
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--starts", type=int, default=1)
     ap.add_argument("--start-at-truth", action="store_true", help="commanded angles = the true ones (no offset views)")
-    ap.add_argument("--threshold-masks", action="store_true", help="the data's own threshold silhouettes as the images (ground-truth sets)")
-    ap.add_argument("--mask-view", type=int, default=None,
-                    help="ground-truth sets: the colour model from this view's mask by the data's own threshold rule, as a user's "
-                         "`calibrate --mask VIEW:FILE` (a turntable marked as background)")
-    ap.add_argument("--fixed-unperturbed", action="store_true", help="the paper's protocol: only the offset views' rolls free")
+    ap.add_argument(
+        "--threshold-masks",
+        action="store_true",
+        help="the data's own threshold silhouettes as the images (ground-truth sets)",
+    )
+    ap.add_argument(
+        "--mask-view",
+        type=int,
+        default=None,
+        help="ground-truth sets: the colour model from this view's mask by the data's own threshold rule, as a user's "
+        "`calibrate --mask VIEW:FILE` (a turntable marked as background)",
+    )
+    ap.add_argument(
+        "--fixed-unperturbed", action="store_true", help="the paper's protocol: only the offset views' rolls free"
+    )
     a = ap.parse_args()
     methods = a.methods.split(",")
     seeds = [int(x) for x in a.seeds.split(",")]
@@ -262,8 +355,17 @@ def main() -> None:
             if name == "zf":
                 run_zebrafish(Path(tmp), methods, seeds, a.starts)
             else:
-                run_truth_set(Path(tmp), name, methods, seeds, a.starts, a.start_at_truth, a.threshold_masks, a.fixed_unperturbed,
-                              a.mask_view)
+                run_truth_set(
+                    Path(tmp),
+                    name,
+                    methods,
+                    seeds,
+                    a.starts,
+                    a.start_at_truth,
+                    a.threshold_masks,
+                    a.fixed_unperturbed,
+                    a.mask_view,
+                )
 
 
 if __name__ == "__main__":

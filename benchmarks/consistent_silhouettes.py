@@ -58,8 +58,15 @@ def _quadric(centre: np.ndarray, axes: np.ndarray) -> np.ndarray:
     return q
 
 
-def consistent_images(masks: list[np.ndarray], P: np.ndarray, origin: float, out: Path, names: list[str], seed: int = 1,
-                      supersample: int = 4) -> float:
+def consistent_images(
+    masks: list[np.ndarray],
+    P: np.ndarray,
+    origin: float,
+    out: Path,
+    names: list[str],
+    seed: int = 1,
+    supersample: int = 4,
+) -> float:
     """Write ``names`` (PNG, object 230 / background 20 grey) of a union of 5 ellipsoids through cameras P (N, 3, 4)
     whose pixel centres start at ``origin``; the ellipsoids sit at the triangulated centroid of ``masks``, scaled
     down from the size of their silhouettes until no view's frame cuts them (a cut outline is no silhouette
@@ -76,23 +83,29 @@ def consistent_images(masks: list[np.ndarray], P: np.ndarray, origin: float, out
     focal = float(np.linalg.norm((M / np.linalg.norm(M[2]))[0]))
     size = np.sqrt(masks[0].sum() / np.pi) * np.linalg.norm(cam - centre) / focal  # world radius of a disc of that area
     rng = np.random.default_rng(seed)
-    shape = [(np.linalg.qr(rng.normal(size=(3, 3)))[0], rng.normal(0.0, 0.5, 3), rng.uniform(0.25, 0.7, 3)) for _ in range(5)]
+    shape = [
+        (np.linalg.qr(rng.normal(size=(3, 3)))[0], rng.normal(0.0, 0.5, 3), rng.uniform(0.25, 0.7, 3)) for _ in range(5)
+    ]
     h, w = masks[0].shape
 
     def coverage(Pi: np.ndarray, scale: float, s: int) -> np.ndarray:
-        gy, gx = np.mgrid[0:h * s, 0:w * s]
+        gy, gx = np.mgrid[0 : h * s, 0 : w * s]
         pix = np.stack([(gx + 0.5) / s - 0.5 + origin, (gy + 0.5) / s - 0.5 + origin, np.ones(gx.shape)], -1)
         inside = np.zeros(gx.shape, bool)
         for rot, offset, axes in shape:
             c = centre + scale * size * offset
-            conic = np.linalg.inv(Pi @ np.linalg.inv(_quadric(c, rot * (scale * size * axes))) @ Pi.T)  # the outline's point conic
+            conic = np.linalg.inv(
+                Pi @ np.linalg.inv(_quadric(c, rot * (scale * size * axes))) @ Pi.T
+            )  # the outline's point conic
             pc = Pi @ np.append(c, 1.0)
             pc /= pc[2]
             inside |= np.sign(np.einsum("...i,ij,...j->...", pix, conic, pix)) == np.sign(pc @ conic @ pc)
         return inside.reshape(h, s, w, s).mean(axis=(1, 3))
 
     def cut(cover: np.ndarray) -> bool:
-        return bool(np.concatenate([cover[:2].ravel(), cover[-2:].ravel(), cover[:, :2].ravel(), cover[:, -2:].ravel()]).any())
+        return bool(
+            np.concatenate([cover[:2].ravel(), cover[-2:].ravel(), cover[:, :2].ravel(), cover[:, -2:].ravel()]).any()
+        )
 
     scale = 1.0
     while scale > 0.05 and any(cut(coverage(Pi, scale, 1)) for Pi in P):
@@ -117,42 +130,81 @@ def score(session: Path, true_rolls: np.ndarray, width: int, edge_lines: int) ->
         _, _, theta0, _ = session_camera_model(ss)
     truth = theta0.copy()
     truth[3:] = true_rolls
-    settings = CalibrationSettings(roll_prior_weight=0.0, polish=False, levels=(Level(width, 16000, 0.05, 12, edge_lines, scaled_steps=True),))
-    r = calibrate_session(session, seed=0, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0), settings=settings, starts=1,
-                          score_thetas=[truth] + cm._view_scans(truth), judge_imported_cameras=False)
+    settings = CalibrationSettings(
+        roll_prior_weight=0.0, polish=False, levels=(Level(width, 16000, 0.05, 12, edge_lines, scaled_steps=True),)
+    )
+    r = calibrate_session(
+        session,
+        seed=0,
+        free=["rolls"],
+        bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
+        settings=settings,
+        starts=1,
+        score_thetas=[truth] + cm._view_scans(truth),
+        judge_imported_cameras=False,
+    )
     costs = np.asarray(r.scored_costs[1:]).reshape(len(true_rolls) - 1, len(cm.SCAN_DEG) - 1)
     return float(r.scored_costs[0]), cm.view_minima(costs, r.scored_costs[0])
 
 
-def calibrate_consistent(tmp: Path, name: str, images: Path, cams: str, n: int, origin: float, unit: str | None, seeds: list[int]) -> None:
+def calibrate_consistent(
+    tmp: Path, name: str, images: Path, cams: str, n: int, origin: float, unit: str | None, seeds: list[int]
+) -> None:
     """compare_methods' protocol on the consistent images: gauge-free error (mean/max, degrees), final cost against the
     truth's, per seed."""
     cam_src = images / cams if cams != "." else images
-    session, true_rolls = cm._truth_session(tmp, f"{name}_offset", images, cam_src, n, cm.OFFSET_VIEWS[name], origin, unit)
+    session, true_rolls = cm._truth_session(
+        tmp, f"{name}_offset", images, cam_src, n, cm.OFFSET_VIEWS[name], origin, unit
+    )
     with Session.open(session) as ss:
         _, _, theta0, _ = session_camera_model(ss)
     truth = theta0.copy()
     truth[3:] = true_rolls
     for seed in seeds:
         t = time.perf_counter()
-        r = calibrate_session(session, seed=seed, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                              settings=CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0), score_thetas=[truth],
-                              judge_imported_cameras=False)
+        r = calibrate_session(
+            session,
+            seed=seed,
+            free=["rolls"],
+            bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
+            settings=CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0),
+            score_thetas=[truth],
+            judge_imported_cameras=False,
+        )
         mean, mx = cm._angle_errors(r.theta_deg, true_rolls)
-        print(f"{name:6s} consistent, calibrated from views {cm.OFFSET_VIEWS[name]} +10°, seed {seed}: gauge-free {mean:.3f}/{mx:.3f}°, "
-              f"cost {r.final_cost:.5f} (truth {r.scored_costs[0]:.5f})  ({time.perf_counter() - t:.0f} s)", flush=True)
+        print(
+            f"{name:6s} consistent, calibrated from views {cm.OFFSET_VIEWS[name]} +10°, seed {seed}: gauge-free {mean:.3f}/{mx:.3f}°, "
+            f"cost {r.final_cost:.5f} (truth {r.scored_costs[0]:.5f})  ({time.perf_counter() - t:.0f} s)",
+            flush=True,
+        )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default="david,dino")
-    ap.add_argument("--width", type=int, default=CalibrationSettings().levels[-1].width_px, help="map width of the judge's level, px")
-    ap.add_argument("--edge-lines", type=int, default=CalibrationSettings().levels[-1].edge_lines, help="scan lines of edge rays per view")
-    ap.add_argument("--calibrate", default="", metavar="SEEDS",
-                    help="also calibrate the consistent images by compare_methods' protocol (its views offset +10°, rolls free, "
-                         "no roll prior) for these seeds, e.g. 0,1: does the optimiser reach the truth where the cost is exact?")
+    ap.add_argument(
+        "--width",
+        type=int,
+        default=CalibrationSettings().levels[-1].width_px,
+        help="map width of the judge's level, px",
+    )
+    ap.add_argument(
+        "--edge-lines",
+        type=int,
+        default=CalibrationSettings().levels[-1].edge_lines,
+        help="scan lines of edge rays per view",
+    )
+    ap.add_argument(
+        "--calibrate",
+        default="",
+        metavar="SEEDS",
+        help="also calibrate the consistent images by compare_methods' protocol (its views offset +10°, rolls free, "
+        "no roll prior) for these seeds, e.g. 0,1: does the optimiser reach the truth where the cost is exact?",
+    )
     a = ap.parse_args()
-    print(f"{'set':6s} {'images':28s} {'cost at truth':>13s} {'mean |min|°':>11s} {'max':>6s} {'at ±0.4°':>8s} {'harmonic°':>9s}  per-view minima (°)")
+    print(
+        f"{'set':6s} {'images':28s} {'cost at truth':>13s} {'mean |min|°':>11s} {'max':>6s} {'at ±0.4°':>8s} {'harmonic°':>9s}  per-view minima (°)"
+    )
     for name in a.data.split(","):
         folder, cams, n, origin, unit, pattern, keep = SETS[name]
         src = cm.DATA / folder
@@ -177,8 +229,11 @@ def main() -> None:
                 cost, mins = score(session, true_rolls, a.width, a.edge_lines)
                 m = np.abs(mins)
                 kind_s = kind if kind == "masks" else f"{kind} (ellipsoids × {scale:.2f})"
-                print(f"{name:6s} {kind_s:28s} {cost:13.5f} {m.mean():11.3f} {m.max():6.2f} {int(np.sum(m >= 0.399)):8d} "
-                      f"{first_harmonic(true_rolls[1:], mins):9.3f}  {np.round(mins, 2).tolist()}  ({time.perf_counter() - t:.0f} s)", flush=True)
+                print(
+                    f"{name:6s} {kind_s:28s} {cost:13.5f} {m.mean():11.3f} {m.max():6.2f} {int(np.sum(m >= 0.399)):8d} "
+                    f"{first_harmonic(true_rolls[1:], mins):9.3f}  {np.round(mins, 2).tolist()}  ({time.perf_counter() - t:.0f} s)",
+                    flush=True,
+                )
             if a.calibrate:
                 calibrate_consistent(tmp, name, synth, cams, n, origin, unit, [int(v) for v in a.calibrate.split(",")])
 

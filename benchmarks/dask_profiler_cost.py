@@ -25,11 +25,16 @@ def one_round(sessions: list[Path], profiler: bool, starts: int, work: Path) -> 
 
     cpu = []
     with dask.config.set({"distributed.worker.profile.enabled": profiler}):
-        with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster) as client:
+        with (
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+            Client(cluster) as client,
+        ):
             for s in sessions:
                 copy = work / s.name
                 shutil.copy(s, copy)  # a fresh copy each time: run_session appends its results to the session
-                row = client.submit(process_session, str(copy), str(work / f"{s.stem}-report"), {"starts": starts}, pure=False).result()
+                row = client.submit(
+                    process_session, str(copy), str(work / f"{s.stem}-report"), {"starts": starts}, pure=False
+                ).result()
                 if row["status"] != "ok":
                     raise SystemExit(f"{s}: {row.get('reason')}")
                 cpu.append(float(row["cpu_s"]))
@@ -50,8 +55,11 @@ def main() -> int:
             for profiler in (True, False):
                 cpu = one_round(a.sessions, profiler, a.starts, Path(tmp))
                 totals[profiler].append(sum(cpu))
-                print(f"round {r}: profiler {'on ' if profiler else 'off'}  CPU s per session {', '.join(f'{c:.1f}' for c in cpu)}"
-                      f"  sum {sum(cpu):.1f}", flush=True)
+                print(
+                    f"round {r}: profiler {'on ' if profiler else 'off'}  CPU s per session {', '.join(f'{c:.1f}' for c in cpu)}"
+                    f"  sum {sum(cpu):.1f}",
+                    flush=True,
+                )
     on, off = sum(totals[True]), sum(totals[False])
     print(f"all rounds: profiler on {on:.1f} CPU s, off {off:.1f} CPU s: off saves {100 * (on - off) / on:.1f} %")
     return 0

@@ -32,7 +32,12 @@ import cma
 import cv2
 import numpy as np
 
-from vastcal.calibrate.objective_coherence import CoherenceObjective, axis_crossings, signed_distance_maps, silhouette_edges
+from vastcal.calibrate.objective_coherence import (
+    CoherenceObjective,
+    axis_crossings,
+    signed_distance_maps,
+    silhouette_edges,
+)
 from vastcal.geometry import decompose_circular, projection_matrices
 from vastcal.importer import read_cameras
 
@@ -77,8 +82,10 @@ def main() -> None:
 
     steps = np.diff(m.rolls_deg)
     print("1. ground-truth steps (deg):", np.round(steps, 4).tolist())
-    print(f"   views 2-{n - 1}: {steps[2:].mean():.6f} ± {steps[2:].std():.1e}; rolls of views 0, 1 against that lattice: "
-          f"{-(m.rolls_deg[2] - 40.0):+.3f}°, {m.rolls_deg[1] - 20.0 - (m.rolls_deg[2] - 40.0):+.3f}°")
+    print(
+        f"   views 2-{n - 1}: {steps[2:].mean():.6f} ± {steps[2:].std():.1e}; rolls of views 0, 1 against that lattice: "
+        f"{-(m.rolls_deg[2] - 40.0):+.3f}°, {m.rolls_deg[1] - 20.0 - (m.rolls_deg[2] - 40.0):+.3f}°"
+    )
 
     scan = np.linspace(-1.0, 1.0, 41)
     minima = []
@@ -97,7 +104,9 @@ def main() -> None:
         th[3 + free] += x
         return float(obj(th[None])[0])
 
-    es = cma.CMAEvolutionStrategy(np.zeros(len(free)), 0.3, {"seed": seed + 1, "verbose": -9, "maxfevals": 4000, "tolx": 1e-4})
+    es = cma.CMAEvolutionStrategy(
+        np.zeros(len(free)), 0.3, {"seed": seed + 1, "verbose": -9, "maxfevals": 4000, "tolx": 1e-4}
+    )
     while not es.stop():
         X = es.ask()
         es.tell(X, [cost(x) for x in X])
@@ -105,11 +114,15 @@ def main() -> None:
     d[free] = es.result.xbest
     d -= np.median(d)
     others = np.setdiff1d(np.arange(n), [0, 1])
-    print(f"3. joint consensus (view {ref} fixed, seed {seed}): cost {es.result.fbest:.5f} against {cost(np.zeros(len(free))):.5f} "
-          f"at the ground truth ({es.result.evaluations} evaluations)")
+    print(
+        f"3. joint consensus (view {ref} fixed, seed {seed}): cost {es.result.fbest:.5f} against {cost(np.zeros(len(free))):.5f} "
+        f"at the ground truth ({es.result.evaluations} evaluations)"
+    )
     print("   consensus − ground truth, median removed (deg):", np.round(d, 2).tolist())
-    print(f"   views 0, 1: {d[0]:+.2f}°, {d[1]:+.2f}°; the other {len(others)} views: mean |.| {np.abs(d[others]).mean():.3f}°, "
-          f"max {np.abs(d[others]).max():.2f}°")
+    print(
+        f"   views 0, 1: {d[0]:+.2f}°, {d[1]:+.2f}°; the other {len(others)} views: mean |.| {np.abs(d[others]).mean():.3f}°, "
+        f"max {np.abs(d[others]).max():.2f}°"
+    )
     print(f"   {time.perf_counter() - t0:.0f} s")
 
 

@@ -34,7 +34,9 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 from measure_battery import reference, true_cameras  # noqa: E402
 
 
-def coverage_stack(seed: int, session: Path, refractive_index: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, dict]:
+def coverage_stack(
+    seed: int, session: Path, refractive_index: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """(images, true body coverage per view (N, H, W), truth record) of one battery session."""
     import h5py
 
@@ -45,21 +47,29 @@ def coverage_stack(seed: int, session: Path, refractive_index: tuple[float, floa
 
     tr = json.loads(session.with_name(session.stem + ".truth.json").read_text())
     cfg = battery_config(seed, refractive_index=refractive_index)
-    cam = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=lambda: 0.0, capillary=simulated_capillary())
-    rig = RigTruth(tr["yaw_deg"], tr["pitch_deg"], tr["axis_offset_um"], tr["distance_um"], tuple(tr["specimen_offset_um"]))
+    cam = SimulatedCamera(
+        cfg.optics, cfg.camera, cfg.simulation, angle_source=lambda: 0.0, capillary=simulated_capillary()
+    )
+    rig = RigTruth(
+        tr["yaw_deg"], tr["pitch_deg"], tr["axis_offset_um"], tr["distance_um"], tuple(tr["specimen_offset_um"])
+    )
     K = np.asarray(tr["K"], float)
     with h5py.File(session, "r") as f:
         images = f["/entry/instrument/detector/data"][...]
     h, w = images.shape[1:3]
-    cov = [cam._renderer.ray_geometry(K, *camera_pose(rig, a), w, h, tuple(tr["specimen_offset_um"])).coverage
-           for a in tr["actual_angles_deg"]]
+    cov = [
+        cam._renderer.ray_geometry(K, *camera_pose(rig, a), w, h, tuple(tr["specimen_offset_um"])).coverage
+        for a in tr["actual_angles_deg"]
+    ]
     return images, np.stack(cov), tr
 
 
 def signed_distance(mask: np.ndarray, coverage: np.ndarray | None = None) -> np.ndarray:
     """Signed distance of pixel centres to a mask's outline, px (+ inside); exact in the anti-aliased band of ``coverage``."""
     b = mask.astype(np.uint8)
-    s = np.where(b > 0, cv2.distanceTransform(b, cv2.DIST_L2, 5) - 0.5, 0.5 - cv2.distanceTransform(1 - b, cv2.DIST_L2, 5))
+    s = np.where(
+        b > 0, cv2.distanceTransform(b, cv2.DIST_L2, 5) - 0.5, 0.5 - cv2.distanceTransform(1 - b, cv2.DIST_L2, 5)
+    )
     if coverage is not None:
         aa = (coverage > 0) & (coverage < 1)
         s[aa] = coverage[aa] - 0.5
@@ -92,11 +102,15 @@ def one_larva(seed: int, outdir: Path, refractive_index: tuple[float, float]) ->
     maps = specimen_maps(model, images)
     st = MeasureSettings()
     n_rel = tr.get("specimen", {}).get("refractive_index", 1.0)
-    print(f"larva {seed} (n_rel {n_rel:.4f}, blur {tr.get('specimen', {}).get('defocus_sigma_px', 0):.1f} px{', cut' if cut else ''}):")
+    print(
+        f"larva {seed} (n_rel {n_rel:.4f}, blur {tr.get('specimen', {}).get('defocus_sigma_px', 0):.1f} px{', cut' if cut else ''}):"
+    )
     for name, m in (("true coverage", cov.astype(np.float32)), ("automatic maps", maps)):
         r = measure_hull(visual_hull_in_grid(P, m, choose_grid(P, m), min_count=st.min_count(len(P))), st)
-        print(f"  {name:15s} V {r.volume_mm3:.4f} mm3 ({100 * (r.volume_mm3 / ref_v - 1):+.2f} %)  "
-              f"A {r.surface_area_mm2:.3f} mm2 ({100 * (r.surface_area_mm2 / ref_a - 1):+.2f} %)")
+        print(
+            f"  {name:15s} V {r.volume_mm3:.4f} mm3 ({100 * (r.volume_mm3 / ref_v - 1):+.2f} %)  "
+            f"A {r.surface_area_mm2:.3f} mm2 ({100 * (r.surface_area_mm2 / ref_a - 1):+.2f} %)"
+        )
     offsets, widths = [], []
     for k in range(len(maps)):
         truth = cov[k] > 0.5
@@ -134,8 +148,10 @@ def zf1() -> None:
     maps = specimen_maps(model, images)
     for name, m in (("hand masks", hand.astype(np.float32)), ("automatic maps", maps)):
         r = measure_hull(visual_hull(P, m, grid))
-        print(f"ZF1, authors' PI cameras, {name:14s}: V {r.volume_mm3:.4f} mm3 ({100 * (r.volume_mm3 / 0.249 - 1):+.2f} %)  "
-              f"A {r.surface_area_mm2:.3f} mm2 ({100 * (r.surface_area_mm2 / 3.24 - 1):+.2f} %)")
+        print(
+            f"ZF1, authors' PI cameras, {name:14s}: V {r.volume_mm3:.4f} mm3 ({100 * (r.volume_mm3 / 0.249 - 1):+.2f} %)  "
+            f"A {r.surface_area_mm2:.3f} mm2 ({100 * (r.surface_area_mm2 / 3.24 - 1):+.2f} %)"
+        )
     t = contrast(model, model.features(images))
     for k in (0, 5, 10):
         print(f"  profile across the hand-made outline, view {k}: {profile(t[k], signed_distance(hand[k]))}")
@@ -144,13 +160,21 @@ def zf1() -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 3, 15])
-    ap.add_argument("--refractive-index", type=float, nargs=2, default=(1.0, 1.0), metavar=("LOW", "HIGH"),
-                    help="range of the simulator's relative refractive index (1 1 = no refraction rim, the battery's setting)")
+    ap.add_argument(
+        "--refractive-index",
+        type=float,
+        nargs=2,
+        default=(1.0, 1.0),
+        metavar=("LOW", "HIGH"),
+        help="range of the simulator's relative refractive index (1 1 = no refraction rim, the battery's setting)",
+    )
     ap.add_argument("--dir", type=Path, default=Path("/tmp/vastcal-edges"))
     ap.add_argument("--zf1", action="store_true", help="also the zebrafish of Guo et al. against its hand-made masks")
     a = ap.parse_args(argv)
     a.dir.mkdir(parents=True, exist_ok=True)
-    print("signed-distance bins of the profiles, px (+ inside):", " ".join(f"{x:+.1f}" for x in np.arange(-2.0, 6.0, 0.5)))
+    print(
+        "signed-distance bins of the profiles, px (+ inside):", " ".join(f"{x:+.1f}" for x in np.arange(-2.0, 6.0, 0.5))
+    )
     for seed in a.seeds:
         one_larva(seed, a.dir, tuple(a.refractive_index))
     if a.zf1:

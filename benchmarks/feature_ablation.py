@@ -24,18 +24,20 @@ import tempfile
 import time
 from pathlib import Path
 
-from vastcal.simulators.camera.battery import battery_config
 from vastcal.acquire import acquire
 from vastcal.calibrate import calibrate_session
 from vastcal.pipeline import run_session, score_against_truth
 from vastcal.rig import connect_rig
+from vastcal.simulators.camera.battery import battery_config
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("seed", type=int)
     ap.add_argument("overrides", nargs="*", help="simulation key=value (JSON value)")
-    ap.add_argument("--run", action="store_true", help="the whole pipeline (calibrate, reconstruct, report), not only calibrate")
+    ap.add_argument(
+        "--run", action="store_true", help="the whole pipeline (calibrate, reconstruct, report), not only calibrate"
+    )
     ap.add_argument("--views", type=int, default=None)
     ap.add_argument("--keep", type=Path, default=None, help="keep the session, truth and report here")
     a = ap.parse_args()
@@ -50,7 +52,16 @@ def main() -> None:
         d.mkdir(parents=True, exist_ok=True)
         session, truth = d / f"larva_{a.seed:03d}.h5", d / f"larva_{a.seed:03d}.truth.json"
         with connect_rig(cfg, truth_path=truth) as rig:
-            res = acquire(rig.stage, rig.camera, cfg, session, views=a.views, force=True, start_info=rig.start_info, on_view=rig.on_view)
+            res = acquire(
+                rig.stage,
+                rig.camera,
+                cfg,
+                session,
+                views=a.views,
+                force=True,
+                start_info=rig.start_info,
+                on_view=rig.on_view,
+            )
         assert res.exit_status == "success", res.reason
         t = time.perf_counter()
         if a.run:
@@ -58,7 +69,11 @@ def main() -> None:
         else:
             calibrate_session(session)
         s = score_against_truth(session, truth)
-        print(f"larva {a.seed} {over or '(as drawn)'}: " + ", ".join(f"{k} {v:+.3f}" for k, v in s.items()) + f"  ({time.perf_counter() - t:.0f} s)")
+        print(
+            f"larva {a.seed} {over or '(as drawn)'}: "
+            + ", ".join(f"{k} {v:+.3f}" for k, v in s.items())
+            + f"  ({time.perf_counter() - t:.0f} s)"
+        )
 
 
 if __name__ == "__main__":

@@ -29,7 +29,11 @@ PIXEL_UM = 5.5
 
 
 def main() -> int:
-    d = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "zf_3dpf_s001" / "silhouettes"
+    d = (
+        Path(sys.argv[1])
+        if len(sys.argv) > 1
+        else Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "zf_3dpf_s001" / "silhouettes"
+    )
     files = sorted(glob.glob(str(d / "*")))
     if not files:
         print(f"fit_larva_shape: no masks in {d}")
@@ -46,23 +50,37 @@ def main() -> int:
 
     def model(p: np.ndarray) -> np.ndarray:
         c0, k, *b = p
-        prof = LarvaProfile(length=1.0, max_diameter=float(target.max()), c0=c0, k=k, bumps=(tuple(b[0:3]), tuple(b[3:6]), tuple(b[6:9])))
+        prof = LarvaProfile(
+            length=1.0,
+            max_diameter=float(target.max()),
+            c0=c0,
+            k=k,
+            bumps=(tuple(b[0:3]), tuple(b[3:6]), tuple(b[6:9])),
+        )
         return 2.0 * prof.radius_um(prof.x_head + u)
 
     x0 = [0.25, 3.0, 0.7, 0.12, 0.10, 0.9, 0.33, 0.11, 0.10, 0.5, 0.2]
     lo = [0.01, 0.0, 0.0, 0.0, 0.03, 0.0, 0.1, 0.03, 0.0, 0.3, 0.05]
     hi = [2.0, 10.0, 3.0, 0.3, 0.3, 3.0, 0.5, 0.3, 3.0, 0.9, 0.5]
     res = least_squares(lambda p: model(p) - target, x0, bounds=(lo, hi))
-    print(f"{len(files)} masks, length {np.mean(lengths):.0f} px; fit (c0, k, bumps): {np.round(res.x, 3).tolist()}, "
-          f"rms {np.sqrt(np.mean(res.fun ** 2)):.4f} L")
+    print(
+        f"{len(files)} masks, length {np.mean(lengths):.0f} px; fit (c0, k, bumps): {np.round(res.x, 3).tolist()}, "
+        f"rms {np.sqrt(np.mean(res.fun**2)):.4f} L"
+    )
     print(f"ZF1_SHAPE in the simulator: c0 {ZF1_SHAPE['c0']}, k {ZF1_SHAPE['k']}, bumps {ZF1_SHAPE['bumps']}")
     length_um = float(np.mean(lengths)) * PIXEL_UM
     height_um = float(target.max()) * length_um
     for s in (0.6, 0.65, 0.7):
-        ph = Phantom(LarvaProfile(length=length_um, max_diameter=height_um, c0=ZF1_SHAPE["c0"], k=ZF1_SHAPE["k"], bumps=ZF1_SHAPE["bumps"]),
-                     lateral_scale=s)
-        print(f"  {length_um / 1000:.2f} mm x {height_um / 1000:.2f} mm, lateral scale {s}: {ph.volume_mm3():.3f} mm³, {ph.area_mm2():.2f} mm² "
-              f"(published ZF1: 0.249 mm³, 3.24 mm²)")
+        ph = Phantom(
+            LarvaProfile(
+                length=length_um, max_diameter=height_um, c0=ZF1_SHAPE["c0"], k=ZF1_SHAPE["k"], bumps=ZF1_SHAPE["bumps"]
+            ),
+            lateral_scale=s,
+        )
+        print(
+            f"  {length_um / 1000:.2f} mm x {height_um / 1000:.2f} mm, lateral scale {s}: {ph.volume_mm3():.3f} mm³, {ph.area_mm2():.2f} mm² "
+            f"(published ZF1: 0.249 mm³, 3.24 mm²)"
+        )
     return 0
 
 

@@ -49,15 +49,34 @@ def main() -> int:
         rig = tree / "tests" / "fuzz" / "test_fuzz_rig_yaml.py"
         old_config = (tree / "vastcal" / "config.py").read_text()
         if "MAX_MESSAGE_CHARS" not in old_config:
-            rig.write_text(rig.read_text().replace("from vastcal.config import CONFIG_DIR, MAX_MESSAGE_CHARS,",
-                                                   "MAX_MESSAGE_CHARS = 300\nfrom vastcal.config import CONFIG_DIR,"))
+            rig.write_text(
+                rig.read_text().replace(
+                    "from vastcal.config import CONFIG_DIR, MAX_MESSAGE_CHARS,",
+                    "MAX_MESSAGE_CHARS = 300\nfrom vastcal.config import CONFIG_DIR,",
+                )
+            )
         if "MAX_ERROR_CHARS" not in (tree / "vastcal" / "cli.py").read_text():
             cli_fuzz = tree / "tests" / "fuzz" / "test_fuzz_cli_args.py"
             cli_fuzz.write_text(cli_fuzz.read_text().replace("cli.MAX_ERROR_CHARS", "500"))
         env = dict(os.environ, PYTHONPATH=str(tree), COLUMNS="400")  # wide enough for the failure messages
         for module in sorted((tree / "tests" / "fuzz").glob("test_*.py")):
-            proc = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-rf", "-o", "addopts=--import-mode=importlib",
-                                   str(module.relative_to(tree))], cwd=tree, env=env, capture_output=True, text=True)
+            proc = subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "pytest",
+                    "-p",
+                    "no:cacheprovider",
+                    "-rf",
+                    "-o",
+                    "addopts=--import-mode=importlib",
+                    str(module.relative_to(tree)),
+                ],
+                cwd=tree,
+                env=env,
+                capture_output=True,
+                text=True,
+            )
             summary = (proc.stdout.strip().splitlines() or ["?"])[-1].strip("= ")
             kinds = collections.Counter(_kind(line) for line in proc.stdout.splitlines() if line.startswith("FAILED "))
             print(f"{module.name}: {summary}")

@@ -42,26 +42,45 @@ def formats(tmp: Path) -> None:
     with Session.open(tmp / "folder.h5") as s:
         ref = s.projections()
     print(f"folder of {len(ref)} TIFFs {ref.shape[1:]} {ref.dtype}: {dt:.2f} s")
-    tifffile.imwrite(tmp / "zf.ome.tif", ref, photometric="rgb", ome=True,
-                     metadata={"axes": "TYXS", "PhysicalSizeX": 5.5, "PhysicalSizeXUnit": "µm", "PhysicalSizeY": 5.5, "PhysicalSizeYUnit": "µm"})
+    tifffile.imwrite(
+        tmp / "zf.ome.tif",
+        ref,
+        photometric="rgb",
+        ome=True,
+        metadata={
+            "axes": "TYXS",
+            "PhysicalSizeX": 5.5,
+            "PhysicalSizeXUnit": "µm",
+            "PhysicalSizeY": 5.5,
+            "PhysicalSizeYUnit": "µm",
+        },
+    )
     dt = _timed_import(tmp / "zf.ome.tif", tmp / "ome.h5", roi_offset=(0, 387))
     with Session.open(tmp / "ome.h5") as s:
         same = np.array_equal(s.projections(), ref)
-        print(f"OME-TIFF stack: {dt:.2f} s, frames identical {same}, pixel {s.pixel_size_um[0]:g} um from {s.plan['pixel_size_source']!r}")
+        print(
+            f"OME-TIFF stack: {dt:.2f} s, frames identical {same}, pixel {s.pixel_size_um[0]:g} um from {s.plan['pixel_size_source']!r}"
+        )
     grey16 = (ref.astype(np.uint32).sum(axis=3) * 85).astype(np.uint16)
-    tifffile.imwrite(tmp / "zf_ij.tif", grey16, imagej=True, resolution=(1 / 5.5, 1 / 5.5), metadata={"axes": "TYX", "unit": "um"})
+    tifffile.imwrite(
+        tmp / "zf_ij.tif", grey16, imagej=True, resolution=(1 / 5.5, 1 / 5.5), metadata={"axes": "TYX", "unit": "um"}
+    )
     dt = _timed_import(tmp / "zf_ij.tif", tmp / "ij.h5", roi_offset=(0, 387))
     with Session.open(tmp / "ij.h5") as s:
-        print(f"ImageJ 16-bit hyperstack: {dt:.2f} s, frames exact {np.array_equal(s.projections(), grey16)}, "
-              f"pixel {s.pixel_size_um[0]:g} um from {s.plan['pixel_size_source']!r}")
+        print(
+            f"ImageJ 16-bit hyperstack: {dt:.2f} s, frames exact {np.array_equal(s.projections(), grey16)}, "
+            f"pixel {s.pixel_size_um[0]:g} um from {s.plan['pixel_size_source']!r}"
+        )
     f32 = ref.astype(np.float32) / 255.0
     tifffile.imwrite(tmp / "zf_float.tif", f32, photometric="rgb")
     dt = _timed_import(tmp / "zf_float.tif", tmp / "float.h5", roi_offset=(0, 387))
     with Session.open(tmp / "float.h5") as s:
         back = s.projections().astype(np.float64) / 65535.0
-        print(f"float32 stack: {dt:.2f} s, stored {s.dtype}, max |error| {np.abs(back - f32).max():.2e} "
-              f"(half a uint16 step {0.5 / 65535:.2e}); {s.start_record['pixel_conversion']}; "
-              f"pixel size known: {pixel_size_known(s.plan)}")
+        print(
+            f"float32 stack: {dt:.2f} s, stored {s.dtype}, max |error| {np.abs(back - f32).max():.2e} "
+            f"(half a uint16 step {0.5 / 65535:.2e}); {s.start_record['pixel_conversion']}; "
+            f"pixel size known: {pixel_size_known(s.plan)}"
+        )
 
 
 def measure_in_pixels(tmp: Path) -> None:
@@ -86,11 +105,15 @@ def measure_in_pixels(tmp: Path) -> None:
         m = reconstruct_session(out)
         meas = getattr(m, "measurement", m)
         results[label] = (meas.volume_mm3, meas.surface_area_mm2)
-        print(f"{label}: calibrated yaw {cal.theta_deg[0]:+.3f} deg pitch {cal.theta_deg[1]:+.3f} deg, volume_mm3 field {meas.volume_mm3:.6g}, "
-              f"area_mm2 field {meas.surface_area_mm2:.6g} ({time.perf_counter() - t:.0f} s)")
+        print(
+            f"{label}: calibrated yaw {cal.theta_deg[0]:+.3f} deg pitch {cal.theta_deg[1]:+.3f} deg, volume_mm3 field {meas.volume_mm3:.6g}, "
+            f"area_mm2 field {meas.surface_area_mm2:.6g} ({time.perf_counter() - t:.0f} s)"
+        )
     (vu, au), (vp, ap) = results["um"], results["px"]
-    print(f"pixels x 5.5^3: {vp * 5.5**3:.5f} mm^3 against {vu:.5f} mm^3 ({100 * (vp * 5.5**3 / vu - 1):+.2f} %); "
-          f"pixels x 5.5^2: {ap * 5.5**2:.4f} mm^2 against {au:.4f} mm^2 ({100 * (ap * 5.5**2 / au - 1):+.2f} %)")
+    print(
+        f"pixels x 5.5^3: {vp * 5.5**3:.5f} mm^3 against {vu:.5f} mm^3 ({100 * (vp * 5.5**3 / vu - 1):+.2f} %); "
+        f"pixels x 5.5^2: {ap * 5.5**2:.4f} mm^2 against {au:.4f} mm^2 ({100 * (ap * 5.5**2 / au - 1):+.2f} %)"
+    )
 
 
 def main() -> None:

@@ -23,12 +23,21 @@ import sys
 import time
 from pathlib import Path
 
-from vastcal.simulators.camera.battery import battery_config
 from vastcal.errors import VastcalError
 from vastcal.pipeline import acquire_simulated
+from vastcal.simulators.camera.battery import battery_config
 
-COLUMNS = ("seed", "age_dpf", "length_um", "hull_volume_mm3", "hull_area_mm2", "true_volume_mm3", "true_area_mm2",
-           "flags", "seconds")
+COLUMNS = (
+    "seed",
+    "age_dpf",
+    "length_um",
+    "hull_volume_mm3",
+    "hull_area_mm2",
+    "true_volume_mm3",
+    "true_area_mm2",
+    "flags",
+    "seconds",
+)
 
 
 def flags_of(truth: dict) -> str:
@@ -65,9 +74,17 @@ def make_one(seed: int, outdir: Path, views: int | None, force: bool) -> dict:
         raise SystemExit(f"make_battery: {exc}") from None
     truth = json.loads(truth_path.read_text())
     sp = truth.get("specimen", {})
-    return {"seed": seed, "age_dpf": round(sp.get("age_dpf", float("nan")), 2), "length_um": round(sp.get("length_um", float("nan"))),
-            "hull_volume_mm3": truth["hull_volume_mm3"], "hull_area_mm2": truth["hull_area_mm2"], "true_volume_mm3": truth["true_volume_mm3"],
-            "true_area_mm2": truth["true_area_mm2"], "flags": flags_of(truth), "seconds": round(time.monotonic() - t, 1)}
+    return {
+        "seed": seed,
+        "age_dpf": round(sp.get("age_dpf", float("nan")), 2),
+        "length_um": round(sp.get("length_um", float("nan"))),
+        "hull_volume_mm3": truth["hull_volume_mm3"],
+        "hull_area_mm2": truth["hull_area_mm2"],
+        "true_volume_mm3": truth["true_volume_mm3"],
+        "true_area_mm2": truth["true_area_mm2"],
+        "flags": flags_of(truth),
+        "seconds": round(time.monotonic() - t, 1),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,12 +99,17 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("N must be >= 1")
     a.outdir.mkdir(parents=True, exist_ok=True)
     rows = []
-    print(f"{'seed':>4} {'dpf':>4} {'L um':>5} {'hull V mm3':>10} {'hull A mm2':>10} {'body V':>7} {'body A':>7} {'s':>5}  flags")
+    print(
+        f"{'seed':>4} {'dpf':>4} {'L um':>5} {'hull V mm3':>10} {'hull A mm2':>10} {'body V':>7} {'body A':>7} {'s':>5}  flags"
+    )
     for seed in range(a.first_seed, a.first_seed + a.n):
         r = make_one(seed, a.outdir, a.views, a.force)
         rows.append(r)
-        print(f"{r['seed']:>4} {r['age_dpf']:>4.1f} {r['length_um']:>5} {r['hull_volume_mm3']:>10.4f} {r['hull_area_mm2']:>10.3f} "
-              f"{r['true_volume_mm3']:>7.4f} {r['true_area_mm2']:>7.3f} {r['seconds']:>5.1f}  {r['flags']}", flush=True)
+        print(
+            f"{r['seed']:>4} {r['age_dpf']:>4.1f} {r['length_um']:>5} {r['hull_volume_mm3']:>10.4f} {r['hull_area_mm2']:>10.3f} "
+            f"{r['true_volume_mm3']:>7.4f} {r['true_area_mm2']:>7.3f} {r['seconds']:>5.1f}  {r['flags']}",
+            flush=True,
+        )
     with open(a.outdir / "battery.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=COLUMNS)
         w.writeheader()

@@ -65,7 +65,13 @@ def true_cameras(truth: dict[str, Any]) -> np.ndarray:
     """(N, 3, 4) the simulator's true cameras of a truth record, at the actual angles (µm → 0-based px)."""
     from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
 
-    rig = RigTruth(truth["yaw_deg"], truth["pitch_deg"], truth["axis_offset_um"], truth["distance_um"], tuple(truth["specimen_offset_um"]))
+    rig = RigTruth(
+        truth["yaw_deg"],
+        truth["pitch_deg"],
+        truth["axis_offset_um"],
+        truth["distance_um"],
+        tuple(truth["specimen_offset_um"]),
+    )
     K = np.asarray(truth["K"], float)
     intr = PinholeIntrinsics(K[0, 0], K[0, 2], K[1, 2])
     return np.stack([truth_projection_matrix(intr, rig, a) for a in truth["actual_angles_deg"]])
@@ -75,8 +81,12 @@ def run_end_to_end(session: Path) -> dict[str, Any]:
     """``vastcal run`` in a subprocess; volume, area, k = 2 half-widths, verdict and flags from report.json."""
     report = session.with_name(session.stem + "-report")
     t = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "vastcal.cli", "run", str(session), "-o", str(report), "-q"],
-                          capture_output=True, text=True, cwd=REPO)
+    proc = subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", "run", str(session), "-o", str(report), "-q"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     out: dict[str, Any] = {"seconds": time.monotonic() - t}
     if proc.returncode != 0:
         out["error"] = (proc.stderr.strip().splitlines() or [f"exit {proc.returncode}"])[-1][:120]
@@ -114,8 +124,16 @@ def run_true_cameras(session: Path) -> dict[str, Any]:
     st = MeasureSettings()
     m = measure_hull(visual_hull_in_grid(P, maps, choose_grid(P, maps), min_count=st.min_count(len(P))), st)
     edge = np.flatnonzero(touches_frame_edge(maps))
-    return {"seconds": time.monotonic() - t, "volume": m.volume_mm3, "area": m.surface_area_mm2, "U_volume": None, "U_area": None,
-            "verdict": "", "flags": f"frame_edge({len(edge)}v)" if edge.size else "", "lower_bound": bool(edge.size)}
+    return {
+        "seconds": time.monotonic() - t,
+        "volume": m.volume_mm3,
+        "area": m.surface_area_mm2,
+        "U_volume": None,
+        "U_area": None,
+        "verdict": "",
+        "flags": f"frame_edge({len(edge)}v)" if edge.size else "",
+        "lower_bound": bool(edge.size),
+    }
 
 
 def finish_row(r: dict[str, Any]) -> None:
@@ -140,9 +158,12 @@ def print_row(r: dict[str, Any]) -> None:
     def yn(x: bool | None) -> str:
         return f"{'-':>3}" if x is None else f"{'yes' if x else 'NO':>3}"
 
-    print(f"{r['seed']:>4} {r['age']:>4.1f} {r['volume']:>7.4f} {r['dv']:>+6.2f} {f(r['uv'], 5)} {yn(r['in_v'])} {r['area']:>6.3f} "
-          f"{r['da']:>+6.2f} {f(r['ua'], 5)} {yn(r['in_a'])} {r['seconds']:>5.0f}  {r['verdict'] or '-':8} {r['flags'] or '-'}"
-          f"{' [cut: vs in-frame hull]' if r['cut'] else ''} | {r['features']}", flush=True)
+    print(
+        f"{r['seed']:>4} {r['age']:>4.1f} {r['volume']:>7.4f} {r['dv']:>+6.2f} {f(r['uv'], 5)} {yn(r['in_v'])} {r['area']:>6.3f} "
+        f"{r['da']:>+6.2f} {f(r['ua'], 5)} {yn(r['in_a'])} {r['seconds']:>5.0f}  {r['verdict'] or '-':8} {r['flags'] or '-'}"
+        f"{' [cut: vs in-frame hull]' if r['cut'] else ''} | {r['features']}",
+        flush=True,
+    )
 
 
 def pct(x: float | None, ref: float) -> float:
@@ -157,8 +178,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dir", type=Path, default=Path("/tmp/vastcal-battery"), help="where sessions and reports go")
     ap.add_argument("--views", type=int, default=None, help="views per revolution (default: the rig file's, 21)")
     ap.add_argument("--reuse", action="store_true", help="keep sessions already in --dir")
-    ap.add_argument("--true-cameras", action="store_true", help="silhouettes only: carve with the true cameras, no calibration")
-    ap.add_argument("--summary", action="store_true", help="print the table and summary of the results already in --dir, run nothing")
+    ap.add_argument(
+        "--true-cameras", action="store_true", help="silhouettes only: carve with the true cameras, no calibration"
+    )
+    ap.add_argument(
+        "--summary",
+        action="store_true",
+        help="print the table and summary of the results already in --dir, run nothing",
+    )
     a = ap.parse_args(argv)
     if a.n < 1 or a.jobs < 1:
         ap.error("--n and --jobs must be >= 1")
@@ -176,16 +203,29 @@ def main(argv: list[str] | None = None) -> int:
         res = run_true_cameras(session) if a.true_cameras else run_end_to_end(session)
         tr = truth_of(session)
         v_ref, a_ref, cut = reference(tr)
-        res.update(seed=seed, features=flags_of(tr), cut=cut, v_ref=v_ref, a_ref=a_ref, dv=pct(res.get("volume"), v_ref),
-                   da=pct(res.get("area"), a_ref), age=tr.get("specimen", {}).get("age_dpf", float("nan")))
+        res.update(
+            seed=seed,
+            features=flags_of(tr),
+            cut=cut,
+            v_ref=v_ref,
+            a_ref=a_ref,
+            dv=pct(res.get("volume"), v_ref),
+            da=pct(res.get("area"), a_ref),
+            age=tr.get("specimen", {}).get("age_dpf", float("nan")),
+        )
         return res
 
     results = a.dir / ("results-true-cameras.jsonl" if a.true_cameras else "results-end-to-end.jsonl")
-    print(f"{'seed':>4} {'dpf':>4} {'V mm3':>7} {'dV %':>6} {'±V %':>5} {'in':>3} {'A mm2':>6} {'dA %':>6} {'±A %':>5} {'in':>3} "
-          f"{'s':>5}  {'verdict':8} flags | features", flush=True)
+    print(
+        f"{'seed':>4} {'dpf':>4} {'V mm3':>7} {'dV %':>6} {'±V %':>5} {'in':>3} {'A mm2':>6} {'dA %':>6} {'±A %':>5} {'in':>3} "
+        f"{'s':>5}  {'verdict':8} flags | features",
+        flush=True,
+    )
     rows: list[dict[str, Any]] = []
     if a.summary:
-        done = [json.loads(line) for line in results.read_text().splitlines() if line.strip()] if results.is_file() else []
+        done = (
+            [json.loads(line) for line in results.read_text().splitlines() if line.strip()] if results.is_file() else []
+        )
         for r in sorted(done, key=lambda r: r["seed"]):
             rows.append(r)
             print_row(r)
@@ -210,20 +250,28 @@ def main(argv: list[str] | None = None) -> int:
     within_a = sum(abs(r["da"]) <= A_TOL for r in ok)
     both = sum(abs(r["dv"]) <= V_TOL and abs(r["da"]) <= A_TOL for r in ok)
     beyond = [r for r in ok if abs(r["dv"]) > MAX_TOL or abs(r["da"]) > MAX_TOL]
-    print(f"  volume within {V_TOL:g} %: {within_v}/{len(rows)}; area within {A_TOL:g} %: {within_a}/{len(rows)}; both: {both}/{len(rows)} "
-          f"(target >= 28 of 30); beyond {MAX_TOL:g} %: {len(beyond)} (target 0)")
+    print(
+        f"  volume within {V_TOL:g} %: {within_v}/{len(rows)}; area within {A_TOL:g} %: {within_a}/{len(rows)}; both: {both}/{len(rows)} "
+        f"(target >= 28 of 30); beyond {MAX_TOL:g} %: {len(beyond)} (target 0)"
+    )
     wv = max(ok, key=lambda r: abs(r["dv"]))
     wa = max(ok, key=lambda r: abs(r["da"]))
-    print(f"  volume error: mean {statistics.mean(r['dv'] for r in ok):+.2f} %, median {statistics.median(r['dv'] for r in ok):+.2f} %, "
-          f"worst {wv['dv']:+.2f} % (seed {wv['seed']}: {wv['features']})")
-    print(f"  area error:   mean {statistics.mean(r['da'] for r in ok):+.2f} %, median {statistics.median(r['da'] for r in ok):+.2f} %, "
-          f"worst {wa['da']:+.2f} % (seed {wa['seed']}: {wa['features']})")
+    print(
+        f"  volume error: mean {statistics.mean(r['dv'] for r in ok):+.2f} %, median {statistics.median(r['dv'] for r in ok):+.2f} %, "
+        f"worst {wv['dv']:+.2f} % (seed {wv['seed']}: {wv['features']})"
+    )
+    print(
+        f"  area error:   mean {statistics.mean(r['da'] for r in ok):+.2f} %, median {statistics.median(r['da'] for r in ok):+.2f} %, "
+        f"worst {wa['da']:+.2f} % (seed {wa['seed']}: {wa['features']})"
+    )
     stated = [r for r in ok if r.get("uv") is not None]
     if stated:
         cov = sum(bool(r["in_v"]) and bool(r["in_a"]) for r in stated)
-        print(f"  k=2 interval covers the hull (volume and area): {cov}/{len(stated)} (target >= 27 of 30); "
-              f"median half-width volume {statistics.median(r['uv'] for r in stated):.2f} % (target <= 1.5), "
-              f"area {statistics.median(r['ua'] for r in stated):.2f} % (target <= 2.5)")
+        print(
+            f"  k=2 interval covers the hull (volume and area): {cov}/{len(stated)} (target >= 27 of 30); "
+            f"median half-width volume {statistics.median(r['uv'] for r in stated):.2f} % (target <= 1.5), "
+            f"area {statistics.median(r['ua'] for r in stated):.2f} % (target <= 2.5)"
+        )
     else:
         print("  k=2 interval: none in the reports")
     print("  failures (volume > 1 % or area > 2 %) with and without each drawn feature:")
@@ -235,13 +283,24 @@ def main(argv: list[str] | None = None) -> int:
         rest = [r for r in ok if r not in have]
         bad_rest = [r for r in rest if r in fails]
         mean_dv = statistics.mean(r["dv"] for r in have)
-        print(f"    {k:8} with: {len(bad)}/{len(have)} fail (mean dV {mean_dv:+.2f} %)"
-              + (f"; without: {len(bad_rest)}/{len(rest)} fail (mean dV {statistics.mean(r['dv'] for r in rest):+.2f} %)" if rest
-                 else "; on every larva (not separable)"))
+        print(
+            f"    {k:8} with: {len(bad)}/{len(have)} fail (mean dV {mean_dv:+.2f} %)"
+            + (
+                f"; without: {len(bad_rest)}/{len(rest)} fail (mean dV {statistics.mean(r['dv'] for r in rest):+.2f} %)"
+                if rest
+                else "; on every larva (not separable)"
+            )
+        )
     for name, lo, hi in (("blur < 0.7 px", 0.0, 0.7), ("blur >= 0.7 px", 0.7, 99.0)):
-        grp = [r for r in ok if lo <= float(next((w[4:] for w in r["features"].split() if w.startswith("blur")), "nan") or "nan") < hi]
+        grp = [
+            r
+            for r in ok
+            if lo <= float(next((w[4:] for w in r["features"].split() if w.startswith("blur")), "nan") or "nan") < hi
+        ]
         if grp:
-            print(f"    {name:15} {sum(r in fails for r in grp)}/{len(grp)} fail (mean dV {statistics.mean(r['dv'] for r in grp):+.2f} %)")
+            print(
+                f"    {name:15} {sum(r in fails for r in grp)}/{len(grp)} fail (mean dV {statistics.mean(r['dv'] for r in grp):+.2f} %)"
+            )
     print(f"  time per larva: median {statistics.median(r['seconds'] for r in ok):.0f} s")
     return 0
 

@@ -20,9 +20,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "reconstruct"))
 from phantom_views import render_views  # noqa: E402
 
-from vastcal.simulators.camera.phantom import PHANTOMS  # noqa: E402
 from vastcal.measure import MeasureSettings, measure_hull  # noqa: E402
 from vastcal.reconstruct import choose_grid, visual_hull  # noqa: E402
+from vastcal.simulators.camera.phantom import PHANTOMS  # noqa: E402
 
 
 def main() -> int:
@@ -33,10 +33,14 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=3)
     args = ap.parse_args()
     s = MeasureSettings()
-    print(f"{args.views} views, ~{args.voxels:,} voxels, {'binary masks' if args.binary else 'soft silhouettes'}, iso-level N-{s.iso_offset}, "
-          f"{s.smoothing_steps} implicit steps lambda {s.smoothing_lambda}")
-    print(f"{'phantom':10} {'seed':>4} {'vox um':>6} {'V mm3':>8} {'V-hull %':>8} {'V-solid %':>9} {'meshV-hull %':>12} "
-          f"{'A mm2':>7} {'A-hull %':>8} {'A-solid %':>9} {'hull s':>6} {'MC s':>5} {'smooth s':>8}")
+    print(
+        f"{args.views} views, ~{args.voxels:,} voxels, {'binary masks' if args.binary else 'soft silhouettes'}, iso-level N-{s.iso_offset}, "
+        f"{s.smoothing_steps} implicit steps lambda {s.smoothing_lambda}"
+    )
+    print(
+        f"{'phantom':10} {'seed':>4} {'vox um':>6} {'V mm3':>8} {'V-hull %':>8} {'V-solid %':>9} {'meshV-hull %':>12} "
+        f"{'A mm2':>7} {'A-hull %':>8} {'A-solid %':>9} {'hull s':>6} {'MC s':>5} {'smooth s':>8}"
+    )
     for name, factory in PHANTOMS.items():
         ph = factory()
         for seed in range(1, args.seeds + 1):
@@ -48,12 +52,16 @@ def main() -> int:
             th = time.perf_counter() - t
             m = measure_hull(hull, s)
             hv, ha = v.hull_volume_mm3, v.hull_area_mm2
-            print(f"{name:10} {seed:4d} {grid.size:6.2f} {m.volume_mm3:8.4f} {100 * (m.volume_mm3 / hv - 1):+8.2f} "
-                  f"{100 * (m.volume_mm3 / ph.volume_mm3() - 1):+9.2f} {100 * (m.mesh_volume_mm3 / hv - 1):+12.2f} "
-                  f"{m.surface_area_mm2:7.3f} {100 * (m.surface_area_mm2 / ha - 1):+8.2f} {100 * (m.surface_area_mm2 / ph.area_mm2() - 1):+9.2f} "
-                  f"{th:6.2f} {m.timings_s['marching_cubes']:5.2f} {m.timings_s['smoothing']:8.2f}")
-    print("V = voxels inside all silhouettes x voxel volume (reported); meshV = enclosed volume of the smoothed mesh; "
-          "A = smoothed mesh area; 'hull' = exact visual hull of the views, 'solid' = the phantom itself")
+            print(
+                f"{name:10} {seed:4d} {grid.size:6.2f} {m.volume_mm3:8.4f} {100 * (m.volume_mm3 / hv - 1):+8.2f} "
+                f"{100 * (m.volume_mm3 / ph.volume_mm3() - 1):+9.2f} {100 * (m.mesh_volume_mm3 / hv - 1):+12.2f} "
+                f"{m.surface_area_mm2:7.3f} {100 * (m.surface_area_mm2 / ha - 1):+8.2f} {100 * (m.surface_area_mm2 / ph.area_mm2() - 1):+9.2f} "
+                f"{th:6.2f} {m.timings_s['marching_cubes']:5.2f} {m.timings_s['smoothing']:8.2f}"
+            )
+    print(
+        "V = voxels inside all silhouettes x voxel volume (reported); meshV = enclosed volume of the smoothed mesh; "
+        "A = smoothed mesh area; 'hull' = exact visual hull of the views, 'solid' = the phantom itself"
+    )
     return 0
 
 

@@ -38,7 +38,9 @@ def main() -> None:
     parts = {
         "views (JPEG data URIs)": sum(len(m) for m in re.findall(r"data:image/jpeg;base64,[A-Za-z0-9+/=]+", page)),
         "plots (SVG data URIs)": sum(len(m) for m in re.findall(r"data:image/svg\+xml;base64,[A-Za-z0-9+/=]+", page)),
-        "mesh (base64)": sum(len(m) for m in re.findall(r'<script type="application/octet-stream"[^>]*>([^<]*)<', page)),
+        "mesh (base64)": sum(
+            len(m) for m in re.findall(r'<script type="application/octet-stream"[^>]*>([^<]*)<', page)
+        ),
         "scripts (code)": sum(len(m) for m in re.findall(r"<script>(.*?)</script>", page, flags=re.S)),
         "outlines (SVG paths)": sum(len(m) for m in re.findall(r'<path d="([^"]*)"', page)),
         "CSS": sum(len(m) for m in re.findall(r"<style>(.*?)</style>", page, flags=re.S)),
@@ -46,7 +48,9 @@ def main() -> None:
     n_views = len(re.findall(r'<figure class="view', page))
     shown = re.search(r'data-faces="(\d+)"', page)
     print(f"session            {args.session}")
-    print(f"report.html        {total / 1e6:.2f} MB, {n_views} views, mesh {shown.group(1) if shown else '?'} triangles shown")
+    print(
+        f"report.html        {total / 1e6:.2f} MB, {n_views} views, mesh {shown.group(1) if shown else '?'} triangles shown"
+    )
     for name, size in parts.items():
         print(f"  {name:<22} {size / 1e6:7.3f} MB  {100 * size / total:5.1f} %")
     rest = total - sum(parts.values())

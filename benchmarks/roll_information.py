@@ -34,9 +34,6 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from vastcal.simulators.camera.phantom import zebrafish_phantom
-from vastcal.simulators.camera.render import BrightfieldRenderer
-from vastcal.simulators.camera.truth_geometry import RigTruth, camera_pose
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.objective_coherence import axis_probe
 from vastcal.calibrate.photometric_yaw import absorption_images, background_noise, drop_static
@@ -46,6 +43,9 @@ from vastcal.config import load_config
 from vastcal.geometry import project, projection_matrices
 from vastcal.pipeline import acquire_simulated
 from vastcal.session import Session
+from vastcal.simulators.camera.phantom import zebrafish_phantom
+from vastcal.simulators.camera.render import BrightfieldRenderer
+from vastcal.simulators.camera.truth_geometry import RigTruth, camera_pose
 
 STEP_DEG = 0.01
 """Central-difference step of the known-object bound, degrees."""
@@ -53,7 +53,13 @@ STEP_DEG = 0.01
 
 def known_object_bound(truth: dict, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-view Cramér–Rao bound (degrees) of ω_i with the specimen known: (all pixels, interior only)."""
-    rig = RigTruth(truth["yaw_deg"], truth["pitch_deg"], truth["axis_offset_um"], truth["distance_um"], tuple(truth["specimen_offset_um"]))
+    rig = RigTruth(
+        truth["yaw_deg"],
+        truth["pitch_deg"],
+        truth["axis_offset_um"],
+        truth["distance_um"],
+        tuple(truth["specimen_offset_um"]),
+    )
     renderer = BrightfieldRenderer(zebrafish_phantom())
     K = np.asarray(truth["K"], float)
     electrons = renderer.sensor.background_level * renderer.sensor.full_well_e  # at transmission 1, unit exposure
@@ -65,9 +71,13 @@ def known_object_bound(truth: dict, width: int, height: int) -> tuple[np.ndarray
 
     every, interior = [], []
     for angle in truth["actual_angles_deg"]:
-        (tp, cp), (t0, c0), (tm, cm) = transmission(angle + STEP_DEG), transmission(angle), transmission(angle - STEP_DEG)
+        (tp, cp), (t0, c0), (tm, cm) = (
+            transmission(angle + STEP_DEG),
+            transmission(angle),
+            transmission(angle - STEP_DEG),
+        )
         d_electrons = (tp - tm) / (2.0 * np.radians(STEP_DEG)) * electrons  # ∂(signal, e⁻)/∂ω per radian
-        fisher = d_electrons ** 2 / (t0 * electrons + renderer.sensor.read_noise_e ** 2)  # gain cancels: both in e⁻
+        fisher = d_electrons**2 / (t0 * electrons + renderer.sensor.read_noise_e**2)  # gain cancels: both in e⁻
         inner = cv2.erode(((c0 == 1) & (cp == 1) & (cm == 1)).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
         every.append(np.degrees(1.0 / np.sqrt(fisher.sum())))
         interior.append(np.degrees(1.0 / np.sqrt(fisher[inner].sum())))
@@ -123,12 +133,14 @@ def slice_moments(session: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     s1 = np.stack([binned(cov[i] * s_across, i) for i in range(n)], 1)
     sigma_a = background_noise(a, pf)
     assert sigma_a is not None, "no background pixels"
-    noise = sigma_a * np.sqrt(np.stack([binned(s_across ** 2, i) for i in range(n)], 1).mean(1))
+    noise = sigma_a * np.sqrt(np.stack([binned(s_across**2, i) for i in range(n)], 1).mean(1))
     keep = m0.min(1) > 0.05 * m0.max()
     return m1[keep], s1[keep], noise[keep], theta
 
 
-def moment_fit(D: np.ndarray, S: np.ndarray, sigma: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def moment_fit(
+    D: np.ndarray, S: np.ndarray, sigma: np.ndarray, theta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Rolls (degrees, ω_0 held) that make every slice's moments a first harmonic; their CRB (degrees); χ²/dof."""
 
     def residual(x: np.ndarray) -> np.ndarray:
@@ -151,7 +163,9 @@ def main() -> None:
     assert base.simulation is not None
     with tempfile.TemporaryDirectory() as d:
         for k in range(n_rigs):
-            cfg = dataclasses.replace(base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k))
+            cfg = dataclasses.replace(
+                base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k)
+            )
             session = Path(d) / f"sim{k}.h5"
             truth_path = acquire_simulated(cfg, session)
             cal = calibrate_session(session)
@@ -164,12 +178,18 @@ def main() -> None:
             D, S, sigma, theta = slice_moments(session)
             rolls, crb, chi2 = moment_fit(D, S, sigma, theta)
             err = rolls[1:] - true_rolls[1:]
-            print(f"rig seed {cfg.simulation.seed}: silhouette calibration (start) roll RMS error {np.sqrt(np.mean(start_err ** 2)):.3f}°")
-            print(f"  known-object Cramér–Rao bound per view: all pixels RMS {np.sqrt(np.mean(every ** 2)):.4f}° "
-                  f"(max {every.max():.4f}°), interior only RMS {np.sqrt(np.mean(interior ** 2)):.4f}° (max {interior.max():.4f}°)")
-            print(f"  slice moments, specimen unknown ({D.shape[0]} slices, χ²/dof {chi2:.2f}): roll RMS error "
-                  f"{np.sqrt(np.mean(err ** 2)):.3f}° (max {np.abs(err).max():.3f}°), its Cramér–Rao bound RMS {np.sqrt(np.mean(crb ** 2)):.3f}° "
-                  f"(target 0.05°)")
+            print(
+                f"rig seed {cfg.simulation.seed}: silhouette calibration (start) roll RMS error {np.sqrt(np.mean(start_err**2)):.3f}°"
+            )
+            print(
+                f"  known-object Cramér–Rao bound per view: all pixels RMS {np.sqrt(np.mean(every**2)):.4f}° "
+                f"(max {every.max():.4f}°), interior only RMS {np.sqrt(np.mean(interior**2)):.4f}° (max {interior.max():.4f}°)"
+            )
+            print(
+                f"  slice moments, specimen unknown ({D.shape[0]} slices, χ²/dof {chi2:.2f}): roll RMS error "
+                f"{np.sqrt(np.mean(err**2)):.3f}° (max {np.abs(err).max():.3f}°), its Cramér–Rao bound RMS {np.sqrt(np.mean(crb**2)):.3f}° "
+                f"(target 0.05°)"
+            )
 
 
 if __name__ == "__main__":

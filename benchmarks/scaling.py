@@ -57,10 +57,15 @@ def _config(views: int, full: bool, seed: int):  # type: ignore[no-untyped-def]
 
     cfg = load_config(None)
     assert cfg.simulation is not None
-    cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(cfg.simulation, seed=seed),
-                              acquisition=dataclasses.replace(cfg.acquisition, views=views))
+    cfg = dataclasses.replace(
+        cfg,
+        simulation=dataclasses.replace(cfg.simulation, seed=seed),
+        acquisition=dataclasses.replace(cfg.acquisition, views=views),
+    )
     if full:
-        cam = dataclasses.replace(cfg.camera, roi=RoiConfig(0, 0, cfg.optics.sensor_width_px, cfg.optics.sensor_height_px))
+        cam = dataclasses.replace(
+            cfg.camera, roi=RoiConfig(0, 0, cfg.optics.sensor_width_px, cfg.optics.sensor_height_px)
+        )
         cfg = dataclasses.replace(cfg, camera=cam)
     return cfg
 
@@ -99,7 +104,9 @@ class _MemorySampler:
         frame = sys._current_frames().get(self._main)
         if frame is None:
             return "?"
-        stack = [f for f in traceback.extract_stack(frame) if "vastcal" in f.filename and "benchmarks" not in f.filename]
+        stack = [
+            f for f in traceback.extract_stack(frame) if "vastcal" in f.filename and "benchmarks" not in f.filename
+        ]
         return " < ".join(f"{Path(f.filename).stem}:{f.lineno} {f.name}" for f in reversed(stack[-5:]))
 
     def _run(self) -> None:
@@ -120,7 +127,9 @@ class _MemorySampler:
         return "\n".join(f"{t:8.1f} s {mb:7.0f} MB {where}" for t, mb, where in self.marks)
 
 
-def _step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_memory: bool = False) -> dict[str, float]:
+def _step(
+    step: str, views: int, full: bool, seed: int, workdir: Path, profile_memory: bool = False
+) -> dict[str, float]:
     """One step in this (fresh) process; returns its figures (``profile_memory``: writes the resident memory's
     high-water marks and where they were reached to ``<session>.<step>.memory.log``)."""
     session, truth = _session(workdir, views, full, seed)
@@ -162,11 +171,19 @@ def _step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_m
         s = score_against_truth(session, truth)
         photo = next((r for r in cal.level_reports if r.get("stage") == "photometric yaw"), {})
         true_yaw = float(cal.theta_deg[0]) - s["yaw_error_deg"]
-        return {"cal_s": wall, "cal_cpu_s": cpu, "evals": cal.n_evaluations, "ms_per_eval": 1e3 * cal.time_per_evaluation_s, "cal_mb": _peak_mb(),
-                "yaw_err": s["yaw_error_deg"], "pitch_err": s["pitch_error_deg"], "roll_rms": s["angle_rms_error_deg"],
-                "yaw_views": photo.get("group_views"),  # the photometric yaw's sub-revolutions and each one's yaw error
-                "yaw_group_errs": [round(y - true_yaw, 4) for y in photo.get("group_yaws_deg") or []],
-                "theta": [float(v) for v in cal.theta_deg]}
+        return {
+            "cal_s": wall,
+            "cal_cpu_s": cpu,
+            "evals": cal.n_evaluations,
+            "ms_per_eval": 1e3 * cal.time_per_evaluation_s,
+            "cal_mb": _peak_mb(),
+            "yaw_err": s["yaw_error_deg"],
+            "pitch_err": s["pitch_error_deg"],
+            "roll_rms": s["angle_rms_error_deg"],
+            "yaw_views": photo.get("group_views"),  # the photometric yaw's sub-revolutions and each one's yaw error
+            "yaw_group_errs": [round(y - true_yaw, 4) for y in photo.get("group_yaws_deg") or []],
+            "theta": [float(v) for v in cal.theta_deg],
+        }
     if step == "reconstruct":
         from vastcal.pipeline import score_against_truth
         from vastcal.reconstruct import reconstruct_session
@@ -175,9 +192,14 @@ def _step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_m
         reconstruct_session(session)
         wall, cpu = time.perf_counter() - t, _cpu_s() - c
         s = score_against_truth(session, truth)
-        return {"rec_s": wall, "rec_cpu_s": cpu, "rec_mb": _peak_mb(), "vol_pct": s.get("volume_vs_true_hull_pct", float("nan"))}
+        return {
+            "rec_s": wall,
+            "rec_cpu_s": cpu,
+            "rec_mb": _peak_mb(),
+            "vol_pct": s.get("volume_vs_true_hull_pct", float("nan")),
+        }
     if step.startswith("photometric"):  # photometric<K>: the photometric yaw's memory with K views
-        return photometric_mb(session, int(step[len("photometric"):]))
+        return photometric_mb(session, int(step[len("photometric") :]))
     raise SystemExit(f"unknown step {step}")
 
 
@@ -209,8 +231,14 @@ def photometric_mb(session: Path, k: int) -> dict[str, float]:
     from vastcal.calibrate.colour_model import ColourModel
     from vastcal.calibrate.photometric_yaw import refine_yaw
     from vastcal.calibrate.session_run import session_camera_model
-    from vastcal.calibrate.view_budget import (SessionFrames, evenly_spread_views, peak_resident_mb, photometric_bytes, resident_mb,
-                                               specimen_maps_within)
+    from vastcal.calibrate.view_budget import (
+        SessionFrames,
+        evenly_spread_views,
+        peak_resident_mb,
+        photometric_bytes,
+        resident_mb,
+        specimen_maps_within,
+    )
     from vastcal.session import Session
 
     with Session.open(session, "r") as s:
@@ -226,12 +254,31 @@ def photometric_mb(session: Path, k: int) -> dict[str, float]:
     r = refine_yaw(images, pf, K, d, np.concatenate([theta[:3], theta[3:][sub]]), (theta[0] - 2.0, theta[0] + 2.0))
     assert r is not None
     held = (images.nbytes + pf.nbytes) / 2**20
-    return {"k": k, "photometric_mb": peak_resident_mb() - base + held, "estimate_mb": photometric_bytes(k, images.shape[1:], r.n_voxels) / 2**20,
-            "peak_before_mb": before, "peak_mb": peak_resident_mb(), "n_voxels": r.n_voxels}
+    return {
+        "k": k,
+        "photometric_mb": peak_resident_mb() - base + held,
+        "estimate_mb": photometric_bytes(k, images.shape[1:], r.n_voxels) / 2**20,
+        "peak_before_mb": before,
+        "peak_mb": peak_resident_mb(),
+        "n_voxels": r.n_voxels,
+    }
 
 
-def _run_step(step: str, views: int, full: bool, seed: int, workdir: Path, profile_memory: bool = False) -> dict[str, float]:
-    cmd = [sys.executable, __file__, "--_step", step, "--_case", str(views), "--seed", str(seed), "--workdir", str(workdir)]
+def _run_step(
+    step: str, views: int, full: bool, seed: int, workdir: Path, profile_memory: bool = False
+) -> dict[str, float]:
+    cmd = [
+        sys.executable,
+        __file__,
+        "--_step",
+        step,
+        "--_case",
+        str(views),
+        "--seed",
+        str(seed),
+        "--workdir",
+        str(workdir),
+    ]
     if full:
         cmd.append("--_full")
     if profile_memory:
@@ -264,16 +311,32 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1, help="simulated rig seed (simulation.seed)")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/vastcal_scaling"))
     ap.add_argument("--no-reconstruct", action="store_true", help="calibrate only")
-    ap.add_argument("--no-calibrate", action="store_true", help="reconstruct only (from the session's latest calibration)")
-    ap.add_argument("--map-bytes", action="store_true", help="only measure the specimen maps' bytes per frame pixel (21 views)")
-    ap.add_argument("--photometric-mb", type=int, nargs="*", default=[], metavar="K",
-                    help="only measure what the photometric yaw holds with K evenly spread views of each (calibrated) case, "
-                         "against view_budget.photometric_bytes")
-    ap.add_argument("--profile-memory", action="store_true",
-                    help="also write where each step's resident memory reached its high-water marks (<session>.<step>.memory.log)")
-    ap.add_argument("--whole-frame-atlas", action="store_true",
-                    help="also calibrate every case with the coherence cost's maps over whole frames (before the specimen's "
-                         "window) and print the differences of θ")
+    ap.add_argument(
+        "--no-calibrate", action="store_true", help="reconstruct only (from the session's latest calibration)"
+    )
+    ap.add_argument(
+        "--map-bytes", action="store_true", help="only measure the specimen maps' bytes per frame pixel (21 views)"
+    )
+    ap.add_argument(
+        "--photometric-mb",
+        type=int,
+        nargs="*",
+        default=[],
+        metavar="K",
+        help="only measure what the photometric yaw holds with K evenly spread views of each (calibrated) case, "
+        "against view_budget.photometric_bytes",
+    )
+    ap.add_argument(
+        "--profile-memory",
+        action="store_true",
+        help="also write where each step's resident memory reached its high-water marks (<session>.<step>.memory.log)",
+    )
+    ap.add_argument(
+        "--whole-frame-atlas",
+        action="store_true",
+        help="also calibrate every case with the coherence cost's maps over whole frames (before the specimen's "
+        "window) and print the differences of θ",
+    )
     ap.add_argument("--_step")
     ap.add_argument("--_case", type=int)
     ap.add_argument("--_full", action="store_true")
@@ -289,21 +352,30 @@ def main() -> None:
     if a.map_bytes:
         for views, full in cases or [(21, False)]:
             _run_step("acquire", views, full, a.seed, a.workdir)
-            print(f"{views} views, {'full frame' if full else 'ROI'}: specimen maps hold {map_bytes_per_pixel(_session(a.workdir, views, full, a.seed)[0]):.1f} "
-                  "bytes per frame pixel at their peak (21 views)")
+            print(
+                f"{views} views, {'full frame' if full else 'ROI'}: specimen maps hold {map_bytes_per_pixel(_session(a.workdir, views, full, a.seed)[0]):.1f} "
+                "bytes per frame pixel at their peak (21 views)"
+            )
         return
     if a.photometric_mb:
         for views, full in cases:
             for k in a.photometric_mb:
                 r = _run_step(f"photometric{k}", views, full, a.seed, a.workdir)
-                print(f"{views} views, {'full frame' if full else 'ROI'}: photometric yaw with {k} views holds {r['photometric_mb']:.0f} MB "
-                      f"(estimate {r['estimate_mb']:.0f} MB; process peak {r['peak_mb']:.0f} MB, {r['peak_before_mb']:.0f} MB before it)")
+                print(
+                    f"{views} views, {'full frame' if full else 'ROI'}: photometric yaw with {k} views holds {r['photometric_mb']:.0f} MB "
+                    f"(estimate {r['estimate_mb']:.0f} MB; process peak {r['peak_mb']:.0f} MB, {r['peak_before_mb']:.0f} MB before it)"
+                )
         return
     load = os.getloadavg()[0]
-    print(f"rig seed {a.seed}, {os.cpu_count()} CPUs, load average {load:.1f} at start; OPENBLAS_NUM_THREADS="
-          f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}\nuptime at start: {_uptime()}", flush=True)
-    hdr = (f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} "
-           f"{'pitch err':>9} {'roll rms':>8} | {'rec s':>6} {'rec cpu':>7} {'rec MB':>6} {'vol %':>6}")
+    print(
+        f"rig seed {a.seed}, {os.cpu_count()} CPUs, load average {load:.1f} at start; OPENBLAS_NUM_THREADS="
+        f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}\nuptime at start: {_uptime()}",
+        flush=True,
+    )
+    hdr = (
+        f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} "
+        f"{'pitch err':>9} {'roll rms':>8} | {'rec s':>6} {'rec cpu':>7} {'rec MB':>6} {'vol %':>6}"
+    )
     rows = []
     for views, full in cases:
         _run_step("acquire", views, full, a.seed, a.workdir)
@@ -313,10 +385,13 @@ def main() -> None:
             if a.whole_frame_atlas:
                 w = _run_step("calibrate_whole_frames", views, full, a.seed, a.workdir)
                 d = np.abs(np.subtract(r["theta"], w["theta"]))
-                print(f"{views} views ({'full' if full else 'ROI'}): window vs whole-frame maps: yaw err {r['yaw_err']:+.4f} / {w['yaw_err']:+.4f}°, "
-                      f"pitch err {r['pitch_err']:+.4f} / {w['pitch_err']:+.4f}°, roll RMS err {r['roll_rms']:.4f} / {w['roll_rms']:.4f}°, "
-                      f"max |Δθ| {d.max():.4f}° (axis {d[:3].max():.4f}°), {r['evals']} / {w['evals']} evaluations, "
-                      f"{r['cal_cpu_s']:.1f} / {w['cal_cpu_s']:.1f} CPU s, {r['cal_mb']:.0f} / {w['cal_mb']:.0f} MB", flush=True)
+                print(
+                    f"{views} views ({'full' if full else 'ROI'}): window vs whole-frame maps: yaw err {r['yaw_err']:+.4f} / {w['yaw_err']:+.4f}°, "
+                    f"pitch err {r['pitch_err']:+.4f} / {w['pitch_err']:+.4f}°, roll RMS err {r['roll_rms']:.4f} / {w['roll_rms']:.4f}°, "
+                    f"max |Δθ| {d.max():.4f}° (axis {d[:3].max():.4f}°), {r['evals']} / {w['evals']} evaluations, "
+                    f"{r['cal_cpu_s']:.1f} / {w['cal_cpu_s']:.1f} CPU s, {r['cal_mb']:.0f} / {w['cal_mb']:.0f} MB",
+                    flush=True,
+                )
         if not a.no_reconstruct:
             r.update(_run_step("reconstruct", views, full, a.seed, a.workdir, a.profile_memory))
         rows.append(r)
@@ -324,39 +399,65 @@ def main() -> None:
     print(hdr)
     for r in rows:
         frame = "1024x1024" if r["full"] else "1024x320"
-        cal = (f"{r['cal_s']:7.1f} {r['cal_cpu_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} {r['yaw_err']:+8.3f} "
-               f"{r['pitch_err']:+9.3f} {r['roll_rms']:8.3f}" if "cal_s" in r else " ".join(f"{'-':>{k}}" for k in (7, 7, 5, 7, 6, 8, 9, 8)))
-        rec = (f"{r['rec_s']:6.1f} {r['rec_cpu_s']:7.1f} {r['rec_mb']:6.0f} {r['vol_pct']:+6.2f}" if "rec_s" in r
-               else " ".join(f"{'-':>{k}}" for k in (6, 7, 6, 6)))
+        cal = (
+            f"{r['cal_s']:7.1f} {r['cal_cpu_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} {r['yaw_err']:+8.3f} "
+            f"{r['pitch_err']:+9.3f} {r['roll_rms']:8.3f}"
+            if "cal_s" in r
+            else " ".join(f"{'-':>{k}}" for k in (7, 7, 5, 7, 6, 8, 9, 8))
+        )
+        rec = (
+            f"{r['rec_s']:6.1f} {r['rec_cpu_s']:7.1f} {r['rec_mb']:6.0f} {r['vol_pct']:+6.2f}"
+            if "rec_s" in r
+            else " ".join(f"{'-':>{k}}" for k in (6, 7, 6, 6))
+        )
         print(f"{r['views']:5d} {frame:>9} | {cal} | {rec}")
     roi = [r for r in rows if not r["full"]]
     n = [r["views"] for r in roi]
     fits = []
-    for key, name in (("cal_s", "calibration wall"), ("cal_cpu_s", "calibration CPU"), ("ms_per_eval", "per evaluation"),
-                      ("cal_mb", "calibration memory"), ("rec_s", "reconstruction wall"), ("rec_cpu_s", "reconstruction CPU"),
-                      ("rec_mb", "reconstruction memory")):
+    for key, name in (
+        ("cal_s", "calibration wall"),
+        ("cal_cpu_s", "calibration CPU"),
+        ("ms_per_eval", "per evaluation"),
+        ("cal_mb", "calibration memory"),
+        ("rec_s", "reconstruction wall"),
+        ("rec_cpu_s", "reconstruction CPU"),
+        ("rec_mb", "reconstruction memory"),
+    ):
         if roi and all(key in r for r in roi):
             fits.append(f"{name} b = {_exponent(n, [r[key] for r in roi]):.2f}")
     print(f"growth exponent (time ~ N^b over {n} views): " + ", ".join(fits))
     by_n = {r["views"]: r for r in roi}
     if 21 in by_n and 81 in by_n:
-        ratios = [f"{name} {by_n[81][key] / by_n[21][key]:.2f}" for key, name in (("cal_s", "calibration wall"), ("cal_cpu_s", "calibration CPU"),
-                                                                                  ("rec_s", "reconstruction wall")) if key in by_n[21]]
+        ratios = [
+            f"{name} {by_n[81][key] / by_n[21][key]:.2f}"
+            for key, name in (
+                ("cal_s", "calibration wall"),
+                ("cal_cpu_s", "calibration CPU"),
+                ("rec_s", "reconstruction wall"),
+            )
+            if key in by_n[21]
+        ]
         print("time(81) / time(21): " + ", ".join(ratios) + " (acceptance: calibration <= 4.5)")
     for r in rows:
         if r["views"] != 360:
             continue
         frame = "full frame" if r["full"] else "ROI"
         if "cal_s" in r:
-            print(f"360 views ({frame}): calibration {r['cal_s']:.0f} s wall (<= 300), {r['cal_mb']:.0f} MB peak (<= 2048)")
+            print(
+                f"360 views ({frame}): calibration {r['cal_s']:.0f} s wall (<= 300), {r['cal_mb']:.0f} MB peak (<= 2048)"
+            )
         if "rec_s" in r:
             print(f"360 views ({frame}): reconstruction {r['rec_s']:.0f} s wall, {r['rec_mb']:.0f} MB peak (<= 2048)")
     if 21 in by_n and "cal_s" in by_n[21]:
         for v in (81, 360):
             if v in by_n and "cal_s" in by_n[v]:
-                ok = abs(by_n[v]["yaw_err"]) <= abs(by_n[21]["yaw_err"]) and abs(by_n[v]["pitch_err"]) <= abs(by_n[21]["pitch_err"])
-                print(f"|yaw|, |pitch| error at {v} views: {abs(by_n[v]['yaw_err']):.3f}°, {abs(by_n[v]['pitch_err']):.3f}° against "
-                      f"{abs(by_n[21]['yaw_err']):.3f}°, {abs(by_n[21]['pitch_err']):.3f}° at 21 ({'not larger' if ok else 'LARGER'})")
+                ok = abs(by_n[v]["yaw_err"]) <= abs(by_n[21]["yaw_err"]) and abs(by_n[v]["pitch_err"]) <= abs(
+                    by_n[21]["pitch_err"]
+                )
+                print(
+                    f"|yaw|, |pitch| error at {v} views: {abs(by_n[v]['yaw_err']):.3f}°, {abs(by_n[v]['pitch_err']):.3f}° against "
+                    f"{abs(by_n[21]['yaw_err']):.3f}°, {abs(by_n[21]['pitch_err']):.3f}° at 21 ({'not larger' if ok else 'LARGER'})"
+                )
     print(f"uptime at end: {_uptime()}")
 
 

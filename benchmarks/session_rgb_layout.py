@@ -32,7 +32,9 @@ import vastcal.session as current
 def _session_module_at(rev: str, folder: Path) -> ModuleType:
     """vastcal/session.py as it was at git revision ``rev``, imported under another name."""
     root = Path(__file__).resolve().parents[1]
-    src = subprocess.run(["git", "show", f"{rev}:vastcal/session.py"], cwd=root, capture_output=True, text=True, check=True).stdout
+    src = subprocess.run(
+        ["git", "show", f"{rev}:vastcal/session.py"], cwd=root, capture_output=True, text=True, check=True
+    ).stdout
     path = folder / f"session_{rev}.py"
     path.write_text(src)
     spec = importlib.util.spec_from_file_location(f"session_{rev}", path)
@@ -43,8 +45,15 @@ def _session_module_at(rev: str, folder: Path) -> ModuleType:
 
 
 def _write(mod: ModuleType, path: Path, frames: list[np.ndarray], n: int, durable: bool) -> float:
-    w = mod.SessionWriter.create(path, frame_shape=frames[0].shape, dtype=frames[0].dtype, rig_yaml="name: bench\n",
-                             plan={"views": n}, pixel_size_um=(5.5, 5.5), durable=durable)
+    w = mod.SessionWriter.create(
+        path,
+        frame_shape=frames[0].shape,
+        dtype=frames[0].dtype,
+        rig_yaml="name: bench\n",
+        plan={"views": n},
+        pixel_size_um=(5.5, 5.5),
+        durable=durable,
+    )
     t0 = time.perf_counter()
     for i in range(n):
         w.append_view(frames[i % len(frames)], i * 360.0 / n, frame_id=i + 1)
@@ -72,14 +81,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--rounds", type=int, default=3, help="alternating rounds; the best (fastest) of each is printed")
-    ap.add_argument("--fsync", action="store_true", help="fsync each view (the acquisition default); off: layout cost only")
+    ap.add_argument(
+        "--fsync", action="store_true", help="fsync each view (the acquisition default); off: layout cost only"
+    )
     ap.add_argument("--before", default=None, help="git revision of vastcal/session.py to compare with (e.g. 61ea861)")
     ap.add_argument("--dir", default=None, help="folder for the temporary sessions (default: system temp)")
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     n = args.frames
-    kinds = {"RGB8": [rng.integers(0, 256, (1024, 1024, 3), dtype=np.uint8) for _ in range(4)],
-             "Mono12": [rng.integers(0, 4096, (1024, 1024), dtype=np.uint16) for _ in range(4)]}
+    kinds = {
+        "RGB8": [rng.integers(0, 256, (1024, 1024, 3), dtype=np.uint8) for _ in range(4)],
+        "Mono12": [rng.integers(0, 4096, (1024, 1024), dtype=np.uint16) for _ in range(4)],
+    }
     with tempfile.TemporaryDirectory(dir=args.dir) as d:
         writers = {"current": current}
         if args.before:
@@ -101,9 +114,13 @@ def main() -> None:
             raw = n * frames[0].nbytes
             for label in writers:
                 w, r, r_data = best[label, kind]
-                print(f"{kind:6} {label:>8}: write {n / w:5.0f} frames/s ({n * mb / w:4.0f} MB/s); read Session.frame {n / r:5.0f} frames/s "
-                      f"({n * mb / r:4.0f} MB/s), detector data alone {n / r_data:5.0f} frames/s; file {sizes[label, kind] / raw:.3f} x the pixels")
-    print(f"({n} frames of 1024 x 1024 per run, best of {args.rounds} alternating rounds, fsync per view: {'yes' if args.fsync else 'no'})")
+                print(
+                    f"{kind:6} {label:>8}: write {n / w:5.0f} frames/s ({n * mb / w:4.0f} MB/s); read Session.frame {n / r:5.0f} frames/s "
+                    f"({n * mb / r:4.0f} MB/s), detector data alone {n / r_data:5.0f} frames/s; file {sizes[label, kind] / raw:.3f} x the pixels"
+                )
+    print(
+        f"({n} frames of 1024 x 1024 per run, best of {args.rounds} alternating rounds, fsync per view: {'yes' if args.fsync else 'no'})"
+    )
 
 
 if __name__ == "__main__":

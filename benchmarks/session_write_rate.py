@@ -30,11 +30,24 @@ def main() -> None:
     for durable in (True, False):
         with tempfile.TemporaryDirectory(dir=args.dir) as d:
             path = Path(d) / "bench.h5"
-            w = SessionWriter.create(path, frame_shape=(1024, 1024), dtype=np.uint16, rig_yaml="name: bench\n",
-                                     plan={"views": args.frames}, pixel_size_um=(5.5, 5.5), durable=durable)
+            w = SessionWriter.create(
+                path,
+                frame_shape=(1024, 1024),
+                dtype=np.uint16,
+                rig_yaml="name: bench\n",
+                plan={"views": args.frames},
+                pixel_size_um=(5.5, 5.5),
+                durable=durable,
+            )
             t0 = time.perf_counter()
             for i in range(args.frames):
-                w.append_view(frames[i % len(frames)], i * 360.0 / args.frames, commanded_usteps=i, readback_usteps=i, frame_id=i + 1)
+                w.append_view(
+                    frames[i % len(frames)],
+                    i * 360.0 / args.frames,
+                    commanded_usteps=i,
+                    readback_usteps=i,
+                    frame_id=i + 1,
+                )
             elapsed = time.perf_counter() - t0
             w.finish("success")
             w.close()
@@ -45,8 +58,11 @@ def main() -> None:
         rate = args.frames / elapsed
         label = "with fsync per view (default)" if durable else "without fsync (kill-safe, not power-cut-safe)"
         print(f"session write, {label}: {args.frames} frames of 1024x1024 Mono12 (uint16) in {elapsed:.2f} s")
-        print(f"  {rate:.0f} frames/s, {rate * 2.097:.0f} MB/s, {1000 / rate:.2f} ms per append+commit (target >= 100 frames/s);"
-              f" file {size_mb:.0f} MB")
+        print(
+            f"  {rate:.0f} frames/s, {rate * 2.097:.0f} MB/s, {1000 / rate:.2f} ms per append+commit (target >= 100 frames/s);"
+            f" file {size_mb:.0f} MB"
+        )
+
 
 if __name__ == "__main__":
     main()

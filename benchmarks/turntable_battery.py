@@ -54,14 +54,22 @@ def vastcal(*args: str) -> None:
     """One command line; its last lines on failure."""
     p = subprocess.run([sys.executable, "-m", "vastcal", *args, "-q"], capture_output=True, text=True)
     if p.returncode != 0:
-        raise RuntimeError(f"vastcal {' '.join(args)}: exit {p.returncode}: {(p.stderr or p.stdout).strip().splitlines()[-1:]}")
+        raise RuntimeError(
+            f"vastcal {' '.join(args)}: exit {p.returncode}: {(p.stderr or p.stdout).strip().splitlines()[-1:]}"
+        )
 
 
 def measurement(report: Path) -> dict[str, Any]:
     """Volume and area (units of the cameras), their k = 2 half-widths, verdict and reasons of a report folder."""
     m = json.loads((report / "report.json").read_text())["measurement"]
-    return {"V": m["volume_mm3"] * 1e9, "A": m["surface_area_mm2"] * 1e6, "UV": (m.get("volume_U_mm3") or np.nan) * 1e9,
-            "UA": (m.get("surface_area_U_mm2") or np.nan) * 1e6, "verdict": m.get("verdict", "?"), "reasons": m.get("verdict_reasons", [])}
+    return {
+        "V": m["volume_mm3"] * 1e9,
+        "A": m["surface_area_mm2"] * 1e6,
+        "UV": (m.get("volume_U_mm3") or np.nan) * 1e9,
+        "UA": (m.get("surface_area_U_mm2") or np.nan) * 1e6,
+        "verdict": m.get("verdict", "?"),
+        "reasons": m.get("verdict_reasons", []),
+    }
 
 
 def run_case(root: Path, seed: int, setting: str, views: int, aim_offset: float = 0.0) -> dict[str, Any]:
@@ -69,15 +77,33 @@ def run_case(root: Path, seed: int, setting: str, views: int, aim_offset: float 
     shutil.rmtree(d, ignore_errors=True)
     ambient = render_case(d, seed, views, setting != "figure", aim_offset)
     s = d / "s.h5"
-    vastcal("import", str(d / "images"), "-o", str(s), "--cameras", str(d / "cameras.txt"), "--pixel-origin", "0",
-            "--config", str(REPO / "config" / "eth-david.yaml"), "--masks", str(d / "masks"))
+    vastcal(
+        "import",
+        str(d / "images"),
+        "-o",
+        str(s),
+        "--cameras",
+        str(d / "cameras.txt"),
+        "--pixel-origin",
+        "0",
+        "--config",
+        str(REPO / "config" / "eth-david.yaml"),
+        "--masks",
+        str(d / "masks"),
+    )
     ref = d / "ref.h5"
     shutil.copy(s, ref)
     vastcal("reconstruct", str(ref), "--masks", "--cameras", "imported")
     vastcal("report", str(ref), "-o", str(d / "ref-report"))
     marks = ["--mask", f"0:{d / 'mask_00.png'}"] if setting == "turntable+mask" else []
     vastcal("run", str(s), "-o", str(d / "report"), *marks)
-    return {"seed": seed, "setting": setting, "ambient": ambient, "ref": measurement(d / "ref-report"), "got": measurement(d / "report")}
+    return {
+        "seed": seed,
+        "setting": setting,
+        "ambient": ambient,
+        "ref": measurement(d / "ref-report"),
+        "got": measurement(d / "report"),
+    }
 
 
 def main() -> None:
@@ -87,14 +113,21 @@ def main() -> None:
     ap.add_argument("--dir", default="/tmp/vastcal-turntables")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--settings", default=",".join(SETTINGS))
-    ap.add_argument("--aim-offset", type=float, default=0.0,
-                    help="the levelled camera aims this many units beside the axis (the axis images upright beside the principal point)")
+    ap.add_argument(
+        "--aim-offset",
+        type=float,
+        default=0.0,
+        help="the levelled camera aims this many units beside the axis (the axis images upright beside the principal point)",
+    )
     a = ap.parse_args()
     root = Path(a.dir)
     root.mkdir(parents=True, exist_ok=True)
     cases = [(int(s), st) for s in a.seeds.split(",") for st in a.settings.split(",")]
-    print(f"{'seed':>4s} {'setting':<15s} {'amb':>5s} {'volume ± U':>20s} {'ref':>8s} {'dV %':>7s} {'in':>3s} "
-          f"{'area ± U':>18s} {'ref':>8s} {'dA %':>7s} {'in':>3s}  verdict", flush=True)
+    print(
+        f"{'seed':>4s} {'setting':<15s} {'amb':>5s} {'volume ± U':>20s} {'ref':>8s} {'dV %':>7s} {'in':>3s} "
+        f"{'area ± U':>18s} {'ref':>8s} {'dA %':>7s} {'in':>3s}  verdict",
+        flush=True,
+    )
     rows = []
     with ThreadPoolExecutor(a.jobs) as pool:
         for r in pool.map(lambda c: run_case(root, c[0], c[1], a.views, a.aim_offset), cases):
@@ -102,14 +135,19 @@ def main() -> None:
             dv, da = 100 * (g["V"] / f["V"] - 1), 100 * (g["A"] / f["A"] - 1)
             r["in_V"], r["in_A"] = abs(g["V"] - f["V"]) <= g["UV"], abs(g["A"] - f["A"]) <= g["UA"]
             rows.append(r)
-            print(f"{r['seed']:4d} {r['setting']:<15s} {r['ambient']:5.2f} {g['V']:9.4f} ± {g['UV']:8.4f} {f['V']:8.4f} {dv:+7.2f} "
-                  f"{'y' if r['in_V'] else 'n':>3s} {g['A']:8.3f} ± {g['UA']:7.3f} {f['A']:8.3f} {da:+7.2f} {'y' if r['in_A'] else 'n':>3s}  "
-                  f"{g['verdict']}: {'; '.join(g['reasons'])[:140]}", flush=True)
+            print(
+                f"{r['seed']:4d} {r['setting']:<15s} {r['ambient']:5.2f} {g['V']:9.4f} ± {g['UV']:8.4f} {f['V']:8.4f} {dv:+7.2f} "
+                f"{'y' if r['in_V'] else 'n':>3s} {g['A']:8.3f} ± {g['UA']:7.3f} {f['A']:8.3f} {da:+7.2f} {'y' if r['in_A'] else 'n':>3s}  "
+                f"{g['verdict']}: {'; '.join(g['reasons'])[:140]}",
+                flush=True,
+            )
     for st in a.settings.split(","):
         sel = [r for r in rows if r["setting"] == st]
         if sel:
-            print(f"{st}: volume interval covers the reference {sum(r['in_V'] for r in sel)}/{len(sel)}, area "
-                  f"{sum(r['in_A'] for r in sel)}/{len(sel)}; |dV| mean {np.mean([abs(r['got']['V'] / r['ref']['V'] - 1) for r in sel]) * 100:.2f} %")
+            print(
+                f"{st}: volume interval covers the reference {sum(r['in_V'] for r in sel)}/{len(sel)}, area "
+                f"{sum(r['in_A'] for r in sel)}/{len(sel)}; |dV| mean {np.mean([abs(r['got']['V'] / r['ref']['V'] - 1) for r in sel]) * 100:.2f} %"
+            )
 
 
 if __name__ == "__main__":

@@ -108,18 +108,18 @@ def statuette(joined: bool = False) -> list[Ellipsoid]:
     overlap it — one solid, as a real specimen is, whose visual hull a measurement keeps whole (a reconstruction
     keeps the largest connected part: the floating raised arm is dropped)."""
     parts = [  # (centre relative to the figure, semi-axes, tilt about y then z, degrees)
-        ((0.24, 0.0, -1.25), (0.22, 0.24, 0.85), (4.0, 0.0)),     # standing leg
-        ((-0.26, 0.05, -1.2), (0.2, 0.22, 0.85), (-12.0, 10.0)),   # free leg, stepping aside
-        ((0.0, 0.0, -0.35), (0.5, 0.32, 0.35), (0.0, 0.0)),        # hips
-        ((0.0, 0.0, 0.55), (0.55, 0.33, 0.75), (0.0, 8.0)),        # torso
-        ((0.05, 0.08, 1.65), (0.26, 0.28, 0.36), (0.0, 25.0)),     # head
-        ((0.78, 0.12, 0.9), (0.16, 0.17, 0.62), (-35.0, 20.0)),    # raised arm
-        ((-0.74, -0.05, 0.15), (0.15, 0.16, 0.7), (10.0, 0.0)),    # hanging arm
+        ((0.24, 0.0, -1.25), (0.22, 0.24, 0.85), (4.0, 0.0)),  # standing leg
+        ((-0.26, 0.05, -1.2), (0.2, 0.22, 0.85), (-12.0, 10.0)),  # free leg, stepping aside
+        ((0.0, 0.0, -0.35), (0.5, 0.32, 0.35), (0.0, 0.0)),  # hips
+        ((0.0, 0.0, 0.55), (0.55, 0.33, 0.75), (0.0, 8.0)),  # torso
+        ((0.05, 0.08, 1.65), (0.26, 0.28, 0.36), (0.0, 25.0)),  # head
+        ((0.78, 0.12, 0.9), (0.16, 0.17, 0.62), (-35.0, 20.0)),  # raised arm
+        ((-0.74, -0.05, 0.15), (0.15, 0.16, 0.7), (10.0, 0.0)),  # hanging arm
     ]
     if joined:
-        parts[4] = ((0.05, 0.08, 1.55),) + parts[4][1:]    # head on the torso
-        parts[5] = ((0.62, 0.1, 0.95),) + parts[5][1:]     # raised arm at the shoulder
-        parts[6] = ((-0.6, -0.05, 0.2),) + parts[6][1:]    # hanging arm at the side
+        parts[4] = ((0.05, 0.08, 1.55),) + parts[4][1:]  # head on the torso
+        parts[5] = ((0.62, 0.1, 0.95),) + parts[5][1:]  # raised arm at the shoulder
+        parts[6] = ((-0.6, -0.05, 0.2),) + parts[6][1:]  # hanging arm at the side
     where = np.array([OFF_AXIS, 0.0, 0.0])
     out = []
     for centre, axes, (tilt_y, tilt_z) in parts:
@@ -128,22 +128,29 @@ def statuette(joined: bool = False) -> list[Ellipsoid]:
     return out
 
 
-def cameras(n: int, width: int, height: int, rng: np.random.Generator, aim_offset: float = 0.0,
-            spin_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cameras(
+    n: int, width: int, height: int, rng: np.random.Generator, aim_offset: float = 0.0, spin_deg: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """K (3, 3), R (n, 3, 3), t (n, 3) of ``n`` views in circular motion (x right, y down, z forward); the views'
     true angles are the nominal steps plus the stage's irregularity (view 0 exact). The camera is levelled (the axis
     images upright) and aims at the axis, or ``aim_offset`` units beside it (the axis then images beside the principal
     point, as on a turntable nobody centred to the pixel); ``spin_deg`` rolls the camera about its principal ray (the
     axis images slanted by that much)."""
-    K = np.array([[685.0 * width / 640, 0.0, 322.6 * width / 640],
-                  [0.0, 685.0 * width / 640, 232.1 * height / 480],
-                  [0.0, 0.0, 1.0]])
+    K = np.array(
+        [
+            [685.0 * width / 640, 0.0, 322.6 * width / 640],
+            [0.0, 685.0 * width / 640, 232.1 * height / 480],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     angles = np.radians(np.arange(n) * 360.0 / n + np.r_[0.0, rng.normal(0.0, STEP_JITTER_DEG, n - 1)])
     R, t = np.empty((n, 3, 3)), np.empty((n, 3))
     for i, a in enumerate(angles):
         centre = np.array([RADIUS * np.cos(a), RADIUS * np.sin(a), CAMERA_HEIGHT])
         beside = aim_offset * np.array([-np.sin(a), np.cos(a), 0.0])  # sideways, perpendicular to the view direction
-        forward = np.array([-np.cos(a), -np.sin(a), -CAMERA_HEIGHT / RADIUS]) + beside / RADIUS  # at the axis (or beside it), level with the object's centre
+        forward = (
+            np.array([-np.cos(a), -np.sin(a), -CAMERA_HEIGHT / RADIUS]) + beside / RADIUS
+        )  # at the axis (or beside it), level with the object's centre
         forward /= np.linalg.norm(forward)
         right = np.cross([0.0, 0.0, -1.0], forward)
         right /= np.linalg.norm(right)
@@ -162,8 +169,9 @@ def disc_texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return a
 
 
-def cast(rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellipsoid], ambient: float,
-         disc: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cast(
+    rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellipsoid], ambient: float, disc: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest intersection,
     Lambert-shaded from the direction ``light`` (unit, towards the lamp) plus the ``ambient`` share of the light,
     with a texture fixed to the object. ``disc``: the rays also meet the turntable (:data:`DISC_RADIUS` …), textured by
@@ -200,14 +208,19 @@ def cast(rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellips
     seen = np.isfinite(near)
     n = normal[seen] / np.linalg.norm(normal[seen], axis=1, keepdims=True)
     p = eye + near[seen, None] * rays[seen]
-    albedo = np.where(table[seen], disc_texture(p[:, 0], p[:, 1]),
-                      0.86 + 0.14 * np.sin(7.0 * p[:, 0]) * np.sin(6.0 * p[:, 1] + 1.0) * np.sin(5.0 * p[:, 2]))
+    albedo = np.where(
+        table[seen],
+        disc_texture(p[:, 0], p[:, 1]),
+        0.86 + 0.14 * np.sin(7.0 * p[:, 0]) * np.sin(6.0 * p[:, 1] + 1.0) * np.sin(5.0 * p[:, 2]),
+    )
     value = np.zeros(len(rays))
     value[seen] = albedo * (ambient + (1.0 - ambient) * np.clip(n @ light, 0.0, None))
     return seen, value, seen & ~table
 
 
-def bounding_box(K: np.ndarray, R: np.ndarray, t: np.ndarray, body: list[Ellipsoid], disc: bool = False) -> tuple[int, int, int, int]:
+def bounding_box(
+    K: np.ndarray, R: np.ndarray, t: np.ndarray, body: list[Ellipsoid], disc: bool = False
+) -> tuple[int, int, int, int]:
     """(x0, y0, x1, y1), pixels: a box around the object's image (its ellipsoids' bounding parallelepipeds projected,
     and the turntable's rims with ``disc``)."""
     signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1)
@@ -215,7 +228,9 @@ def bounding_box(K: np.ndarray, R: np.ndarray, t: np.ndarray, body: list[Ellipso
     if disc:  # its two rims, finely sampled and pushed out by a hundredth of the radius (the chords between samples)
         a = np.linspace(0.0, 2.0 * np.pi, 361)
         rim = 1.01 * DISC_RADIUS * np.stack([np.cos(a), np.sin(a)], 1)
-        corners = np.concatenate([corners] + [np.c_[rim, np.full(len(a), z)] for z in (DISC_TOP, DISC_TOP - DISC_THICKNESS)])
+        corners = np.concatenate(
+            [corners] + [np.c_[rim, np.full(len(a), z)] for z in (DISC_TOP, DISC_TOP - DISC_THICKNESS)]
+        )
     p = (corners @ R.T + t) @ K.T
     uv = p[:, :2] / p[:, 2:]
     x0, y0 = np.floor(uv.min(0)).astype(int) - 1
@@ -223,8 +238,17 @@ def bounding_box(K: np.ndarray, R: np.ndarray, t: np.ndarray, body: list[Ellipso
     return int(x0), int(y0), int(x1), int(y1)
 
 
-def render(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int, body: list[Ellipsoid],
-           rng: np.random.Generator, ambient: float, disc: bool = False) -> np.ndarray:
+def render(
+    K: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    width: int,
+    height: int,
+    body: list[Ellipsoid],
+    rng: np.random.Generator,
+    ambient: float,
+    disc: bool = False,
+) -> np.ndarray:
     """One RGB frame (uint8, H × W × 3): the shaded object on a dark background with sensor noise. Pixel centres
     are at integer coordinates (0-based); rays are cast only within the object's bounding box, and edge pixels
     are the mean of SUPERSAMPLE² rays. Raises ValueError when the box leaves the frame (a cut outline is no
@@ -237,7 +261,9 @@ def render(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
     light = R.T @ lamp / np.linalg.norm(lamp)
     to_world = R.T @ np.linalg.inv(K)
     gy, gx = np.mgrid[y0:y1, x0:x1].astype(float)
-    h, v, _ = cast(np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1) @ to_world.T, eye, light, body, ambient, disc)
+    h, v, _ = cast(
+        np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1) @ to_world.T, eye, light, body, ambient, disc
+    )
     hit = np.zeros((height, width), bool)
     value = np.zeros((height, width))
     hit[y0:y1, x0:x1], value[y0:y1, x0:x1] = h.reshape(gx.shape), v.reshape(gx.shape)
@@ -259,22 +285,39 @@ def render(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
     return np.clip(np.round(rgb), 0, 255).astype(np.uint8)
 
 
-def figure_mask(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int, body: list[Ellipsoid],
-                disc: bool) -> np.ndarray:
+def figure_mask(
+    K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int, body: list[Ellipsoid], disc: bool
+) -> np.ndarray:
     """The pixels (H, W) uint8 0/255 whose centre sees the figure first (not the turntable in front of it): the mask a
     user would draw of the view."""
     x0, y0, x1, y1 = bounding_box(K, R, t, body, disc)
     gy, gx = np.mgrid[y0:y1, x0:x1].astype(float)
     eye = -R.T @ t
-    _, _, fig = cast(np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1) @ (R.T @ np.linalg.inv(K)).T, eye,
-                     np.array([0.0, 0.0, 1.0]), body, 0.5, disc)
+    _, _, fig = cast(
+        np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], 1) @ (R.T @ np.linalg.inv(K)).T,
+        eye,
+        np.array([0.0, 0.0, 1.0]),
+        body,
+        0.5,
+        disc,
+    )
     out = np.zeros((height, width), np.uint8)
     out[y0:y1, x0:x1] = 255 * fig.reshape(gx.shape)
     return out
 
 
-def write_set(folder: Path, n: int, width: int, height: int, scene_seed: int, ambient: float, disc: bool = False,
-              body: list[Ellipsoid] | None = None, aim_offset: float = 0.0, spin_deg: float = 0.0) -> np.ndarray:
+def write_set(
+    folder: Path,
+    n: int,
+    width: int,
+    height: int,
+    scene_seed: int,
+    ambient: float,
+    disc: bool = False,
+    body: list[Ellipsoid] | None = None,
+    aim_offset: float = 0.0,
+    spin_deg: float = 0.0,
+) -> np.ndarray:
     """Render the set into ``folder`` (``images/view_NN.png``) and write ``cameras.txt`` (``name K R t``) and view 0's
     figure mask (``mask_00.png``, :func:`figure_mask`) beside it; returns the cameras (n, 3, 4). ``body``: the figure
     (default :func:`statuette`)."""
@@ -286,7 +329,10 @@ def write_set(folder: Path, n: int, width: int, height: int, scene_seed: int, am
     lines = [str(n)]
     for i in range(n):
         name = f"view_{i:02d}.png"
-        cv2.imwrite(str(images / name), cv2.cvtColor(render(K, R[i], t[i], width, height, body, rng, ambient, disc), cv2.COLOR_RGB2BGR))
+        cv2.imwrite(
+            str(images / name),
+            cv2.cvtColor(render(K, R[i], t[i], width, height, body, rng, ambient, disc), cv2.COLOR_RGB2BGR),
+        )
         lines.append(" ".join([name] + [f"{x:.12g}" for x in (*K.ravel(), *R[i].ravel(), *t[i])]))
     (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
     cv2.imwrite(str(folder / "mask_00.png"), figure_mask(K, R[0], t[0], width, height, body, disc))
@@ -305,7 +351,7 @@ def print_profile(profiler: cProfile.Profile, top: int = 25) -> None:
         pstats.Stats(profiler, stream=out).sort_stats(key).print_stats(top)
         text = out.getvalue()
         print(f"\n--- profile: top {top} by {key} ---")
-        print(text[text.find("   ncalls"):].rstrip())
+        print(text[text.find("   ncalls") :].rstrip())
 
 
 @dataclass
@@ -329,15 +375,23 @@ def instrument_chords(mode: str) -> ChordStats:
         oc.CHORD_BOUND_MIN_SAMPLES = 10**9
     search, bounded = oc.CoherenceObjective._search_peaks, oc.CoherenceObjective._chord_profiles
 
-    def timed(self: oc.CoherenceObjective, th: np.ndarray, around: np.ndarray | None = None, views: np.ndarray | None = None) -> np.ndarray:
+    def timed(
+        self: oc.CoherenceObjective, th: np.ndarray, around: np.ndarray | None = None, views: np.ndarray | None = None
+    ) -> np.ndarray:
         t0 = time.perf_counter()
         out = search(self, th, around, views)
         if around is None:
             stats.calls.setdefault(self.first_stage, []).append(time.perf_counter() - t0)
         return out
 
-    def checked(self: oc.CoherenceObjective, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray,
-                views: np.ndarray | None = None) -> np.ndarray:
+    def checked(
+        self: oc.CoherenceObjective,
+        R: np.ndarray,
+        t: np.ndarray,
+        Z: np.ndarray,
+        P: np.ndarray,
+        views: np.ndarray | None = None,
+    ) -> np.ndarray:
         out = bounded(self, R, t, Z, P, views)
         if Z.shape[-1] < oc.CHORD_BOUND_MIN_SAMPLES:  # a short chord: the dense pass itself
             return out
@@ -363,16 +417,37 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=576)
     ap.add_argument("--offset-scan", type=float, default=0.0, help="common roll-offset scan step, degrees (0: none)")
     ap.add_argument("--scene-seed", type=int, default=0, help="the stage's irregularity and the sensor noise")
-    ap.add_argument("--ambient", type=float, default=0.5, help="ambient share of the light (the rest: Lambert from the lamp)")
-    ap.add_argument("--chords", choices=["bounded", "dense", "verify"], default="bounded",
-                    help="the coherence cost's search along the chords (see the module docstring)")
+    ap.add_argument(
+        "--ambient", type=float, default=0.5, help="ambient share of the light (the rest: Lambert from the lamp)"
+    )
+    ap.add_argument(
+        "--chords",
+        choices=["bounded", "dense", "verify"],
+        default="bounded",
+        help="the coherence cost's search along the chords (see the module docstring)",
+    )
     ap.add_argument("--profile", action="store_true", help="run the calibration under cProfile (slower)")
-    ap.add_argument("--turntable", action="store_true", help="stand the figure on a textured grey turntable (see the module docstring)")
-    ap.add_argument("--mask", action="store_true", help="the colour model from view 0's figure mask, as `calibrate --mask 0:FILE`")
-    ap.add_argument("--aim-offset", type=float, default=0.0,
-                    help="the levelled camera aims this many units beside the axis (0.5: ~35 px at 720 x 576): an upright axis "
-                         "image beside the principal point")
-    ap.add_argument("--spin", type=float, default=0.0, help="the camera rolled about its principal ray, degrees (the axis images slanted)")
+    ap.add_argument(
+        "--turntable",
+        action="store_true",
+        help="stand the figure on a textured grey turntable (see the module docstring)",
+    )
+    ap.add_argument(
+        "--mask", action="store_true", help="the colour model from view 0's figure mask, as `calibrate --mask 0:FILE`"
+    )
+    ap.add_argument(
+        "--aim-offset",
+        type=float,
+        default=0.0,
+        help="the levelled camera aims this many units beside the axis (0.5: ~35 px at 720 x 576): an upright axis "
+        "image beside the principal point",
+    )
+    ap.add_argument(
+        "--spin",
+        type=float,
+        default=0.0,
+        help="the camera rolled about its principal ray, degrees (the axis images slanted)",
+    )
     a = ap.parse_args()
     n = a.views
     if a.profile and not os.environ.get(THREADS_ENV):
@@ -380,7 +455,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp_s:
         tmp = Path(tmp_s)
         t0 = time.perf_counter()
-        P = write_set(tmp, n, a.width, a.height, a.scene_seed, a.ambient, a.turntable, aim_offset=a.aim_offset, spin_deg=a.spin)
+        P = write_set(
+            tmp, n, a.width, a.height, a.scene_seed, a.ambient, a.turntable, aim_offset=a.aim_offset, spin_deg=a.spin
+        )
         t_render = time.perf_counter() - t0
         motion = decompose_circular(P).motion  # as the session decomposes the imported cameras
         true_rolls = motion.rolls_deg - motion.rolls_deg[0]
@@ -393,8 +470,10 @@ def main() -> None:
         t0 = time.perf_counter()
         import_folder(tmp / "images", session, angles=tmp / "angles.txt", cameras=tmp / "cameras.txt", pixel_origin=0.0)
         t_import = time.perf_counter() - t0
-        print(f"{n} views {a.width} x {a.height}: rendered in {t_render:.1f} s, imported in {t_import:.1f} s; "
-              f"views offset +10°: {offset_views.tolist()}")
+        print(
+            f"{n} views {a.width} x {a.height}: rendered in {t_render:.1f} s, imported in {t_import:.1f} s; "
+            f"views offset +10°: {offset_views.tolist()}"
+        )
         before = peak_mb()
         chords = instrument_chords(a.chords)
         bar = PhaseProgress("calibrate", enabled=False)
@@ -404,36 +483,60 @@ def main() -> None:
         if profiler is not None:
             profiler.enable()
         with bar:
-            r: CalibrationResult = calibrate_session(session, method="coherence", seed=a.seed, free=["rolls"],
-                                                     bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0), settings=settings,
-                                                     progress=CalibrationProgress(bar), score_thetas=[truth], judge_imported_cameras=False,
-                                                     mask=(0, cv2.imread(str(tmp / "mask_00.png"), cv2.IMREAD_GRAYSCALE)) if a.mask else None)
+            r: CalibrationResult = calibrate_session(
+                session,
+                method="coherence",
+                seed=a.seed,
+                free=["rolls"],
+                bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
+                settings=settings,
+                progress=CalibrationProgress(bar),
+                score_thetas=[truth],
+                judge_imported_cameras=False,
+                mask=(0, cv2.imread(str(tmp / "mask_00.png"), cv2.IMREAD_GRAYSCALE)) if a.mask else None,
+            )
         if profiler is not None:
             profiler.disable()
         wall, mono1 = time.perf_counter() - t0, time.monotonic()
         after = peak_mb()
     err = (r.theta_deg[3:] - r.theta_deg[3]) - true_rolls
     d = err - np.median(err)
-    print(f"coherence seed {a.seed}{' (under cProfile)' if profiler is not None else ''}: calibration {wall:.2f} s wall, "
-          f"{r.n_evaluations} evaluations, {1000 * wall / max(r.n_evaluations, 1):.2f} ms per evaluation, {r.n_voxels} voxels; "
-          f"{compute_threads()} evaluation thread(s), load average {os.getloadavg()[0]:.2f}")
-    print(f"peak memory (ru_maxrss): {before:.0f} MB before the calibration, {after:.0f} MB after "
-          f"(targets: ≤ 30 s, ≤ 600 MB)")
+    print(
+        f"coherence seed {a.seed}{' (under cProfile)' if profiler is not None else ''}: calibration {wall:.2f} s wall, "
+        f"{r.n_evaluations} evaluations, {1000 * wall / max(r.n_evaluations, 1):.2f} ms per evaluation, {r.n_voxels} voxels; "
+        f"{compute_threads()} evaluation thread(s), load average {os.getloadavg()[0]:.2f}"
+    )
+    print(
+        f"peak memory (ru_maxrss): {before:.0f} MB before the calibration, {after:.0f} MB after "
+        f"(targets: ≤ 30 s, ≤ 600 MB)"
+    )
     if bar.records:
-        print(f"phases (before the first: {bar.records[0].t0 - mono0:.2f} s of set-up; after the last: {mono1 - bar.records[-1].t1:.2f} s):")
+        print(
+            f"phases (before the first: {bar.records[0].t0 - mono0:.2f} s of set-up; after the last: {mono1 - bar.records[-1].t1:.2f} s):"
+        )
     for p in bar.records:
         print(f"  {p.name:<48} {p.t1 - p.t0:6.2f} s")
-    print(f"judge cost: result {r.final_cost:.5f}, true rolls {r.scored_costs[0]:.5f}, commanded angles {r.theta0_cost:.5f}")
-    print(f"angle error (views 1-{n - 1}): mean |e| {np.mean(np.abs(err[1:])):.3f}°, max {np.max(np.abs(err[1:])):.3f}° "
-          f"(start: mean {np.mean(np.abs(commanded - true_rolls)[1:]):.2f}°)")
-    print(f"gauge-free (median offset {np.median(err):+.3f}° removed): mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°")
+    print(
+        f"judge cost: result {r.final_cost:.5f}, true rolls {r.scored_costs[0]:.5f}, commanded angles {r.theta0_cost:.5f}"
+    )
+    print(
+        f"angle error (views 1-{n - 1}): mean |e| {np.mean(np.abs(err[1:])):.3f}°, max {np.max(np.abs(err[1:])):.3f}° "
+        f"(start: mean {np.mean(np.abs(commanded - true_rolls)[1:]):.2f}°)"
+    )
+    print(
+        f"gauge-free (median offset {np.median(err):+.3f}° removed): mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°"
+    )
     print("per view:", np.round(err, 2).tolist())
     for samples, times in sorted(chords.calls.items()):
-        print(f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, {1000 * np.mean(times):.1f} ms each")
+        print(
+            f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, {1000 * np.mean(times):.1f} ms each"
+        )
     if a.chords == "verify":
-        print(f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of {chords.rays} rays "
-              f"with another maximum, {chords.values_differ} samples read with another value; {chords.read / max(chords.total, 1):.1%} "
-              "of their samples read")
+        print(
+            f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of {chords.rays} rays "
+            f"with another maximum, {chords.values_differ} samples read with another value; {chords.read / max(chords.total, 1):.1%} "
+            "of their samples read"
+        )
     if profiler is not None:
         print_profile(profiler)
 

@@ -35,7 +35,9 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for k in range(n_rigs):
-            cfg = dataclasses.replace(base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k))
+            cfg = dataclasses.replace(
+                base, simulation=dataclasses.replace(base.simulation, seed=base.simulation.seed + k)
+            )
             session = Path(d) / f"sim{k}.h5"
             truth_path = acquire_simulated(cfg, session)
             calibrate_session(session)
@@ -48,20 +50,33 @@ def main() -> None:
             inside_v, inside_a = abs(ev) <= Uv, abs(ea) <= Ua
             rows.append((inside_v, inside_a, 100 * Uv / m.volume_mm3, 100 * Ua / m.surface_area_mm2))
             qc = m.qc or {}
-            print(f"rig seed {cfg.simulation.seed}: volume {m.volume_mm3:.4f} ± {Uv:.4f} mm3 (true hull {tv:.4f}, error {100 * ev / tv:+.2f} %, "
-                  f"U {100 * Uv / m.volume_mm3:.2f} %, {'inside' if inside_v else 'OUTSIDE'}); area {m.surface_area_mm2:.3f} ± {Ua:.3f} mm2 "
-                  f"(true hull {ta:.3f}, error {100 * ea / ta:+.2f} %, U {100 * Ua / m.surface_area_mm2:.2f} %, {'inside' if inside_a else 'OUTSIDE'})")
+            print(
+                f"rig seed {cfg.simulation.seed}: volume {m.volume_mm3:.4f} ± {Uv:.4f} mm3 (true hull {tv:.4f}, error {100 * ev / tv:+.2f} %, "
+                f"U {100 * Uv / m.volume_mm3:.2f} %, {'inside' if inside_v else 'OUTSIDE'}); area {m.surface_area_mm2:.3f} ± {Ua:.3f} mm2 "
+                f"(true hull {ta:.3f}, error {100 * ea / ta:+.2f} %, U {100 * Ua / m.surface_area_mm2:.2f} %, {'inside' if inside_a else 'OUTSIDE'})"
+            )
             for c in u.get("components", []):
                 uv, ua = c.get("u_volume_mm3"), c.get("u_area_mm2")
-                print(f"    {c['name']:<32} u(V) " + (f"{100 * uv / m.volume_mm3:.2f} %" if uv is not None else "not evaluated")
-                      + "  u(A) " + (f"{100 * ua / m.surface_area_mm2:.2f} %" if ua is not None else "not evaluated"))
+                print(
+                    f"    {c['name']:<32} u(V) "
+                    + (f"{100 * uv / m.volume_mm3:.2f} %" if uv is not None else "not evaluated")
+                    + "  u(A) "
+                    + (f"{100 * ua / m.surface_area_mm2:.2f} %" if ua is not None else "not evaluated")
+                )
             det = u.get("details", {})
-            print(f"    sigma_edge {det.get('edge_sigma_px', float('nan')):.3f} px (offset {det.get('threshold_offset_px', float('nan')):.3f}, "
-                  f"half scatter {det.get('half_point_scatter_rms_px', float('nan')):.3f}, hull excess {det.get('hull_disagreement_excess_rms_px', float('nan')):.3f})")
-            print(f"    verdict {qc.get('verdict', 'not evaluated')}" + "".join(f"\n      - {f['message']}" for f in qc.get("flags", [])))
+            print(
+                f"    sigma_edge {det.get('edge_sigma_px', float('nan')):.3f} px (offset {det.get('threshold_offset_px', float('nan')):.3f}, "
+                f"half scatter {det.get('half_point_scatter_rms_px', float('nan')):.3f}, hull excess {det.get('hull_disagreement_excess_rms_px', float('nan')):.3f})"
+            )
+            print(
+                f"    verdict {qc.get('verdict', 'not evaluated')}"
+                + "".join(f"\n      - {f['message']}" for f in qc.get("flags", []))
+            )
     a = np.array(rows, float)
-    print(f"truth inside the k = 2 interval: volume {int(a[:, 0].sum())}/{n_rigs}, area {int(a[:, 1].sum())}/{n_rigs}; "
-          f"median half-width: volume {np.median(a[:, 2]):.2f} %, area {np.median(a[:, 3]):.2f} %")
+    print(
+        f"truth inside the k = 2 interval: volume {int(a[:, 0].sum())}/{n_rigs}, area {int(a[:, 1].sum())}/{n_rigs}; "
+        f"median half-width: volume {np.median(a[:, 2]):.2f} %, area {np.median(a[:, 3]):.2f} %"
+    )
 
 
 if __name__ == "__main__":

@@ -25,15 +25,24 @@ import enum
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from vastcal.config import RigConfig, dump_config
 from vastcal.devices import Camera, CameraSettings, Frame, RotationStage
-from vastcal.errors import AcquisitionAborted, DeviceError, DeviceTimeoutError, SessionError, SessionIncompleteError, UserInputError, VastcalError
+from vastcal.errors import (
+    AcquisitionAborted,
+    DeviceError,
+    DeviceTimeoutError,
+    SessionError,
+    SessionIncompleteError,
+    UserInputError,
+    VastcalError,
+)
 from vastcal.outputs import check_output_file
 from vastcal.session import Session, SessionWriter
 from vastcal.session_files import PathLock
@@ -68,7 +77,7 @@ class RevolutionPlan:
     targets_usteps: tuple[int, ...]
 
     @classmethod
-    def uniform(cls, views: int, usteps_per_revolution: int) -> "RevolutionPlan":
+    def uniform(cls, views: int, usteps_per_revolution: int) -> RevolutionPlan:
         """N views evenly over one revolution, absolute targets rounded once each."""
         if views < 1:
             raise UserInputError(f"number of views must be >= 1, got {views}")
@@ -81,9 +90,13 @@ class RevolutionPlan:
 
     def as_attrs(self) -> dict[str, Any]:
         """Plan attributes for the session."""
-        return {"views": self.views, "usteps_per_revolution": self.usteps_per_revolution,
-                "targets_usteps": list(self.targets_usteps), "angles_deg": [self.angle_deg(k) for k in range(self.views)],
-                "rule": "target_k = round(k * usteps_per_revolution / views), absolute"}
+        return {
+            "views": self.views,
+            "usteps_per_revolution": self.usteps_per_revolution,
+            "targets_usteps": list(self.targets_usteps),
+            "angles_deg": [self.angle_deg(k) for k in range(self.views)],
+            "rule": "target_k = round(k * usteps_per_revolution / views), absolute",
+        }
 
 
 @dataclass
@@ -109,8 +122,13 @@ class AcquisitionResult:
 def camera_settings(cfg: RigConfig) -> CameraSettings:
     """Camera settings asked for by the rig configuration."""
     c = cfg.camera
-    return CameraSettings(pixel_format=c.pixel_format, exposure_us=c.exposure_us, gain_db=c.gain_db,
-                          roi=(c.roi.x, c.roi.y, c.roi.width, c.roi.height), packet_size=c.packet_size)
+    return CameraSettings(
+        pixel_format=c.pixel_format,
+        exposure_us=c.exposure_us,
+        gain_db=c.gain_db,
+        roi=(c.roi.x, c.roi.y, c.roi.width, c.roi.height),
+        packet_size=c.packet_size,
+    )
 
 
 def _sleep(seconds: float, cancel: threading.Event) -> None:
@@ -164,8 +182,10 @@ def acquire(
         with Session.open(out) as s:
             plan_attrs = s.plan
         if int(plan_attrs.get("usteps_per_revolution", -1)) != cycle:
-            raise SessionIncompleteError(f"{out}: cannot resume: the session was planned for {plan_attrs.get('usteps_per_revolution')} "
-                                         f"µsteps per revolution, the stage reports {cycle}")
+            raise SessionIncompleteError(
+                f"{out}: cannot resume: the session was planned for {plan_attrs.get('usteps_per_revolution')} "
+                f"µsteps per revolution, the stage reports {cycle}"
+            )
         plan = RevolutionPlan(int(plan_attrs["views"]), cycle, tuple(int(t) for t in plan_attrs["targets_usteps"]))
         writer = SessionWriter.resume(out, durable=cfg.acquisition.sync_each_view)  # takes the path's writer lock
         lock = None
@@ -178,7 +198,12 @@ def acquire(
         except BaseException:
             lock.release()
             raise
-        info = {"stage": stage.describe(), "camera": camera.describe(), "camera_settings": read_back, **(start_info or {})}
+        info = {
+            "stage": stage.describe(),
+            "camera": camera.describe(),
+            "camera_settings": read_back,
+            **(start_info or {}),
+        }
         writer = None  # created after the first frame tells us the shape and type
     first_index = writer.n_views if writer is not None else 0
     if resume:
@@ -188,12 +213,17 @@ def acquire(
     try:
         flags = stage.warnings()
         if "WR" in flags or "WH" in flags:  # no reference position: absolute targets would be meaningless
-            log.info("the stage reports %s: homing before the first view", "/".join(f for f in flags if f in ("WR", "WH")))
+            log.info(
+                "the stage reports %s: homing before the first view", "/".join(f for f in flags if f in ("WR", "WH"))
+            )
             stage.home(cancel)
         camera.start()
         state = RunState.ACQUIRING
         if phase:
-            phase(f"acquiring {plan.views - first_index} views" + (f" (resuming at view {first_index + 1} of {plan.views})" if first_index else ""))
+            phase(
+                f"acquiring {plan.views - first_index} views"
+                + (f" (resuming at view {first_index + 1} of {plan.views})" if first_index else "")
+            )
         for k in range(first_index, plan.views):
             if cancel.is_set():
                 raise AcquisitionAborted("cancelled by the operator")
@@ -204,15 +234,34 @@ def acquire(
             if frame.pixels.size == 0:
                 raise DeviceError(f"view {k}: the camera delivered an empty frame")
             if writer is None:
-                writer = SessionWriter.create(out, frame_shape=frame.pixels.shape, dtype=frame.pixels.dtype, rig_yaml=dump_config(cfg),
-                                              plan=plan.as_attrs(), pixel_size_um=_pixel_um(cfg), roi_offset_px=(cfg.camera.roi.x, cfg.camera.roi.y),
-                                              title=f"{cfg.name} revolution", start_info=info, force=force, lock=lock,
-                                              durable=cfg.acquisition.sync_each_view,
-                                              sensor_pixel_um=(cfg.optics.pixel_size_um, cfg.optics.pixel_size_um))
-            writer.append_view(frame.pixels, plan.angle_deg(k), commanded_usteps=plan.targets_usteps[k], readback_usteps=move.readback_usteps,
-                               host_time_s=frame.host_time_s, device_time_s=np.nan if frame.device_time_s is None else frame.device_time_s,
-                               frame_id=frame.frame_id, exposure_us=frame.exposure_us, gain_db=frame.gain_db, move_s=move.duration_s,
-                               stage_warnings=" ".join(move.warnings))
+                writer = SessionWriter.create(
+                    out,
+                    frame_shape=frame.pixels.shape,
+                    dtype=frame.pixels.dtype,
+                    rig_yaml=dump_config(cfg),
+                    plan=plan.as_attrs(),
+                    pixel_size_um=_pixel_um(cfg),
+                    roi_offset_px=(cfg.camera.roi.x, cfg.camera.roi.y),
+                    title=f"{cfg.name} revolution",
+                    start_info=info,
+                    force=force,
+                    lock=lock,
+                    durable=cfg.acquisition.sync_each_view,
+                    sensor_pixel_um=(cfg.optics.pixel_size_um, cfg.optics.pixel_size_um),
+                )
+            writer.append_view(
+                frame.pixels,
+                plan.angle_deg(k),
+                commanded_usteps=plan.targets_usteps[k],
+                readback_usteps=move.readback_usteps,
+                host_time_s=frame.host_time_s,
+                device_time_s=np.nan if frame.device_time_s is None else frame.device_time_s,
+                frame_id=frame.frame_id,
+                exposure_us=frame.exposure_us,
+                gain_db=frame.gain_db,
+                move_s=move.duration_s,
+                stage_warnings=" ".join(move.warnings),
+            )
             if on_view:
                 on_view(k)
             elapsed_view = time.monotonic() - t_view
@@ -238,9 +287,18 @@ def acquire(
             if result.exit_status == "success" and writer.n_views < plan.views:
                 result.exit_status, result.reason = "fail", f"only {writer.n_views} of {plan.views} views"
             try:
-                writer.finish(result.exit_status, result.reason, views_planned=plan.views, elapsed_s=time.monotonic() - t0)
-            except OSError as exc:  # e.g. a full disk: the committed views stay readable, the session reads "incomplete"
-                log.info("%s: the stop record could not be written (%s); the %d committed views are kept", out, exc.strerror, writer.n_views)
+                writer.finish(
+                    result.exit_status, result.reason, views_planned=plan.views, elapsed_s=time.monotonic() - t0
+                )
+            except (
+                OSError
+            ) as exc:  # e.g. a full disk: the committed views stay readable, the session reads "incomplete"
+                log.info(
+                    "%s: the stop record could not be written (%s); the %d committed views are kept",
+                    out,
+                    exc.strerror,
+                    writer.n_views,
+                )
                 if result.exit_status == "success":
                     result.exit_status, result.reason = "fail", f"stop record not written: {exc}"
             finally:
@@ -251,8 +309,14 @@ def acquire(
             if result.exit_status != "success":
                 log.warning("no view was acquired; no session file written (%s)", result.reason)
         result.state = RunState.DONE
-    log.info("acquisition %s: %d of %d views in %s%s", result.exit_status, result.views_written, plan.views, out,
-             f" ({result.reason})" if result.reason else "")
+    log.info(
+        "acquisition %s: %d of %d views in %s%s",
+        result.exit_status,
+        result.views_written,
+        plan.views,
+        out,
+        f" ({result.reason})" if result.reason else "",
+    )
     return result
 
 

@@ -31,10 +31,11 @@ import os
 import socket
 import time
 import traceback
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 from vastcal.errors import OutputExistsError, UserInputError, VastcalError
 from vastcal.progress import CountProgress, format_duration
@@ -64,12 +65,14 @@ class BatchResult:
     def summary(self) -> str:
         """Human lines for the end of ``vastcal batch``."""
         ok = sum(r.get("status") == "ok" for r in self.rows)
-        return "\n".join([
-            f"sessions         {len(self.rows)} ({ok} ok, {len(self.rows) - ok} failed; {self.processed} processed now, {self.skipped} skipped as done)",
-            f"time             {format_duration(self.wall_time_s)}",
-            f"table            {self.results_dir / 'measurements.csv'}",
-            f"overview         {self.results_dir / 'index.html'}",
-        ])
+        return "\n".join(
+            [
+                f"sessions         {len(self.rows)} ({ok} ok, {len(self.rows) - ok} failed; {self.processed} processed now, {self.skipped} skipped as done)",
+                f"time             {format_duration(self.wall_time_s)}",
+                f"table            {self.results_dir / 'measurements.csv'}",
+                f"overview         {self.results_dir / 'index.html'}",
+            ]
+        )
 
 
 # ---------------------------------------------------------------- inputs
@@ -85,7 +88,9 @@ def expand_sessions(specs: Iterable[str | Path]) -> list[Path]:
     for spec in specs:
         p = Path(spec)
         if p.is_dir():
-            hits = sorted(q for q in p.rglob("*.h5") if not any(part.startswith(".") for part in q.relative_to(p).parts))
+            hits = sorted(
+                q for q in p.rglob("*.h5") if not any(part.startswith(".") for part in q.relative_to(p).parts)
+            )
         elif p.is_file():
             hits = [p]
         elif glob.has_magic(str(spec)):
@@ -152,25 +157,46 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
 
     keep_large_blocks()  # as the vastcal command does: reuse the calibration's large temporaries
     t0, c0 = time.monotonic(), time.process_time()
-    row: dict[str, Any] = {"path": path, "worker": f"{socket.gethostname()}:{os.getpid()}",
-                           "processed_at": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    row: dict[str, Any] = {
+        "path": path,
+        "worker": f"{socket.gethostname()}:{os.getpid()}",
+        "processed_at": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
     try:
         prior = {"prior_from": settings["prior_from"]} if settings.get("prior_from") else {}
-        summary = run_session(path, report_dir, method=settings.get("method"), seed=settings.get("seed"),
-                              starts=int(settings.get("starts", 3)), quiet=True, **prior)
+        summary = run_session(
+            path,
+            report_dir,
+            method=settings.get("method"),
+            seed=settings.get("seed"),
+            starts=int(settings.get("starts", 3)),
+            quiet=True,
+            **prior,
+        )
         row.update(status="ok", report_dir=str(report_dir))
         row.update({f"t_{k}_s": v for k, v in summary.timings_s.items()})
     except VastcalError as exc:
-        row.update(status="failed", exit_class=type(exc).__name__, reason=str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
-                   exit_code=exc.exit_code)
+        row.update(
+            status="failed",
+            exit_class=type(exc).__name__,
+            reason=str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+            exit_code=exc.exit_code,
+        )
     except Exception as exc:  # a bug or a library error: recorded, the batch goes on
         log.debug("session %s: unexpected error\n%s", path, traceback.format_exc())
-        row.update(status="failed", exit_class=type(exc).__name__, reason=f"unexpected error: {exc}".splitlines()[0], exit_code=1)
+        row.update(
+            status="failed",
+            exit_class=type(exc).__name__,
+            reason=f"unexpected error: {exc}".splitlines()[0],
+            exit_code=1,
+        )
     row["t_total_s"] = time.monotonic() - t0
     row["cpu_s"] = time.process_time() - c0  # user + system CPU of the worker process during this session
     row["worker_peak_mb"] = peak_resident_mb()
     row["fingerprint"] = file_fingerprint(Path(path))
-    row["_specimen"] = session_specimen(path)  # given at acquisition; a sidecar (vastcal annotate) overrides it in the table
+    row["_specimen"] = session_specimen(
+        path
+    )  # given at acquisition; a sidecar (vastcal annotate) overrides it in the table
     if row["status"] == "ok":
         row.update(_fields_from_report(Path(report_dir) / "report.json"))
     return row
@@ -246,8 +272,14 @@ def _save(results_dir: Path, state: dict[str, Any], title: str, progress: str = 
     atomic_write_bytes(results_dir / STATE_FILE, json.dumps(state, indent=1, default=str).encode())
     rows = table_rows(state)
     write_table(rows, results_dir)
-    write_index(rows, results_dir, title=title, extra_html=_rig_html(state, results_dir), progress=progress,
-                refresh_s=REFRESH_S if progress else None)
+    write_index(
+        rows,
+        results_dir,
+        title=title,
+        extra_html=_rig_html(state, results_dir),
+        progress=progress,
+        refresh_s=REFRESH_S if progress else None,
+    )
 
 
 def table_rows(state: dict[str, Any]) -> list[dict[str, Any]]:
@@ -283,8 +315,10 @@ def _prior_settings(prior_from: str | Path, out: Path) -> dict[str, Any]:
     load_rig_prior(prior_from, key="--prior-from")
     folder = Path(prior_from).expanduser().resolve()
     if folder == out.resolve():
-        raise UserInputError(f"--prior-from {prior_from}: is this batch's own results folder (it changes as results arrive); "
-                             "give an earlier batch's folder")
+        raise UserInputError(
+            f"--prior-from {prior_from}: is this batch's own results folder (it changes as results arrive); "
+            "give an earlier batch's folder"
+        )
     digest = hashlib.sha256((folder / HEALTH_FILE).read_bytes()).hexdigest()[:16]
     return {"prior_from": str(folder), "prior_sha256": digest}
 
@@ -339,18 +373,36 @@ def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
 
     with dask.config.set(LOCAL_WORKER_CONFIG):  # the nannies hand this configuration to their worker processes
         # each worker's cost evaluations use its own threads only (vastcal.calibrate.threads), not every core
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True, memory_limit=memory,
-                               dashboard_address=":0", silence_logs=logging.ERROR, env={"VASTCAL_THREADS": str(threads)})
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=threads,
+            processes=True,
+            memory_limit=memory,
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+            env={"VASTCAL_THREADS": str(threads)},
+        )
     return Client(cluster), cluster
 
 
 # ---------------------------------------------------------------- the batch
 
 
-def run_batch(sessions: Iterable[str | Path], results_dir: str | Path, *, method: str | None = None, seed: int | None = None,
-              starts: int = 3, force: bool = False, scheduler: str | None = None, n_workers: int | None = None,
-              quiet: bool = False, say: Callable[[str], None] | None = None, title: str = "vastcal screen",
-              prior_from: str | Path | None = None) -> BatchResult:
+def run_batch(
+    sessions: Iterable[str | Path],
+    results_dir: str | Path,
+    *,
+    method: str | None = None,
+    seed: int | None = None,
+    starts: int = 3,
+    force: bool = False,
+    scheduler: str | None = None,
+    n_workers: int | None = None,
+    quiet: bool = False,
+    say: Callable[[str], None] | None = None,
+    title: str = "vastcal screen",
+    prior_from: str | Path | None = None,
+) -> BatchResult:
     """Process every session on Dask and write the screen's table (see the module docstring).
 
     Args:
@@ -392,8 +444,14 @@ def run_batch(sessions: Iterable[str | Path], results_dir: str | Path, *, method
     skipped = 0
     for p in paths:
         entry = state["sessions"].get(names[p])
-        if (not force and entry and entry.get("settings_hash") == shash and entry["row"].get("status") == "ok"
-                and entry.get("fingerprint") == file_fingerprint(p) and entry["row"].get("path") == str(p)):
+        if (
+            not force
+            and entry
+            and entry.get("settings_hash") == shash
+            and entry["row"].get("status") == "ok"
+            and entry.get("fingerprint") == file_fingerprint(p)
+            and entry["row"].get("path") == str(p)
+        ):
             skipped += 1
         else:
             todo.append(p)
@@ -408,8 +466,20 @@ def run_batch(sessions: Iterable[str | Path], results_dir: str | Path, *, method
     return res
 
 
-def _run_on_dask(todo: list[Path], names: dict[Path, str], out: Path, settings: dict[str, Any], shash: str, state: dict[str, Any],
-                 res: BatchResult, scheduler: str | None, n_workers: int | None, quiet: bool, say: Callable[[str], None], title: str) -> None:
+def _run_on_dask(
+    todo: list[Path],
+    names: dict[Path, str],
+    out: Path,
+    settings: dict[str, Any],
+    shash: str,
+    state: dict[str, Any],
+    res: BatchResult,
+    scheduler: str | None,
+    n_workers: int | None,
+    quiet: bool,
+    say: Callable[[str], None],
+    title: str,
+) -> None:
     from distributed import as_completed
 
     client, cluster = _client(scheduler, n_workers)
@@ -417,14 +487,18 @@ def _run_on_dask(todo: list[Path], names: dict[Path, str], out: Path, settings: 
         res.dashboard = str(client.dashboard_link or "")
         info = client.scheduler_info()
         nw = len(info.get("workers", {}))
-        say(f"Dask: {nw} worker(s) at {client.scheduler.address}; dashboard {res.dashboard or '(not available: install bokeh)'}")
+        say(
+            f"Dask: {nw} worker(s) at {client.scheduler.address}; dashboard {res.dashboard or '(not available: install bokeh)'}"
+        )
         say(f"progress: {out / 'index.html'} (reloads every {REFRESH_S} s while the batch runs)")
         _save(out, state, title, progress=f"; running: 0/{len(todo)} of this run done")
         futures = {}
         for p in todo:
             name = names[p]
             key = f"vastcal-session-{name}-{shash}-{hashlib.sha1(str(p).encode()).hexdigest()[:8]}"
-            fut = client.submit(process_session, str(p), str(out / "reports" / name), settings, key=key, retries=1, pure=False)
+            fut = client.submit(
+                process_session, str(p), str(out / "reports" / name), settings, key=key, retries=1, pure=False
+            )
             futures[fut] = p
         bar = CountProgress("batch", "sessions", enabled=not quiet)
         t0 = time.monotonic()
@@ -436,22 +510,38 @@ def _run_on_dask(todo: list[Path], names: dict[Path, str], out: Path, settings: 
                 try:
                     row = fut.result()
                 except Exception as exc:  # the task itself could not run (worker died twice, unpicklable …)
-                    row = {"path": str(p), "status": "failed", "exit_class": type(exc).__name__,
-                           "reason": f"the task did not complete: {exc}".splitlines()[0], "exit_code": 1,
-                           "fingerprint": file_fingerprint(p)}
+                    row = {
+                        "path": str(p),
+                        "status": "failed",
+                        "exit_class": type(exc).__name__,
+                        "reason": f"the task did not complete: {exc}".splitlines()[0],
+                        "exit_code": 1,
+                        "fingerprint": file_fingerprint(p),
+                    }
                 row["path"] = str(p)
-                state["sessions"][name] = {"settings_hash": shash, "fingerprint": row.pop("fingerprint", {}), "row": row}
+                state["sessions"][name] = {
+                    "settings_hash": shash,
+                    "fingerprint": row.pop("fingerprint", {}),
+                    "row": row,
+                }
                 done += 1
                 res.processed += 1
                 res.failed += row.get("status") != "ok"
                 elapsed = time.monotonic() - t0
-                _save(out, state, title, progress=f"; running: {done}/{len(todo)} of this run done, {format_duration(elapsed)} elapsed")
+                _save(
+                    out,
+                    state,
+                    title,
+                    progress=f"; running: {done}/{len(todo)} of this run done, {format_duration(elapsed)} elapsed",
+                )
                 bar.update(done, len(todo), extra=f"{res.failed} failed" if res.failed else "")
         finally:
             bar.close()
     finally:
         if not logging.getLogger("vastcal").isEnabledFor(logging.DEBUG):  # "worker process still alive … killing" at
-            logging.getLogger("distributed.nanny").setLevel(logging.ERROR)  # shutdown of a loaded machine: only with -vv
+            logging.getLogger("distributed.nanny").setLevel(
+                logging.ERROR
+            )  # shutdown of a loaded machine: only with -vv
         client.close()
         if cluster is not None:
             cluster.close()

@@ -83,8 +83,10 @@ def read_camera_text(path: Path) -> tuple[np.ndarray, list[str]]:
         first = False
         if len(tok) == 1:  # the name of the matrix whose rows follow
             if rows:
-                raise ImportDataError(f"{path}: line {lineno}: the matrix begun on line {row_start} has {len(rows)} of its 3 rows "
-                                      f"of 4 numbers")
+                raise ImportDataError(
+                    f"{path}: line {lineno}: the matrix begun on line {row_start} has {len(rows)} of its 3 rows "
+                    f"of 4 numbers"
+                )
             row_name, row_start = tok[0].rstrip(":"), lineno
             continue
         if len(tok) == 4 and all(_is_number(t) for t in tok):  # a row of a matrix written row by row
@@ -97,11 +99,15 @@ def read_camera_text(path: Path) -> tuple[np.ndarray, list[str]]:
                 rows, row_name = [], None
             continue
         if rows:
-            raise ImportDataError(f"{path}: line {lineno}: the matrix begun on line {row_start} has {len(rows)} of its 3 rows "
-                                  f"of 4 numbers")
+            raise ImportDataError(
+                f"{path}: line {lineno}: the matrix begun on line {row_start} has {len(rows)} of its 3 rows "
+                f"of 4 numbers"
+            )
         named = len(tok) in (13, 22)  # a name (which may itself be a number, e.g. 001) and the numbers
         if named and row_name is not None:
-            raise ImportDataError(f"{path}: line {lineno}: a named camera after the name {row_name!r} on line {row_start}")
+            raise ImportDataError(
+                f"{path}: line {lineno}: a named camera after the name {row_name!r} on line {row_start}"
+            )
         body = tok[1:] if named else tok
         nums = [float(t) for t in body] if all(_is_number(t) for t in body) else []
         if len(nums) == 12:
@@ -109,14 +115,18 @@ def read_camera_text(path: Path) -> tuple[np.ndarray, list[str]]:
         elif len(nums) == 21:
             P = _krt(nums)
         else:
-            raise ImportDataError(f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P) "
-                                  f"or 21 numbers (K(9) R(9) t(3)), or a row of 4 numbers of a matrix written row by row; "
-                                  f"got {len(tok)} fields")
+            raise ImportDataError(
+                f"{path}: line {lineno}: expected a view name and 12 numbers (row-major 3 x 4 P) "
+                f"or 21 numbers (K(9) R(9) t(3)), or a row of 4 numbers of a matrix written row by row; "
+                f"got {len(tok)} fields"
+            )
         names.append(tok[0] if named else name_or_index(row_name))  # a name may stand on the line before its numbers
         mats.append(P)
         row_name = None
     if rows or row_name is not None:
-        raise ImportDataError(f"{path}: line {row_start}: a matrix with {len(rows)} of its 3 rows of 4 numbers at the end of the file")
+        raise ImportDataError(
+            f"{path}: line {row_start}: a matrix with {len(rows)} of its 3 rows of 4 numbers at the end of the file"
+        )
     return np.asarray(mats).reshape(-1, 3, 4), names
 
 
@@ -128,8 +138,10 @@ def _read_matrix_file(f: Path) -> np.ndarray:
     if tok and tok[0].upper() == "CONTOUR":
         tok = tok[1:]
     if len(tok) != 12 or not all(_is_number(t) for t in tok):
-        raise ImportDataError(f"{f}: expected a 3 x 4 matrix (12 numbers, after an optional CONTOUR line), got "
-                              f"{len(tok)} fields" + ("" if all(_is_number(t) for t in tok) else " that are not all numbers"))
+        raise ImportDataError(
+            f"{f}: expected a 3 x 4 matrix (12 numbers, after an optional CONTOUR line), got "
+            f"{len(tok)} fields" + ("" if all(_is_number(t) for t in tok) else " that are not all numbers")
+        )
     return np.asarray([float(t) for t in tok]).reshape(3, 4)
 
 
@@ -140,11 +152,15 @@ def read_camera_folder(path: Path) -> tuple[np.ndarray, list[str]]:
         ImportDataError: no such files, or one that is not a 3 × 4 matrix (naming it).
     """
     for suffix in (".pa", ".txt"):
-        files = sorted((f for f in path.iterdir() if f.suffix.lower() == suffix and f.is_file()),  # no FIFO: it would block
-                       key=lambda p: natural_key(p.name))
+        files = sorted(
+            (f for f in path.iterdir() if f.suffix.lower() == suffix and f.is_file()),  # no FIFO: it would block
+            key=lambda p: natural_key(p.name),
+        )
         if files:
             return np.asarray([_read_matrix_file(f) for f in files]), [f.stem for f in files]
-    raise ImportDataError(f"{path}: no camera files in the folder (expected one .pa, or PMVS-style .txt, file per view)")
+    raise ImportDataError(
+        f"{path}: no camera files in the folder (expected one .pa, or PMVS-style .txt, file per view)"
+    )
 
 
 def _as_cameras(value: Any) -> np.ndarray | None:
@@ -167,13 +183,19 @@ def _as_cameras(value: Any) -> np.ndarray | None:
 
 
 def _pick(path: Path, variables: dict[str, Any]) -> tuple[np.ndarray, list[str]]:
-    found = {k: c for k, c in ((k, _as_cameras(v)) for k, v in variables.items() if not k.startswith("__")) if c is not None}
+    found = {
+        k: c for k, c in ((k, _as_cameras(v)) for k, v in variables.items() if not k.startswith("__")) if c is not None
+    }
     if not found:
-        raise ImportDataError(f"{path}: holds no (N, 3, 4) array or cell array of 3 x 4 cameras "
-                              f"(variables: {', '.join(k for k in variables if not k.startswith('__')) or 'none'})")
+        raise ImportDataError(
+            f"{path}: holds no (N, 3, 4) array or cell array of 3 x 4 cameras "
+            f"(variables: {', '.join(k for k in variables if not k.startswith('__')) or 'none'})"
+        )
     key = next((k for k in PREFERRED_NAMES if k in found), None)
     if key is None and len(found) > 1:
-        raise ImportDataError(f"{path}: several variables could be the cameras ({', '.join(sorted(found))}); name one P")
+        raise ImportDataError(
+            f"{path}: several variables could be the cameras ({', '.join(sorted(found))}); name one P"
+        )
     key = key or next(iter(found))
     P = found[key]
     return P, [f"{key}[{i}]" for i in range(len(P))]
@@ -200,16 +222,22 @@ def read_camera_array(path: Path) -> tuple[np.ndarray, list[str]]:
 
                 variables = scipy.io.loadmat(fh)
     except NotImplementedError:  # SciPy's answer to a v7.3 (HDF5) MAT-file
-        raise ImportDataError(f"{path}: a MATLAB v7.3 file; save the cameras with save(..., '-v7') or as text "
-                              f"(one 'name p11 ... p34' line per view)") from None
+        raise ImportDataError(
+            f"{path}: a MATLAB v7.3 file; save the cameras with save(..., '-v7') or as text "
+            f"(one 'name p11 ... p34' line per view)"
+        ) from None
     except MemoryError:
         raise
     except Exception as exc:  # a truncated or foreign file: the parsers raise anything from BadZipFile to IndexError
-        raise ImportDataError(f"{path}: not a readable {suffix} file of cameras ({type(exc).__name__}: {exc})") from None
+        raise ImportDataError(
+            f"{path}: not a readable {suffix} file of cameras ({type(exc).__name__}: {exc})"
+        ) from None
     return _pick(path, variables)
 
 
-def match_cameras_to_images(P: np.ndarray, names: list[str], image_names: list[str], source: Path) -> tuple[np.ndarray, list[str], bool]:
+def match_cameras_to_images(
+    P: np.ndarray, names: list[str], image_names: list[str], source: Path
+) -> tuple[np.ndarray, list[str], bool]:
     """The cameras in the images' order when their names name the images (:func:`.image_files.order_by_view_names`):
     (P, names, reordered).
 

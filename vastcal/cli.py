@@ -21,6 +21,7 @@ Arguments are checked before any device moves or long work starts; existing outp
 
 from __future__ import annotations
 
+import _thread
 import argparse
 import difflib
 import errno
@@ -28,13 +29,13 @@ import json
 import logging
 import os
 import re
-import _thread
 import signal
 import sys
 import threading
 import traceback
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, NoReturn, Sequence
+from typing import Any, NoReturn
 
 # The calibration's BLAS products are tiny (3 × 3K by 3 × M): OpenBLAS's own threads only contend with the cost's
 # slices (vastcal.calibrate.threads) and OpenCV's (docs/history.md, 2026-11-26). Set before NumPy
@@ -43,7 +44,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from vastcal import __version__  # noqa: E402
 from vastcal.allocator import keep_large_blocks
-from vastcal.errors import EXIT_BAD_INPUT, EXIT_CODES, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, UserInputError, VastcalError
+from vastcal.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_CODES,
+    EXIT_FAILURE,
+    EXIT_OK,
+    UserInputError,
+    VastcalError,
+)
 from vastcal.outputs import check_output_file, check_output_folder
 from vastcal.progress import CalibrationProgress, CountProgress, PhaseProgress
 
@@ -68,10 +76,22 @@ def cmd_import(args: argparse.Namespace) -> int:
     cfg = load_config(args.config) if args.config else None
     bar = _progress(args, "import", "views")
     try:
-        out = import_folder(args.folder, args.output, masks=args.masks, angles=args.angles, cameras=args.cameras,
-                            pixel_origin=args.pixel_origin, roi_offset=tuple(args.roi_offset) if args.roi_offset else None,
-                            config=cfg, force=args.force, progress=lambda d, t: bar.update(d, t), phase=bar.phase, length_unit=args.length_unit,
-                            pixel_size_um=args.pixel_size_um, name=args.name)
+        out = import_folder(
+            args.folder,
+            args.output,
+            masks=args.masks,
+            angles=args.angles,
+            cameras=args.cameras,
+            pixel_origin=args.pixel_origin,
+            roi_offset=tuple(args.roi_offset) if args.roi_offset else None,
+            config=cfg,
+            force=args.force,
+            progress=lambda d, t: bar.update(d, t),
+            phase=bar.phase,
+            length_unit=args.length_unit,
+            pixel_size_um=args.pixel_size_um,
+            name=args.name,
+        )
     finally:
         bar.close()
     print(f"wrote {out}")
@@ -80,7 +100,9 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     with Session.open(out) as s:
         if not pixel_size_known(s.plan) and s.known_cameras is None:
-            print("pixel size unknown - measurements in pixels (give --pixel-size-um UM or --config RIG.yaml to measure in mm)")
+            print(
+                "pixel size unknown - measurements in pixels (give --pixel-size-um UM or --config RIG.yaml to measure in mm)"
+            )
     return 0
 
 
@@ -94,7 +116,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0 if summary["exit_status"] == "success" else 3
 
 
-STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)
+)
 """Signals that end a command the way Ctrl-C does."""
 
 MAX_ERROR_CHARS = 500
@@ -159,12 +183,16 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         raise UserInputError("give --config RIG.yaml for the real rig, or --simulate for the simulated one")
     if args.simulate and cfg.camera.driver != "simulated":
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
-    check_output_file(out, force=args.force, option="--resume" if args.resume else "-o", existing=bool(args.resume))  # before the stage moves
+    check_output_file(
+        out, force=args.force, option="--resume" if args.resume else "-o", existing=bool(args.resume)
+    )  # before the stage moves
     _check_views(args.views)
     specimen: dict = {}
     if args.specimen:  # checked before the stage moves; stored in the session's start record
         if args.resume:
-            raise UserInputError("--specimen with --resume: the session's start record is already written; use 'vastcal annotate'")
+            raise UserInputError(
+                "--specimen with --resume: the session's start record is already written; use 'vastcal annotate'"
+            )
         from vastcal.specimen import specimen_for_session
 
         specimen = specimen_for_session(args.specimen, out)
@@ -179,13 +207,27 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     bar = _progress(args, "acquire", "views")
     try:
         with connect_rig(cfg, truth_path=_truth_path(Path(out))) as rig:
-            result = acquire(rig.stage, rig.camera, cfg, out, views=args.views, resume=bool(args.resume), force=args.force,
-                             cancel=cancel, progress=lambda d, t, e: bar.update(d, t, elapsed_s=e), phase=bar.phase, start_info={**(rig.start_info or {}), **({"specimen": specimen} if specimen else {})},
-                             on_view=rig.on_view)
+            result = acquire(
+                rig.stage,
+                rig.camera,
+                cfg,
+                out,
+                views=args.views,
+                resume=bool(args.resume),
+                force=args.force,
+                cancel=cancel,
+                progress=lambda d, t, e: bar.update(d, t, elapsed_s=e),
+                phase=bar.phase,
+                start_info={**(rig.start_info or {}), **({"specimen": specimen} if specimen else {})},
+                on_view=rig.on_view,
+            )
     finally:
         bar.close()
     if result.exit_status != "success":
-        print(f"vastcal: acquisition {result.exit_status}: {result.reason}; {result.views_written} views kept in {out}", file=sys.stderr)
+        print(
+            f"vastcal: acquisition {result.exit_status}: {result.reason}; {result.views_written} views kept in {out}",
+            file=sys.stderr,
+        )
         return 128 + (RECEIVED[0] if RECEIVED else signal.SIGINT) if result.exit_status == "abort" else 1
     print(f"wrote {out}: {result.views_written} views")
     return 0
@@ -213,7 +255,9 @@ def _check_session_arg(path: str) -> None:
         raise UserInputError("expected a session file (.h5), got an empty name")
     p = Path(path)
     if p.exists() and not p.is_file():
-        raise UserInputError(f"{p}: is {'a directory' if p.is_dir() else 'not a regular file'}, not a session file (.h5)")
+        raise UserInputError(
+            f"{p}: is {'a directory' if p.is_dir() else 'not a regular file'}, not a session file (.h5)"
+        )
 
 
 def _check_session_opens(path: str) -> None:
@@ -242,9 +286,18 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     bar = PhaseProgress(f"calibrate ({args.method or 'rig config method'})", enabled=not args.quiet)
     try:
         bar.phase("colour model and specimen maps")
-        res = calibrate_session(args.session, method=args.method, seed=args.seed, free=args.free, offset_scan_deg=args.offset_scan,
-                                fixed_views=args.fixed_views, starts=args.starts, mask=mask, scribbles=scribbles,
-                                progress=CalibrationProgress(bar))
+        res = calibrate_session(
+            args.session,
+            method=args.method,
+            seed=args.seed,
+            free=args.free,
+            offset_scan_deg=args.offset_scan,
+            fixed_views=args.fixed_views,
+            starts=args.starts,
+            mask=mask,
+            scribbles=scribbles,
+            progress=CalibrationProgress(bar),
+        )
     finally:
         bar.close()
     print(res.summary() if hasattr(res, "summary") else f"stored calibration run in {args.session}")
@@ -263,8 +316,13 @@ def _marks_args(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def _add_marks_options(s: argparse.ArgumentParser) -> None:
-    s.add_argument("--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)")
-    s.add_argument("--scribbles", help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background")
+    s.add_argument(
+        "--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)"
+    )
+    s.add_argument(
+        "--scribbles",
+        help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background",
+    )
 
 
 def _view_image_arg(option: str, spec: str | None) -> Any:
@@ -294,7 +352,9 @@ def _calibration_run_arg(args: argparse.Namespace) -> str | None:
         return None
     m = re.fullmatch(r"(?:run_)?(\d+)", spec.strip())
     if not m:
-        raise UserInputError(f"--calibration-run: expected a run number (e.g. 2) or run_NNN (e.g. run_002), got {spec!r}")
+        raise UserInputError(
+            f"--calibration-run: expected a run number (e.g. 2) or run_NNN (e.g. run_002), got {spec!r}"
+        )
     return f"run_{int(m.group(1)):03d}"
 
 
@@ -315,7 +375,9 @@ def check_report_folder(path: str | Path, *, force: bool, option: str = "-o") ->
     if not force:
         for name in REPORT_FILES:
             if (out / name).exists():
-                raise OutputExistsError(f"{out / name}: file exists (an earlier report); pass --force to overwrite the report in {out}")
+                raise OutputExistsError(
+                    f"{out / name}: file exists (an earlier report); pass --force to overwrite the report in {out}"
+                )
     return out
 
 
@@ -331,7 +393,9 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     from vastcal.reconstruct import reconstruct_session
 
     check_camera_choice(args.session, run)
-    m = reconstruct_session(args.session, calibration_run=run, voxel_size_um=args.voxel_size, use_masks=args.masks, mesh_path=args.mesh)
+    m = reconstruct_session(
+        args.session, calibration_run=run, voxel_size_um=args.voxel_size, use_masks=args.masks, mesh_path=args.mesh
+    )
     print(m.summary() if hasattr(m, "summary") else m)
     return 0
 
@@ -357,11 +421,23 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_report_folder(out, force=args.force, option="-o" if args.output else "the default report folder")
     _check_session_opens(args.session)
     if args.cameras == "imported" and (args.mask or args.scribbles):
-        raise UserInputError("--mask/--scribbles guide the calibration's colour model; with --cameras imported nothing is calibrated")
+        raise UserInputError(
+            "--mask/--scribbles guide the calibration's colour model; with --cameras imported nothing is calibrated"
+        )
     check_camera_choice(args.session, "imported" if args.cameras == "imported" else None)
     mask, scribbles = _marks_args(args)
-    res = run_session(args.session, out, method=args.method, seed=args.seed, quiet=args.quiet, starts=args.starts,
-                      cameras=args.cameras, keep_runs=args.keep_runs, mask=mask, scribbles=scribbles)
+    res = run_session(
+        args.session,
+        out,
+        method=args.method,
+        seed=args.seed,
+        quiet=args.quiet,
+        starts=args.starts,
+        cameras=args.cameras,
+        keep_runs=args.keep_runs,
+        mask=mask,
+        scribbles=scribbles,
+    )
     print(res.summary())
     return 0
 
@@ -382,8 +458,19 @@ def cmd_batch(args: argparse.Namespace) -> int:
     """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table (exit 1 if any failed)."""
     from vastcal.batch import run_batch
 
-    res = run_batch(args.sessions, args.output, method=args.method, seed=args.seed, starts=args.starts, force=args.force,
-                    scheduler=args.scheduler, n_workers=args.workers, quiet=args.quiet, say=_say, prior_from=args.prior_from)
+    res = run_batch(
+        args.sessions,
+        args.output,
+        method=args.method,
+        seed=args.seed,
+        starts=args.starts,
+        force=args.force,
+        scheduler=args.scheduler,
+        n_workers=args.workers,
+        quiet=args.quiet,
+        say=_say,
+        prior_from=args.prior_from,
+    )
     print(res.summary())
     return 1 if any(r.get("status") != "ok" for r in res.rows) else 0
 
@@ -392,15 +479,23 @@ def cmd_annotate(args: argparse.Namespace) -> int:
     """vastcal annotate S.h5… --id … | --manifest screen.csv: specimen metadata in S.specimen.json sidecars."""
     from vastcal.specimen import annotate, annotate_from_manifest
 
-    fields = {"specimen_id": args.id, "age_dpf": args.age_dpf, "strain": args.strain, "treatment": args.treatment,
-              "plate": args.plate, "well": args.well}
+    fields = {
+        "specimen_id": args.id,
+        "age_dpf": args.age_dpf,
+        "strain": args.strain,
+        "treatment": args.treatment,
+        "plate": args.plate,
+        "well": args.well,
+    }
     if args.manifest:
         if args.sessions:
             raise UserInputError("annotate: give sessions with fields, or --manifest, not both")
         written = annotate_from_manifest(args.manifest)
     else:
         if not args.sessions or all(v is None for v in fields.values()):
-            raise UserInputError("annotate: expected session files and at least one of --id --age-dpf --strain --treatment --plate --well")
+            raise UserInputError(
+                "annotate: expected session files and at least one of --id --age-dpf --strain --treatment --plate --well"
+            )
         written = [annotate(s, fields) for s in args.sessions]
     for w in written:
         print(f"wrote {w}")
@@ -430,7 +525,7 @@ class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors suggest the closest command, choice or option (difflib), and whose
     unknown options are reported by the subcommand's parser (its usage, not the top-level one)."""
 
-    def error(self, message: str) -> "NoReturn":  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:  # type: ignore[override]
         m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
         if m:
             message += _did_you_mean(m.group(1), re.findall(r"'([^']*)'", m.group(2)))
@@ -440,7 +535,7 @@ class _Parser(argparse.ArgumentParser):
         """Every long and short option this parser accepts."""
         return [o for a in self._actions for o in a.option_strings]
 
-    def reject_unknown(self, extras: Sequence[str]) -> "NoReturn":
+    def reject_unknown(self, extras: Sequence[str]) -> NoReturn:
         """Exit 2 with this parser's usage, naming the unknown arguments and the closest option to the first."""
         first = next((e for e in extras if e.startswith("-")), extras[0])
         hint = _did_you_mean(first.split("=", 1)[0], self.option_strings()) if first.startswith("-") else ""
@@ -456,7 +551,9 @@ def _int_in(lo: int, hi: int | None = None) -> Callable[[str], int]:
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
         if v < lo or (hi is not None and v > hi):
-            raise argparse.ArgumentTypeError(f"expected an integer >= {lo}" + (f" and <= {hi}" if hi is not None else "") + f", got {v}")
+            raise argparse.ArgumentTypeError(
+                f"expected an integer >= {lo}" + (f" and <= {hi}" if hi is not None else "") + f", got {v}"
+            )
         return v
 
     parse.__name__ = "integer"
@@ -472,7 +569,9 @@ def _float_in(lo: float, *, inclusive: bool) -> Callable[[str], float]:
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
         if not (v == v and abs(v) != float("inf")) or v < lo or (v == lo and not inclusive):
-            raise argparse.ArgumentTypeError(f"expected a finite number {'>=' if inclusive else '>'} {lo:g}, got {text}")
+            raise argparse.ArgumentTypeError(
+                f"expected a finite number {'>=' if inclusive else '>'} {lo:g}, got {text}"
+            )
         return v
 
     parse.__name__ = "number"
@@ -482,23 +581,39 @@ def _float_in(lo: float, *, inclusive: bool) -> Callable[[str], float]:
 def _exit_code_epilog() -> str:
     """The exit-code table, for ``vastcal --help``."""
     rows = "\n".join(f"  {code:<4} {what}" for code, what in EXIT_CODES.items())
-    return ("exit codes (every command):\n" + rows + "\n  (a closed stdout pipe, e.g. `vastcal info S.h5 | head -1`, exits 0)\n\n"
-            "Existing outputs are refused unless --force. Run 'vastcal COMMAND -h' for a command's options.")
+    return (
+        "exit codes (every command):\n"
+        + rows
+        + "\n  (a closed stdout pipe, e.g. `vastcal info S.h5 | head -1`, exits 0)\n\n"
+        "Existing outputs are refused unless --force. Run 'vastcal COMMAND -h' for a command's options."
+    )
 
 
 def _add_camera_choice(s: argparse.ArgumentParser) -> None:
     """``--calibration-run N`` and ``--cameras calibrated|imported`` of a stage that uses cameras."""
-    s.add_argument("--calibration-run", default=None, metavar="N",
-                   help="the calibration run to use: its number (as in 'vastcal info') or run_NNN (default: the latest)")
-    s.add_argument("--cameras", choices=("calibrated", "imported"), default="calibrated",
-                   help="calibrated: a calibration run (default; the imported cameras when the session has none); imported: "
-                        "the cameras imported with the session (e.g. ETH/Middlebury ground truth), even when calibration runs exist")
+    s.add_argument(
+        "--calibration-run",
+        default=None,
+        metavar="N",
+        help="the calibration run to use: its number (as in 'vastcal info') or run_NNN (default: the latest)",
+    )
+    s.add_argument(
+        "--cameras",
+        choices=("calibrated", "imported"),
+        default="calibrated",
+        help="calibrated: a calibration run (default; the imported cameras when the session has none); imported: "
+        "the cameras imported with the session (e.g. ETH/Middlebury ground truth), even when calibration runs exist",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every command."""
-    p = _Parser(prog="vastcal", description="Acquire, calibrate and measure rotating-capillary microscope sessions.",
-                epilog=_exit_code_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = _Parser(
+        prog="vastcal",
+        description="Acquire, calibrate and measure rotating-capillary microscope sessions.",
+        epilog=_exit_code_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--version", action="version", version=f"vastcal {__version__}")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
@@ -506,42 +621,79 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("demo", help="acquire from the simulated rig, calibrate, reconstruct and report")
     s.add_argument("-o", "--output", default="vastcal-demo", help="output folder (default: vastcal-demo)")
-    s.add_argument("--views", type=int, default=None, help="views in the revolution (default: from config/simulated.yaml)")
+    s.add_argument(
+        "--views", type=int, default=None, help="views in the revolution (default: from config/simulated.yaml)"
+    )
     s.add_argument("--force", action="store_true", help="overwrite an existing demo session and its report")
     s.set_defaults(func=cmd_demo)
 
     s = sub.add_parser("acquire", help="acquire one revolution into a session file")
     s.add_argument("--config", help="rig description YAML (e.g. config/vast-rig.yaml)")
-    s.add_argument("--simulate", action="store_true", help="use the simulated rig (config/simulated.yaml unless --config)")
+    s.add_argument(
+        "--simulate", action="store_true", help="use the simulated rig (config/simulated.yaml unless --config)"
+    )
     s.add_argument("-o", "--output", help="session file to create (.h5)")
     s.add_argument("--resume", metavar="S.h5", help="continue an incomplete session")
     s.add_argument("--views", type=int, help="number of views (default from the config)")
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")
-    s.add_argument("--specimen", metavar="ID=…,age_dpf=…|FILE",
-                   help="specimen metadata stored in the session: ID=F12,age_dpf=5,strain=AB,treatment=…,plate=…,well=B3, "
-                        "or a YAML file of those fields, or a screen's manifest (YAML or CSV) with an entry for this session")
+    s.add_argument(
+        "--specimen",
+        metavar="ID=…,age_dpf=…|FILE",
+        help="specimen metadata stored in the session: ID=F12,age_dpf=5,strain=AB,treatment=…,plate=…,well=B3, "
+        "or a YAML file of those fields, or a screen's manifest (YAML or CSV) with an entry for this session",
+    )
     s.set_defaults(func=cmd_acquire)
 
-    s = sub.add_parser("import", help="make a session from a folder of images or a stack file (multi-page TIFF, OME-TIFF)")
-    s.add_argument("folder", help="folder of images (tif, png, ppm, jpg; natural sort order), or one stack file (multi-page TIFF, "
-                                  "OME-TIFF, ImageJ hyperstack: one view per page)")
+    s = sub.add_parser(
+        "import", help="make a session from a folder of images or a stack file (multi-page TIFF, OME-TIFF)"
+    )
+    s.add_argument(
+        "folder",
+        help="folder of images (tif, png, ppm, jpg; natural sort order), or one stack file (multi-page TIFF, "
+        "OME-TIFF, ImageJ hyperstack: one view per page)",
+    )
     s.add_argument("-o", "--output", required=True, help="session file to create (.h5)")
-    s.add_argument("--name", help="specimen name for the report and the screen table (default: the folder's or stack file's name)")
+    s.add_argument(
+        "--name", help="specimen name for the report and the screen table (default: the folder's or stack file's name)"
+    )
     s.add_argument("--masks", help="folder of silhouettes, one per image, or a stack file of them")
-    s.add_argument("--angles", help="text file: one commanded angle in degrees per view (default: a stack's own angles - OME 'angle' "
-                                    "annotations, ImageJ slice labels 'angle=12.5' - else uniform over 360)")
-    s.add_argument("--cameras", help="known 3 x 4 cameras: a text file ('[name] p11 .. p34' or '[name] K(9) R(9) t(3)' per line, or 3 rows of 4 "
-                        "numbers per view), a folder of .pa or PMVS .txt files, or an .npy/.npz/.mat array (README: import)")
-    s.add_argument("--length-unit", choices=("nm", "um", "mm", "cm", "m"), default=None,
-                   help="world unit of --cameras (default: um when their distance to the axis matches --config's working distance, "
-                        "else unknown: measurements in units of the cameras)")
-    s.add_argument("--pixel-origin", type=float, default=0.0,
-                   help="coordinate --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at integers), 1 (1-based, MATLAB); default 0")
-    s.add_argument("--roi-offset", type=int, nargs=2, metavar=("X", "Y"),
-                   help="offset of cropped images on the sensor, px (default: --config's camera.roi when its size is the images', else 0 0)")
-    s.add_argument("--pixel-size-um", type=float, metavar="UM",
-                   help="pixel pitch on the specimen, um; overrides --config and the files' metadata (OME PhysicalSizeX, ImageJ/TIFF "
-                        "resolution). Without any of them the pixel size is unknown and measurements are in pixels")
+    s.add_argument(
+        "--angles",
+        help="text file: one commanded angle in degrees per view (default: a stack's own angles - OME 'angle' "
+        "annotations, ImageJ slice labels 'angle=12.5' - else uniform over 360)",
+    )
+    s.add_argument(
+        "--cameras",
+        help="known 3 x 4 cameras: a text file ('[name] p11 .. p34' or '[name] K(9) R(9) t(3)' per line, or 3 rows of 4 "
+        "numbers per view), a folder of .pa or PMVS .txt files, or an .npy/.npz/.mat array (README: import)",
+    )
+    s.add_argument(
+        "--length-unit",
+        choices=("nm", "um", "mm", "cm", "m"),
+        default=None,
+        help="world unit of --cameras (default: um when their distance to the axis matches --config's working distance, "
+        "else unknown: measurements in units of the cameras)",
+    )
+    s.add_argument(
+        "--pixel-origin",
+        type=float,
+        default=0.0,
+        help="coordinate --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at integers), 1 (1-based, MATLAB); default 0",
+    )
+    s.add_argument(
+        "--roi-offset",
+        type=int,
+        nargs=2,
+        metavar=("X", "Y"),
+        help="offset of cropped images on the sensor, px (default: --config's camera.roi when its size is the images', else 0 0)",
+    )
+    s.add_argument(
+        "--pixel-size-um",
+        type=float,
+        metavar="UM",
+        help="pixel pitch on the specimen, um; overrides --config and the files' metadata (OME PhysicalSizeX, ImageJ/TIFF "
+        "resolution). Without any of them the pixel size is unknown and measurements are in pixels",
+    )
     s.add_argument("--config", help="rig description YAML for the optics (pixel size, focal length, principal point)")
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")
     s.set_defaults(func=cmd_import)
@@ -553,24 +705,53 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("calibrate", help="calibrate the camera of every view; stores a run in the session")
     s.add_argument("session")
-    s.add_argument("--method", choices=METHOD_CHOICES, default=None,
-                   help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's objective as "
-                        "published; vr: voxel residual baseline")
-    s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None, help="random seed of CMA-ES (default from the rig config)")
-    s.add_argument("--free", nargs="+", default=None, help="parameters to optimise: yaw pitch gamma rolls | all (default from the rig config)")
+    s.add_argument(
+        "--method",
+        choices=METHOD_CHOICES,
+        default=None,
+        help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's objective as "
+        "published; vr: voxel residual baseline",
+    )
+    s.add_argument(
+        "--seed", type=_int_in(0, 2**32 - 1), default=None, help="random seed of CMA-ES (default from the rig config)"
+    )
+    s.add_argument(
+        "--free",
+        nargs="+",
+        default=None,
+        help="parameters to optimise: yaw pitch gamma rolls | all (default from the rig config)",
+    )
     _add_marks_options(s)
-    s.add_argument("--offset-scan", type=_float_in(0.0, inclusive=True), default=None, metavar="DEG",
-                   help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
-                        "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)")
-    s.add_argument("--fixed-views", default=None, metavar="VIEWS",
-                   help="views whose roll stays at its commanded angle, 0-based: e.g. 10-35 or 0,3,5-7 (default: none)")
-    s.add_argument("--starts", type=_int_in(1, 100), default=1, metavar="S",
-                   help="independent CMA-ES starts (seeds seed, seed+10, ...); the one of lowest cost is kept (default 1)")
+    s.add_argument(
+        "--offset-scan",
+        type=_float_in(0.0, inclusive=True),
+        default=None,
+        metavar="DEG",
+        help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
+        "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)",
+    )
+    s.add_argument(
+        "--fixed-views",
+        default=None,
+        metavar="VIEWS",
+        help="views whose roll stays at its commanded angle, 0-based: e.g. 10-35 or 0,3,5-7 (default: none)",
+    )
+    s.add_argument(
+        "--starts",
+        type=_int_in(1, 100),
+        default=1,
+        metavar="S",
+        help="independent CMA-ES starts (seeds seed, seed+10, ...); the one of lowest cost is kept (default 1)",
+    )
     s.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("reconstruct", help="visual hull, volume (mm3) and surface area (mm2)")
     s.add_argument("session")
-    s.add_argument("--voxel-size", type=_float_in(0.0, inclusive=False), help="voxel edge in um (default: from the specimen extent)")
+    s.add_argument(
+        "--voxel-size",
+        type=_float_in(0.0, inclusive=False),
+        help="voxel edge in um (default: from the specimen extent)",
+    )
     s.add_argument("--masks", action="store_true", help="use the imported masks instead of the probability maps")
     s.add_argument("--mesh", help="also write the mesh (.ply or .stl)")
     s.add_argument("--force", action="store_true", help="overwrite an existing --mesh file")
@@ -580,22 +761,42 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("report", help="report.json, report.csv and report.html of a session")
     s.add_argument("session")
     s.add_argument("-o", "--output", required=True, help="output folder")
-    s.add_argument("--force", action="store_true", help="overwrite the report files of an earlier report in that folder")
+    s.add_argument(
+        "--force", action="store_true", help="overwrite the report files of an earlier report in that folder"
+    )
     s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("run", help="replay a recorded session: calibrate, reconstruct, report")
     s.add_argument("session")
     s.add_argument("-o", "--output", help="report folder (default: S-report beside the session)")
-    s.add_argument("--force", action="store_true", help="overwrite the report files of an earlier run in the report folder")
-    s.add_argument("--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr")
+    s.add_argument(
+        "--force", action="store_true", help="overwrite the report files of an earlier run in the report folder"
+    )
+    s.add_argument(
+        "--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr"
+    )
     s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None)
-    s.add_argument("--starts", type=_int_in(1, 100), default=3, metavar="S",
-                   help="independent calibration starts; the one of lowest cost is kept (default 3)")
-    s.add_argument("--cameras", choices=("calibrated", "imported"), default="calibrated",
-                   help="calibrated: calibrate, then reconstruct with that run (default); imported: skip calibration and "
-                        "reconstruct with the session's imported cameras (e.g. ETH/Middlebury ground truth)")
-    s.add_argument("--keep-runs", type=_int_in(1), default=None, metavar="N",
-                   help="afterwards, delete all but the newest N runs of every stage from the session (default: keep all)")
+    s.add_argument(
+        "--starts",
+        type=_int_in(1, 100),
+        default=3,
+        metavar="S",
+        help="independent calibration starts; the one of lowest cost is kept (default 3)",
+    )
+    s.add_argument(
+        "--cameras",
+        choices=("calibrated", "imported"),
+        default="calibrated",
+        help="calibrated: calibrate, then reconstruct with that run (default); imported: skip calibration and "
+        "reconstruct with the session's imported cameras (e.g. ETH/Middlebury ground truth)",
+    )
+    s.add_argument(
+        "--keep-runs",
+        type=_int_in(1),
+        default=None,
+        metavar="N",
+        help="afterwards, delete all but the newest N runs of every stage from the session (default: keep all)",
+    )
     _add_marks_options(s)
     s.set_defaults(func=cmd_run)
 
@@ -606,23 +807,49 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_prune)
 
     s = sub.add_parser("batch", help="run many sessions on Dask; one measurements table per screen")
-    s.add_argument("sessions", nargs="+", metavar="SESSIONS", help="session files, folders (every *.h5 below) or glob patterns")
-    s.add_argument("-o", "--output", required=True, metavar="RESULTS", help="results folder (measurements.csv, index.html, reports/)")
-    s.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
-                   help="an existing Dask scheduler (default: DASK_SCHEDULER_ADDRESS, else a local cluster, one worker per core)")
-    s.add_argument("--workers", type=int, default=None, metavar="N", help="workers of the local cluster (default: one per core)")
+    s.add_argument(
+        "sessions", nargs="+", metavar="SESSIONS", help="session files, folders (every *.h5 below) or glob patterns"
+    )
+    s.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="RESULTS",
+        help="results folder (measurements.csv, index.html, reports/)",
+    )
+    s.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="an existing Dask scheduler (default: DASK_SCHEDULER_ADDRESS, else a local cluster, one worker per core)",
+    )
+    s.add_argument(
+        "--workers", type=int, default=None, metavar="N", help="workers of the local cluster (default: one per core)"
+    )
     s.add_argument("--force", action="store_true", help="re-process sessions already done with the same settings")
-    s.add_argument("--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr")
+    s.add_argument(
+        "--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr"
+    )
     s.add_argument("--seed", type=int, default=None)
-    s.add_argument("--starts", type=int, default=3, metavar="S", help="independent calibration starts per session (default 3)")
-    s.add_argument("--prior-from", default=None, metavar="RESULTS",
-                   help="an earlier batch's results folder: its rig health seeds every calibration (as calibration.prior_from)")
+    s.add_argument(
+        "--starts", type=int, default=3, metavar="S", help="independent calibration starts per session (default 3)"
+    )
+    s.add_argument(
+        "--prior-from",
+        default=None,
+        metavar="RESULTS",
+        help="an earlier batch's results folder: its rig health seeds every calibration (as calibration.prior_from)",
+    )
     s.set_defaults(func=cmd_batch)
 
     s = sub.add_parser("annotate", help="attach specimen metadata to sessions (S.specimen.json beside S.h5)")
     s.add_argument("sessions", nargs="*", metavar="S.h5")
-    s.add_argument("--manifest", metavar="CSV", help="CSV with a 'session' column and specimen_id, age_dpf, strain, treatment, plate, well; "
-                        "or YAML mapping session file names to those fields")
+    s.add_argument(
+        "--manifest",
+        metavar="CSV",
+        help="CSV with a 'session' column and specimen_id, age_dpf, strain, treatment, plate, well; "
+        "or YAML mapping session file names to those fields",
+    )
     s.add_argument("--id", default=None, help="specimen ID")
     s.add_argument("--age-dpf", default=None, help="age, days post fertilisation")
     s.add_argument("--strain", default=None)
@@ -633,7 +860,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(_commands=sub.choices)
     for sp in sub.choices.values():  # the global flags are accepted after the command too
         sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
-        sp.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)")
+        sp.add_argument(
+            "-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)"
+        )
     return p
 
 
@@ -652,11 +881,23 @@ def _resource_exhausted(exc: BaseException) -> str | None:
         code = getattr(e, "errno", None)
         text = str(e)
         where = getattr(e, "filename", None) or (re.findall(r"filename = '([^']*)'", text) or [None])[0]  # HDF5's text
-        if code in (errno.ENOSPC, errno.EDQUOT) or "No space left on device" in text or "errno = 28," in text or "Disk quota exceeded" in text:
-            return "no space left on the device" + (f" writing {where}" if where else "") + "; free disk space and run the command again"
+        if (
+            code in (errno.ENOSPC, errno.EDQUOT)
+            or "No space left on device" in text
+            or "errno = 28," in text
+            or "Disk quota exceeded" in text
+        ):
+            return (
+                "no space left on the device"
+                + (f" writing {where}" if where else "")
+                + "; free disk space and run the command again"
+            )
         if code == errno.EFBIG or "File too large" in text:
-            return ("file size limit reached (ulimit -f, or the file system's largest file)" + (f" writing {where}" if where else "")
-                    + "; raise the limit or write elsewhere")
+            return (
+                "file size limit reached (ulimit -f, or the file system's largest file)"
+                + (f" writing {where}" if where else "")
+                + "; raise the limit or write elsewhere"
+            )
         if code == errno.ENOMEM or "Insufficient memory" in text:  # OpenCV's cv2.error for a failed allocation
             return "out of memory (the system refused an allocation); free memory or raise the limit (ulimit -v)"
         e = e.__cause__ or e.__context__
@@ -696,7 +937,19 @@ EXIT_DAMAGED = EXIT_BAD_INPUT
 EXIT_INTERNAL = EXIT_FAILURE
 """Exit code of an error vastcal did not anticipate: a failure like any other (the one table has no code of its own for bugs)."""
 
-THIRD_PARTY_LOGGERS = ("h5py", "distributed", "dask", "tornado", "asyncio", "matplotlib", "PIL", "numexpr", "urllib3", "bokeh", "fsspec")
+THIRD_PARTY_LOGGERS = (
+    "h5py",
+    "distributed",
+    "dask",
+    "tornado",
+    "asyncio",
+    "matplotlib",
+    "PIL",
+    "numexpr",
+    "urllib3",
+    "bokeh",
+    "fsspec",
+)
 """Libraries whose log lines (INFO chatter, h5py's DEBUG) stay out of stderr unless ``-vv`` (``-vvv`` for their DEBUG)."""
 
 
@@ -729,10 +982,14 @@ def _unexpected(exc: BaseException, args: argparse.Namespace) -> int:
     session = getattr(args, "session", None) or getattr(args, "resume", None)
     frames = traceback.extract_tb(exc.__traceback__)
     if session and any("/h5py/" in f.filename or f.filename.endswith("session.py") for f in frames):
-        _say(f"vastcal: error: {session}: damaged session: cannot read what vastcal expects there ({type(exc).__name__}: {first})")
+        _say(
+            f"vastcal: error: {session}: damaged session: cannot read what vastcal expects there ({type(exc).__name__}: {first})"
+        )
         return EXIT_DAMAGED
     where = f" on {session}" if session else ""
-    _say(f"vastcal: error: internal error{where} ({type(exc).__name__}: {first}); run again with -v for the traceback and report it")
+    _say(
+        f"vastcal: error: internal error{where} ({type(exc).__name__}: {first}); run again with -v for the traceback and report it"
+    )
     return EXIT_INTERNAL
 
 

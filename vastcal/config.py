@@ -130,7 +130,19 @@ class CameraConfig:
     """Path of the GenTL producer (``.cti``); ``None`` uses the ``GENICAM_GENTL64_PATH`` search."""
     serial_number: str | None = None
     """Device to open; ``None`` opens the first device the producer lists."""
-    pixel_format: Literal["Mono8", "Mono12", "Mono12Packed", "Mono12p", "Mono16", "RGB8", "BayerRG8", "BayerGR8", "BayerBG8", "BayerGB8", "RGBa8"] = "Mono12"
+    pixel_format: Literal[
+        "Mono8",
+        "Mono12",
+        "Mono12Packed",
+        "Mono12p",
+        "Mono16",
+        "RGB8",
+        "BayerRG8",
+        "BayerGR8",
+        "BayerBG8",
+        "BayerGB8",
+        "RGBa8",
+    ] = "Mono12"
     exposure_us: float = field(default=5000.0, metadata=_range(0.0, 60_000_000.0, lo_open=True))
     gain_db: float = field(default=0.0, metadata=_range(0.0, 48.0))
     fetch_timeout_s: float = field(default=2.0, metadata=_range(0.0, 600.0, lo_open=True))
@@ -316,7 +328,9 @@ def _describe(tp: Any) -> str:
     return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(tp, str(tp))
 
 
-def _convert(value: Any, tp: Any, where: str, fail: typing.Callable[[str, str], ConfigError], meta: dict[str, Any]) -> Any:
+def _convert(
+    value: Any, tp: Any, where: str, fail: typing.Callable[[str, str], ConfigError], meta: dict[str, Any]
+) -> Any:
     """Check ``value`` against annotation ``tp`` and return it converted; raise via ``fail``."""
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
@@ -362,7 +376,9 @@ def _convert(value: Any, tp: Any, where: str, fail: typing.Callable[[str, str], 
     too_low = lo is not None and not (value > lo or (not lo_open and value == lo))
     too_high = hi is not None and not value <= hi
     if too_low or too_high:
-        parts = ([f"> {lo}" if lo_open else f">= {lo}"] if lo is not None else []) + ([f"<= {hi}"] if hi is not None else [])
+        parts = ([f"> {lo}" if lo_open else f">= {lo}"] if lo is not None else []) + (
+            [f"<= {hi}"] if hi is not None else []
+        )
         raise fail(where, f"expected {_describe(tp)} {' and '.join(parts)}, got {_show(value)}")
     return value
 
@@ -425,7 +441,10 @@ def parse_config(data: Any, source: str = "<string>") -> RigConfig:
         cfg = dataclasses.replace(cfg, simulation=SimulationConfig())
     roi, optics = cfg.camera.roi, cfg.optics
     if roi.x + roi.width > optics.sensor_width_px or roi.y + roi.height > optics.sensor_height_px:
-        raise fail("camera.roi", f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, got x={roi.x} width={roi.width} y={roi.y} height={roi.height}")
+        raise fail(
+            "camera.roi",
+            f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, got x={roi.x} width={roi.width} y={roi.y} height={roi.height}",
+        )
     for name in cfg.calibration.free:
         if name not in FREE_NAMES:
             raise fail("calibration.free", f"expected names from {', '.join(FREE_NAMES)}; got {_show(name)}")
@@ -514,7 +533,9 @@ def load_config(path: str | Path | None = None) -> RigConfig:
         with p.open("rb") as f:
             raw = f.read(MAX_CONFIG_BYTES + 1)
         if len(raw) > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{p}: cannot read the rig configuration: larger than {MAX_CONFIG_BYTES} bytes (a rig file is a few kB)")
+            raise ConfigError(
+                f"{p}: cannot read the rig configuration: larger than {MAX_CONFIG_BYTES} bytes (a rig file is a few kB)"
+            )
         text = raw.decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(_clip(f"{p}: cannot read the rig configuration: {exc}")) from None
@@ -528,7 +549,9 @@ def load_config(path: str | Path | None = None) -> RigConfig:
         problem = getattr(exc, "problem", None) or (str(exc).splitlines() or [""])[0]
         raise ConfigError(_clip(f"{p}: YAML syntax error at {where}{problem}")) from None
     if data is None:
-        raise ConfigError(f"{p}: the rig configuration is empty; expected a mapping of sections (see config/vast-rig.yaml)")
+        raise ConfigError(
+            f"{p}: the rig configuration is empty; expected a mapping of sections (see config/vast-rig.yaml)"
+        )
     return parse_config(data, source=str(p))
 
 

@@ -58,11 +58,13 @@ class Device(abc.ABC):
         except Exception:  # noqa: BLE001 - closing must never hide the original error
             log.exception("error while closing %s", type(self).__name__)
 
-    def __enter__(self) -> "Device":
+    def __enter__(self) -> Device:
         self.open()
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.close()
 
     def _check_open(self) -> None:

@@ -78,7 +78,7 @@ class VastcalError(Exception):
 
     exit_code: int = EXIT_FAILURE
 
-    def about(self, source: object) -> "VastcalError":
+    def about(self, source: object) -> VastcalError:
         """The same error, its message prefixed with ``source`` (e.g. the session file) unless it names it.
 
         For errors raised deep in pure functions of arrays, re-raised where the file is known::

@@ -40,9 +40,9 @@ from vastcal.errors import AnalysisError
 log = logging.getLogger(__name__)
 
 
-
 LENGTH_UNITS_UM: dict[str, float] = {"nm": 1e-3, "um": 1.0, "mm": 1e3, "cm": 1e4, "m": 1e6}
 """Micrometres per unit of the length units a camera world may be given in."""
+
 
 def rot_x(angle_rad: np.ndarray | float) -> np.ndarray:
     """Rotation matrices about x for angles in radians; shape (..., 3, 3)."""
@@ -126,7 +126,7 @@ class CircularMotion:
         """θ = [yaw, pitch, γ, ω_0 … ω_{N−1}] in degrees."""
         return np.concatenate([[self.yaw_deg, self.pitch_deg, self.gamma_deg], np.asarray(self.rolls_deg, float)])
 
-    def with_theta(self, theta_deg: np.ndarray) -> "CircularMotion":
+    def with_theta(self, theta_deg: np.ndarray) -> CircularMotion:
         """A copy with θ replaced (same K and distance)."""
         th = np.asarray(theta_deg, float)
         return CircularMotion(self.K, self.distance, float(th[0]), float(th[1]), float(th[2]), th[3:].copy())
@@ -243,7 +243,9 @@ def _common_rotation_axis(Rs: np.ndarray) -> np.ndarray:
     sym = (rel + np.transpose(rel, (0, 2, 1))) / 2.0 - cos[:, None, None] * np.eye(3)
     a = np.linalg.eigh(sym.sum(axis=0))[1][:, -1]
     steps = np.einsum("nji,njk->nik", Rs[:-1], Rs[1:])
-    turn = np.stack([steps[:, 2, 1] - steps[:, 1, 2], steps[:, 0, 2] - steps[:, 2, 0], steps[:, 1, 0] - steps[:, 0, 1]], 1)
+    turn = np.stack(
+        [steps[:, 2, 1] - steps[:, 1, 2], steps[:, 0, 2] - steps[:, 2, 0], steps[:, 1, 0] - steps[:, 0, 1]], 1
+    )
     return -a if float(np.sum(turn @ a)) < 0 else a
 
 
@@ -258,8 +260,10 @@ def circular_fit_shortfall(rms_px: float) -> str | None:
     within :data:`CIRCULAR_FIT_WARN_PX`."""
     if rms_px <= CIRCULAR_FIT_WARN_PX:
         return None
-    return (f"the imported cameras fit circular motion to {rms_px:.2f} px RMS only (per-view intrinsics or centres off one "
-            f"circle): calibrated poses cannot come closer to them than that")
+    return (
+        f"the imported cameras fit circular motion to {rms_px:.2f} px RMS only (per-view intrinsics or centres off one "
+        f"circle): calibrated poses cannot come closer to them than that"
+    )
 
 
 @dataclass(frozen=True)
@@ -351,7 +355,14 @@ def decompose_circular(P: np.ndarray, check_points: np.ndarray | None = None) ->
     given = project(P, data_pts)
     model = project(motion.projection_matrices(), check_points)
     rms = float(np.sqrt(np.mean(np.sum((given - model) ** 2, -1))))
-    log.info("circular fit: d=%.4g yaw=%.4f° pitch=%.4f° γ=%.4f° rms=%.3g px", d, motion.yaw_deg, motion.pitch_deg, gamma, rms)
+    log.info(
+        "circular fit: d=%.4g yaw=%.4f° pitch=%.4f° γ=%.4f° rms=%.3g px",
+        d,
+        motion.yaw_deg,
+        motion.pitch_deg,
+        gamma,
+        rms,
+    )
     return CircularFit(motion, world_from_data, rms)
 
 

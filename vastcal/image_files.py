@@ -54,9 +54,25 @@ size writes a print or screen resolution in inches (72, 96, 300, 600, 1200 dpi: 
 software writes centimetres (or OME / ImageJ units), so an inch-based value is taken only beyond any print
 resolution."""
 
-_UNIT_ALIASES = {"micron": "um", "microns": "um", "micrometer": "um", "micrometre": "um", "µm": "um", "μm": "um",
-                 "\\u00b5m": "um", "nanometer": "nm", "nanometre": "nm", "millimeter": "mm", "millimetre": "mm",
-                 "centimeter": "cm", "centimetre": "cm", "meter": "m", "metre": "m", "å": "angstrom", "angstrom": "angstrom"}
+_UNIT_ALIASES = {
+    "micron": "um",
+    "microns": "um",
+    "micrometer": "um",
+    "micrometre": "um",
+    "µm": "um",
+    "μm": "um",
+    "\\u00b5m": "um",
+    "nanometer": "nm",
+    "nanometre": "nm",
+    "millimeter": "mm",
+    "millimetre": "mm",
+    "centimeter": "cm",
+    "centimetre": "cm",
+    "meter": "m",
+    "metre": "m",
+    "å": "angstrom",
+    "angstrom": "angstrom",
+}
 
 
 def length_unit_um(unit: str | None) -> float | None:
@@ -106,10 +122,17 @@ def order_by_view_names(names: list[str], image_names: list[str], source: Path, 
     missing = [k for k in keys if k not in known]
     uncovered = [s for s in stems if s not in entry]
     if missing or uncovered or dupes:
-        why = (f"{what} {', '.join(missing[:3])} name no image" if missing else
-               f"images {', '.join(uncovered[:3])} have none" if uncovered else f"views named twice: {', '.join(dupes[:3])}")
-        raise ImportDataError(f"{source}: its view names match {len(matched)} of {len(stems)} images: {why} "
-                              f"(names are matched without their file suffix)")
+        why = (
+            f"{what} {', '.join(missing[:3])} name no image"
+            if missing
+            else f"images {', '.join(uncovered[:3])} have none"
+            if uncovered
+            else f"views named twice: {', '.join(dupes[:3])}"
+        )
+        raise ImportDataError(
+            f"{source}: its view names match {len(matched)} of {len(stems)} images: {why} "
+            f"(names are matched without their file suffix)"
+        )
     order = [entry[s] for s in stems]
     return None if order == list(range(len(order))) else order
 
@@ -145,8 +168,15 @@ def _plausible(px: tuple[float, float], source: str, path: Path, hi: float = PLA
     lo = PLAUSIBLE_PIXEL_UM[0]
     if all(np.isfinite(v) and lo <= v <= hi for v in px):
         return ImageMetadata(pixel_size_um=(float(px[0]), float(px[1])), pixel_size_source=source)
-    log.info("%s: %s says %.4g x %.4g um per pixel, outside %g..%g um: not taken as the specimen's pixel size",
-             path.name, source, px[0], px[1], lo, hi)
+    log.info(
+        "%s: %s says %.4g x %.4g um per pixel, outside %g..%g um: not taken as the specimen's pixel size",
+        path.name,
+        source,
+        px[0],
+        px[1],
+        lo,
+        hi,
+    )
     return ImageMetadata(pixel_size_source=f"{source} ignored ({px[0]:.4g} um: a display resolution)")
 
 
@@ -208,8 +238,11 @@ def _ome_angles(xml: str, n: int) -> np.ndarray | None:
     return None
 
 
-_LABEL_ANGLE = re.compile(r"(?:angle|rotation)\w*\s*[=:]?\s*([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)|"
-                          r"([-+]?\d+(?:\.\d*)?)\s*(?:deg\w*|°)", re.I)
+_LABEL_ANGLE = re.compile(
+    r"(?:angle|rotation)\w*\s*[=:]?\s*([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)|"
+    r"([-+]?\d+(?:\.\d*)?)\s*(?:deg\w*|°)",
+    re.I,
+)
 
 
 def _imagej_angles(ij: dict[str, Any] | None, n: int) -> np.ndarray | None:
@@ -253,6 +286,7 @@ def tiff_metadata(tif: Any, path: Path, n_views: int) -> ImageMetadata:
     meta = ImageMetadata()
     xr, yr = tags.get("XResolution"), tags.get("YResolution")
     if xr is not None:
+
         def per_px(tag: Any) -> float:
             num, den = tag.value if isinstance(tag.value, tuple) else (tag.value, 1)
             return float(den) / float(num) if num else float("nan")
@@ -282,18 +316,21 @@ def _to_views(arr: np.ndarray, axes: str, path: Path, rgb_samples: bool) -> np.n
         colour = "S"
         c = arr.shape[axes.index("S")]
         if c > 1 and not rgb_samples:
-            raise ImportDataError(f"{path}: {c} samples per pixel that are not RGB (photometric interpretation); expected grey or RGB")
+            raise ImportDataError(
+                f"{path}: {c} samples per pixel that are not RGB (photometric interpretation); expected grey or RGB"
+            )
     elif "C" in axes and arr.shape[axes.index("C")] in (3, 4):
         colour = "C"
     view_axes = [a for i, a in enumerate(axes) if a not in ("Y", "X", colour) and arr.shape[i] > 1]
     if len(view_axes) > 1:
         sizes = ", ".join(f"{a}={arr.shape[axes.index(a)]}" for a in view_axes)
-        raise ImportDataError(f"{path}: {len(view_axes)} stack axes ({sizes}); expected one axis of views "
-                              "(save one revolution per file)")
+        raise ImportDataError(
+            f"{path}: {len(view_axes)} stack axes ({sizes}); expected one axis of views (save one revolution per file)"
+        )
     order = view_axes + ["Y", "X"] + ([colour] if colour else [])
     rest = [a for a in axes if a not in order]
     arr = np.transpose(arr, [axes.index(a) for a in rest + order])
-    arr = arr.reshape(arr.shape[len(rest):])
+    arr = arr.reshape(arr.shape[len(rest) :])
     if not view_axes:
         arr = arr[None]
     if colour:
@@ -363,19 +400,27 @@ def read_tiff(path: Path, max_frame_pixels: int, max_bytes: int | None = None) -
                     raise ImportDataError(f"{path}: cannot read this TIFF (no image in it)")
                 big = [s for s in tif.series if int(np.prod(s.shape)) > 0]
                 if len(big) > 1 and not tif.is_ome:
-                    log.info("%s: %d image series; reading the first (%s %s)", path.name, len(big), big[0].axes, big[0].shape)
+                    log.info(
+                        "%s: %d image series; reading the first (%s %s)", path.name, len(big), big[0].axes, big[0].shape
+                    )
                 if tif.is_ome and len(big) > 1:
-                    raise ImportDataError(f"{path}: {len(big)} OME images in one file; expected one revolution per file")
+                    raise ImportDataError(
+                        f"{path}: {len(big)} OME images in one file; expected one revolution per file"
+                    )
                 s = tif.series[0]
                 shape = dict(zip(s.axes.upper(), s.shape))
                 h, w = int(shape.get("Y", 0)), int(shape.get("X", 0))
                 if h * w > max_frame_pixels or min(h, w) < 1:
-                    raise ImportDataError(f"{path}: the header claims {w} x {h} px; expected 1 to {max_frame_pixels} pixels "
-                                          f"(16384 x 16384); not decoded")
+                    raise ImportDataError(
+                        f"{path}: the header claims {w} x {h} px; expected 1 to {max_frame_pixels} pixels "
+                        f"(16384 x 16384); not decoded"
+                    )
                 nbytes = int(np.prod(s.shape)) * np.dtype(s.dtype).itemsize
                 if max_bytes is not None and nbytes > max_bytes:
-                    raise ImportDataError(f"{path}: {s.shape} {s.dtype} need {nbytes / 2**30:.1f} GiB, more than this machine's "
-                                          f"{max_bytes / 2**30:.1f} GiB of memory (calibration loads every frame)")
+                    raise ImportDataError(
+                        f"{path}: {s.shape} {s.dtype} need {nbytes / 2**30:.1f} GiB, more than this machine's "
+                        f"{max_bytes / 2**30:.1f} GiB of memory (calibration loads every frame)"
+                    )
                 arr = s.asarray()
                 views = _to_views(arr, s.axes, path, _rgb_samples(s))
                 meta = tiff_metadata(tif, path, views.shape[0])
@@ -420,8 +465,10 @@ def check_pixel_type(img: np.ndarray, path: Path) -> None:
         bad = ~np.isfinite(img)
         if bad.any():
             pos = np.unravel_index(int(np.argmax(bad)), img.shape)
-            raise ImportDataError(f"{path}: {int(bad.sum())} NaN or infinite pixel(s) (first at index {tuple(int(v) for v in pos)}); "
-                                  "expected finite values")
+            raise ImportDataError(
+                f"{path}: {int(bad.sum())} NaN or infinite pixel(s) (first at index {tuple(int(v) for v in pos)}); "
+                "expected finite values"
+            )
     elif kind == "b":
         return
     elif kind not in "ui":

@@ -37,10 +37,9 @@ import dataclasses
 import logging
 import os
 import warnings
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
-import cv2
 import numpy as np
 
 from vastcal import image_files
@@ -66,7 +65,10 @@ def list_images(folder: Path) -> list[Path]:
     """
     if not folder.is_dir():
         raise ImportDataError(f"{folder}: not a folder of images")
-    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()), key=lambda p: natural_key(p.name))
+    files = sorted(
+        (p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()),
+        key=lambda p: natural_key(p.name),
+    )
     if not files:
         raise ImportDataError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
     return files
@@ -108,16 +110,22 @@ def read_image(path: Path) -> np.ndarray:
         ImportDataError: unreadable, empty, implausibly large, a stack, or NaN/inf pixels.
     """
     if not path.is_file():
-        raise ImportDataError(f"{path}: cannot read this image: {'no such file' if not path.exists() else 'not a regular file'}")
+        raise ImportDataError(
+            f"{path}: cannot read this image: {'no such file' if not path.exists() else 'not a regular file'}"
+        )
     size = image_size(path)
     if size is not None and (size[0] * size[1] > MAX_IMAGE_PIXELS or min(size) < 1):
-        raise ImportDataError(f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
-                              f"(16384 x 16384); not decoded")
+        raise ImportDataError(
+            f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
+            f"(16384 x 16384); not decoded"
+        )
     if image_files.is_tiff(path):
         views, _ = image_files.read_tiff(path, MAX_IMAGE_PIXELS, _physical_memory_bytes())
         if views.shape[0] != 1:
-            raise ImportDataError(f"{path}: a stack of {views.shape[0]} views; expected one image "
-                                  f"(import the stack on its own: vastcal import {path.name} -o S.h5)")
+            raise ImportDataError(
+                f"{path}: a stack of {views.shape[0]} views; expected one image "
+                f"(import the stack on its own: vastcal import {path.name} -o S.h5)"
+            )
         img = views[0]
     else:
         img = image_files.read_single(path)
@@ -175,8 +183,10 @@ def read_views(path: str | Path) -> ImageSet:
     path = Path(path)
     if path.is_file():
         if path.suffix.lower() not in IMAGE_SUFFIXES:
-            raise ImportDataError(f"{path}: not an image file or folder (expected a folder of images or a "
-                                  f"{'/'.join(IMAGE_SUFFIXES)} file)")
+            raise ImportDataError(
+                f"{path}: not an image file or folder (expected a folder of images or a "
+                f"{'/'.join(IMAGE_SUFFIXES)} file)"
+            )
         if image_files.is_tiff(path):
             return _stack_set(path)
         return _folder_set(path, [path])
@@ -188,16 +198,20 @@ def read_views(path: str | Path) -> ImageSet:
         if image_files.is_tiff(f):
             k = _frame_count(f)
             if k > 1:
-                raise ImportDataError(f"{f}: a stack of {k} views among {len(files)} image files; import one stack per session "
-                                      f"(vastcal import {f.name} -o S.h5), or a folder of single images")
+                raise ImportDataError(
+                    f"{f}: a stack of {k} views among {len(files)} image files; import one stack per session "
+                    f"(vastcal import {f.name} -o S.h5), or a folder of single images"
+                )
     return _folder_set(path, files)
 
 
 def _frame_count(path: Path) -> int:
     size = image_size(path)
     if size is not None and (size[0] * size[1] > MAX_IMAGE_PIXELS or min(size) < 1):
-        raise ImportDataError(f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
-                              f"(16384 x 16384); not decoded")
+        raise ImportDataError(
+            f"{path}: the header claims {size[0]} x {size[1]} px; expected 1 to {MAX_IMAGE_PIXELS} pixels "
+            f"(16384 x 16384); not decoded"
+        )
     if not path.is_file():
         raise ImportDataError(f"{path}: cannot read this image: not a regular file")
     return image_files.tiff_frame_count(path)
@@ -219,7 +233,9 @@ def _folder_set(source: Path, files: list[Path]) -> ImageSet:
     for f in files:
         img = first if f == files[0] else read_image(f)
         if img.shape != first.shape or img.dtype != first.dtype:
-            raise ImportDataError(f"{source}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, {f.name} is {img.shape} {img.dtype}")
+            raise ImportDataError(
+                f"{source}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, {f.name} is {img.shape} {img.dtype}"
+            )
         if img.dtype not in image_files.STORED_DTYPES:
             lo, hi = min(lo, float(img.min())), max(hi, float(img.max()))
     dtype = image_files.stored_dtype(first.dtype, lo, hi, source)
@@ -239,8 +255,12 @@ def circular_fit_note(P: np.ndarray, source: str) -> dict[str, object]:
     try:
         rms = float(decompose_circular(P).rms_px)
     except VastcalError as exc:
-        log.warning("%s: the cameras do not describe circular motion (%s): `calibrate` and `run` will refuse this session; "
-                    "`reconstruct --cameras imported` can still use them", source, exc)
+        log.warning(
+            "%s: the cameras do not describe circular motion (%s): `calibrate` and `run` will refuse this session; "
+            "`reconstruct --cameras imported` can still use them",
+            source,
+            exc,
+        )
         return {"circular_fit_error": str(exc)}
     shortfall = circular_fit_shortfall(rms)
     if shortfall:
@@ -267,8 +287,10 @@ def angles_of_cameras(P: np.ndarray, uniform: np.ndarray, roll_box_deg: float, s
     worst = int(np.argmax(off))
     if off[worst] <= roll_box_deg:
         return uniform, "uniform over 360 degrees"
-    why = (f"the rolls of the cameras in {source}: uniform steps over 360 degrees would put view {worst} {off[worst]:.1f} degrees "
-           f"from its camera, beyond the calibration's +/-{roll_box_deg:g} degree roll box")
+    why = (
+        f"the rolls of the cameras in {source}: uniform steps over 360 degrees would put view {worst} {off[worst]:.1f} degrees "
+        f"from its camera, beyond the calibration's +/-{roll_box_deg:g} degree roll box"
+    )
     log.warning("angles: %s", why)
     return rolls, why
 
@@ -283,11 +305,16 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     """
     try:
         if not path.is_file():
-            raise ImportDataError(f"{path}: expected a text file of angles, got {'nothing' if not path.exists() else 'not a regular file'}")
+            raise ImportDataError(
+                f"{path}: expected a text file of angles, got {'nothing' if not path.exists() else 'not a regular file'}"
+            )
         if path.stat().st_size > MAX_TEXT_BYTES:
             raise ImportDataError(f"{path}: larger than {MAX_TEXT_BYTES} bytes; expected one angle in degrees per line")
-        lines = [(k, ln.split()) for k, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
-                 if ln.strip() and not ln.lstrip().startswith("#")]
+        lines = [
+            (k, ln.split())
+            for k, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+            if ln.strip() and not ln.lstrip().startswith("#")
+        ]
         values = [float(r[-1]) for _, r in lines]
     except ImportDataError:
         raise
@@ -295,10 +322,15 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
         raise ImportDataError(f"{path}: expected one angle in degrees per line ({str(exc)[:120]})") from None
     if len(values) != n:
         raise ImportDataError(f"{path}: {len(values)} angles for {n} images")
-    if all(len(r) >= 2 for _, r in lines):  # `name angle` lines: the images' own angles, whatever order the file lists them in
+    if all(
+        len(r) >= 2 for _, r in lines
+    ):  # `name angle` lines: the images' own angles, whatever order the file lists them in
         order = order_by_view_names([r[0] for _, r in lines], list(names), path, "angles")
         if order is not None:
-            log.warning("%s lists the views in another order than the images' natural order: angles matched to images by name", path.name)
+            log.warning(
+                "%s lists the views in another order than the images' natural order: angles matched to images by name",
+                path.name,
+            )
             lines, values = [lines[i] for i in order], [values[i] for i in order]
     angles = np.asarray(values, float)
     for (lineno, _), a in zip(lines, angles):
@@ -309,8 +341,10 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     seen: dict[float, int] = {}
     for i, a in enumerate(np.round(angles, 9)):
         if a in seen:
-            raise ImportDataError(f"{path}: lines {lines[seen[a]][0]} and {lines[i][0]}: views {seen[a]} and {i} have the same angle "
-                                  f"({angles[i]:g} degrees)")
+            raise ImportDataError(
+                f"{path}: lines {lines[seen[a]][0]} and {lines[i][0]}: views {seen[a]} and {i} have the same angle "
+                f"({angles[i]:g} degrees)"
+            )
         seen[a] = i
     return angles
 
@@ -333,15 +367,22 @@ def camera_length_unit(P: np.ndarray, given: str | None, working_distance_um: fl
             raise ImportDataError(f"length unit: expected one of {', '.join(LENGTH_UNITS_UM)}, got {given!r}")
         return unit, "given"
     if working_distance_um:
-        from vastcal.geometry import decompose_circular
         from vastcal.errors import AnalysisError
+        from vastcal.geometry import decompose_circular
+
         try:
             d = decompose_circular(P).motion.distance
         except AnalysisError:
             return "unknown", "the cameras do not form a circular motion"
         if 0.5 <= d / working_distance_um <= 2.0:
-            return "um", f"camera-to-axis distance {d:.4g} matches the rig's working distance {working_distance_um:.4g} um"
-        return "unknown", f"camera-to-axis distance {d:.4g} is not the rig's working distance {working_distance_um:.4g} um; give --length-unit"
+            return (
+                "um",
+                f"camera-to-axis distance {d:.4g} matches the rig's working distance {working_distance_um:.4g} um",
+            )
+        return (
+            "unknown",
+            f"camera-to-axis distance {d:.4g} is not the rig's working distance {working_distance_um:.4g} um; give --length-unit",
+        )
     return "unknown", "no rig description; give --length-unit"
 
 
@@ -364,8 +405,9 @@ def _differ(a: float, b: float) -> bool:
     return abs(a - b) > 1e-3 * max(abs(a), abs(b))
 
 
-def _resolve_optics(cfg: RigConfig, config_given: bool, pixel_size_um: float | None, meta: image_files.ImageMetadata,
-                    source: Path) -> tuple[OpticsConfig, str]:
+def _resolve_optics(
+    cfg: RigConfig, config_given: bool, pixel_size_um: float | None, meta: image_files.ImageMetadata, source: Path
+) -> tuple[OpticsConfig, str]:
     """(optics, where the pixel size came from): ``--pixel-size-um`` > ``--config`` > the file's metadata >
     unknown. A disagreement between the sources is logged (warning)."""
     optics = cfg.optics
@@ -373,8 +415,13 @@ def _resolve_optics(cfg: RigConfig, config_given: bool, pixel_size_um: float | N
     meta_px = meta.pixel_size_um[0] if meta.pixel_size_um else None
     if pixel_size_um is not None:
         if not (np.isfinite(pixel_size_um) and 0 < pixel_size_um <= 1000):
-            raise ImportDataError(f"--pixel-size-um: expected the pixel pitch on the specimen in um (0 < value <= 1000), got {pixel_size_um}")
-        for what, other in (("--config", cfg_px if config_given else None), (f"{source.name}'s {meta.pixel_size_source}", meta_px)):
+            raise ImportDataError(
+                f"--pixel-size-um: expected the pixel pitch on the specimen in um (0 < value <= 1000), got {pixel_size_um}"
+            )
+        for what, other in (
+            ("--config", cfg_px if config_given else None),
+            (f"{source.name}'s {meta.pixel_size_source}", meta_px),
+        ):
             if other is not None and _differ(other, pixel_size_um):
                 log.warning("pixel size: --pixel-size-um %.6g um overrides %s (%.6g um)", pixel_size_um, what, other)
         if config_given:  # keep the sensor pitch; the magnification is what the given pitch implies
@@ -382,8 +429,15 @@ def _resolve_optics(cfg: RigConfig, config_given: bool, pixel_size_um: float | N
         return dataclasses.replace(optics, pixel_size_um=pixel_size_um, magnification=1.0), "--pixel-size-um"
     if config_given:
         if meta_px is not None and _differ(meta_px, cfg_px):
-            log.warning("pixel size: --config's %.6g um (pixel %.6g um / magnification %.6g) overrides %s's %s (%.6g um)",
-                        cfg_px, optics.pixel_size_um, optics.magnification, source.name, meta.pixel_size_source, meta_px)
+            log.warning(
+                "pixel size: --config's %.6g um (pixel %.6g um / magnification %.6g) overrides %s's %s (%.6g um)",
+                cfg_px,
+                optics.pixel_size_um,
+                optics.magnification,
+                source.name,
+                meta.pixel_size_source,
+                meta_px,
+            )
         return optics, "config"
     if meta.pixel_size_um is not None:
         px, py = meta.pixel_size_um
@@ -391,8 +445,13 @@ def _resolve_optics(cfg: RigConfig, config_given: bool, pixel_size_um: float | N
             log.warning("%s: pixels are %.6g x %.6g um; using %.6g um (square pixels)", source.name, px, py, px)
         log.info("pixel size %.6g um from %s's %s", px, source.name, meta.pixel_size_source)
         return dataclasses.replace(optics, pixel_size_um=px, magnification=1.0), meta.pixel_size_source
-    log.info("%s: pixel size unknown (no --pixel-size-um, --config or pixel size in the files) - measurements in pixels", source)
-    return dataclasses.replace(optics, pixel_size_um=1.0, magnification=1.0, working_distance_um=_DEFAULT_FOCAL_PX), UNKNOWN_PIXEL_SIZE
+    log.info(
+        "%s: pixel size unknown (no --pixel-size-um, --config or pixel size in the files) - measurements in pixels",
+        source,
+    )
+    return dataclasses.replace(
+        optics, pixel_size_um=1.0, magnification=1.0, working_distance_um=_DEFAULT_FOCAL_PX
+    ), UNKNOWN_PIXEL_SIZE
 
 
 def _principal_point(P: np.ndarray) -> np.ndarray:
@@ -410,8 +469,10 @@ def _check_crop(h: int, w: int, pp: np.ndarray, what: str) -> None:
     """
     cx, cy = float(np.median(pp[:, 0])), float(np.median(pp[:, 1]))
     if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
-        raise ImportDataError(f"{what} put the principal point at ({cx:.1f}, {cy:.1f}) px, outside the {w} x {h} px images: they look like "
-                              "a crop of a larger sensor; give where they sit on it with --roi-offset X Y")
+        raise ImportDataError(
+            f"{what} put the principal point at ({cx:.1f}, {cy:.1f}) px, outside the {w} x {h} px images: they look like "
+            "a crop of a larger sensor; give where they sit on it with --roi-offset X Y"
+        )
 
 
 def import_folder(
@@ -467,8 +528,10 @@ def import_folder(
     folder, out = Path(folder), Path(output)
     check_output_file(out, force=force)  # directories, devices, symlinks, read-only folders: refused before reading
     if pixel_origin not in PIXEL_ORIGINS:
-        raise ImportDataError(f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
-                              f"(the coordinate of the first pixel's centre, --pixel-origin), got {pixel_origin}")
+        raise ImportDataError(
+            f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
+            f"(the coordinate of the first pixel's centre, --pixel-origin), got {pixel_origin}"
+        )
     if name is not None and (not name.strip() or len(name) > 200 or any(c in name for c in "\n\r\0")):
         raise ImportDataError(f"--name: expected a specimen name of 1 to 200 characters on one line, got {name[:60]!r}")
     if phase:
@@ -480,14 +543,18 @@ def import_folder(
     meta = views.metadata
     if angles is not None:
         angle_values = read_angles(Path(angles), n, views.names)
-        if meta.angles_deg is not None and not np.allclose(np.asarray(meta.angles_deg) % 360, angle_values % 360, atol=1e-6):
+        if meta.angles_deg is not None and not np.allclose(
+            np.asarray(meta.angles_deg) % 360, angle_values % 360, atol=1e-6
+        ):
             log.warning("angles: --angles %s overrides %s's %s", angles, views.source.name, meta.angles_source)
         angle_source = str(angles)
     elif meta.angles_deg is not None:
         angle_values = np.asarray(meta.angles_deg, float)
         if not np.all(np.isfinite(angle_values)) or len(np.unique(np.round(angle_values, 9))) != n:
-            raise ImportDataError(f"{views.source}: the {meta.angles_source} angles are not {n} distinct finite numbers of degrees; "
-                                  "give them with --angles")
+            raise ImportDataError(
+                f"{views.source}: the {meta.angles_source} angles are not {n} distinct finite numbers of degrees; "
+                "give them with --angles"
+            )
         angle_source = f"{views.source.name}: {meta.angles_source}"
         log.info("angles from %s", angle_source)
     else:
@@ -501,18 +568,25 @@ def import_folder(
             if (roi.width, roi.height) == (w, h):
                 roi_offset = (roi.x, roi.y)
             elif (cfg.optics.sensor_width_px, cfg.optics.sensor_height_px) != (w, h) and cameras is None:
-                raise ImportDataError(f"{views.source}: the images are {w} x {h} px, but the config's camera.roi is {roi.width} x {roi.height} "
-                                      f"and its sensor {cfg.optics.sensor_width_px} x {cfg.optics.sensor_height_px} px: give where the images "
-                                      "sit on the sensor with --roi-offset X Y")
+                raise ImportDataError(
+                    f"{views.source}: the images are {w} x {h} px, but the config's camera.roi is {roi.width} x {roi.height} "
+                    f"and its sensor {cfg.optics.sensor_width_px} x {cfg.optics.sensor_height_px} px: give where the images "
+                    "sit on the sensor with --roi-offset X Y"
+                )
     for axis, value in zip("xy", roi_offset):  # same range as camera.roi.x/y in a rig file
         check_setting(RoiConfig, axis, value, f"roi offset {axis} (--roi-offset)")
     optics, pixel_source = _resolve_optics(cfg, config is not None, pixel_size_um, meta, views.source)
     if config is None and not roi_given:  # no rig description: the images are the sensor
         optics = dataclasses.replace(optics, sensor_width_px=w, sensor_height_px=h)
     else:
-        optics = dataclasses.replace(optics, sensor_width_px=max(optics.sensor_width_px, roi_offset[0] + w),
-                                     sensor_height_px=max(optics.sensor_height_px, roi_offset[1] + h))
-    cfg = dataclasses.replace(cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h)))
+        optics = dataclasses.replace(
+            optics,
+            sensor_width_px=max(optics.sensor_width_px, roi_offset[0] + w),
+            sensor_height_px=max(optics.sensor_height_px, roi_offset[1] + h),
+        )
+    cfg = dataclasses.replace(
+        cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h))
+    )
     P_given = names = None
     circular: dict[str, object] = {}
     if cameras is not None:
@@ -520,21 +594,36 @@ def import_folder(
             P_given, names = read_cameras(Path(cameras), n)
             P_given, names, reordered = match_cameras_to_images(P_given, names, views.names, Path(cameras))
             if reordered:
-                log.warning("%s lists the views in another order than the images' natural order: cameras matched to "
-                            "images by name", Path(cameras).name)
+                log.warning(
+                    "%s lists the views in another order than the images' natural order: cameras matched to "
+                    "images by name",
+                    Path(cameras).name,
+                )
         except UnicodeDecodeError:  # an image or other binary file given as --cameras
-            raise ImportDataError(f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)") from None
+            raise ImportDataError(
+                f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)"
+            ) from None
         check_cameras(P_given, Path(cameras), names)
         circular = circular_fit_note(P_given, Path(cameras).name)
         if not roi_given:
-            _check_crop(h, w, _principal_point(shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])),
-                        f"the cameras of {Path(cameras).name}")
-        unit, unit_why = camera_length_unit(P_given, length_unit, cfg.optics.working_distance_um if config is not None else None)
+            _check_crop(
+                h,
+                w,
+                _principal_point(shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])),
+                f"the cameras of {Path(cameras).name}",
+            )
+        unit, unit_why = camera_length_unit(
+            P_given, length_unit, cfg.optics.working_distance_um if config is not None else None
+        )
         log.info("imported cameras: length unit %s (%s)", unit, unit_why)
         if angles is None and meta.angles_deg is None:
-            angle_values, angle_source = angles_of_cameras(P_given, angle_values, cfg.calibration.bounds.roll_deg, Path(cameras).name)
+            angle_values, angle_source = angles_of_cameras(
+                P_given, angle_values, cfg.calibration.bounds.roll_deg, Path(cameras).name
+            )
     elif length_unit is not None:
-        raise ImportDataError("--length-unit describes imported cameras; give --cameras too (without them the world is in um)")
+        raise ImportDataError(
+            "--length-unit describes imported cameras; give --cameras too (without them the world is in um)"
+        )
     else:
         from vastcal.geometry import intrinsics_from_optics
 
@@ -542,20 +631,37 @@ def import_folder(
         if not roi_given:
             _check_crop(h, w, K[None, :2, 2], "the config's optics (principal point, sensor size, camera.roi)")
     pixel_um = cfg.optics.pixel_size_um / cfg.optics.magnification
-    plan = {"views": n, "source": "import", "folder": str(views.source.resolve()), "pixel_size_source": pixel_source,
-            "angle_source": angle_source}
+    plan = {
+        "views": n,
+        "source": "import",
+        "folder": str(views.source.resolve()),
+        "pixel_size_source": pixel_source,
+        "angle_source": angle_source,
+    }
     start_info: dict[str, object] = {"source": "import", "files": views.names}
     if views.raw_dtype != views.dtype:
-        start_info["pixel_conversion"] = (f"{views.raw_dtype} -> {views.dtype}"
-                                          + (f": values {views.value_range[0]:.6g}..{views.value_range[1]:.6g} mapped onto 0..65535"
-                                             if views.value_range is not None else ": values kept"))
+        start_info["pixel_conversion"] = f"{views.raw_dtype} -> {views.dtype}" + (
+            f": values {views.value_range[0]:.6g}..{views.value_range[1]:.6g} mapped onto 0..65535"
+            if views.value_range is not None
+            else ": values kept"
+        )
         log.info("%s: %s", views.source.name, start_info["pixel_conversion"])
     title = name.strip() if name is not None else views.source.name.removesuffix(".ome.tiff").removesuffix(".ome.tif")
     if name is None and views.stack is not None:
         title = Path(title).stem if Path(title).suffix.lower() in image_files.TIFF_SUFFIXES else title
-    with SessionWriter.create(out, frame_shape=views.shape, dtype=views.dtype, rig_yaml=dump_config(cfg), plan=plan,
-                              pixel_size_um=(pixel_um, pixel_um), roi_offset_px=roi_offset, title=title,
-                              start_info=start_info, force=force, live=False) as writer:
+    with SessionWriter.create(
+        out,
+        frame_shape=views.shape,
+        dtype=views.dtype,
+        rig_yaml=dump_config(cfg),
+        plan=plan,
+        pixel_size_um=(pixel_um, pixel_um),
+        roi_offset_px=roi_offset,
+        title=title,
+        start_info=start_info,
+        force=force,
+        live=False,
+    ) as writer:
         if phase:
             phase(f"copying {n} views")
         for i in range(n):
@@ -568,9 +674,19 @@ def import_folder(
             writer.write_masks(mask_stack)
         if P_given is not None:
             P = shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])
-            writer.write_cameras(P, source=str(Path(cameras).resolve()), P_given=P_given,
-                                 attrs={"pixel_origin": float(pixel_origin), "roi_offset": list(roi_offset), "names": names,
-                                        "length_unit": unit, "length_unit_source": unit_why, **circular})
+            writer.write_cameras(
+                P,
+                source=str(Path(cameras).resolve()),
+                P_given=P_given,
+                attrs={
+                    "pixel_origin": float(pixel_origin),
+                    "roi_offset": list(roi_offset),
+                    "names": names,
+                    "length_unit": unit,
+                    "length_unit_source": unit_why,
+                    **circular,
+                },
+            )
         writer.finish("success", views_planned=n)
     log.info("imported %d views %s %s of %r into %s", n, views.shape, views.dtype, title, out)
     return out
@@ -593,8 +709,10 @@ def _check_fits_in_memory(folder: Path, n: int, first: np.ndarray) -> None:
     total = n * first.nbytes
     ram = _physical_memory_bytes()
     if ram is not None and total > ram:
-        raise ImportDataError(f"{folder}: {n} frames of {first.shape} {first.dtype} need {total / 2**30:.1f} GiB, more than this "
-                              f"machine's {ram / 2**30:.1f} GiB of memory (calibration loads every frame)")
+        raise ImportDataError(
+            f"{folder}: {n} frames of {first.shape} {first.dtype} need {total / 2**30:.1f} GiB, more than this "
+            f"machine's {ram / 2**30:.1f} GiB of memory (calibration loads every frame)"
+        )
 
 
 def check_cameras(P: np.ndarray, source: Path, names: Sequence[str]) -> None:
@@ -609,7 +727,9 @@ def check_cameras(P: np.ndarray, source: Path, names: Sequence[str]) -> None:
             raise ImportDataError(f"{source}: camera {name}: not all 12 numbers are finite")
         scale = float(np.abs(m[:, :3]).max())
         if scale == 0.0 or abs(np.linalg.det(m[:, :3] / scale)) < 1e-12:
-            raise ImportDataError(f"{source}: camera {name}: not a projection matrix (its left 3 x 3 is singular or zero)")
+            raise ImportDataError(
+                f"{source}: camera {name}: not a projection matrix (its left 3 x 3 is singular or zero)"
+            )
 
 
 def _read_masks(folder: Path, n: int, shape: tuple[int, int]) -> np.ndarray:
@@ -623,6 +743,8 @@ def _read_masks(folder: Path, n: int, shape: tuple[int, int]) -> np.ndarray:
         if m.ndim == 3:
             m = m.max(axis=2)
         if m.shape != shape:
-            raise ImportDataError(f"{views.names[i]}: mask is {m.shape[1]} x {m.shape[0]} px, the images are {shape[1]} x {shape[0]} px")
+            raise ImportDataError(
+                f"{views.names[i]}: mask is {m.shape[1]} x {m.shape[0]} px, the images are {shape[1]} x {shape[0]} px"
+            )
         out[i] = np.where(m > 0, 255, 0)
     return out

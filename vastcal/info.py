@@ -40,7 +40,9 @@ def session_summary(path: str | Path) -> dict[str, Any]:
         }
         if s.known_cameras is not None:  # how well the calibration's circular model describes them (vastcal.importer)
             cams = read_attrs(s.h5["/entry/vastcal/cameras"])
-            summary.update({k: cams[k] for k in ("circular_fit_rms_px", "circular_fit_error", "length_unit") if k in cams})
+            summary.update(
+                {k: cams[k] for k in ("circular_fit_rms_px", "circular_fit_error", "length_unit") if k in cams}
+            )
         rb = table.get("readback_usteps")
         if rb is not None and len(rb) and (rb >= 0).any():
             cycle = s.plan.get("usteps_per_revolution")
@@ -51,8 +53,22 @@ def session_summary(path: str | Path) -> dict[str, Any]:
             entries = []
             for name in runs:
                 a = read_attrs(s.result(stage, name))
-                keep = {k: a[k] for k in ("time", "method", "seed", "wall_time_s", "volume_mm3", "volume_U_mm3", "surface_area_mm2",
-                                          "surface_area_U_mm2", "verdict", "n_evaluations") if k in a}
+                keep = {
+                    k: a[k]
+                    for k in (
+                        "time",
+                        "method",
+                        "seed",
+                        "wall_time_s",
+                        "volume_mm3",
+                        "volume_U_mm3",
+                        "surface_area_mm2",
+                        "surface_area_U_mm2",
+                        "verdict",
+                        "n_evaluations",
+                    )
+                    if k in a
+                }
                 unit = a.get("volume_mm3_units")
                 if unit is not None and str(unit) != "mm^3":  # a world of unknown unit: say what the numbers are
                     keep["volume_mm3_units"] = str(unit)
@@ -71,10 +87,17 @@ def _verdict(s: Session) -> dict[str, Any]:
     qc = a.get("qc") if isinstance(a.get("qc"), dict) else None
     run = meas.name.rsplit("/", 1)[-1]
     if not qc:
-        return {"verdict": "not evaluated", "reasons": ["measured without quality control (older vastcal): run 'vastcal reconstruct' again"],
-                "run": run}
-    return {"verdict": str(qc.get("verdict", "check")), "reasons": [str(f.get("message", "")) for f in qc.get("flags", [])], "run": run,
-            "lower_bound": bool(qc.get("lower_bound", False))}
+        return {
+            "verdict": "not evaluated",
+            "reasons": ["measured without quality control (older vastcal): run 'vastcal reconstruct' again"],
+            "run": run,
+        }
+    return {
+        "verdict": str(qc.get("verdict", "check")),
+        "reasons": [str(f.get("message", "")) for f in qc.get("flags", [])],
+        "run": run,
+        "lower_bound": bool(qc.get("lower_bound", False)),
+    }
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -89,26 +112,46 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"status       {status}",
         f"views        {summary['views']}" + (f" of {planned} planned" if planned is not None else ""),
         f"frames       {shape} {summary['dtype']} (H x W[ x C]), "
-        + (f"pixel {summary['pixel_size_um'][0]:g} x {summary['pixel_size_um'][1]:g} um, " if summary.get("pixel_size_known", True) else
-           "pixel size unknown (the imported cameras set the scale), " if summary["known_cameras"] else
-           "pixel size unknown - measurements in pixels (import again with --pixel-size-um or --config), ")
+        + (
+            f"pixel {summary['pixel_size_um'][0]:g} x {summary['pixel_size_um'][1]:g} um, "
+            if summary.get("pixel_size_known", True)
+            else "pixel size unknown (the imported cameras set the scale), "
+            if summary["known_cameras"]
+            else "pixel size unknown - measurements in pixels (import again with --pixel-size-um or --config), "
+        )
         + f"ROI offset {summary['roi_offset_px'][0]}, {summary['roi_offset_px'][1]} px",
-        "angles       " + (f"{len(a)} commanded, {a[0]:g} .. {a[-1]:g} deg" + (f", step {a[1] - a[0]:.4f} deg" if len(a) > 1 else "") if a else "none"),
+        "angles       "
+        + (
+            f"{len(a)} commanded, {a[0]:g} .. {a[-1]:g} deg" + (f", step {a[1] - a[0]:.4f} deg" if len(a) > 1 else "")
+            if a
+            else "none"
+        ),
         f"masks        {'yes' if summary['masks'] else 'no'}; known cameras {'yes' if summary['known_cameras'] else 'no'}"
-        + (f" (circular fit {summary['circular_fit_rms_px']:.2g} px RMS, world unit {summary.get('length_unit', 'um')})"
-           if "circular_fit_rms_px" in summary else
-           f" (not circular motion: {summary['circular_fit_error']})" if "circular_fit_error" in summary else ""),
+        + (
+            f" (circular fit {summary['circular_fit_rms_px']:.2g} px RMS, world unit {summary.get('length_unit', 'um')})"
+            if "circular_fit_rms_px" in summary
+            else f" (not circular motion: {summary['circular_fit_error']})"
+            if "circular_fit_error" in summary
+            else ""
+        ),
     ]
     if "readback_max_error_usteps" in summary:
-        lines.append(f"stage        {summary['usteps_per_revolution']} usteps/rev, max read-back error {summary['readback_max_error_usteps']} usteps")
+        lines.append(
+            f"stage        {summary['usteps_per_revolution']} usteps/rev, max read-back error {summary['readback_max_error_usteps']} usteps"
+        )
     v = summary.get("verdict") or {}
     if v:
-        lines.append(f"verdict      {v.get('verdict')}" + (f" ({v['run']})" if v.get("run") else "")
-                     + (": " + "; ".join(v.get("reasons", [])) if v.get("reasons") else ""))
+        lines.append(
+            f"verdict      {v.get('verdict')}"
+            + (f" ({v['run']})" if v.get("run") else "")
+            + (": " + "; ".join(v.get("reasons", [])) if v.get("reasons") else "")
+        )
     if not summary["stages"]:
         lines.append("stages run   none (next: vastcal calibrate)")
     for stage, runs in summary["stages"].items():
         for r in runs:
-            details = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items() if k not in ("run", "time"))
+            details = ", ".join(
+                f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items() if k not in ("run", "time")
+            )
             lines.append(f"{stage:<12} {r['run']}  {r.get('time', '')}  {details}")
     return "\n".join(lines)

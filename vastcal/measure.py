@@ -175,7 +175,7 @@ def marching_cubes_mesh(counts: np.ndarray, level: float, origin: np.ndarray, vo
         raise EmptyHullError(f"no voxel reaches the iso-level {level:g}: the hull is empty")
     lo = np.maximum(above.min(0) - 1, 0)
     hi = np.minimum(above.max(0) + 2, counts.shape)
-    sub = np.pad(counts[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].astype(np.float32), 1)
+    sub = np.pad(counts[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]].astype(np.float32), 1)
     verts, faces, _, _ = marching_cubes(sub, level=float(level), spacing=(voxel_size,) * 3, allow_degenerate=False)
     verts = verts.astype(np.float64) + np.asarray(origin, float) + (lo - 1) * voxel_size
     mesh = Mesh(verts, faces.astype(np.int32))
@@ -308,11 +308,11 @@ class Measurement:
     uncertainty: dict[str, Any] | None = None
     qc: dict[str, Any] | None = None
 
-    def with_assessment(self, uncertainty: dict[str, Any] | None, qc: dict[str, Any] | None) -> "Measurement":
+    def with_assessment(self, uncertainty: dict[str, Any] | None, qc: dict[str, Any] | None) -> Measurement:
         """A copy carrying its uncertainty budget and QC (plain dicts)."""
         return replace(self, uncertainty=uncertainty, qc=qc)
 
-    def with_provenance(self, **kw: Any) -> "Measurement":
+    def with_provenance(self, **kw: Any) -> Measurement:
         """A copy with more provenance entries."""
         return replace(self, provenance={**self.provenance, **kw})
 
@@ -348,14 +348,18 @@ class Measurement:
         area = quantity_text(self.surface_area_mm2, u.get("U_area_mm2"), 2, lu) + f"{k}{lb}"
         if lu in ("unknown", "px"):  # the world's unit is not known: no mm, no µm
             wu, why = world_unit_words(lu)
-            lines = [f"volume        {volume} (voxels inside all {self.n_views} silhouettes; {why})",
-                     f"surface area  {area} (smoothed mesh)",
-                     f"voxel size    {self.voxel_size_um:.6g} {wu}, {self.n_inside_voxels} voxels inside"]
+            lines = [
+                f"volume        {volume} (voxels inside all {self.n_views} silhouettes; {why})",
+                f"surface area  {area} (smoothed mesh)",
+                f"voxel size    {self.voxel_size_um:.6g} {wu}, {self.n_inside_voxels} voxels inside",
+            ]
         else:
-            lines = [f"volume        {volume} (voxels inside all {self.n_views} silhouettes: the value to cite; "
-                     f"the smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3, a diagnostic)",
-                     f"surface area  {area} (smoothed mesh, {self.mesh.n_faces} triangles)",
-                     f"voxel size    {self.voxel_size_um:.2f} um, {self.n_inside_voxels} voxels inside"]
+            lines = [
+                f"volume        {volume} (voxels inside all {self.n_views} silhouettes: the value to cite; "
+                f"the smoothed mesh encloses {self.mesh_volume_mm3:.4f} mm^3, a diagnostic)",
+                f"surface area  {area} (smoothed mesh, {self.mesh.n_faces} triangles)",
+                f"voxel size    {self.voxel_size_um:.2f} um, {self.n_inside_voxels} voxels inside",
+            ]
         if u.get("not_evaluated"):
             lines.append(f"uncertainty   not evaluated: {', '.join(u['not_evaluated'])} (the interval leaves them out)")
         if self.qc:
@@ -365,7 +369,7 @@ class Measurement:
         return "\n".join(lines)
 
 
-def measure_hull(hull: "HullResult", settings: MeasureSettings | None = None) -> Measurement:
+def measure_hull(hull: HullResult, settings: MeasureSettings | None = None) -> Measurement:
     """Volume, smooth surface and area of a visual hull.
 
     Raises:
@@ -376,13 +380,17 @@ def measure_hull(hull: "HullResult", settings: MeasureSettings | None = None) ->
     s = settings or MeasureSettings()
     n = hull.n_views
     if hull.n_inside == 0:
-        raise EmptyHullError("the visual hull is empty: no voxel is inside every silhouette (check the cameras or the colour model)")
+        raise EmptyHullError(
+            "the visual hull is empty: no voxel is inside every silhouette (check the cameras or the colour model)"
+        )
     level = s.level(n)
     if level <= 0 or level > n:
         raise AnalysisError(f"iso-level {level:g} outside 0 < level <= {n} silhouettes")
     if hull.min_count > s.min_count(n):
-        raise AnalysisError(f"the hull's counts are exact only down to {hull.min_count}; iso-level {level:g} needs "
-                            f"min_count={s.min_count(n)} in visual_hull()")
+        raise AnalysisError(
+            f"the hull's counts are exact only down to {hull.min_count}; iso-level {level:g} needs "
+            f"min_count={s.min_count(n)} in visual_hull()"
+        )
     t0 = time.perf_counter()
     raw = marching_cubes_mesh(hull.counts, level, hull.grid.origin, hull.grid.size)
     t1 = time.perf_counter()
@@ -403,12 +411,19 @@ def measure_hull(hull: "HullResult", settings: MeasureSettings | None = None) ->
     )
     if not (np.isfinite(m.surface_area_mm2) and m.surface_area_mm2 > 0 and np.isfinite(m.mesh_volume_mm3)):
         raise AnalysisError("the measured surface is degenerate (zero or non-finite area)")
-    log.info("measured %.4f mm³ (voxels), %.4f mm³ (mesh), %.3f mm² (%d faces); marching cubes %.3f s, smoothing %.3f s",
-             m.volume_mm3, m.mesh_volume_mm3, m.surface_area_mm2, mesh.n_faces, t1 - t0, t2 - t1)
+    log.info(
+        "measured %.4f mm³ (voxels), %.4f mm³ (mesh), %.3f mm² (%d faces); marching cubes %.3f s, smoothing %.3f s",
+        m.volume_mm3,
+        m.mesh_volume_mm3,
+        m.surface_area_mm2,
+        mesh.n_faces,
+        t1 - t0,
+        t2 - t1,
+    )
     return m
 
 
-def store_measurement(group: "h5py.Group", m: Measurement) -> None:
+def store_measurement(group: h5py.Group, m: Measurement) -> None:
     """Write a measurement into ``/entry/vastcal/measurement/run_NNN``.
 
     Attributes ``volume_mm3``, ``mesh_volume_mm3``, ``surface_area_mm2`` (plain floats, their
@@ -423,24 +438,46 @@ def store_measurement(group: "h5py.Group", m: Measurement) -> None:
     d = m.as_dict()
     write_attrs(group, {k: v for k, v in d.items()})
     if m.uncertainty:
-        write_attrs(group, {"volume_U_mm3": float(m.uncertainty["U_volume_mm3"]), "surface_area_U_mm2": float(m.uncertainty["U_area_mm2"]),
-                            "coverage_factor_k": float(m.uncertainty.get("k", 2.0))})
+        write_attrs(
+            group,
+            {
+                "volume_U_mm3": float(m.uncertainty["U_volume_mm3"]),
+                "surface_area_U_mm2": float(m.uncertainty["U_area_mm2"]),
+                "coverage_factor_k": float(m.uncertainty.get("k", 2.0)),
+            },
+        )
     if m.qc:
-        write_attrs(group, {"verdict": str(m.qc.get("verdict", "")), "lower_bound": bool(m.qc.get("lower_bound", False))})
+        write_attrs(
+            group, {"verdict": str(m.qc.get("verdict", "")), "lower_bound": bool(m.qc.get("lower_bound", False))}
+        )
     vol_units, area_units = measurement_units(str((m.provenance or {}).get("length_unit", "um")))
-    write_attrs(group, {"volume_mm3_units": vol_units, "mesh_volume_mm3_units": vol_units, "surface_area_mm2_units": area_units,
-                        "volume_method": "voxels inside all silhouettes x voxel volume (the value to cite; mesh_volume_mm3 is a diagnostic)",
-                        "surface_method": f"marching cubes of silhouette counts at level {m.iso_level:g}, "
-                                          f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), volume preserved"})
-    for name, value, units in (("volume_mm3", m.volume_mm3, vol_units), ("mesh_volume_mm3", m.mesh_volume_mm3, vol_units),
-                               ("surface_area_mm2", m.surface_area_mm2, area_units)):
+    write_attrs(
+        group,
+        {
+            "volume_mm3_units": vol_units,
+            "mesh_volume_mm3_units": vol_units,
+            "surface_area_mm2_units": area_units,
+            "volume_method": "voxels inside all silhouettes x voxel volume (the value to cite; mesh_volume_mm3 is a diagnostic)",
+            "surface_method": f"marching cubes of silhouette counts at level {m.iso_level:g}, "
+            f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), volume preserved",
+        },
+    )
+    for name, value, units in (
+        ("volume_mm3", m.volume_mm3, vol_units),
+        ("mesh_volume_mm3", m.mesh_volume_mm3, vol_units),
+        ("surface_area_mm2", m.surface_area_mm2, area_units),
+    ):
         ds = group.create_dataset(name, data=float(value))
         ds.attrs["units"] = units
-    write_off_geometry(group.create_group("mesh"), m.mesh.vertices, m.mesh.faces,
-                       orientation="counter-clockwise seen from outside (outward normals)")
+    write_off_geometry(
+        group.create_group("mesh"),
+        m.mesh.vertices,
+        m.mesh.faces,
+        orientation="counter-clockwise seen from outside (outward normals)",
+    )
 
 
-def load_mesh(group: "h5py.Group") -> Mesh:
+def load_mesh(group: h5py.Group) -> Mesh:
     """The mesh stored by :func:`store_measurement`."""
     from vastcal.nexus import read_triangles
 
@@ -455,9 +492,11 @@ def load_mesh(group: "h5py.Group") -> Mesh:
 def write_ply(mesh: Mesh, path: str | Path) -> Path:
     """Binary little-endian PLY: float32 x, y, z (µm); faces as uchar count + 3 int32."""
     p = Path(path)
-    header = ("ply\nformat binary_little_endian 1.0\ncomment vastcal mesh, units: micrometre (world frame, x = rotation axis)\n"
-              f"element vertex {mesh.n_vertices}\nproperty float x\nproperty float y\nproperty float z\n"
-              f"element face {mesh.n_faces}\nproperty list uchar int vertex_indices\nend_header\n")
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment vastcal mesh, units: micrometre (world frame, x = rotation axis)\n"
+        f"element vertex {mesh.n_vertices}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {mesh.n_faces}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
     faces = np.zeros(mesh.n_faces, dtype=[("n", "u1"), ("idx", "<i4", 3)])
     faces["n"] = 3
     faces["idx"] = mesh.faces

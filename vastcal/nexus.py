@@ -24,7 +24,9 @@ LENGTH_UNITS = "um"
 AXES = ("x", "y", "z")
 
 
-def voxel_axes_um(origin_um: Any, voxel_size_um: float, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def voxel_axes_um(
+    origin_um: Any, voxel_size_um: float, shape: tuple[int, int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World coordinates (µm) of the voxel centres along x, y and z of a grid whose voxel (0, 0, 0) is at ``origin_um``."""
     o = np.asarray(origin_um, float)
     return tuple(o[a] + np.arange(int(shape[a])) * float(voxel_size_um) for a in range(3))  # type: ignore[return-value]
@@ -39,8 +41,11 @@ def describe_hull(group: h5py.Group, signal: str, origin_um: Any, voxel_size_um:
     shape = group[signal].shape
     if len(shape) != 3:
         raise ValueError(f"{group.name}/{signal}: a hull is 3-D (x, y, z), got shape {shape}")
-    for name, values, meaning in zip(AXES, voxel_axes_um(origin_um, voxel_size_um, shape),
-                                     ("along the rotation axis", "across the rotation axis", "across the rotation axis")):
+    for name, values, meaning in zip(
+        AXES,
+        voxel_axes_um(origin_um, voxel_size_um, shape),
+        ("along the rotation axis", "across the rotation axis", "across the rotation axis"),
+    ):
         ds = group.create_dataset(name, data=values)
         ds.attrs["units"] = LENGTH_UNITS
         ds.attrs["long_name"] = f"{name} (µm, voxel centres, {meaning})"
@@ -51,7 +56,9 @@ def describe_hull(group: h5py.Group, signal: str, origin_um: Any, voxel_size_um:
         group.attrs[f"{name}_indices"] = a
 
 
-def write_off_geometry(group: h5py.Group, vertices_um: np.ndarray, triangles: np.ndarray, *, orientation: str = "") -> None:
+def write_off_geometry(
+    group: h5py.Group, vertices_um: np.ndarray, triangles: np.ndarray, *, orientation: str = ""
+) -> None:
     """Store a triangle mesh as an NXoff_geometry in ``group`` (vertices µm float32; winding order and face starts int32)."""
     tri = np.asarray(triangles)
     if tri.ndim != 2 or (tri.size and tri.shape[1] != 3):
@@ -60,7 +67,9 @@ def write_off_geometry(group: h5py.Group, vertices_um: np.ndarray, triangles: np
     group.create_dataset("vertices", data=np.asarray(vertices_um, np.float32), compression="gzip", compression_opts=4)
     group["vertices"].attrs["units"] = LENGTH_UNITS
     group.create_dataset("winding_order", data=tri.astype(np.int32).ravel(), compression="gzip", compression_opts=4)
-    group.create_dataset("faces", data=np.arange(len(tri), dtype=np.int32) * 3, compression="gzip", compression_opts=4, shuffle=True)
+    group.create_dataset(
+        "faces", data=np.arange(len(tri), dtype=np.int32) * 3, compression="gzip", compression_opts=4, shuffle=True
+    )
     if orientation:
         group.attrs["orientation"] = orientation
 
@@ -75,6 +84,11 @@ def read_triangles(group: h5py.Group) -> np.ndarray:
         return group["faces"][...].astype(np.int32)  # sessions written before meshes were NXoff_geometry
     order = group["winding_order"][...].astype(np.int32)
     starts = group["faces"][...].astype(np.int64)
-    if starts.ndim != 1 or order.ndim != 1 or not np.array_equal(starts, np.arange(len(starts)) * 3) or len(order) != 3 * len(starts):
+    if (
+        starts.ndim != 1
+        or order.ndim != 1
+        or not np.array_equal(starts, np.arange(len(starts)) * 3)
+        or len(order) != 3 * len(starts)
+    ):
         raise ValueError(f"{group.name}: only triangle meshes are read (faces must start at 0, 3, 6, …)")
     return order.reshape(-1, 3)

@@ -77,7 +77,9 @@ def check_output_file(path: str | Path, *, force: bool, option: str = "-o", exis
         what = _kind(target.stat().st_mode) if target.exists() else "nothing"
         raise UserInputError(f"{p}: {option}: is a symbolic link (to {what}); give the real path of a file")
     if st is not None and not stat.S_ISREG(st.st_mode):
-        raise UserInputError(f"{p}: {option}: is {_kind(st.st_mode)}, not a file; give a file path (--force never replaces it)")
+        raise UserInputError(
+            f"{p}: {option}: is {_kind(st.st_mode)}, not a file; give a file path (--force never replaces it)"
+        )
     if existing:
         if st is None:
             raise UserInputError(f"{p}: {option}: no such file")
@@ -100,6 +102,8 @@ def check_output_folder(path: str | Path, *, option: str = "-o") -> Path:
     if str(path) == "":
         raise UserInputError(f"{option}: expected a folder name, got an empty string")
     if p.exists() and not p.is_dir():
-        raise UserInputError(f"{p}: {option}: is {_kind(p.stat().st_mode) if not p.is_file() else 'a file'}, not a folder")
+        raise UserInputError(
+            f"{p}: {option}: is {_kind(p.stat().st_mode) if not p.is_file() else 'a file'}, not a folder"
+        )
     _writable_folder(p, option, p)
     return p

@@ -50,18 +50,28 @@ class RunSummary:
         k = f" (k = {u.get('k', 2):g})" if u else ""
         why = world_unit_words(self.length_unit)[1] if self.length_unit in ("px", "unknown") else ""
         if self.volume_mm3 is not None:
-            lines.append(f"volume           {quantity_text(self.volume_mm3, u.get('U_volume_mm3'), 3, self.length_unit)}{k}" + (f" ({why})" if why else ""))
+            lines.append(
+                f"volume           {quantity_text(self.volume_mm3, u.get('U_volume_mm3'), 3, self.length_unit)}{k}"
+                + (f" ({why})" if why else "")
+            )
         if self.surface_area_mm2 is not None:
-            lines.append(f"surface area     {quantity_text(self.surface_area_mm2, u.get('U_area_mm2'), 2, self.length_unit)}{k}")
+            lines.append(
+                f"surface area     {quantity_text(self.surface_area_mm2, u.get('U_area_mm2'), 2, self.length_unit)}{k}"
+            )
         if self.verdict:
             lines.append(f"verdict          {self.verdict}")
         if self.calibration:
             c = self.calibration
-            lines.append("calibration      " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items()))
+            lines.append(
+                "calibration      "
+                + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items())
+            )
         for k, v in self.truth.items():
             lines.append(f"vs truth         {k}: {v:.4g}" if isinstance(v, float) else f"vs truth         {k}: {v}")
         if self.timings_s:
-            lines.append("time             " + ", ".join(f"{k} {format_duration(v)}" for k, v in self.timings_s.items()))
+            lines.append(
+                "time             " + ", ".join(f"{k} {format_duration(v)}" for k, v in self.timings_s.items())
+            )
         if self.report_dir is not None:
             lines.append(f"report           {self.report_dir / 'report.html'}")
         return "\n".join(lines)
@@ -90,12 +100,16 @@ def check_camera_choice(session: str | Path, calibration_run: str | None) -> Non
     with Session.open(session) as s:
         if calibration_run == "imported":
             if s.known_cameras is None:
-                raise UserInputError(f"{session}: --cameras imported: the session holds no imported cameras "
-                                     "(import them with 'vastcal import --cameras'), drop --cameras to use a calibration run")
+                raise UserInputError(
+                    f"{session}: --cameras imported: the session holds no imported cameras "
+                    "(import them with 'vastcal import --cameras'), drop --cameras to use a calibration run"
+                )
             return
         runs = s.stages_run().get("calibration", [])
         if calibration_run not in runs:
-            raise UserInputError(f"{session}: --calibration-run: no calibration run {calibration_run} (runs: {', '.join(runs) or 'none'})")
+            raise UserInputError(
+                f"{session}: --calibration-run: no calibration run {calibration_run} (runs: {', '.join(runs) or 'none'})"
+            )
 
 
 def _run_number(name: str) -> int:
@@ -139,10 +153,21 @@ def prune_runs(session: str | Path, *, keep: int, dry_run: bool = False) -> dict
     return removed
 
 
-def run_session(session: str | Path, report_dir: str | Path | None = None, *, method: str | None = None, seed: int | None = None,
-                quiet: bool = False, starts: int = 3, cameras: str = "calibrated", keep_runs: int | None = None,
-                truth_path: Path | None = None, prior_from: str | Path | None = None,
-                mask: tuple[int, Any] | None = None, scribbles: tuple[int, Any] | None = None) -> RunSummary:
+def run_session(
+    session: str | Path,
+    report_dir: str | Path | None = None,
+    *,
+    method: str | None = None,
+    seed: int | None = None,
+    quiet: bool = False,
+    starts: int = 3,
+    cameras: str = "calibrated",
+    keep_runs: int | None = None,
+    truth_path: Path | None = None,
+    prior_from: str | Path | None = None,
+    mask: tuple[int, Any] | None = None,
+    scribbles: tuple[int, Any] | None = None,
+) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
     Args:
@@ -173,12 +198,23 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     res = RunSummary(path, out)
     calibration_run: str | None = "imported"
     if cameras == "calibrated":
-        bar = PhaseProgress(f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})", enabled=not quiet)
+        bar = PhaseProgress(
+            f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})",
+            enabled=not quiet,
+        )
         t = time.monotonic()
         try:
             bar.phase("colour model and specimen maps")
-            cal = calibrate_session(path, method=method, seed=seed, starts=starts, prior_from=prior_from,
-                                    progress=CalibrationProgress(bar), mask=mask, scribbles=scribbles)
+            cal = calibrate_session(
+                path,
+                method=method,
+                seed=seed,
+                starts=starts,
+                prior_from=prior_from,
+                progress=CalibrationProgress(bar),
+                mask=mask,
+                scribbles=scribbles,
+            )
         finally:
             bar.close()
         res.timings_s["calibrate"] = time.monotonic() - t
@@ -210,9 +246,15 @@ def run_session(session: str | Path, report_dir: str | Path | None = None, *, me
     return res
 
 
-
-def acquire_simulated(cfg: Any, session: Path, *, views: int | None = None, force: bool = False,
-                      progress: Callable[[int, int, float], None] | None = None, phase: Callable[[str], None] | None = None) -> Path:
+def acquire_simulated(
+    cfg: Any,
+    session: Path,
+    *,
+    views: int | None = None,
+    force: bool = False,
+    progress: Callable[[int, int, float], None] | None = None,
+    phase: Callable[[str], None] | None = None,
+) -> Path:
     """Acquire one revolution from the simulated rig ``cfg`` into ``session``; return its truth file.
 
     ``progress`` (views done, planned, elapsed s) and ``phase`` (each step's name) as :func:`vastcal.acquire.acquire`'s.
@@ -227,11 +269,23 @@ def acquire_simulated(cfg: Any, session: Path, *, views: int | None = None, forc
 
     truth_path = session.with_name(session.stem + ".truth.json")
     with connect_rig(cfg, truth_path=truth_path) as rig:
-        result = acquire(rig.stage, rig.camera, cfg, session, views=views, force=force, cancel=threading.Event(),
-                         progress=progress, phase=phase, start_info=rig.start_info, on_view=rig.on_view)
+        result = acquire(
+            rig.stage,
+            rig.camera,
+            cfg,
+            session,
+            views=views,
+            force=force,
+            cancel=threading.Event(),
+            progress=progress,
+            phase=phase,
+            start_info=rig.start_info,
+            on_view=rig.on_view,
+        )
     if result.exit_status != "success":
         raise VastcalError(f"{session}: simulated acquisition {result.exit_status}: {result.reason}")
     return truth_path
+
 
 def _calibration_digest(cal: Any) -> dict[str, Any]:
     """A few numbers of a calibration result, whatever its exact type."""
@@ -252,13 +306,20 @@ def _calibration_digest(cal: Any) -> dict[str, Any]:
         elif prior <= 0:  # worded as the report's drift (one statement of what the images decide)
             from vastcal.uncertainty import drift_status
 
-            st = drift_status(np.asarray(delta), source="calibration", free=["rolls"], settings={"roll_prior_weight": 0.0},
-                              starts_theta=getattr(cal, "start_thetas", None))
+            st = drift_status(
+                np.asarray(delta),
+                source="calibration",
+                free=["rolls"],
+                settings={"roll_prior_weight": 0.0},
+                starts_theta=getattr(cal, "start_thetas", None),
+            )
             out["drift"] = f"{st['status']}: {st['reason']}"
     return out
 
 
-def demo(output_dir: str | Path = "vastcal-demo", *, views: int | None = None, force: bool = False, quiet: bool = False) -> RunSummary:
+def demo(
+    output_dir: str | Path = "vastcal-demo", *, views: int | None = None, force: bool = False, quiet: bool = False
+) -> RunSummary:
     """Acquire a revolution from the simulated rig, then :func:`run_session` it and score it.
 
     Writes ``demo.h5``, ``demo.truth.json`` and ``report/`` into ``output_dir``.
@@ -274,8 +335,14 @@ def demo(output_dir: str | Path = "vastcal-demo", *, views: int | None = None, f
     bar = CountProgress("acquire (simulated rig)", "views", enabled=not quiet)
     t = time.monotonic()
     try:
-        truth_path = acquire_simulated(load_config(None), session, views=views, force=force,
-                                       progress=lambda d, n, e: bar.update(d, n, elapsed_s=e), phase=bar.phase)
+        truth_path = acquire_simulated(
+            load_config(None),
+            session,
+            views=views,
+            force=force,
+            progress=lambda d, n, e: bar.update(d, n, elapsed_s=e),
+            phase=bar.phase,
+        )
     finally:
         bar.close()
     acquire_s = time.monotonic() - t

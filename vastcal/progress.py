@@ -27,8 +27,9 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, TextIO
+from typing import Any, TextIO
 
 
 def format_duration(seconds: float) -> str:
@@ -127,7 +128,7 @@ class PhaseRecord:
             left = self.t1 - t
             if t - self.t0 >= 0.5 * total and left > 0.01 * total:
                 out.append(abs(eta - left) / left if eta == eta else 1.0)
-        return out[:len(out) - excuse_last] if excuse_last else out
+        return out[: len(out) - excuse_last] if excuse_last else out
 
 
 class PhaseProgress:
@@ -142,8 +143,16 @@ class PhaseProgress:
         clock: time source (monotonic seconds; tests pass their own).
     """
 
-    def __init__(self, label: str, stream: TextIO | None = None, *, enabled: bool = True, step_pct: int = 10, tty: bool | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        label: str,
+        stream: TextIO | None = None,
+        *,
+        enabled: bool = True,
+        step_pct: int = 10,
+        tty: bool | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.label = label
         self.stream = stream or sys.stderr
         self.enabled = enabled
@@ -178,7 +187,9 @@ class PhaseProgress:
         else:
             self._line(f"{self.label}: {name} ...")
 
-    def update(self, fraction: float | None = None, extra: str = "", *, work: tuple[float, float] | None = None) -> None:
+    def update(
+        self, fraction: float | None = None, extra: str = "", *, work: tuple[float, float] | None = None
+    ) -> None:
         """Report the fraction (0..1) of the current phase done, or its ``work`` (units done, units forecast
         left; the fraction is then done / (done + left) unless given); ``extra`` is shown beside it (terminal only)."""
         if self.current is None or self._eta is None:
@@ -186,7 +197,9 @@ class PhaseProgress:
         assert self._eta is not None
         now = self.clock()
         if fraction is None:
-            fraction = work[0] / (work[0] + work[1]) if work is not None and work[0] + work[1] > 0 else 0.0  # NaN left: 0 (ignored)
+            fraction = (
+                work[0] / (work[0] + work[1]) if work is not None and work[0] + work[1] > 0 else 0.0
+            )  # NaN left: 0 (ignored)
         self._eta.add(now, fraction, work)
         f = self._eta.samples[-1][1]
         eta = self._eta.eta()
@@ -201,8 +214,10 @@ class PhaseProgress:
         if step > self._step and f < 1.0:
             self._step = step
             if step > 0:
-                self._line(f"{self.label}: {self.current.name}  {100 * f:3.0f} %  "  # type: ignore[union-attr]
-                           f"{format_duration(now - self.records[-1].t0)} elapsed  ETA {format_duration(eta)}")
+                self._line(
+                    f"{self.label}: {self.current.name}  {100 * f:3.0f} %  "  # type: ignore[union-attr]
+                    f"{format_duration(now - self.records[-1].t0)} elapsed  ETA {format_duration(eta)}"
+                )
 
     def close(self, *, failed: bool | None = None) -> None:
         """End the phase under way and the live display (call once, also on error).
@@ -219,7 +234,7 @@ class PhaseProgress:
             finally:
                 self._rich = None
 
-    def __enter__(self) -> "PhaseProgress":
+    def __enter__(self) -> PhaseProgress:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -265,20 +280,32 @@ class PhaseProgress:
             console = Console(file=self.stream, force_terminal=True)
             console.print(f"{self.label}:")  # once; each phase's line then starts with its own name
             fixed = {"no_wrap": True, "overflow": "ellipsis"}
-            self._rich = Progress(TextColumn("  {task.description}", table_column=Column(width=34, **fixed)),
-                                  BarColumn(bar_width=12, table_column=Column(width=12, no_wrap=True)),
-                                  TextColumn("{task.percentage:>3.0f} %", table_column=Column(width=5, **fixed)),
-                                  TimeElapsedColumn(table_column=Column(width=7, **fixed)),
-                                  EtaColumn(table_column=Column(width=14, **fixed)),
-                                  TextColumn("{task.fields[extra]}", table_column=Column(min_width=0, **fixed)),
-                                  console=console, transient=False, refresh_per_second=4)
+            self._rich = Progress(
+                TextColumn("  {task.description}", table_column=Column(width=34, **fixed)),
+                BarColumn(bar_width=12, table_column=Column(width=12, no_wrap=True)),
+                TextColumn("{task.percentage:>3.0f} %", table_column=Column(width=5, **fixed)),
+                TimeElapsedColumn(table_column=Column(width=7, **fixed)),
+                EtaColumn(table_column=Column(width=14, **fixed)),
+                TextColumn("{task.fields[extra]}", table_column=Column(min_width=0, **fixed)),
+                console=console,
+                transient=False,
+                refresh_per_second=4,
+            )
             self._rich.start()
-        self._task = self._rich.add_task(name, total=1.0, eta_s=float("nan"), eta_at=0.0, done=False, failed=False, extra="")
+        self._task = self._rich.add_task(
+            name, total=1.0, eta_s=float("nan"), eta_at=0.0, done=False, failed=False, extra=""
+        )
 
     def _rich_update(self, f: float, eta: float, extra: str) -> None:
         if self._rich is not None and self._task is not None:
             room = self._rich.console.width - 80  # the fixed columns take 80; the extra text only where there is room
-            self._rich.update(self._task, completed=f, eta_s=eta, eta_at=self.clock(), extra=extra if len(extra) <= room else extra[:max(room - 1, 0)] + "…" * (room > 0))
+            self._rich.update(
+                self._task,
+                completed=f,
+                eta_s=eta,
+                eta_at=self.clock(),
+                extra=extra if len(extra) <= room else extra[: max(room - 1, 0)] + "…" * (room > 0),
+            )
 
 
 class CalibrationProgress:
@@ -317,7 +344,9 @@ class CalibrationProgress:
             self.phase("optimisation")
         if "yaw" not in self._name:
             self._best = best
-        extra = f"{evaluations} evaluations" + (f", cost {self._best:.5g}" if "yaw" not in self._name and best == best else "")
+        extra = f"{evaluations} evaluations" + (
+            f", cost {self._best:.5g}" if "yaw" not in self._name and best == best else ""
+        )
         f = self._fraction
         if f is None:  # no fraction from the clock: the optimiser's own ETA turned into one
             f = elapsed_s / (elapsed_s + eta_s) if eta_s == eta_s and elapsed_s + eta_s > 0 else 0.0
@@ -338,17 +367,30 @@ class CountProgress:
         stream, enabled, tty, step_pct, clock: as :class:`PhaseProgress`.
     """
 
-    def __init__(self, label: str, unit: str = "", stream: TextIO | None = None, *, enabled: bool = True, tty: bool | None = None,
-                 step_pct: int = 10, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        label: str,
+        unit: str = "",
+        stream: TextIO | None = None,
+        *,
+        enabled: bool = True,
+        tty: bool | None = None,
+        step_pct: int = 10,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.bar = PhaseProgress(label, stream, enabled=enabled, step_pct=step_pct, tty=tty, clock=clock)
         self.unit = unit
-        self._t0 = clock()  # the task's time runs from here (its first item's set-up included in "elapsed", not in the rate)
+        self._t0 = (
+            clock()
+        )  # the task's time runs from here (its first item's set-up included in "elapsed", not in the rate)
 
     def phase(self, name: str) -> None:
         """End the phase under way and start ``name`` (e.g. ``preparing the camera and stage``, ``acquiring 36 views``)."""
         self.bar.phase(name)
 
-    def update(self, done: float, total: float, extra: str = "", elapsed_s: float | None = None, eta_s: float | None = None) -> None:
+    def update(
+        self, done: float, total: float, extra: str = "", elapsed_s: float | None = None, eta_s: float | None = None
+    ) -> None:
         """Report ``done`` of ``total`` items (NaN: open-ended, no ETA). ``elapsed_s`` and ``eta_s`` (a caller's own
         estimate) are ignored: the phase measures its own time per item."""
         known = total == total and total > 0
@@ -365,7 +407,7 @@ class CountProgress:
         """End the phase and the live display (call once, also on error; ``failed`` as :meth:`PhaseProgress.close`)."""
         self.bar.close(failed=failed)
 
-    def __enter__(self) -> "CountProgress":
+    def __enter__(self) -> CountProgress:
         return self
 
     def __exit__(self, *exc: Any) -> None:

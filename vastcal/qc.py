@@ -39,8 +39,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -178,8 +179,22 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
         noise = float(np.sqrt(np.mean(dx.astype(np.float64) ** 2) / 2.0))
     n_sil = int(sil.sum())
     if n_sil == 0 or n_sil == sil.size:
-        return FrameStats(float(np.median(g)), float(np.median(g)), 0.0, noise, 0.0, math.inf, math.nan, math.nan, math.nan, 0,
-                          float(lo_hi[1] - lo_hi[0]), sat, border, n_sil)
+        return FrameStats(
+            float(np.median(g)),
+            float(np.median(g)),
+            0.0,
+            noise,
+            0.0,
+            math.inf,
+            math.nan,
+            math.nan,
+            math.nan,
+            0,
+            float(lo_hi[1] - lo_hi[0]),
+            sat,
+            border,
+            n_sil,
+        )
     outside = _ring(sil, 3.0, 6.0)
     inside = _ring(~sil, 3.0, 6.0)
     bg = float(np.median(g[outside])) if outside.any() else float(np.median(g[~sil]))
@@ -204,7 +219,7 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
         blur, edge_noise = math.nan, math.inf
     # grey level at the boundary: mean of the pixels on both sides of it
     outer = cv2.dilate(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~sil
-    both = (edge | outer)
+    both = edge | outer
     both[0, :] = both[-1, :] = False
     both[:, 0] = both[:, -1] = False
     level = math.nan
@@ -225,8 +240,22 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
         q25, q75 = np.quantile(offs, [0.25, 0.75])
         est = math.sqrt(2 * 3) * noise / contrast  # the area method's own noise: 6 pixels of σ_n / C
         scatter = math.sqrt(max(((q75 - q25) / 1.349) ** 2 - est**2, 0.0))
-    return FrameStats(bg, fg, contrast, noise, blur, edge_noise, level, offset, scatter, contour, float(lo_hi[1] - lo_hi[0]), sat,
-                      border, n_sil)
+    return FrameStats(
+        bg,
+        fg,
+        contrast,
+        noise,
+        blur,
+        edge_noise,
+        level,
+        offset,
+        scatter,
+        contour,
+        float(lo_hi[1] - lo_hi[0]),
+        sat,
+        border,
+        n_sil,
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -360,16 +389,33 @@ class QCResult:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-able."""
-        return {"verdict": self.verdict, "flags": [f.as_dict() for f in self.flags], "per_view": self.per_view,
-                "thresholds": self.thresholds, "lower_bound": self.lower_bound}
+        return {
+            "verdict": self.verdict,
+            "flags": [f.as_dict() for f in self.flags],
+            "per_view": self.per_view,
+            "thresholds": self.thresholds,
+            "lower_bound": self.lower_bound,
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "QCResult":
+    def from_dict(cls, d: dict[str, Any]) -> QCResult:
         """Inverse of :meth:`as_dict` (for stored results)."""
-        flags = tuple(Flag(str(f.get("code", "")), str(f.get("severity", "check")), str(f.get("message", "")),
-                           tuple(int(v) for v in f.get("views", []))) for f in d.get("flags", []))
-        return cls(str(d.get("verdict", "check")), flags, dict(d.get("per_view", {})), dict(d.get("thresholds", {})),
-                   bool(d.get("lower_bound", False)))
+        flags = tuple(
+            Flag(
+                str(f.get("code", "")),
+                str(f.get("severity", "check")),
+                str(f.get("message", "")),
+                tuple(int(v) for v in f.get("views", [])),
+            )
+            for f in d.get("flags", [])
+        )
+        return cls(
+            str(d.get("verdict", "check")),
+            flags,
+            dict(d.get("per_view", {})),
+            dict(d.get("thresholds", {})),
+            bool(d.get("lower_bound", False)),
+        )
 
 
 def _views(idx: Sequence[int]) -> str:
@@ -384,8 +430,12 @@ def verdict_of(flags: Sequence[Flag]) -> str:
     return "check" if flags else "ok"
 
 
-def calibration_bound_flags(theta_deg: np.ndarray | None, bounds: dict[str, Any] | None, free_mask: np.ndarray | None = None,
-                            names: Sequence[str] | None = None) -> list[Flag]:
+def calibration_bound_flags(
+    theta_deg: np.ndarray | None,
+    bounds: dict[str, Any] | None,
+    free_mask: np.ndarray | None = None,
+    names: Sequence[str] | None = None,
+) -> list[Flag]:
     """Flags for calibrated parameters at (within 1 % of the box width of) a bound of the search box.
 
     Args:
@@ -407,15 +457,28 @@ def calibration_bound_flags(theta_deg: np.ndarray | None, bounds: dict[str, Any]
     at = free & ((th - lo <= tol) | (hi - th <= tol))
     if not at.any():
         return []
-    names = list(names) if names is not None else ["yaw", "pitch", "gamma"] + [f"roll of view {i}" for i in range(th.size - 3)]
+    names = (
+        list(names)
+        if names is not None
+        else ["yaw", "pitch", "gamma"] + [f"roll of view {i}" for i in range(th.size - 3)]
+    )
     hit = [names[i] for i in np.flatnonzero(at)]
     views = tuple(int(i) - 3 for i in np.flatnonzero(at) if i >= 3)
-    return [Flag("calibration_at_bound", "check", f"calibration at the bound of its search box: {', '.join(hit[:6])}"
-                 + (f" (+{len(hit) - 6} more)" if len(hit) > 6 else "") + " - the optimum may lie outside it", views)]
+    return [
+        Flag(
+            "calibration_at_bound",
+            "check",
+            f"calibration at the bound of its search box: {', '.join(hit[:6])}"
+            + (f" (+{len(hit) - 6} more)" if len(hit) > 6 else "")
+            + " - the optimum may lie outside it",
+            views,
+        )
+    ]
 
 
-def view_measures(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vertices: np.ndarray,
-                  faces: np.ndarray) -> tuple[list[FrameStats], list[float], list[float]]:
+def view_measures(
+    frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vertices: np.ndarray, faces: np.ndarray
+) -> tuple[list[FrameStats], list[float], list[float]]:
     """Per view: image statistics of the specimen part of the silhouette, IoU and mean boundary distance (px)
     against the reprojected mesh."""
     shape = tuple(frames.shape[1:3])  # frames may be a lazy stack (view_budget.SessionFrames): read one view at a time
@@ -430,9 +493,18 @@ def view_measures(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, ve
     return stats, ious, dists
 
 
-def evaluate_qc(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *,
-                edge_sigma_px: float | None = None, extra_flags: Sequence[Flag] = (),
-                measures: tuple[list[FrameStats], list[float], list[float]] | None = None, raster_px: float = 0.5) -> QCResult:
+def evaluate_qc(
+    frames: np.ndarray,
+    silhouettes: np.ndarray,
+    P: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    edge_sigma_px: float | None = None,
+    extra_flags: Sequence[Flag] = (),
+    measures: tuple[list[FrameStats], list[float], list[float]] | None = None,
+    raster_px: float = 0.5,
+) -> QCResult:
     """Per-view QC of a measured session and its verdict (module docstring).
 
     Args:
@@ -454,49 +526,99 @@ def evaluate_qc(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, vert
         edge_sigma_px = max(float(np.median(en)) if en else 0.25, 0.25)
     disagree_px = DISAGREE_SIGMAS * (float(edge_sigma_px) + float(raster_px))
     flags: list[Flag] = []
-    blank = [i for i, s in enumerate(stats) if s.silhouette_px == 0 or s.grey_range < BLANK_RANGE_SIGMAS * s.noise + 1.0]
+    blank = [
+        i for i, s in enumerate(stats) if s.silhouette_px == 0 or s.grey_range < BLANK_RANGE_SIGMAS * s.noise + 1.0
+    ]
     if blank:
         flags.append(Flag("blank", "fail", f"blank frame or empty silhouette in view(s) {_views(blank)}", tuple(blank)))
     sat = [i for i, s in enumerate(stats) if s.saturated_fraction > SATURATED_FRACTION]
     if sat:
         worst = max(stats[i].saturated_fraction for i in sat)
-        flags.append(Flag("saturated", "check", f"saturated or clipped pixels at the outline (up to {100 * worst:.1f} % of it) in view(s) "
-                          f"{_views(sat)}", tuple(sat)))
+        flags.append(
+            Flag(
+                "saturated",
+                "check",
+                f"saturated or clipped pixels at the outline (up to {100 * worst:.1f} % of it) in view(s) "
+                f"{_views(sat)}",
+                tuple(sat),
+            )
+        )
     low = [i for i, s in enumerate(stats) if i not in blank and s.edge_noise_px > LOW_CONTRAST_PX]
     if low:
-        flags.append(Flag("low_contrast", "check", f"low contrast: one pixel places the edge only to > {LOW_CONTRAST_PX} px in view(s) "
-                          f"{_views(low)}", tuple(low)))
+        flags.append(
+            Flag(
+                "low_contrast",
+                "check",
+                f"low contrast: one pixel places the edge only to > {LOW_CONTRAST_PX} px in view(s) {_views(low)}",
+                tuple(low),
+            )
+        )
     cut = [i for i, s in enumerate(stats) if s.border_px >= CUT_MIN_PX]
     if cut:
-        flags.append(Flag("cut_by_frame", "check", f"specimen cut by the frame edge in view(s) {_views(cut)}: volume and area are "
-                          "lower bounds", tuple(cut)))
+        flags.append(
+            Flag(
+                "cut_by_frame",
+                "check",
+                f"specimen cut by the frame edge in view(s) {_views(cut)}: volume and area are lower bounds",
+                tuple(cut),
+            )
+        )
     bad = [i for i in range(n) if i not in blank and ious[i] < FAIL_IOU]
     if bad:
-        flags.append(Flag("view_disagrees", "fail", f"silhouette and reprojected hull overlap less than they differ (IoU < {FAIL_IOU}) "
-                          f"in view(s) {_views(bad)}", tuple(bad)))
+        flags.append(
+            Flag(
+                "view_disagrees",
+                "fail",
+                f"silhouette and reprojected hull overlap less than they differ (IoU < {FAIL_IOU}) "
+                f"in view(s) {_views(bad)}",
+                tuple(bad),
+            )
+        )
     dis = [i for i in range(n) if i not in blank and i not in bad and dists[i] > disagree_px]
     if dis:
-        flags.append(Flag("view_disagrees", "check", f"silhouette off the reprojected hull by more than {disagree_px:.1f} px "
-                          f"(mean boundary distance, up to {max(dists[i] for i in dis):.1f} px) in view(s) {_views(dis)}", tuple(dis)))
+        flags.append(
+            Flag(
+                "view_disagrees",
+                "check",
+                f"silhouette off the reprojected hull by more than {disagree_px:.1f} px "
+                f"(mean boundary distance, up to {max(dists[i] for i in dis):.1f} px) in view(s) {_views(dis)}",
+                tuple(dis),
+            )
+        )
     flags += list(extra_flags)
     flags.sort(key=lambda f: 0 if f.severity == "fail" else 1)
     disagreeing = set(bad) | set(dis)
     per_view = {
-        "iou": ious, "boundary_distance_px": dists, "disagrees": [i in disagreeing for i in range(n)],
-        "contrast": [s.contrast for s in stats], "noise": [s.noise for s in stats], "blur_px": [s.blur_px for s in stats],
-        "edge_noise_px": [s.edge_noise_px for s in stats], "boundary_offset_px": [s.boundary_offset_px for s in stats],
+        "iou": ious,
+        "boundary_distance_px": dists,
+        "disagrees": [i in disagreeing for i in range(n)],
+        "contrast": [s.contrast for s in stats],
+        "noise": [s.noise for s in stats],
+        "blur_px": [s.blur_px for s in stats],
+        "edge_noise_px": [s.edge_noise_px for s in stats],
+        "boundary_offset_px": [s.boundary_offset_px for s in stats],
         "edge_scatter_px": [s.edge_scatter_px for s in stats],
-        "saturated_fraction": [s.saturated_fraction for s in stats], "border_px": [s.border_px for s in stats],
+        "saturated_fraction": [s.saturated_fraction for s in stats],
+        "border_px": [s.border_px for s in stats],
     }
-    thresholds = {"blank_range_sigmas": BLANK_RANGE_SIGMAS, "saturated_fraction": SATURATED_FRACTION, "low_contrast_px": LOW_CONTRAST_PX,
-                  "cut_min_px": float(CUT_MIN_PX), "disagree_px": disagree_px, "fail_iou": FAIL_IOU, "edge_sigma_px": float(edge_sigma_px),
-                  "raster_px": float(raster_px)}
+    thresholds = {
+        "blank_range_sigmas": BLANK_RANGE_SIGMAS,
+        "saturated_fraction": SATURATED_FRACTION,
+        "low_contrast_px": LOW_CONTRAST_PX,
+        "cut_min_px": float(CUT_MIN_PX),
+        "disagree_px": disagree_px,
+        "fail_iou": FAIL_IOU,
+        "edge_sigma_px": float(edge_sigma_px),
+        "raster_px": float(raster_px),
+    }
     res = QCResult(verdict_of(flags), tuple(flags), per_view, thresholds, lower_bound=bool(cut))
     log.info("QC: %s", res.verdict_line())
     return res
 
 
-def edge_offsets_px(frame: np.ndarray, silhouette: np.ndarray, *, half_window: int = 3, min_cnr: float = 5.0) -> np.ndarray:
+def edge_offsets_px(
+    frame: np.ndarray, silhouette: np.ndarray, *, half_window: int = 3, min_cnr: float = 5.0
+) -> np.ndarray:
     """Outward offsets (px) of a silhouette's boundary from the true edge, measured on the grey levels.
 
     Along every row and column, at each clean outside → inside transition of the silhouette

@@ -120,7 +120,13 @@ class HullResult:
     def border_faces(self) -> np.ndarray:
         """(3, 2) bool: whether hull voxels lie on the grid's lower / upper outer layer along x, y, z."""
         occ = self.occupancy
-        return np.array([[occ[0].any(), occ[-1].any()], [occ[:, 0].any(), occ[:, -1].any()], [occ[:, :, 0].any(), occ[:, :, -1].any()]])
+        return np.array(
+            [
+                [occ[0].any(), occ[-1].any()],
+                [occ[:, 0].any(), occ[:, -1].any()],
+                [occ[:, :, 0].any(), occ[:, :, -1].any()],
+            ]
+        )
 
     def touches_grid_border(self) -> bool:
         """True when a hull voxel lies on the grid's outer layer (the grid may crop the specimen)."""
@@ -194,7 +200,7 @@ class SilhouetteMaps:
 
     # -- building ----------------------------------------------------------------------------------
     @classmethod
-    def from_stack(cls, silhouettes: Any, *, quantise: bool = False) -> "SilhouetteMaps":
+    def from_stack(cls, silhouettes: Any, *, quantise: bool = False) -> SilhouetteMaps:
         """Compact copy of an (N, H, W) stack: bool or integer = binary masks (nonzero = specimen), floating =
         soft maps in [0, 1]. A :class:`SilhouetteMaps` is returned as it is.
 
@@ -229,8 +235,10 @@ class SilhouetteMaps:
         """
         m = np.asarray(m)
         if m.shape != self.frame_shape:
-            raise AnalysisError(f"silhouette of {m.shape[1] if m.ndim == 2 else '?'} x {m.shape[0]} px in a stack of "
-                                f"{self.frame_shape[1]} x {self.frame_shape[0]}")
+            raise AnalysisError(
+                f"silhouette of {m.shape[1] if m.ndim == 2 else '?'} x {m.shape[0]} px in a stack of "
+                f"{self.frame_shape[1]} x {self.frame_shape[0]}"
+            )
         if self.soft and not np.isfinite(m).all():
             raise AnalysisError("soft silhouettes contain non-finite values")
         quantised = self.soft and self.scale != 1.0
@@ -284,9 +292,9 @@ class SilhouetteMaps:
         out = np.zeros(self.frame_shape, self.dtype)
         if self.soft:
             c = c[1:-1, 1:-1]
-            out[y0:y0 + c.shape[0], x0:x0 + c.shape[1]] = c * np.float32(self.scale) if self.scale != 1.0 else c
+            out[y0 : y0 + c.shape[0], x0 : x0 + c.shape[1]] = c * np.float32(self.scale) if self.scale != 1.0 else c
         else:
-            out[y0:y0 + c.shape[0], x0:x0 + c.shape[1]] = c
+            out[y0 : y0 + c.shape[0], x0 : x0 + c.shape[1]] = c
         return out
 
     def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
@@ -390,7 +398,9 @@ def silhouette_counts(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray
 # ---------------------------------------------------------------------------------------------
 
 
-def _box_counts(integral: np.ndarray, qu: np.ndarray, qv: np.ndarray, r: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def _box_counts(
+    integral: np.ndarray, qu: np.ndarray, qv: np.ndarray, r: np.ndarray, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Inside pixels in the squares [q − r, q + r]² (clipped to the frame) and the squares' full areas.
 
     ``integral`` is ``cv2.integral`` of the binary mask, (H + 1, W + 1).
@@ -403,7 +413,9 @@ def _box_counts(integral: np.ndarray, qu: np.ndarray, qv: np.ndarray, r: np.ndar
     return inside, (2 * r + 1) ** 2
 
 
-def _classify_blocks(P: np.ndarray, maps: SilhouetteMaps, grid: VoxelGrid, b: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
+def _classify_blocks(
+    P: np.ndarray, maps: SilhouetteMaps, grid: VoxelGrid, b: int
+) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
     """Per block: kept (not certainly outside any view) and per-view 'mixed' flags.
 
     The binary pixel masks of ``maps`` (:meth:`SilhouetteMaps.mask`, one view at a time) are tested. A voxel's test reads the pixel nearest to its
@@ -495,9 +507,17 @@ def hull_boundary(occ: np.ndarray) -> np.ndarray:
     idx = np.argwhere(occ)
     lo = idx.min(0)
     hi = idx.max(0) + 1
-    sub = np.pad(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], 1)
+    sub = np.pad(occ[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]], 1)
     core = sub[1:-1, 1:-1, 1:-1]
-    inner = core & sub[:-2, 1:-1, 1:-1] & sub[2:, 1:-1, 1:-1] & sub[1:-1, :-2, 1:-1] & sub[1:-1, 2:, 1:-1] & sub[1:-1, 1:-1, :-2] & sub[1:-1, 1:-1, 2:]
+    inner = (
+        core
+        & sub[:-2, 1:-1, 1:-1]
+        & sub[2:, 1:-1, 1:-1]
+        & sub[1:-1, :-2, 1:-1]
+        & sub[1:-1, 2:, 1:-1]
+        & sub[1:-1, 1:-1, :-2]
+        & sub[1:-1, 1:-1, 2:]
+    )
     b = np.argwhere(core & ~inner) + lo
     return np.ravel_multi_index(tuple(b.T), occ.shape).astype(np.int64)
 
@@ -559,8 +579,15 @@ def _largest_component(counts: np.ndarray, n: int, margin: int = 2) -> np.ndarra
     return np.where(near, counts, 0).astype(counts.dtype)
 
 
-def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_count: int | None = None,
-                keep_largest: bool = True, warn_border: bool = True) -> HullResult:
+def visual_hull(
+    P: np.ndarray,
+    silhouettes: np.ndarray,
+    grid: VoxelGrid,
+    *,
+    min_count: int | None = None,
+    keep_largest: bool = True,
+    warn_border: bool = True,
+) -> HullResult:
     """Visual hull and silhouette counts on ``grid``.
 
     Args:
@@ -595,29 +622,42 @@ def visual_hull(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_
         raise AnalysisError(f"min_count must be within 1..{n}, got {min_count}")
     empty = [i for i in range(n) if not maps.any_inside(i)]
     if empty:
-        raise EmptyHullError(f"silhouette of view(s) {empty} is empty: nothing was segmented as specimen "
-                             "(check the colour model or the masks)")
+        raise EmptyHullError(
+            f"silhouette of view(s) {empty} is empty: nothing was segmented as specimen "
+            "(check the colour model or the masks)"
+        )
     Pn = normalise_cameras(P, grid)
     occ = _carve(Pn, maps, grid)
     t1 = time.perf_counter()
     if not occ.any():
-        raise EmptyHullError(f"every one of {grid.n_voxels} voxels was carved away: no voxel projects inside all {n} "
-                             "silhouettes — the cameras do not agree with the silhouettes (wrong calibration run, "
-                             "wrong pixel convention) or the colour model segmented the wrong region")
+        raise EmptyHullError(
+            f"every one of {grid.n_voxels} voxels was carved away: no voxel projects inside all {n} "
+            "silhouettes — the cameras do not agree with the silhouettes (wrong calibration run, "
+            "wrong pixel convention) or the colour model segmented the wrong region"
+        )
     counts = _grow_counts(Pn, maps, grid, occ, min_count)
     if keep_largest:
         counts = _largest_component(counts, n)
     t2 = time.perf_counter()
     res = HullResult(grid, counts, n, int(min_count), t2 - t0, {"carve": t1 - t0, "counts": t2 - t1})
-    log.info("visual hull: %d of %d voxels (%.2f µm) inside all %d silhouettes, %.4f mm³; carve %.3f s, counts %.3f s",
-             res.n_inside, grid.n_voxels, grid.size, n, res.volume_mm3, t1 - t0, t2 - t1)
+    log.info(
+        "visual hull: %d of %d voxels (%.2f µm) inside all %d silhouettes, %.4f mm³; carve %.3f s, counts %.3f s",
+        res.n_inside,
+        grid.n_voxels,
+        grid.size,
+        n,
+        res.volume_mm3,
+        t1 - t0,
+        t2 - t1,
+    )
     if warn_border and res.touches_grid_border():
         log.warning("the visual hull touches the border of the voxel grid: the specimen may be cropped")
     return res
 
 
-def visual_hull_in_grid(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_count: int | None = None,
-                        max_growths: int = 3) -> HullResult:
+def visual_hull_in_grid(
+    P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid, *, min_count: int | None = None, max_growths: int = 3
+) -> HullResult:
     """:func:`visual_hull`, growing the grid (same voxel size) on every face the hull touches.
 
     The grid comes from a coarse carve (:func:`choose_grid`), which misses parts thinner than a
@@ -634,8 +674,11 @@ def visual_hull_in_grid(P: np.ndarray, silhouettes: np.ndarray, grid: VoxelGrid,
         extent = grid.upper - grid.lower
         pad = np.maximum(16 * grid.size, 0.1 * extent)[:, None] * faces
         grid = VoxelGrid.from_bounds(grid.lower - pad[:, 0], grid.upper + pad[:, 1], grid.size)
-        log.info("the hull touched the grid's %s face(s): grid grown to %s voxels", ", ".join(
-            f"{'xyz'[a]}{'−+'[b]}" for a, b in np.argwhere(faces)), "x".join(map(str, grid.shape)))
+        log.info(
+            "the hull touched the grid's %s face(s): grid grown to %s voxels",
+            ", ".join(f"{'xyz'[a]}{'−+'[b]}" for a, b in np.argwhere(faces)),
+            "x".join(map(str, grid.shape)),
+        )
     return visual_hull(P, silhouettes, grid, min_count=min_count)
 
 
@@ -695,17 +738,25 @@ def session_specimen_maps(session: Any, model: Any, *, memory_mb: float = DEFAUL
     def store(views: np.ndarray, pf: np.ndarray) -> None:
         np.clip(np.nan_to_num(pf, copy=False), 0.0, 1.0, out=pf)
         for v, m in zip(views, pf):
-            pending[int(v)] = maps.compact(m)  # compact at once: a full float32 frame per waiting view was 1.4 GB at 360 x 1 Mpx
+            pending[int(v)] = maps.compact(
+                m
+            )  # compact at once: a full float32 frame per waiting view was 1.4 GB at 360 x 1 Mpx
         while len(maps) in pending:  # views are added in order; a sub-revolution's maps wait for their turn
             maps.append_compact(*pending.pop(len(maps)))
 
     grouped_specimen_maps(model, read, n, shape, memory_mb, store)
-    log.info("specimen maps of %d views: %.0f MB compact (%.0f MB as float32 frames)", n, maps.nbytes / 2**20, 4.0 * n * np.prod(shape[:2]) / 2**20)
+    log.info(
+        "specimen maps of %d views: %.0f MB compact (%.0f MB as float32 frames)",
+        n,
+        maps.nbytes / 2**20,
+        4.0 * n * np.prod(shape[:2]) / 2**20,
+    )
     return maps
 
 
-def session_inputs(session: Any, *, calibration_run: str | None = None, use_masks: bool = False,
-                   memory_mb: float = DEFAULT_MEMORY_MB) -> ReconstructionInputs:
+def session_inputs(
+    session: Any, *, calibration_run: str | None = None, use_masks: bool = False, memory_mb: float = DEFAULT_MEMORY_MB
+) -> ReconstructionInputs:
     """Cameras and silhouettes of an open :class:`~vastcal.session.Session`.
 
     Cameras: the calibration run ``calibration_run`` (default: the latest), else the imported
@@ -724,7 +775,9 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
     cal = None
     if calibration_run == "imported":  # the imported cameras even when calibration runs exist (``--cameras imported``)
         if session.known_cameras is None:
-            raise UserInputError(f"{path}: the session holds no imported cameras (import them with 'vastcal import --cameras')")
+            raise UserInputError(
+                f"{path}: the session holds no imported cameras (import them with 'vastcal import --cameras')"
+            )
     elif calibration_run is not None:
         cal = session.result("calibration", calibration_run)
         if cal is None:
@@ -748,7 +801,9 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
 
     masks = session.masks
     if use_masks and masks is None:
-        raise UserInputError(f"{path}: the session holds no masks; import them with 'vastcal import --masks' or drop --masks")
+        raise UserInputError(
+            f"{path}: the session holds no masks; import them with 'vastcal import --masks' or drop --masks"
+        )
     sil: np.ndarray | None = None
     sil_src = ""
     # The silhouettes do not depend on the cameras: imported cameras take the latest calibration run's colour model.
@@ -759,12 +814,16 @@ def session_inputs(session: Any, *, calibration_run: str | None = None, use_mask
         model = ColourModel.from_group(model_run["colour_model"])
         # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)
         sil = session_specimen_maps(session, model, memory_mb=memory_mb)
-        sil_src = f"colour_model of calibration/{model_run.name.rsplit('/', 1)[-1]} (bilinear p >= {FOREGROUND_THRESHOLD})"
+        sil_src = (
+            f"colour_model of calibration/{model_run.name.rsplit('/', 1)[-1]} (bilinear p >= {FOREGROUND_THRESHOLD})"
+        )
     elif masks is not None:
         sil = np.asarray(masks) > 0
         sil_src = "masks (imported)"
     if sil is None:
-        raise MissingStageError(f"{path}: no silhouettes (no colour model and no masks): run 'vastcal calibrate {path}' first")
+        raise MissingStageError(
+            f"{path}: no silhouettes (no colour model and no masks): run 'vastcal calibrate {path}' first"
+        )
     if sil.shape[0] != n:
         raise AnalysisError(f"{path}: {sil.shape[0]} silhouettes for {n} projection views")
     return ReconstructionInputs(P, sil, cam_src, sil_src, cal_name, length_unit)
@@ -795,7 +854,9 @@ def cameras_in_um(P: np.ndarray, unit: str) -> tuple[np.ndarray, str]:
     return P @ np.diag([1.0 / scale, 1.0 / scale, 1.0 / scale, 1.0]), unit
 
 
-def choose_grid(P: np.ndarray, silhouettes: np.ndarray, *, voxel_size_um: float | None = None, target_voxels: int = 5_000_000) -> VoxelGrid:
+def choose_grid(
+    P: np.ndarray, silhouettes: np.ndarray, *, voxel_size_um: float | None = None, target_voxels: int = 5_000_000
+) -> VoxelGrid:
     """The grid around the specimen: coarse carving, bounding box plus margin
     (:func:`vastcal.voxels.grid_around_specimen`), voxel edge ``voxel_size_um`` (µm) or chosen
     for about ``target_voxels`` voxels in the box."""
@@ -807,8 +868,12 @@ def choose_grid(P: np.ndarray, silhouettes: np.ndarray, *, voxel_size_um: float 
     return grid_around_specimen(np.asarray(P, float), mask, target_voxels, voxel_size=voxel_size_um)
 
 
-def store_reconstruction(group: "h5py.Group", hull: HullResult, inputs: ReconstructionInputs | None = None,
-                         settings: dict[str, Any] | None = None) -> None:
+def store_reconstruction(
+    group: h5py.Group,
+    hull: HullResult,
+    inputs: ReconstructionInputs | None = None,
+    settings: dict[str, Any] | None = None,
+) -> None:
     """Write a hull into a result group (``/entry/vastcal/reconstruction/run_NNN``).
 
     Stores the grid (origin µm, voxel size µm, shape), the counts volume (uint8 or uint16, gzip; see
@@ -820,39 +885,57 @@ def store_reconstruction(group: "h5py.Group", hull: HullResult, inputs: Reconstr
     g = hull.grid
     group.create_dataset("counts", data=hull.counts, chunks=True, compression="gzip", compression_opts=4, shuffle=True)
     group["counts"].attrs["units"] = "silhouettes containing the voxel"
-    group["counts"].attrs["exact_for"] = f"voxels with count >= {hull.min_count} 6-connected to the hull and their 6-neighbours; 0 elsewhere"
+    group["counts"].attrs["exact_for"] = (
+        f"voxels with count >= {hull.min_count} 6-connected to the hull and their 6-neighbours; 0 elsewhere"
+    )
     grid_ds = group.create_dataset("grid_origin_um", data=np.asarray(g.origin, float))
     grid_ds.attrs["units"] = "um"
     grid_ds.attrs["meaning"] = "world centre of voxel (0, 0, 0); voxel (i, j, k) at origin + (i, j, k) * voxel_size_um"
     describe_hull(group, "counts", g.origin, g.size)  # NXdata: counts on x, y, z voxel-centre axes in µm
     hist = np.bincount(hull.counts.ravel(), minlength=hull.n_views + 1)
-    write_attrs(group, {
-        "voxel_size_um": float(g.size),
-        "grid_shape": [int(s) for s in g.shape],
-        "grid_lower_um": [float(v) for v in g.lower],
-        "grid_upper_um": [float(v) for v in g.upper],
-        "n_voxels": g.n_voxels,
-        "n_views": hull.n_views,
-        "n_inside": hull.n_inside,
-        "min_count": hull.min_count,
-        "counts_histogram_top": {int(c): int(hist[c]) for c in range(hull.min_count - 1 if hull.min_count > 1 else 1, hull.n_views + 1)},
-        "voxel_volume_mm3": hull.volume_mm3,
-        "wall_time_s": float(hull.wall_time_s),
-        "timings_s": hull.timings_s,
-        "settings": settings or {},
-        "camera_source": inputs.camera_source if inputs else "",
-        "silhouette_source": inputs.silhouette_source if inputs else "",
-        "calibration_run": (inputs.calibration_run or "") if inputs else "",
-    })
+    write_attrs(
+        group,
+        {
+            "voxel_size_um": float(g.size),
+            "grid_shape": [int(s) for s in g.shape],
+            "grid_lower_um": [float(v) for v in g.lower],
+            "grid_upper_um": [float(v) for v in g.upper],
+            "n_voxels": g.n_voxels,
+            "n_views": hull.n_views,
+            "n_inside": hull.n_inside,
+            "min_count": hull.min_count,
+            "counts_histogram_top": {
+                int(c): int(hist[c]) for c in range(hull.min_count - 1 if hull.min_count > 1 else 1, hull.n_views + 1)
+            },
+            "voxel_volume_mm3": hull.volume_mm3,
+            "wall_time_s": float(hull.wall_time_s),
+            "timings_s": hull.timings_s,
+            "settings": settings or {},
+            "camera_source": inputs.camera_source if inputs else "",
+            "silhouette_source": inputs.silhouette_source if inputs else "",
+            "calibration_run": (inputs.calibration_run or "") if inputs else "",
+        },
+    )
 
 
-def load_reconstruction(group: "h5py.Group") -> HullResult:
+def load_reconstruction(group: h5py.Group) -> HullResult:
     """Read back a hull stored by :func:`store_reconstruction`."""
     from vastcal.session import read_attrs
 
     a = read_attrs(group)
-    grid = VoxelGrid(np.asarray(group["grid_origin_um"][...], float), float(a["voxel_size_um"]), tuple(int(s) for s in a["grid_shape"]))  # type: ignore[arg-type]
-    return HullResult(grid, group["counts"][...], int(a["n_views"]), int(a["min_count"]), float(a.get("wall_time_s", 0.0)), dict(a.get("timings_s", {})))
+    grid = VoxelGrid(
+        np.asarray(group["grid_origin_um"][...], float),
+        float(a["voxel_size_um"]),
+        tuple(int(s) for s in a["grid_shape"]),
+    )  # type: ignore[arg-type]
+    return HullResult(
+        grid,
+        group["counts"][...],
+        int(a["n_views"]),
+        int(a["min_count"]),
+        float(a.get("wall_time_s", 0.0)),
+        dict(a.get("timings_s", {})),
+    )
 
 
 def reconstruct_session(
@@ -863,7 +946,7 @@ def reconstruct_session(
     use_masks: bool = False,
     mesh_path: str | Path | None = None,
     target_voxels: int | None = None,
-) -> "Measurement":
+) -> Measurement:
     """Reconstruct and measure a session; store both runs in it; return the measurement.
 
     ``vastcal reconstruct S.h5`` calls this. Cameras and silhouettes: :func:`session_inputs`.
@@ -892,23 +975,43 @@ def reconstruct_session(
             cfg = s.rig_config().reconstruction
         except Exception as exc:  # an unreadable stored config must not block measuring
             log.warning("%s: stored rig configuration unreadable (%s); reconstruction defaults used", path, exc)
-        inputs = session_inputs(s, calibration_run=calibration_run, use_masks=use_masks,
-                                memory_mb=getattr(cfg, "memory_mb", DEFAULT_MEMORY_MB))
+        inputs = session_inputs(
+            s,
+            calibration_run=calibration_run,
+            use_masks=use_masks,
+            memory_mb=getattr(cfg, "memory_mb", DEFAULT_MEMORY_MB),
+        )
         size = voxel_size_um if voxel_size_um is not None else (cfg.voxel_size_um if cfg else None)
         target = target_voxels or (cfg.target_voxels if cfg else 5_000_000)
         settings = MeasureSettings()
         try:
             grid = choose_grid(inputs.P, inputs.silhouettes, voxel_size_um=size, target_voxels=target)
-            hull = visual_hull_in_grid(inputs.P, inputs.silhouettes, grid, min_count=settings.min_count(inputs.P.shape[0]))
+            hull = visual_hull_in_grid(
+                inputs.P, inputs.silhouettes, grid, min_count=settings.min_count(inputs.P.shape[0])
+            )
             meas = measure_hull(hull, settings)
         except VastcalError as exc:  # name the session in errors found in its data
             raise exc.about(path) from None
         rec = s.new_result_group("reconstruction")
-        store_reconstruction(rec, hull, inputs, {"voxel_size_um": size, "target_voxels": target, "block": BLOCK,
-                                                  "foreground_threshold": FOREGROUND_THRESHOLD, "use_masks": use_masks})
-        meas = meas.with_provenance(reconstruction_run=rec.name.rsplit("/", 1)[-1], calibration_run=inputs.calibration_run,
-                                    camera_source=inputs.camera_source, silhouette_source=inputs.silhouette_source,
-                                    length_unit=inputs.length_unit)
+        store_reconstruction(
+            rec,
+            hull,
+            inputs,
+            {
+                "voxel_size_um": size,
+                "target_voxels": target,
+                "block": BLOCK,
+                "foreground_threshold": FOREGROUND_THRESHOLD,
+                "use_masks": use_masks,
+            },
+        )
+        meas = meas.with_provenance(
+            reconstruction_run=rec.name.rsplit("/", 1)[-1],
+            calibration_run=inputs.calibration_run,
+            camera_source=inputs.camera_source,
+            silhouette_source=inputs.silhouette_source,
+            length_unit=inputs.length_unit,
+        )
         from vastcal.uncertainty import assess_session_measurement  # uncertainty budget and per-view QC (helper H3)
 
         meas = assess_session_measurement(s, inputs, hull, meas)

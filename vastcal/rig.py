@@ -19,10 +19,11 @@ import logging
 import os
 import urllib.parse
 import uuid
+from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Callable
+from typing import Any
 
 from vastcal.config import RigConfig
 from vastcal.devices import Camera, RotationStage
@@ -39,8 +40,14 @@ class Rig:
         on_view: called by acquisition with each written view index.
     """
 
-    def __init__(self, stage: RotationStage, camera: Camera, stack: ExitStack, start_info: dict[str, Any],
-                 on_view: Callable[[int], None] | None = None) -> None:
+    def __init__(
+        self,
+        stage: RotationStage,
+        camera: Camera,
+        stack: ExitStack,
+        start_info: dict[str, Any],
+        on_view: Callable[[int], None] | None = None,
+    ) -> None:
         self.stage = stage
         self.camera = camera
         self.start_info = start_info
@@ -51,10 +58,12 @@ class Rig:
         """Close camera and stage (safe to call twice)."""
         self._stack.close()
 
-    def __enter__(self) -> "Rig":
+    def __enter__(self) -> Rig:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.close()
 
 
@@ -113,8 +122,13 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
         # so the camera renders at the read-back position.
         stage = stack.enter_context(_closing(open_stage(cfg.stage)))
         angle_source = lambda: stage.usteps_to_degrees(stage.position())  # noqa: E731
-        log.warning("simulated camera with the stage at %s: frames are rendered at the read-back angle (no drift truth)", cfg.stage.url)
-    camera = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=angle_source, capillary=simulated_capillary())
+        log.warning(
+            "simulated camera with the stage at %s: frames are rendered at the read-back angle (no drift truth)",
+            cfg.stage.url,
+        )
+    camera = SimulatedCamera(
+        cfg.optics, cfg.camera, cfg.simulation, angle_source=angle_source, capillary=simulated_capillary()
+    )
     camera.open()
     stack.enter_context(_closing(camera))
 
@@ -134,17 +148,28 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
             return
         if earlier is None:  # first view of this run: a resumed run keeps the truth of views 0..k-1
             earlier = _earlier_snaps(truth_path, k)
-        view_snaps.append(camera.snaps[-1])  # this view's frame: the angle it was rendered at, whether the frame cut the body
+        view_snaps.append(
+            camera.snaps[-1]
+        )  # this view's frame: the angle it was rendered at, whether the frame cut the body
         snaps = earlier + view_snaps
-        _write_json_atomically(truth_path, {"partial": True, **camera.truth.to_dict(), "actual_angles_deg": [s.get("actual_angle_deg") for s in snaps],
-                                            "snaps": snaps})
+        _write_json_atomically(
+            truth_path,
+            {
+                "partial": True,
+                **camera.truth.to_dict(),
+                "actual_angles_deg": [s.get("actual_angle_deg") for s in snaps],
+                "snaps": snaps,
+            },
+        )
 
     def finish_truth() -> None:
         if truth_path is not None and view_snaps:
             _write_json_atomically(truth_path, full_record())
 
     stack.callback(finish_truth)
-    return Rig(stage, camera, stack, {"simulated": True, "truth_file": str(truth_path) if truth_path else ""}, write_truth)
+    return Rig(
+        stage, camera, stack, {"simulated": True, "truth_file": str(truth_path) if truth_path else ""}, write_truth
+    )
 
 
 def simulated_capillary() -> Any:

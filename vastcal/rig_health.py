@@ -22,10 +22,11 @@ from __future__ import annotations
 import html
 import json
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -132,29 +133,42 @@ def axis_trend(name: str, records: Sequence[Mapping[str, Any]]) -> AxisTrend | N
     if len(v) >= 3 and all(d is not None for d in days):
         x = np.array(days, float)
         x -= x.mean()
-        sxx = float((x ** 2).sum())
+        sxx = float((x**2).sum())
         if float(x.max() - x.min()) >= MIN_TREND_SPAN_DAYS and sxx > 0:
             slope = float((x * (v - v.mean())).sum() / sxx)
             resid = v - v.mean() - slope * x
-            slope_se = float(math.sqrt((resid ** 2).sum() / (len(v) - 2) / sxx))
-    return AxisTrend(name.removesuffix("_deg"), [str(p[0]) for p in pts], v.tolist(), float(v.mean()), se, slope, slope_se)
+            slope_se = float(math.sqrt((resid**2).sum() / (len(v) - 2) / sxx))
+    return AxisTrend(
+        name.removesuffix("_deg"), [str(p[0]) for p in pts], v.tolist(), float(v.mean()), se, slope, slope_se
+    )
 
 
 def rig_health(records: Sequence[Mapping[str, Any]]) -> RigHealth:
     """The rig's health from per-session calibration records (see the module docstring for what they cannot tell)."""
     informative = [r for r in records if _rolls_informative(r)]
-    h = RigHealth(angle_error_by_commanded(informative), axis_trend("yaw_deg", records), axis_trend("pitch_deg", records),
-                  len(records), len(informative))
+    h = RigHealth(
+        angle_error_by_commanded(informative),
+        axis_trend("yaw_deg", records),
+        axis_trend("pitch_deg", records),
+        len(records),
+        len(informative),
+    )
     if len(informative) < len(records):
-        h.notes.append(f"{len(records) - len(informative)} of {len(records)} sessions held the rolls at the commanded angles "
-                       "or their report marks the drift not estimated/undetermined (rolls following the prior): left out of the angle error")
+        h.notes.append(
+            f"{len(records) - len(informative)} of {len(records)} sessions held the rolls at the commanded angles "
+            "or their report marks the drift not estimated/undetermined (rolls following the prior): left out of the angle error"
+        )
     h.notes.append("angles are relative to view 0: an error common to all angles is not determined")
-    h.notes.append("silhouettes constrain individual rolls only weakly and the roll prior pulls them to the commanded angles: "
-                   "a periodic stage error shows here attenuated, not amplified")
+    h.notes.append(
+        "silhouettes constrain individual rolls only weakly and the roll prior pulls them to the commanded angles: "
+        "a periodic stage error shows here attenuated, not amplified"
+    )
     return h
 
 
-def _svg_points(xs: Sequence[float], ys: Sequence[float], es: Sequence[float], label: str, width: int = 420, height: int = 180) -> str:
+def _svg_points(
+    xs: Sequence[float], ys: Sequence[float], es: Sequence[float], label: str, width: int = 420, height: int = 180
+) -> str:
     pad = 30
     ok = [(x, y, e if math.isfinite(e) else 0.0) for x, y, e in zip(xs, ys, es) if math.isfinite(y)]
     if not ok:
@@ -172,11 +186,16 @@ def _svg_points(xs: Sequence[float], ys: Sequence[float], es: Sequence[float], l
     def sy(y: float) -> float:
         return height - pad - (y - y0) / (y1 - y0) * (height - 2 * pad)
 
-    marks = "".join(f'<line x1="{sx(x):.1f}" x2="{sx(x):.1f}" y1="{sy(y - e):.1f}" y2="{sy(y + e):.1f}" stroke="#888"/>'
-                    f'<circle cx="{sx(x):.1f}" cy="{sy(y):.1f}" r="2.5" fill="#b04a4a"/>' for x, y, e in ok)
-    return (f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">'
-            f'<text x="{pad}" y="14" font-size="12">{html.escape(label)}</text>{marks}'
-            f'<text x="4" y="{pad}" font-size="10">{y1:.3g}</text><text x="4" y="{height - pad}" font-size="10">{y0:.3g}</text></svg>')
+    marks = "".join(
+        f'<line x1="{sx(x):.1f}" x2="{sx(x):.1f}" y1="{sy(y - e):.1f}" y2="{sy(y + e):.1f}" stroke="#888"/>'
+        f'<circle cx="{sx(x):.1f}" cy="{sy(y):.1f}" r="2.5" fill="#b04a4a"/>'
+        for x, y, e in ok
+    )
+    return (
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">'
+        f'<text x="{pad}" y="14" font-size="12">{html.escape(label)}</text>{marks}'
+        f'<text x="4" y="{pad}" font-size="10">{y1:.3g}</text><text x="4" y="{height - pad}" font-size="10">{y0:.3g}</text></svg>'
+    )
 
 
 def rig_health_html(h: RigHealth) -> str:
@@ -185,20 +204,36 @@ def rig_health_html(h: RigHealth) -> str:
         return ""
     parts = [f"<h2>Rig health ({h.n_sessions} calibrated sessions)</h2>"]
     if h.angle_error:
-        parts.append(_svg_points([a.commanded_deg for a in h.angle_error], [a.mean_deg for a in h.angle_error],
-                                 [a.standard_error_deg for a in h.angle_error],
-                                 f"calibrated − commanded angle (deg, ± SE) vs commanded angle, {h.n_rolls_informative} sessions"))
+        parts.append(
+            _svg_points(
+                [a.commanded_deg for a in h.angle_error],
+                [a.mean_deg for a in h.angle_error],
+                [a.standard_error_deg for a in h.angle_error],
+                f"calibrated − commanded angle (deg, ± SE) vs commanded angle, {h.n_rolls_informative} sessions",
+            )
+        )
     else:
         parts.append("<p>Stage angle error: not determined (no session calibrated its rolls).</p>")
     for t in (h.yaw, h.pitch):
         if t is None:
             continue
-        slope = (f"; trend {t.slope_deg_per_day:+.3g} ± {t.slope_se_deg_per_day:.2g} °/day"
-                 if t.slope_deg_per_day is not None and t.slope_se_deg_per_day is not None else "")
-        parts.append(f"<p>{html.escape(t.name)}: mean {t.mean_deg:+.4f} ± {t.standard_error_deg:.2g}° (SE, n = {len(t.values_deg)})"
-                     f"{html.escape(slope)}</p>")
-        parts.append(_svg_points(list(range(len(t.values_deg))), t.values_deg, [0.0] * len(t.values_deg),
-                                 f"{t.name} (deg) per session, in time order"))
+        slope = (
+            f"; trend {t.slope_deg_per_day:+.3g} ± {t.slope_se_deg_per_day:.2g} °/day"
+            if t.slope_deg_per_day is not None and t.slope_se_deg_per_day is not None
+            else ""
+        )
+        parts.append(
+            f"<p>{html.escape(t.name)}: mean {t.mean_deg:+.4f} ± {t.standard_error_deg:.2g}° (SE, n = {len(t.values_deg)})"
+            f"{html.escape(slope)}</p>"
+        )
+        parts.append(
+            _svg_points(
+                list(range(len(t.values_deg))),
+                t.values_deg,
+                [0.0] * len(t.values_deg),
+                f"{t.name} (deg) per session, in time order",
+            )
+        )
     parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in h.notes) + "</ul>")
     return "\n".join(parts)
 
@@ -253,8 +288,11 @@ class RigPrior:
     def describe(self) -> str:
         """One line for logs and the calibration's attributes."""
         parts = [f"{self.source}: {self.n_sessions} session(s)"]
-        parts.append(f"stage error at {self.commanded_deg.size} commanded angle(s), max |e| {np.max(np.abs(self.error_deg)):.3f} deg"
-                     if self.error_deg.size else "stage error not determined (no roll shift)")
+        parts.append(
+            f"stage error at {self.commanded_deg.size} commanded angle(s), max |e| {np.max(np.abs(self.error_deg)):.3f} deg"
+            if self.error_deg.size
+            else "stage error not determined (no roll shift)"
+        )
         if self.yaw_deg is not None:
             parts.append(f"yaw {self.yaw_deg:+.4f} deg")
         if self.pitch_deg is not None:
@@ -281,9 +319,13 @@ def load_rig_prior(results_dir: str | Path, *, key: str = "calibration.prior_fro
     except FileNotFoundError:
         raise ConfigError(f"{key}: {path}: no such file; expected {expected}") from None
     except (OSError, ValueError) as exc:
-        raise ConfigError(f"{key}: {path}: not readable JSON ({str(exc).splitlines()[0]}); expected {expected}") from None
+        raise ConfigError(
+            f"{key}: {path}: not readable JSON ({str(exc).splitlines()[0]}); expected {expected}"
+        ) from None
     if not isinstance(data, dict) or data.get("schema") != HEALTH_SCHEMA:
-        raise ConfigError(f"{key}: {path}: expected schema {HEALTH_SCHEMA}, got {_short(data.get('schema') if isinstance(data, dict) else data)}")
+        raise ConfigError(
+            f"{key}: {path}: expected schema {HEALTH_SCHEMA}, got {_short(data.get('schema') if isinstance(data, dict) else data)}"
+        )
     pts: list[tuple[float, float, float]] = []
     try:
         for a in data.get("angle_error") or []:
@@ -298,7 +340,9 @@ def load_rig_prior(results_dir: str | Path, *, key: str = "calibration.prior_fro
             axis[name] = v if v is not None and math.isfinite(v) else None
         n = int(data.get("n_sessions") or 0)
     except (TypeError, ValueError, KeyError) as exc:
-        raise ConfigError(f"{key}: {path}: malformed entry ({type(exc).__name__}: {exc}); expected {expected}") from None
+        raise ConfigError(
+            f"{key}: {path}: malformed entry ({type(exc).__name__}: {exc}); expected {expected}"
+        ) from None
     pts.sort()
     arr = np.array(pts, float).reshape(-1, 3)
     return RigPrior(str(folder), arr[:, 0], arr[:, 1], arr[:, 2], axis["yaw"], axis["pitch"], n)

@@ -18,8 +18,9 @@ import logging
 import math
 import os
 import tempfile
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -27,21 +28,64 @@ SPECIMEN_FIELDS: tuple[str, ...] = ("specimen_id", "age_dpf", "strain", "treatme
 """Specimen metadata columns, read from ``S.specimen.json`` beside a session when present."""
 
 COLUMNS: tuple[str, ...] = (
-    "session", "status", "exit_class", "reason",
+    "session",
+    "status",
+    "exit_class",
+    "reason",
     *SPECIMEN_FIELDS,
-    "volume_mm3", "U_volume_mm3", "area_mm2", "U_area_mm2", "k",
-    "verdict", "flags",
-    "n_views", "cal_method", "cal_final_cost", "cal_yaw_deg", "cal_pitch_deg", "cal_drift_rms_deg", "cal_drift_status",
-    "vastcal_version", "t_calibrate_s", "t_reconstruct_s", "t_report_s", "t_total_s", "cpu_s",
-    "worker", "worker_peak_mb", "processed_at", "uid", "report", "path", "length_unit",
+    "volume_mm3",
+    "U_volume_mm3",
+    "area_mm2",
+    "U_area_mm2",
+    "k",
+    "verdict",
+    "flags",
+    "n_views",
+    "cal_method",
+    "cal_final_cost",
+    "cal_yaw_deg",
+    "cal_pitch_deg",
+    "cal_drift_rms_deg",
+    "cal_drift_status",
+    "vastcal_version",
+    "t_calibrate_s",
+    "t_reconstruct_s",
+    "t_report_s",
+    "t_total_s",
+    "cpu_s",
+    "worker",
+    "worker_peak_mb",
+    "processed_at",
+    "uid",
+    "report",
+    "path",
+    "length_unit",
 )
 """Columns of ``measurements.csv`` in order. ``length_unit``: the world's unit of the row (``um`` on a rig, a known unit
 of imported cameras); ``px`` or ``unknown`` when ``volume_mm3`` … hold pixels or the cameras' own units scaled as if
 they were µm (``report.csv``'s column of the same name)."""
 
-NUMERIC: frozenset[str] = frozenset({"age_dpf", "volume_mm3", "U_volume_mm3", "area_mm2", "U_area_mm2", "k", "n_views", "cal_final_cost",
-                                     "cal_yaw_deg", "cal_pitch_deg", "cal_drift_rms_deg", "t_calibrate_s", "t_reconstruct_s",
-                                     "t_report_s", "t_total_s", "cpu_s", "worker_peak_mb"})
+NUMERIC: frozenset[str] = frozenset(
+    {
+        "age_dpf",
+        "volume_mm3",
+        "U_volume_mm3",
+        "area_mm2",
+        "U_area_mm2",
+        "k",
+        "n_views",
+        "cal_final_cost",
+        "cal_yaw_deg",
+        "cal_pitch_deg",
+        "cal_drift_rms_deg",
+        "t_calibrate_s",
+        "t_reconstruct_s",
+        "t_report_s",
+        "t_total_s",
+        "cpu_s",
+        "worker_peak_mb",
+    }
+)
 
 MISSING = "-"
 
@@ -142,12 +186,17 @@ def _histogram_svg(values: Sequence[float], label: str, bins: int = 20, width: i
     bars = []
     for i, c in enumerate(counts):
         h = (height - 2 * pad) * c / top
-        bars.append(f'<rect x="{pad + i * bw:.1f}" y="{height - pad - h:.1f}" width="{bw - 1:.1f}" height="{h:.1f}" fill="#4a7ab0">'
-                    f"<title>{html.escape(f'{lo + i * (hi - lo) / bins:.4g} – {lo + (i + 1) * (hi - lo) / bins:.4g}: {c}')}</title></rect>")
-    return (f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">'
-            f'<text x="{pad}" y="14" font-size="12">{html.escape(label)} (n = {len(vals)})</text>' + "".join(bars)
-            + f'<text x="{pad}" y="{height - 10}" font-size="11">{lo:.4g}</text>'
-            + f'<text x="{width - 10}" y="{height - 10}" font-size="11" text-anchor="end">{hi:.4g}</text></svg>')
+        bars.append(
+            f'<rect x="{pad + i * bw:.1f}" y="{height - pad - h:.1f}" width="{bw - 1:.1f}" height="{h:.1f}" fill="#4a7ab0">'
+            f"<title>{html.escape(f'{lo + i * (hi - lo) / bins:.4g} – {lo + (i + 1) * (hi - lo) / bins:.4g}: {c}')}</title></rect>"
+        )
+    return (
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">'
+        f'<text x="{pad}" y="14" font-size="12">{html.escape(label)} (n = {len(vals)})</text>'
+        + "".join(bars)
+        + f'<text x="{pad}" y="{height - 10}" font-size="11">{lo:.4g}</text>'
+        + f'<text x="{width - 10}" y="{height - 10}" font-size="11" text-anchor="end">{hi:.4g}</text></svg>'
+    )
 
 
 def outliers(rows: Iterable[Mapping[str, Any]], column: str, z: float = 3.5) -> list[Mapping[str, Any]]:
@@ -171,8 +220,14 @@ def _link(row: Mapping[str, Any]) -> str:
     return name
 
 
-def index_html(rows: Sequence[Mapping[str, Any]], *, title: str = "vastcal screen", extra_html: str = "", progress: str = "",
-               refresh_s: int | None = None) -> str:
+def index_html(
+    rows: Sequence[Mapping[str, Any]],
+    *,
+    title: str = "vastcal screen",
+    extra_html: str = "",
+    progress: str = "",
+    refresh_s: int | None = None,
+) -> str:
     """The screen overview: counts, histograms of volume and area, outliers, failed sessions, the table.
 
     Every value from the data is escaped with :func:`html.escape`; ``extra_html`` is trusted (built here).
@@ -183,21 +238,32 @@ def index_html(rows: Sequence[Mapping[str, Any]], *, title: str = "vastcal scree
     ok = [r for r in rows if r.get("status") == "ok"]
     failed = [r for r in rows if r.get("status") != "ok"]
     reload = f"<meta http-equiv='refresh' content='{int(refresh_s)}'>" if refresh_s else ""
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'>{reload}<title>{html.escape(title)}</title>",
-             "<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse;font-size:12px}"
-             "td,th{border:1px solid #ccc;padding:2px 5px}.failed{background:#fdd}</style></head><body>",
-             f"<h1>{html.escape(title)}</h1>",
-             f"<p>{len(ok)} measured, {len(failed)} failed{html.escape(progress)}</p>",
-             _histogram_svg([_number(r.get("volume_mm3")) for r in ok], "volume (mm³)"),
-             _histogram_svg([_number(r.get("area_mm2")) for r in ok], "surface area (mm²)")]
+    parts = [
+        f"<!doctype html><html><head><meta charset='utf-8'>{reload}<title>{html.escape(title)}</title>",
+        "<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse;font-size:12px}"
+        "td,th{border:1px solid #ccc;padding:2px 5px}.failed{background:#fdd}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        f"<p>{len(ok)} measured, {len(failed)} failed{html.escape(progress)}</p>",
+        _histogram_svg([_number(r.get("volume_mm3")) for r in ok], "volume (mm³)"),
+        _histogram_svg([_number(r.get("area_mm2")) for r in ok], "surface area (mm²)"),
+    ]
     for col, label in (("volume_mm3", "volume"), ("area_mm2", "area")):
         out = outliers(rows, col)
         if out:
-            parts.append(f"<h2>Outliers in {label} (&gt; 3.5 robust SD from the median)</h2><ul>"
-                         + "".join(f"<li>{_link(r)}: {html.escape(_cell(r.get(col)))}</li>" for r in out) + "</ul>")
+            parts.append(
+                f"<h2>Outliers in {label} (&gt; 3.5 robust SD from the median)</h2><ul>"
+                + "".join(f"<li>{_link(r)}: {html.escape(_cell(r.get(col)))}</li>" for r in out)
+                + "</ul>"
+            )
     if failed:
-        parts.append("<h2>Failed sessions</h2><ul>" + "".join(
-            f"<li>{_link(r)}: {html.escape(_cell(r.get('exit_class')))} — {html.escape(_cell(r.get('reason')))}</li>" for r in failed) + "</ul>")
+        parts.append(
+            "<h2>Failed sessions</h2><ul>"
+            + "".join(
+                f"<li>{_link(r)}: {html.escape(_cell(r.get('exit_class')))} — {html.escape(_cell(r.get('reason')))}</li>"
+                for r in failed
+            )
+            + "</ul>"
+        )
     parts.append(extra_html)
     shown = [c for c in COLUMNS if c not in ("path", "uid")]
     parts.append("<h2>All sessions</h2><table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in shown) + "</tr>")

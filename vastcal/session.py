@@ -82,15 +82,22 @@ import shutil
 import socket
 import uuid
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import h5py
 import numpy as np
 
 from vastcal import __version__
-from vastcal.errors import NotASessionError, OutputExistsError, SessionCorruptError, SessionError, SessionIncompleteError
+from vastcal.errors import (
+    NotASessionError,
+    OutputExistsError,
+    SessionCorruptError,
+    SessionError,
+    SessionIncompleteError,
+)
 from vastcal.outputs import check_output_file
 from vastcal.session_files import PathLock, place_atomically
 
@@ -110,7 +117,7 @@ RESULTS_LOCK_TIMEOUT_S = 60.0
 
 
 def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat()
+    return _dt.datetime.now(_dt.UTC).isoformat()
 
 
 def software_versions() -> dict[str, str]:
@@ -155,14 +162,15 @@ def _set_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
     for k, v in attrs.items():
         if v is None:
             continue
-        if isinstance(v, (dict, list, tuple)) and not (isinstance(v, (list, tuple)) and v and all(isinstance(x, (int, float)) for x in v)):
+        if isinstance(v, (dict, list, tuple)) and not (
+            isinstance(v, (list, tuple)) and v and all(isinstance(x, (int, float)) for x in v)
+        ):
             v = json.dumps(v)
         obj.attrs[k] = v
 
 
 def _attr_str(v: Any) -> Any:
     return v.decode() if isinstance(v, bytes) else v
-
 
 
 def _os_error(exc: BaseException, path: Path) -> OSError:
@@ -243,8 +251,16 @@ class SessionWriter:
     ``abort`` for KeyboardInterrupt) with the exception text as reason.
     """
 
-    def __init__(self, h5: h5py.File, path: Path, *, lock: PathLock, staged_from: Path | None = None,
-                 replace: bool = False, durable: bool = True) -> None:
+    def __init__(
+        self,
+        h5: h5py.File,
+        path: Path,
+        *,
+        lock: PathLock,
+        staged_from: Path | None = None,
+        replace: bool = False,
+        durable: bool = True,
+    ) -> None:
         self._h5 = h5
         self.path = path
         self._lock = lock
@@ -286,7 +302,7 @@ class SessionWriter:
         durable: bool = True,
         lock: PathLock | None = None,
         sensor_pixel_um: tuple[float, float] | None = None,
-    ) -> "SessionWriter":
+    ) -> SessionWriter:
         """Create a new session file with zero views.
 
         Args:
@@ -313,8 +329,18 @@ class SessionWriter:
         lock = (lock or PathLock(p)).acquire()
         try:
             tmp = p.with_name(f".{p.name}.partial")
-            layout = (tuple(frame_shape), np.dtype(dtype), rig_yaml, plan, pixel_size_um, roi_offset_px, title, start_info or {}, None,
-                      sensor_pixel_um)
+            layout = (
+                tuple(frame_shape),
+                np.dtype(dtype),
+                rig_yaml,
+                plan,
+                pixel_size_um,
+                roi_offset_px,
+                title,
+                start_info or {},
+                None,
+                sensor_pixel_um,
+            )
             if not live:
                 h5 = h5py.File(tmp, "w", libver="latest")
                 try:
@@ -332,7 +358,9 @@ class SessionWriter:
             raise
 
     @classmethod
-    def _go_live(cls, h5: h5py.File, tmp: Path, p: Path, lock: PathLock, durable: bool, replace: bool) -> "SessionWriter":
+    def _go_live(
+        cls, h5: h5py.File, tmp: Path, p: Path, lock: PathLock, durable: bool, replace: bool
+    ) -> SessionWriter:
         """Switch the finished skeleton ``tmp`` to SWMR writing, then rename it to ``p``.
 
         The file appears under its name only once it is in SWMR mode, so no reader (and no
@@ -349,9 +377,19 @@ class SessionWriter:
         return cls(h5, p, lock=lock, durable=durable)
 
     @staticmethod
-    def _layout(h5: h5py.File, frame_shape: tuple[int, ...], dtype: np.dtype, rig_yaml: str, plan: dict[str, Any],
-                pixel_size_um: tuple[float, float], roi_offset_px: tuple[int, int], title: str, start_info: dict[str, Any],
-                start_record: dict[str, Any] | None = None, sensor_pixel_um: tuple[float, float] | None = None) -> None:
+    def _layout(
+        h5: h5py.File,
+        frame_shape: tuple[int, ...],
+        dtype: np.dtype,
+        rig_yaml: str,
+        plan: dict[str, Any],
+        pixel_size_um: tuple[float, float],
+        roi_offset_px: tuple[int, int],
+        title: str,
+        start_info: dict[str, Any],
+        start_record: dict[str, Any] | None = None,
+        sensor_pixel_um: tuple[float, float] | None = None,
+    ) -> None:
         """Every object the file will ever hold, so that SWMR appends create nothing new."""
         h5.attrs["creator"] = CREATOR
         h5.attrs["vastcal_session_version"] = SCHEMA_VERSION
@@ -372,7 +410,9 @@ class SessionWriter:
         plane = tuple(frame_shape[:2])  # NXtomo detector data is N x H x W: RGB frames are stored as planes
 
         def planes(group: h5py.Group, name: str) -> h5py.Dataset:
-            ds = group.create_dataset(name, shape=(0,) + plane, maxshape=(None,) + plane, dtype=dtype, chunks=(1,) + plane)
+            ds = group.create_dataset(
+                name, shape=(0,) + plane, maxshape=(None,) + plane, dtype=dtype, chunks=(1,) + plane
+            )
             ds.attrs["interpretation"] = "image"
             return ds
 
@@ -384,7 +424,9 @@ class SessionWriter:
             det.create_dataset(name, shape=(0,), maxshape=(None,), dtype="i4", chunks=(1024,))
         ct = det.create_dataset("count_time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
         ct.attrs["units"] = "s"
-        if sensor_pixel_um is not None:  # the detector's own pixel (NXtomo >= 1.5); absent when the optics are not known
+        if (
+            sensor_pixel_um is not None
+        ):  # the detector's own pixel (NXtomo >= 1.5); absent when the optics are not known
             for name, v in (("x_pixel_size", sensor_pixel_um[0]), ("y_pixel_size", sensor_pixel_um[1])):
                 det[name] = float(v)
                 det[name].attrs["units"] = "um"
@@ -411,7 +453,9 @@ class SessionWriter:
         if rgb:
             colour = vc.create_group("colour")
             colour.attrs["NX_class"] = "NXcollection"
-            colour.attrs["meaning"] = "RGB frames as planes: frame i = stack(red[i], green[i], blue[i]) on the last axis"
+            colour.attrs["meaning"] = (
+                "RGB frames as planes: frame i = stack(red[i], green[i], blue[i]) on the last axis"
+            )
             planes(colour, "red")
             colour["green"] = d  # a hard link: the detector data is the green plane
             planes(colour, "blue")
@@ -425,19 +469,32 @@ class SessionWriter:
         for col in VIEW_COLUMNS:
             ds = views.create_dataset(col.name, shape=(0,), maxshape=(None,), dtype=col.dtype, chunks=(1024,))
             ds.attrs["units"] = col.units
-        committed = vc.create_dataset("committed_views", shape=(1,), maxshape=(1,), dtype="i8", chunks=(1,), fillvalue=0)
+        committed = vc.create_dataset(
+            "committed_views", shape=(1,), maxshape=(1,), dtype="i8", chunks=(1,), fillvalue=0
+        )
         committed[0] = 0
         committed.attrs["units"] = "views"
         committed.attrs["meaning"] = "views 0 .. n-1 are complete; rows beyond belong to a view cut short"
         stop = _scalar_string(vc, "stop_record", STOP_RECORD_BYTES)
-        stop.attrs["meaning"] = "JSON stop record (exit_status success|abort|fail, reason, views_written, time); empty while writing"
+        stop.attrs["meaning"] = (
+            "JSON stop record (exit_status success|abort|fail, reason, views_written, time); empty while writing"
+        )
         start = vc.create_group("start")
-        _set_attrs(start, start_record or {"uid": str(uuid.uuid4()), "time": _now(), "host": socket.gethostname(),
-                                           "versions": software_versions(), **start_info})
+        _set_attrs(
+            start,
+            start_record
+            or {
+                "uid": str(uuid.uuid4()),
+                "time": _now(),
+                "host": socket.gethostname(),
+                "versions": software_versions(),
+                **start_info,
+            },
+        )
 
     # -- resume ---------------------------------------------------------------------------
     @classmethod
-    def resume(cls, path: str | Path, durable: bool = True) -> "SessionWriter":
+    def resume(cls, path: str | Path, durable: bool = True) -> SessionWriter:
         """Reopen an incomplete session to append more views.
 
         The committed views are checked against their CRC-32 and copied, bit for bit, into a new
@@ -459,8 +516,13 @@ class SessionWriter:
                     raise OutputExistsError(f"{p}: the session is complete (exit_status success); nothing to resume")
                 n = src.n_views
                 tmp = p.with_name(f".{p.name}.partial")
-                h5 = cls.rebuild(src, tmp, ending=src.stop_record or {"exit_status": "incomplete", "reason": "the writer was killed",
-                                                                       "views_written": n}, keep_open=True)
+                h5 = cls.rebuild(
+                    src,
+                    tmp,
+                    ending=src.stop_record
+                    or {"exit_status": "incomplete", "reason": "the writer was killed", "views_written": n},
+                    keep_open=True,
+                )
             log.info("%s: resuming after %d committed views", p, n)
             return cls._go_live(h5, tmp, p, lock, durable, replace=True)
         except BaseException:
@@ -468,7 +530,9 @@ class SessionWriter:
             raise
 
     @classmethod
-    def rebuild(cls, src: "Session", tmp: Path, ending: dict[str, Any] | None = None, keep_open: bool = False) -> h5py.File | None:
+    def rebuild(
+        cls, src: Session, tmp: Path, ending: dict[str, Any] | None = None, keep_open: bool = False
+    ) -> h5py.File | None:
         """Write a copy of ``src`` at ``tmp``: its committed views (CRC-checked, bit for bit),
         masks, cameras, stage runs and history, plus ``ending`` appended to the resume history.
         Returns the open file when ``keep_open``, else closes it and returns None.
@@ -482,8 +546,19 @@ class SessionWriter:
         history = src.resume_history() + ([ending] if ending else [])
         out = h5py.File(tmp, "w", libver="latest")
         try:
-            cls._layout(out, src.frame_shape, src.dtype, src.rig_yaml, src.plan_raw(), src.pixel_size_um, src.roi_offset_px,
-                        _attr_str(h5[ENTRY]["title"][()]), {}, start_record=src.start_record_raw(), sensor_pixel_um=src.sensor_pixel_um)
+            cls._layout(
+                out,
+                src.frame_shape,
+                src.dtype,
+                src.rig_yaml,
+                src.plan_raw(),
+                src.pixel_size_um,
+                src.roi_offset_px,
+                _attr_str(h5[ENTRY]["title"][()]),
+                {},
+                start_record=src.start_record_raw(),
+                sensor_pixel_um=src.sensor_pixel_um,
+            )
             if history:
                 res = out[VASTCAL].create_group("resumed")
                 for k, rec in enumerate(history):
@@ -529,8 +604,10 @@ class SessionWriter:
         """
         data = self._data
         if frame.shape != self._frame_shape or frame.dtype != data.dtype:
-            raise SessionError(f"{self.path}: a {frame.shape} {frame.dtype} frame does not fit this session's {self._frame_shape} {data.dtype} "
-                               "frames (was the rig's ROI or pixel format changed?)")
+            raise SessionError(
+                f"{self.path}: a {frame.shape} {frame.dtype} frame does not fit this session's {self._frame_shape} {data.dtype} "
+                "frames (was the rig's ROI or pixel format changed?)"
+            )
         unknown = set(columns) - set(self._columns) | ({"frame_crc32"} & set(columns))
         if unknown:
             raise ValueError(f"unknown per-view columns: {sorted(unknown)}")
@@ -548,13 +625,19 @@ class SessionWriter:
 
     def _check_usable(self) -> None:
         if self._failed is not None:
-            raise OSError(self._failed.errno, f"{self.path}: an earlier write failed ({self._failed}); nothing more is written")
+            raise OSError(
+                self._failed.errno, f"{self.path}: an earlier write failed ({self._failed}); nothing more is written"
+            )
 
     def _fail(self, exc: BaseException) -> None:
         """Stop touching the file after a failed write; its committed views stay as they are."""
         self._failed = _os_error(exc, self.path)
         _abandon(self._h5)
-        log.info("%s: writing failed (%s); the file is left as it was after the last committed view", self.path, self._failed.strerror)
+        log.info(
+            "%s: writing failed (%s); the file is left as it was after the last committed view",
+            self.path,
+            self._failed.strerror,
+        )
         raise self._failed from exc
 
     def _write_view(self, i: int, frame: np.ndarray, angle_deg: float, image_key: int, columns: dict[str, Any]) -> None:
@@ -590,9 +673,13 @@ class SessionWriter:
         """Store silhouettes (N, H, W), nonzero = specimen, as uint8 0/255 (staged sessions)."""
         self._require_staged("masks")
         m = (np.asarray(masks) > 0).astype(np.uint8) * 255
-        self._h5[VASTCAL].create_dataset("masks", data=m, chunks=(1,) + m.shape[1:], compression="gzip", compression_opts=1)
+        self._h5[VASTCAL].create_dataset(
+            "masks", data=m, chunks=(1,) + m.shape[1:], compression="gzip", compression_opts=1
+        )
 
-    def write_cameras(self, P: np.ndarray, source: str, attrs: dict[str, Any] | None = None, P_given: np.ndarray | None = None) -> None:
+    def write_cameras(
+        self, P: np.ndarray, source: str, attrs: dict[str, Any] | None = None, P_given: np.ndarray | None = None
+    ) -> None:
         """Store known cameras P (N, 3, 4) in 0-based pixels of the stored frames (staged sessions).
 
         ``P_given`` keeps the matrices exactly as the source gave them (its own pixel convention).
@@ -651,7 +738,7 @@ class SessionWriter:
         finally:
             self._lock.release()
 
-    def __enter__(self) -> "SessionWriter":
+    def __enter__(self) -> SessionWriter:
         return self
 
     def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
@@ -719,7 +806,8 @@ class Session:
         self.version = int(h5.attrs.get("vastcal_session_version", 0))  # schema version of the file
         colour = vc.get("colour")
         self._planes: tuple[h5py.Dataset, h5py.Dataset, h5py.Dataset] | None = (
-            (colour["red"], h5[DETECTOR]["data"], colour["blue"]) if colour is not None else None)
+            (colour["red"], h5[DETECTOR]["data"], colour["blue"]) if colour is not None else None
+        )
         if "committed_views" in vc:
             self._n = int(vc["committed_views"][0])
         else:  # schema 1: every frame counts
@@ -729,7 +817,7 @@ class Session:
         self._lock: PathLock | None = None
 
     @classmethod
-    def open(cls, path: str | Path, mode: str = "r") -> "Session":
+    def open(cls, path: str | Path, mode: str = "r") -> Session:
         """Open and validate a session (``mode`` ``"r"`` or ``"a"`` to add results).
 
         Raises:
@@ -748,14 +836,22 @@ class Session:
             h5, live = _open_h5_for_reading(p)
         except OSError as exc:
             msg = str(exc).splitlines()[0]
-            hint = "truncated or damaged" if "truncat" in msg or "signature" in msg or "eof" in msg.lower() else "cannot open"
+            hint = (
+                "truncated or damaged"
+                if "truncat" in msg or "signature" in msg or "eof" in msg.lower()
+                else "cannot open"
+            )
             raise NotASessionError(f"{p}: {hint} HDF5 file ({msg})") from None
         try:
             if _attr_str(h5.attrs.get("creator", "")) != CREATOR or VASTCAL not in h5 or DETECTOR + "/data" not in h5:
-                raise NotASessionError(f"{p}: HDF5 file not written by vastcal (no /entry/vastcal group); import images with 'vastcal import'")
+                raise NotASessionError(
+                    f"{p}: HDF5 file not written by vastcal (no /entry/vastcal group); import images with 'vastcal import'"
+                )
             version = int(h5.attrs.get("vastcal_session_version", 0))
             if version > SCHEMA_VERSION:
-                raise NotASessionError(f"{p}: session schema version {version} is newer than this vastcal understands ({SCHEMA_VERSION})")
+                raise NotASessionError(
+                    f"{p}: session schema version {version} is newer than this vastcal understands ({SCHEMA_VERSION})"
+                )
             s = cls(h5, p, writable=(mode == "a"), live=live)
             s._validate()
         except NotASessionError:
@@ -763,26 +859,43 @@ class Session:
             raise
         except (KeyError, OSError, ValueError, TypeError, IndexError) as exc:
             h5.close()
-            raise NotASessionError(f"{p}: damaged session ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+            raise NotASessionError(
+                f"{p}: damaged session ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+            ) from None
         return s
 
     def _validate(self) -> None:
         """Structure of the committed part: ranks, types and lengths every reader relies on."""
         p, h5, n = self.path, self._h5, self._n
         data = h5[DETECTOR]["data"]
-        if data.ndim not in (3, 4) or (data.ndim == 4 and data.shape[3] != 3) or data.dtype not in (np.uint8, np.uint16):
-            raise NotASessionError(f"{p}: damaged session: frames are {data.shape} {data.dtype}; expected N x H x W[x 3] uint8 or uint16")
+        if (
+            data.ndim not in (3, 4)
+            or (data.ndim == 4 and data.shape[3] != 3)
+            or data.dtype not in (np.uint8, np.uint16)
+        ):
+            raise NotASessionError(
+                f"{p}: damaged session: frames are {data.shape} {data.dtype}; expected N x H x W[x 3] uint8 or uint16"
+            )
         for c, plane in enumerate(self._planes or ()):
-            if not isinstance(plane, h5py.Dataset) or data.ndim != 3 or plane.shape[1:] != data.shape[1:] or plane.dtype != data.dtype \
-                    or plane.shape[0] < n:
+            if (
+                not isinstance(plane, h5py.Dataset)
+                or data.ndim != 3
+                or plane.shape[1:] != data.shape[1:]
+                or plane.dtype != data.dtype
+                or plane.shape[0] < n
+            ):
                 shape = getattr(plane, "shape", "?")
-                raise NotASessionError(f"{p}: damaged session: colour plane {'RGB'[c]} is {shape}; expected {n} x {data.shape[1]} x {data.shape[2]} "
-                                       f"{data.dtype} like the detector data")
+                raise NotASessionError(
+                    f"{p}: damaged session: colour plane {'RGB'[c]} is {shape}; expected {n} x {data.shape[1]} x {data.shape[2]} "
+                    f"{data.dtype} like the detector data"
+                )
         if n < 0 or data.shape[0] < n:
             raise NotASessionError(f"{p}: damaged session: {n} committed views but {data.shape[0]} frames")
         angles = h5[ENTRY]["sample"]["rotation_angle"]
         if angles.ndim != 1 or angles.dtype.kind != "f":
-            raise NotASessionError(f"{p}: damaged session: /entry/sample/rotation_angle is {angles.dtype} {angles.shape}; expected float degrees")
+            raise NotASessionError(
+                f"{p}: damaged session: /entry/sample/rotation_angle is {angles.dtype} {angles.shape}; expected float degrees"
+            )
         n_angles = angles.shape[0]
         if "committed_views" in h5[VASTCAL]:
             if n_angles < n:
@@ -809,9 +922,11 @@ class Session:
         if "masks" in vc:
             m = vc["masks"]
             if m.ndim != 3 or m.shape[0] < n_proj or m.shape[1:] != data.shape[1:3]:
-                raise NotASessionError(f"{p}: damaged session: /entry/vastcal/masks is {m.shape}; expected {n_proj} x {data.shape[1]} x {data.shape[2]}")
+                raise NotASessionError(
+                    f"{p}: damaged session: /entry/vastcal/masks is {m.shape}; expected {n_proj} x {data.shape[1]} x {data.shape[2]}"
+                )
         for stage in STAGE_GROUPS:
-            for name, run in (vc[stage].items() if stage in vc else ()):
+            for name, run in vc[stage].items() if stage in vc else ():
                 if not isinstance(run, h5py.Group):
                     raise NotASessionError(f"{p}: damaged session: /entry/vastcal/{stage}/{name} is not a group")
                 if stage == "calibration" and "P" in run:
@@ -859,7 +974,7 @@ class Session:
             self._staging_path.unlink(missing_ok=True)
             self._staging_path = None
 
-    def __enter__(self) -> "Session":
+    def __enter__(self) -> Session:
         return self
 
     def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
@@ -967,7 +1082,7 @@ class Session:
         """The resolved rig configuration stored at creation."""
         return _attr_str(self._h5[VASTCAL]["rig"][()])
 
-    def rig_config(self) -> "Any":
+    def rig_config(self) -> Any:
         """The stored rig configuration parsed into a :class:`~vastcal.config.RigConfig`."""
         import yaml
 
@@ -1056,8 +1171,10 @@ class Session:
         n = len(self.projection_indices)
         if not self.is_complete:
             planned = self.plan.get("views", "?")
-            raise SessionIncompleteError(f"{self.path}: session is {self.exit_status}: {n} of {planned} views; "
-                                         f"finish it with 'vastcal acquire --resume {self.path}'")
+            raise SessionIncompleteError(
+                f"{self.path}: session is {self.exit_status}: {n} of {planned} views; "
+                f"finish it with 'vastcal acquire --resume {self.path}'"
+            )
         if n < min_views:
             raise SessionIncompleteError(f"{self.path}: {n} projection views; at least {min_views} needed")
 

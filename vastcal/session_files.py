@@ -22,7 +22,6 @@ from vastcal.errors import OutputExistsError, SessionBusyError
 from vastcal.outputs import check_output_file
 
 
-
 def fsync_path(path: Path) -> None:
     """``fsync`` a file (or, for a directory, its entries) by name."""
     fd = os.open(path, os.O_RDONLY)
@@ -72,7 +71,7 @@ class PathLock:
         self.timeout_s = timeout_s
         self._fd: int | None = None
 
-    def acquire(self) -> "PathLock":
+    def acquire(self) -> PathLock:
         """Take the lock or raise :class:`SessionBusyError` (after ``timeout_s``)."""
         if self._fd is not None:
             return self
@@ -87,8 +86,10 @@ class PathLock:
                 if exc.errno not in (errno.EAGAIN, errno.EACCES) or time.monotonic() >= deadline:
                     holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
                     os.close(fd)
-                    raise SessionBusyError(f"{self.path}: another vastcal process (pid {holder}) is writing this {self.what}; "
-                                           "wait for it to finish") from None
+                    raise SessionBusyError(
+                        f"{self.path}: another vastcal process (pid {holder}) is writing this {self.what}; "
+                        "wait for it to finish"
+                    ) from None
                 time.sleep(0.05)
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
@@ -104,8 +105,10 @@ class PathLock:
                 os.close(self._fd)
                 self._fd = None
 
-    def __enter__(self) -> "PathLock":
+    def __enter__(self) -> PathLock:
         return self.acquire()
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.release()

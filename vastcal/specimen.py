@@ -20,8 +20,9 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from vastcal.errors import UserInputError
 from vastcal.screen_table import SPECIMEN_FIELDS, atomic_write_bytes
@@ -44,7 +45,9 @@ def _clean(fields: Mapping[str, Any], source: str) -> dict[str, Any]:
         if v is None or (isinstance(v, str) and not v.strip()):
             continue
         if k not in SPECIMEN_FIELDS:
-            raise UserInputError(f"{source}: unknown specimen field {k!r}; expected one of {', '.join(SPECIMEN_FIELDS)}")
+            raise UserInputError(
+                f"{source}: unknown specimen field {k!r}; expected one of {', '.join(SPECIMEN_FIELDS)}"
+            )
         if k == "age_dpf":
             try:
                 v = float(v)
@@ -95,8 +98,10 @@ def annotate_from_manifest(manifest: str | Path) -> list[Path]:
     if mpath.suffix.lower() in (".yaml", ".yml"):
         data = _yaml(_read_small(mpath, "--manifest"), str(mpath)) if mpath.is_file() else None
         if not isinstance(data, dict) or not data or not all(isinstance(v, dict) for v in data.values()):
-            raise UserInputError(f"{mpath}: expected a YAML mapping of session file names to specimen fields"
-                                 + ("" if mpath.is_file() else " (no such file)"))
+            raise UserInputError(
+                f"{mpath}: expected a YAML mapping of session file names to specimen fields"
+                + ("" if mpath.is_file() else " (no such file)")
+            )
         plan = []
         for key, fields in data.items():
             target = Path(str(key)) if Path(str(key)).is_absolute() else mpath.parent / str(key)
@@ -145,7 +150,9 @@ def parse_specimen_text(text: str, source: str = "--specimen") -> dict[str, Any]
         if not item.strip():
             continue
         if "=" not in item:
-            raise UserInputError(f"{source}: {item.strip()!r}: expected KEY=VALUE (keys: ID, {', '.join(SPECIMEN_FIELDS[1:])}) or a YAML/CSV file")
+            raise UserInputError(
+                f"{source}: {item.strip()!r}: expected KEY=VALUE (keys: ID, {', '.join(SPECIMEN_FIELDS[1:])}) or a YAML/CSV file"
+            )
         k, v = item.split("=", 1)
         fields[_key(k)] = v.strip()
     out = _clean(fields, source)
@@ -159,7 +166,9 @@ def _read_small(path: Path, source: str) -> str:
         with path.open("rb") as f:
             raw = f.read(MAX_SPECIMEN_FILE_BYTES + 1)
         if len(raw) > MAX_SPECIMEN_FILE_BYTES:
-            raise UserInputError(f"{source}: {path}: larger than {MAX_SPECIMEN_FILE_BYTES} bytes; expected a specimen file or manifest")
+            raise UserInputError(
+                f"{source}: {path}: larger than {MAX_SPECIMEN_FILE_BYTES} bytes; expected a specimen file or manifest"
+            )
         return raw.decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise UserInputError(f"{source}: {path}: cannot read it ({exc})") from None
@@ -196,7 +205,9 @@ def specimen_for_session(spec: str, session: str | Path, source: str = "--specim
         raise UserInputError(f"{source}: {path}: no row for session {name}; expected a 'session' cell {name}")
     data = _yaml(text, f"{source}: {path}")
     if not isinstance(data, dict) or not data:
-        raise UserInputError(f"{source}: {path}: expected a mapping of specimen fields, or of session file names to fields")
+        raise UserInputError(
+            f"{source}: {path}: expected a mapping of specimen fields, or of session file names to fields"
+        )
     if all(isinstance(v, dict) for v in data.values()):  # a manifest
         for key, fields in data.items():
             if {Path(str(key)).name, Path(str(key)).stem} & names:

@@ -43,8 +43,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -98,8 +99,14 @@ class Component:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-able."""
-        return {"name": self.name, "u_volume_mm3": self.u_volume_mm3, "u_area_mm2": self.u_area_mm2, "evaluated": self.evaluated,
-                "method": self.method, "note": self.note}
+        return {
+            "name": self.name,
+            "u_volume_mm3": self.u_volume_mm3,
+            "u_area_mm2": self.u_area_mm2,
+            "evaluated": self.evaluated,
+            "method": self.method,
+            "note": self.note,
+        }
 
 
 @dataclass(frozen=True)
@@ -146,18 +153,40 @@ class Budget:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-able (also what is stored with the measurement)."""
-        return {"k": self.k, "volume_mm3": self.volume_mm3, "area_mm2": self.area_mm2,
-                "u_volume_mm3": self.u_volume_mm3, "u_area_mm2": self.u_area_mm2,
-                "U_volume_mm3": self.U_volume_mm3, "U_area_mm2": self.U_area_mm2,
-                "components": [c.as_dict() for c in self.components], "not_evaluated": self.not_evaluated,
-                "details": self.details, "hull_bias": HULL_BIAS_NOTE}
+        return {
+            "k": self.k,
+            "volume_mm3": self.volume_mm3,
+            "area_mm2": self.area_mm2,
+            "u_volume_mm3": self.u_volume_mm3,
+            "u_area_mm2": self.u_area_mm2,
+            "U_volume_mm3": self.U_volume_mm3,
+            "U_area_mm2": self.U_area_mm2,
+            "components": [c.as_dict() for c in self.components],
+            "not_evaluated": self.not_evaluated,
+            "details": self.details,
+            "hull_bias": HULL_BIAS_NOTE,
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Budget":
+    def from_dict(cls, d: dict[str, Any]) -> Budget:
         """Inverse of :meth:`as_dict`."""
-        comps = tuple(Component(str(c["name"]), c.get("u_volume_mm3"), c.get("u_area_mm2"), str(c.get("method", "")), str(c.get("note", "")))
-                      for c in d.get("components", []))
-        return cls(float(d["volume_mm3"]), float(d["area_mm2"]), comps, float(d.get("k", K_COVERAGE)), dict(d.get("details", {})))
+        comps = tuple(
+            Component(
+                str(c["name"]),
+                c.get("u_volume_mm3"),
+                c.get("u_area_mm2"),
+                str(c.get("method", "")),
+                str(c.get("note", "")),
+            )
+            for c in d.get("components", [])
+        )
+        return cls(
+            float(d["volume_mm3"]),
+            float(d["area_mm2"]),
+            comps,
+            float(d.get("k", K_COVERAGE)),
+            dict(d.get("details", {})),
+        )
 
     def volume_text(self, digits: int = 4) -> str:
         """``0.1550 ± 0.0012 mm^3 (k = 2)``."""
@@ -168,8 +197,10 @@ class Budget:
         return f"{self.area_mm2:.{digits}f} ± {self.U_area_mm2:.{digits}f} mm^2 (k = {self.k:g})"
 
 
-HULL_BIAS_NOTE = ("not in the interval: the visual hull contains the solid body and fills its concavities, so it over-estimates "
-                  "the body's volume and area where a surface is concave in every viewing direction")
+HULL_BIAS_NOTE = (
+    "not in the interval: the visual hull contains the solid body and fills its concavities, so it over-estimates "
+    "the body's volume and area where a surface is concave in every viewing direction"
+)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -194,7 +225,7 @@ def um_per_px(P: np.ndarray, point_um: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
-def vertex_normals(mesh: "Mesh") -> np.ndarray:
+def vertex_normals(mesh: Mesh) -> np.ndarray:
     """Area-weighted unit vertex normals (V, 3), outward."""
     n = mesh.face_normals(unit=False)
     vn = np.zeros_like(mesh.vertices)
@@ -203,7 +234,7 @@ def vertex_normals(mesh: "Mesh") -> np.ndarray:
     return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
 
 
-def normal_shift_sensitivity(mesh: "Mesh", step_um: float = 1.0) -> tuple[float, float]:
+def normal_shift_sensitivity(mesh: Mesh, step_um: float = 1.0) -> tuple[float, float]:
     """(dV/dn in mm³ per µm, dA/dn in mm² per µm): volume and area change per µm of outward normal shift.
 
     Central differences of the mesh moved ±``step_um`` along its vertex normals.
@@ -227,8 +258,12 @@ QUANTISATION_PX = 1.0 / math.sqrt(12.0)
 """Per-point scatter of a hard pixel mask's boundary about the true edge: a uniform error over one pixel."""
 
 
-def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[float] | None = None,
-                  raster_px: float = 0.5, hard: bool = True) -> tuple[float, dict[str, Any]]:
+def edge_sigma_px(
+    stats: Sequence[FrameStats],
+    boundary_distance_px: Sequence[float] | None = None,
+    raster_px: float = 0.5,
+    hard: bool = True,
+) -> tuple[float, dict[str, Any]]:
     """The edge-localisation σ (px) of the silhouettes, from the images (module docstring, item 1).
 
     The terms (squared and added):
@@ -271,11 +306,16 @@ def edge_sigma_px(stats: Sequence["FrameStats"], boundary_distance_px: Sequence[
     nz = np.asarray(noise)
     ex = np.asarray(excess) if excess else np.zeros_like(o)
     total = np.sqrt(offset_term + np.mean(sc**2) + np.mean(nz**2) + np.mean(ex**2))
-    return float(total), {"usable_views": len(offs), "threshold_offset_px": math.sqrt(offset_term),
-                          "threshold_offset_mean_px": float(np.mean(o)), "threshold_offset_sd_px": float(np.std(o)),
-                          "half_point_scatter_rms_px": float(np.sqrt(np.mean(sc**2))), "hard_masks": bool(hard),
-                          "position_noise_rms_px": float(np.sqrt(np.mean(nz**2))),
-                          "hull_disagreement_excess_rms_px": float(np.sqrt(np.mean(ex**2)))}
+    return float(total), {
+        "usable_views": len(offs),
+        "threshold_offset_px": math.sqrt(offset_term),
+        "threshold_offset_mean_px": float(np.mean(o)),
+        "threshold_offset_sd_px": float(np.std(o)),
+        "half_point_scatter_rms_px": float(np.sqrt(np.mean(sc**2))),
+        "hard_masks": bool(hard),
+        "position_noise_rms_px": float(np.sqrt(np.mean(nz**2))),
+        "hull_disagreement_excess_rms_px": float(np.sqrt(np.mean(ex**2))),
+    }
 
 
 def is_hard(silhouettes: np.ndarray) -> bool:
@@ -290,27 +330,38 @@ def is_hard(silhouettes: np.ndarray) -> bool:
             return True
         b = m >= 0.5
         ring = cv2.dilate(b.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) ^ cv2.erode(
-            b.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+            b.astype(np.uint8), np.ones((3, 3), np.uint8)
+        ).astype(bool)
         band += int(ring.sum())
         graded += int(((m > 0.05) & (m < 0.95) & ring).sum())
     return band == 0 or graded < 0.2 * band
 
 
-def edge_component(mesh: "Mesh", P: np.ndarray, sigma_px: float) -> tuple[Component, dict[str, float]]:
+def edge_component(mesh: Mesh, P: np.ndarray, sigma_px: float) -> tuple[Component, dict[str, float]]:
     """The edge-localisation line of the budget: sensitivities × σ_edge (px → µm at the hull's centre)."""
     if not np.isfinite(sigma_px):
-        return Component("edge", None, None, "silhouette edge localisation", "no view with a measurable edge (blank or uniform frames)"), {}
+        return Component(
+            "edge",
+            None,
+            None,
+            "silhouette edge localisation",
+            "no view with a measurable edge (blank or uniform frames)",
+        ), {}
     centre = mesh.vertices.mean(axis=0)
     scale = float(np.mean(um_per_px(P, centre)))
     shift = sigma_px * scale
     # The derivative over the shift itself: a fixed step is far beyond it for a specimen that is small in µm (a world of
     # unknown unit, read as µm), whose mesh then turns inside out where it is thin.
     dv, da = normal_shift_sensitivity(mesh, step_um=shift if shift > 0 else 1e-3 * scale)
-    comp = Component("edge", abs(dv) * shift, abs(da) * shift,
-                     f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
-                     "volume and area re-measured",
-                     "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the per-point edge scatter, edge noise along the contour, "
-                     "disagreement with the reprojected hull")
+    comp = Component(
+        "edge",
+        abs(dv) * shift,
+        abs(da) * shift,
+        f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
+        "volume and area re-measured",
+        "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the per-point edge scatter, edge noise along the contour, "
+        "disagreement with the reprojected hull",
+    )
     return comp, {"um_per_px": scale, "dV_dn_mm3_per_um": dv, "dA_dn_mm2_per_um": da, "edge_shift_um": shift}
 
 
@@ -375,8 +426,13 @@ def _photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
     return any(isinstance(r, dict) and r.get("stage") == "photometric yaw" for r in levels)
 
 
-def open_directions_sigma(n_params: int, free: Sequence[str], settings: dict[str, Any],
-                          photometric_ran: bool | None = None, roll_sigma: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+def open_directions_sigma(
+    n_params: int,
+    free: Sequence[str],
+    settings: dict[str, Any],
+    photometric_ran: bool | None = None,
+    roll_sigma: np.ndarray | None = None,
+) -> tuple[np.ndarray, str]:
     """σ (degrees, per θ entry) of the directions the images leave open, and a line saying why.
 
     Rolls (views 1 … N−1): each view's σ measured by the calibration (``roll_sigma``, (N,) degrees,
@@ -402,16 +458,23 @@ def open_directions_sigma(n_params: int, free: Sequence[str], settings: dict[str
     if roll_sigma is not None and np.size(roll_sigma) == n_params - 3:
         measured = np.asarray(roll_sigma, float)[1:]
         sig[4:] = np.where(np.isfinite(measured) & (measured >= 0), measured, roll)
-        rolls_src = (f"rolls of views 1..N-1: sigma per view as measured by the calibration (median {float(np.median(sig[4:])):.3g} deg; "
-                     f"the roll prior's {roll:g} deg where the images leave a roll to it)")
+        rolls_src = (
+            f"rolls of views 1..N-1: sigma per view as measured by the calibration (median {float(np.median(sig[4:])):.3g} deg; "
+            f"the roll prior's {roll:g} deg where the images leave a roll to it)"
+        )
     yaw_free = bool({"yaw", "all"} & free)
     photometric = bool(settings.get("photometric_yaw", False)) and yaw_free
     if photometric_ran is not None:
         photometric = photometric and photometric_ran
     yaw = PHOTOMETRIC_YAW_SIGMA_DEG if photometric else float(settings.get("yaw_prior_deg", 0.5) or 0.5)
     sig[0] = yaw
-    yaw_why = ("photometric yaw, its measured error" if photometric else "the yaw prior" if yaw_free
-               else "held at its starting value; the rig file's yaw_prior_deg bounds its error")
+    yaw_why = (
+        "photometric yaw, its measured error"
+        if photometric
+        else "the yaw prior"
+        if yaw_free
+        else "held at its starting value; the rig file's yaw_prior_deg bounds its error"
+    )
     src = f"{rolls_src}; yaw: sigma {yaw:g} deg ({yaw_why}); pitch, gamma: determined, not sampled"
     return sig, src
 
@@ -444,10 +507,15 @@ MeasureFn = Callable[[np.ndarray], "tuple[float, float] | None"]
 """P (N, 3, 4) → (volume mm³, area mm²) on the comparison grid, or None when the hull is empty."""
 
 
-def calibration_components(spread: CalibrationSpread | None, measure_at: MeasureFn, nominal: tuple[float, float], *,
-                           samples: int = CAL_SAMPLES, seed: int = 0,
-                           missing_note: str = "cameras imported as given: their uncertainty is not known to vastcal",
-                           ) -> tuple[list[Component], dict[str, Any]]:
+def calibration_components(
+    spread: CalibrationSpread | None,
+    measure_at: MeasureFn,
+    nominal: tuple[float, float],
+    *,
+    samples: int = CAL_SAMPLES,
+    seed: int = 0,
+    missing_note: str = "cameras imported as given: their uncertainty is not known to vastcal",
+) -> tuple[list[Component], dict[str, Any]]:
     """The calibration lines of the budget (module docstring, item 2).
 
     Args:
@@ -475,12 +543,25 @@ def calibration_components(spread: CalibrationSpread | None, measure_at: Measure
                 da.append(r[1] - a0)
         details["starts_within_tolerance"] = int(len(keep))
         if len(dv) > 1:
-            comps.append(Component("calibration (starts)", float(np.sqrt(np.mean(np.square(dv)))), float(np.sqrt(np.mean(np.square(da)))),
-                                   f"RMS change over the {len(dv)} starts within {100 * START_COST_TOLERANCE:g} % of the best cost, "
-                                   "each hull re-measured"))
+            comps.append(
+                Component(
+                    "calibration (starts)",
+                    float(np.sqrt(np.mean(np.square(dv)))),
+                    float(np.sqrt(np.mean(np.square(da)))),
+                    f"RMS change over the {len(dv)} starts within {100 * START_COST_TOLERANCE:g} % of the best cost, "
+                    "each hull re-measured",
+                )
+            )
         else:
-            comps.append(Component("calibration (starts)", 0.0, 0.0, "one start within the cost tolerance",
-                                   f"{len(spread.starts_cost)} starts kept; only the best lies within {100 * START_COST_TOLERANCE:g} % of its cost"))
+            comps.append(
+                Component(
+                    "calibration (starts)",
+                    0.0,
+                    0.0,
+                    "one start within the cost tolerance",
+                    f"{len(spread.starts_cost)} starts kept; only the best lies within {100 * START_COST_TOLERANCE:g} % of its cost",
+                )
+            )
     if np.any(spread.sigma_deg > 0):
         rng = np.random.default_rng(seed)
         dv, da = [], []
@@ -497,13 +578,26 @@ def calibration_components(spread: CalibrationSpread | None, measure_at: Measure
         details["open_direction_dv_mm3"] = [float(x) for x in dv]
         details["open_direction_da_mm2"] = [float(x) for x in da]
         if dv:
-            comps.append(Component("calibration (open directions)", float(np.sqrt(np.mean(np.square(dv)))),
-                                   float(np.sqrt(np.mean(np.square(da)))),
-                                   f"RMS change over {len(dv)} poses drawn around the calibrated one in the directions the images leave "
-                                   "open, each hull re-measured on the comparison grid", spread.sigma_source
-                                   + (f"; {empty} sampled pose(s) gave an empty hull" if empty else "")))
+            comps.append(
+                Component(
+                    "calibration (open directions)",
+                    float(np.sqrt(np.mean(np.square(dv)))),
+                    float(np.sqrt(np.mean(np.square(da)))),
+                    f"RMS change over {len(dv)} poses drawn around the calibrated one in the directions the images leave "
+                    "open, each hull re-measured on the comparison grid",
+                    spread.sigma_source + (f"; {empty} sampled pose(s) gave an empty hull" if empty else ""),
+                )
+            )
         else:
-            comps.append(Component("calibration (open directions)", None, None, "not evaluated", "every sampled pose gave an empty hull"))
+            comps.append(
+                Component(
+                    "calibration (open directions)",
+                    None,
+                    None,
+                    "not evaluated",
+                    "every sampled pose gave an empty hull",
+                )
+            )
     if not comps:
         comps.append(Component("calibration", None, None, "not evaluated", "no free direction and no kept starts"))
     return comps, details
@@ -526,9 +620,17 @@ def drift_rms_deg(delta_deg: np.ndarray) -> tuple[float, float]:
     return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))
 
 
-def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[str] = (), settings: dict[str, Any] | None = None,
-                 starts_theta: np.ndarray | None = None, roll_sigma: np.ndarray | None = None,
-                 roll_rise: np.ndarray | None = None, prior_rise: float | None = None) -> dict[str, Any]:
+def drift_status(
+    delta_deg: np.ndarray | None,
+    *,
+    source: str,
+    free: Sequence[str] = (),
+    settings: dict[str, Any] | None = None,
+    starts_theta: np.ndarray | None = None,
+    roll_sigma: np.ndarray | None = None,
+    roll_rise: np.ndarray | None = None,
+    prior_rise: float | None = None,
+) -> dict[str, Any]:
     """What can be said about the stage drift (calibrated − commanded angle per view).
 
     ``status`` is ``measured`` (imported cameras: the given cameras' own rolls — as good as those
@@ -558,12 +660,22 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
         out["starts_spread_rms_deg"] = spread
     if float(settings.get("roll_prior_weight", 1.0)) <= 0:
         if spread is None:
-            out.update({"status": "measured", "reason": "the rolls were free with no roll prior: the images alone decide them (no sigma estimated)"})
+            out.update(
+                {
+                    "status": "measured",
+                    "reason": "the rolls were free with no roll prior: the images alone decide them (no sigma estimated)",
+                }
+            )
         else:  # the cost has no temperature without a prior: the starts' disagreement is the one dispersion measured
-            out.update({"status": "measured", "u_per_view_deg": spread,
-                        "reason": f"the rolls were free with no roll prior: the images alone decide them; the starts end {spread:.3g} deg "
-                                  f"apart per view (RMS over views of the standard deviation across {len(starts_theta)} starts; a repeatability, "
-                                  "not an accuracy)"})
+            out.update(
+                {
+                    "status": "measured",
+                    "u_per_view_deg": spread,
+                    "reason": f"the rolls were free with no roll prior: the images alone decide them; the starts end {spread:.3g} deg "
+                    f"apart per view (RMS over views of the standard deviation across {len(starts_theta)} starts; a repeatability, "
+                    "not an accuracy)",
+                }
+            )
         return out
     prior = float(settings.get("roll_prior_deg", 1.0) or 1.0)
     u, why = prior, f"they follow the roll prior (sigma {prior:g} deg about the commanded angles)"
@@ -576,16 +688,28 @@ def drift_status(delta_deg: np.ndarray | None, *, source: str, free: Sequence[st
         u = float(np.median(np.asarray(roll_sigma, float)[free_views]))
         out.update({"determined_rolls": determined, "free_rolls": n_free})
         if most:
-            out.update({"status": "measured", "u_per_view_deg": u,
-                        "reason": f"the images determine {determined} of {n_free} free rolls (their cost rises over +-{prior:g} deg more "
-                                  f"than the roll prior's); median sigma {u:.3g} deg per view"})
+            out.update(
+                {
+                    "status": "measured",
+                    "u_per_view_deg": u,
+                    "reason": f"the images determine {determined} of {n_free} free rolls (their cost rises over +-{prior:g} deg more "
+                    f"than the roll prior's); median sigma {u:.3g} deg per view",
+                }
+            )
         else:
-            why = (f"the images determine {determined} of {n_free} free rolls; the others follow the roll prior (sigma {prior:g} deg about "
-                   f"the commanded angles)")
+            why = (
+                f"the images determine {determined} of {n_free} free rolls; the others follow the roll prior (sigma {prior:g} deg about "
+                f"the commanded angles)"
+            )
     if "status" not in out:
-        out.update({"status": "undetermined", "u_per_view_deg": u,
-                    "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: {why}; the true drift "
-                              f"may be anywhere within about +-{u:.3g} deg per view"})
+        out.update(
+            {
+                "status": "undetermined",
+                "u_per_view_deg": u,
+                "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: {why}; the true drift "
+                f"may be anywhere within about +-{u:.3g} deg per view",
+            }
+        )
     return out
 
 
@@ -605,21 +729,39 @@ def starts_spread_deg(starts_theta: np.ndarray | None) -> float | None:
 def grid_component(nominal: tuple[float, float], coarse: tuple[float, float] | None, voxel_size_um: float) -> Component:
     """The grid line: |V(h) − V(2h)| and |A(h) − A(2h)| / 3 (module docstring, item 3)."""
     if coarse is None:
-        return Component("grid", None, None, "not evaluated", f"the hull is empty on a grid of {GRID_FACTOR:g} x {voxel_size_um:.2f} um voxels")
-    return Component("grid", abs(nominal[0] - coarse[0]), abs(nominal[1] - coarse[1]) / (GRID_FACTOR**2 - 1.0),
-                     f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): volume |V(h) - V(2h)| "
-                     f"(error ~ h^p, p >= 1), area |A(h) - A(2h)| / {GRID_FACTOR**2 - 1:g} (chord error of the mesh ~ h^2)")
+        return Component(
+            "grid",
+            None,
+            None,
+            "not evaluated",
+            f"the hull is empty on a grid of {GRID_FACTOR:g} x {voxel_size_um:.2f} um voxels",
+        )
+    return Component(
+        "grid",
+        abs(nominal[0] - coarse[0]),
+        abs(nominal[1] - coarse[1]) / (GRID_FACTOR**2 - 1.0),
+        f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): volume |V(h) - V(2h)| "
+        f"(error ~ h^p, p >= 1), area |A(h) - A(2h)| / {GRID_FACTOR**2 - 1:g} (chord error of the mesh ~ h^2)",
+    )
 
 
-def combine(volume_mm3: float, area_mm2: float, components: Sequence[Component], details: dict[str, Any] | None = None) -> Budget:
+def combine(
+    volume_mm3: float, area_mm2: float, components: Sequence[Component], details: dict[str, Any] | None = None
+) -> Budget:
     """A :class:`Budget` of the components (k = 2)."""
     b = Budget(float(volume_mm3), float(area_mm2), tuple(components), K_COVERAGE, dict(details or {}))
-    log.info("uncertainty: volume %s, area %s%s", b.volume_text(), b.area_text(),
-             f" (not evaluated: {', '.join(b.not_evaluated)})" if b.not_evaluated else "")
+    log.info(
+        "uncertainty: volume %s, area %s%s",
+        b.volume_text(),
+        b.area_text(),
+        f" (not evaluated: {', '.join(b.not_evaluated)})" if b.not_evaluated else "",
+    )
     return b
 
 
-def comparison_measurer(silhouettes: np.ndarray, grid: Any, settings: Any, *, smooth: bool = True) -> tuple[MeasureFn, Any]:
+def comparison_measurer(
+    silhouettes: np.ndarray, grid: Any, settings: Any, *, smooth: bool = True
+) -> tuple[MeasureFn, Any]:
     """A :data:`MeasureFn` on the comparison grid (the measurement grid's box, :data:`GRID_FACTOR` × its voxel edge).
 
     ``smooth=False`` measures the area on the unsmoothed marching-cubes mesh: enough for the
@@ -633,7 +775,9 @@ def comparison_measurer(silhouettes: np.ndarray, grid: Any, settings: Any, *, sm
     from vastcal.reconstruct import visual_hull
     from vastcal.voxels import VoxelGrid
 
-    coarse = VoxelGrid.from_bounds(np.asarray(grid.lower, float), np.asarray(grid.upper, float), float(grid.size) * GRID_FACTOR)
+    coarse = VoxelGrid.from_bounds(
+        np.asarray(grid.lower, float), np.asarray(grid.upper, float), float(grid.size) * GRID_FACTOR
+    )
     n = int(np.shape(silhouettes)[0])
 
     def measure_at(P: np.ndarray) -> tuple[float, float] | None:
@@ -648,9 +792,18 @@ def comparison_measurer(silhouettes: np.ndarray, grid: Any, settings: Any, *, sm
     return measure_at, coarse
 
 
-def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any, measurement: Any, spread: CalibrationSpread | None, *,
-           extra_flags: Sequence[Any] = (), samples: int = CAL_SAMPLES,
-           missing_note: str = "cameras imported as given: their uncertainty is not known to vastcal") -> tuple[Budget, Any]:
+def assess(
+    frames: np.ndarray,
+    silhouettes: np.ndarray,
+    P: np.ndarray,
+    hull: Any,
+    measurement: Any,
+    spread: CalibrationSpread | None,
+    *,
+    extra_flags: Sequence[Any] = (),
+    samples: int = CAL_SAMPLES,
+    missing_note: str = "cameras imported as given: their uncertainty is not known to vastcal",
+) -> tuple[Budget, Any]:
     """The uncertainty budget and the per-view QC of one measurement.
 
     Args:
@@ -689,25 +842,47 @@ def assess(frames: np.ndarray, silhouettes: np.ndarray, P: np.ndarray, hull: Any
     t1 = time.perf_counter()
     edge, edge_num = edge_component(mesh, P, sigma)
     measure_smooth, coarse = comparison_measurer(silhouettes, hull.grid, measurement.settings)
-    grid = grid_component((measurement.volume_mm3, measurement.surface_area_mm2), measure_smooth(P), float(hull.grid.size))
+    grid = grid_component(
+        (measurement.volume_mm3, measurement.surface_area_mm2), measure_smooth(P), float(hull.grid.size)
+    )
     measure_raw, _ = comparison_measurer(silhouettes, hull.grid, measurement.settings, smooth=False)
     nominal_coarse = measure_raw(P)
     if nominal_coarse is None:
         cal = [Component("calibration", None, None, "not evaluated", "the hull is empty on the comparison grid")]
         cal_details: dict[str, Any] = {}
     else:
-        cal, cal_details = calibration_components(spread, measure_raw, nominal_coarse, samples=samples, missing_note=missing_note)
+        cal, cal_details = calibration_components(
+            spread, measure_raw, nominal_coarse, samples=samples, missing_note=missing_note
+        )
     t2 = time.perf_counter()
-    details = {"edge_sigma_px": sigma, **edge_details, **edge_num, **cal_details,
-               "comparison_grid_voxel_um": float(coarse.size), "comparison_grid_shape": [int(s) for s in coarse.shape],
-               "comparison_nominal": list(nominal_coarse) if nominal_coarse else None, "timings_s": {"qc": t1 - t0, "budget": t2 - t1}}
+    details = {
+        "edge_sigma_px": sigma,
+        **edge_details,
+        **edge_num,
+        **cal_details,
+        "comparison_grid_voxel_um": float(coarse.size),
+        "comparison_grid_shape": [int(s) for s in coarse.shape],
+        "comparison_nominal": list(nominal_coarse) if nominal_coarse else None,
+        "timings_s": {"qc": t1 - t0, "budget": t2 - t1},
+    }
     budget = combine(measurement.volume_mm3, measurement.surface_area_mm2, [edge] + cal + [grid], details)
-    result = qc.evaluate_qc(frames, silhouettes, P, mesh.vertices, mesh.faces, edge_sigma_px=sigma_images if np.isfinite(sigma_images) else None,
-                            extra_flags=extra_flags, measures=measures, raster_px=raster)
+    result = qc.evaluate_qc(
+        frames,
+        silhouettes,
+        P,
+        mesh.vertices,
+        mesh.faces,
+        edge_sigma_px=sigma_images if np.isfinite(sigma_images) else None,
+        extra_flags=extra_flags,
+        measures=measures,
+        raster_px=raster,
+    )
     return budget, result
 
 
-def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement: Any, *, samples: int = CAL_SAMPLES) -> Any:
+def assess_session_measurement(
+    session: Any, inputs: Any, hull: Any, measurement: Any, *, samples: int = CAL_SAMPLES
+) -> Any:
     """:func:`assess` for a measurement of an open session; returns the measurement carrying both results.
 
     Reads the frames and the calibration run the cameras came from (θ, K, distance, bounds,
@@ -729,18 +904,33 @@ def assess_session_measurement(session: Any, inputs: Any, hull: Any, measurement
 
     cal = session.result("calibration", inputs.calibration_run) if inputs.calibration_run else None
     spread = calibration_spread_from_group(cal) if cal is not None else None
-    note = ("cameras imported as given: their uncertainty is not known to vastcal" if cal is None else
-            f"calibration/{inputs.calibration_run} stores no theta_deg, K and distance to re-pose its cameras")
+    note = (
+        "cameras imported as given: their uncertainty is not known to vastcal"
+        if cal is None
+        else f"calibration/{inputs.calibration_run} stores no theta_deg, K and distance to re-pose its cameras"
+    )
     flags: list[Any] = []
     if cal is not None and "theta_deg" in cal:
         a = read_attrs(cal)
         flags += qc.calibration_bound_flags(np.asarray(cal["theta_deg"][...], float), a.get("bounds"))
     try:
-        budget, result = assess(SessionFrames(session), inputs.silhouettes, inputs.P, hull, measurement, spread, extra_flags=flags,
-                                samples=samples, missing_note=note)
+        budget, result = assess(
+            SessionFrames(session),
+            inputs.silhouettes,
+            inputs.P,
+            hull,
+            measurement,
+            spread,
+            extra_flags=flags,
+            samples=samples,
+            missing_note=note,
+        )
     except (VastcalError, ValueError, np.linalg.LinAlgError, cv2.error) as exc:
         log.warning("%s: uncertainty and QC not evaluated (%s)", session.path, exc)
-        b = combine(measurement.volume_mm3, measurement.surface_area_mm2,
-                    [Component("all", None, None, "not evaluated", f"the assessment failed: {exc}")])
+        b = combine(
+            measurement.volume_mm3,
+            measurement.surface_area_mm2,
+            [Component("all", None, None, "not evaluated", f"the assessment failed: {exc}")],
+        )
         return measurement.with_assessment(b.as_dict(), None)
     return measurement.with_assessment(budget.as_dict(), result.as_dict())

@@ -66,7 +66,7 @@ class VoxelGrid:
         return np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1)
 
     @classmethod
-    def from_bounds(cls, lower: np.ndarray, upper: np.ndarray, size: float) -> "VoxelGrid":
+    def from_bounds(cls, lower: np.ndarray, upper: np.ndarray, size: float) -> VoxelGrid:
         """Grid of voxels of edge ``size`` (µm) covering the box [lower, upper] (µm)."""
         lower, upper = np.asarray(lower, float), np.asarray(upper, float)
         shape = tuple(int(max(1, np.ceil((upper[d] - lower[d]) / size))) for d in range(3))
@@ -75,7 +75,7 @@ class VoxelGrid:
         return cls(origin, float(size), shape)  # type: ignore[arg-type]
 
     @classmethod
-    def with_voxel_count(cls, lower: np.ndarray, upper: np.ndarray, target_voxels: int) -> "VoxelGrid":
+    def with_voxel_count(cls, lower: np.ndarray, upper: np.ndarray, target_voxels: int) -> VoxelGrid:
         """Grid over [lower, upper] with about ``target_voxels`` cubic voxels."""
         extent = np.asarray(upper, float) - np.asarray(lower, float)
         size = float(np.cbrt(np.prod(extent) / target_voxels))
@@ -106,7 +106,9 @@ def inside_all(P: np.ndarray, silhouettes: np.ndarray, points: np.ndarray) -> np
     return keep
 
 
-def viewing_box(P: np.ndarray, image_shape: tuple[int, int], distance: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def viewing_box(
+    P: np.ndarray, image_shape: tuple[int, int], distance: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """A generous world box (µm) holding everything the views can see around the axis.
 
     x spans the widest image footprint at the axis; y and z span the largest image half-extent
@@ -152,11 +154,26 @@ def grid_around_specimen(
     pts = coarse.centres()
     keep = inside_all(P, silhouettes, pts)
     if not keep.any():
-        raise EmptyHullError("no voxel projects inside every silhouette: the cameras or the silhouettes are inconsistent")
+        raise EmptyHullError(
+            "no voxel projects inside every silhouette: the cameras or the silhouettes are inconsistent"
+        )
     sel = pts[keep]
     lower = sel.min(0) - margin_voxels * coarse.size
     upper = sel.max(0) + margin_voxels * coarse.size
-    grid = VoxelGrid.from_bounds(lower, upper, voxel_size) if voxel_size else VoxelGrid.with_voxel_count(lower, upper, target_voxels)
-    log.info("voxel grid %s voxels of %.2f µm over x %.0f..%.0f, y %.0f..%.0f, z %.0f..%.0f µm",
-             "x".join(map(str, grid.shape)), grid.size, grid.lower[0], grid.upper[0], grid.lower[1], grid.upper[1], grid.lower[2], grid.upper[2])
+    grid = (
+        VoxelGrid.from_bounds(lower, upper, voxel_size)
+        if voxel_size
+        else VoxelGrid.with_voxel_count(lower, upper, target_voxels)
+    )
+    log.info(
+        "voxel grid %s voxels of %.2f µm over x %.0f..%.0f, y %.0f..%.0f, z %.0f..%.0f µm",
+        "x".join(map(str, grid.shape)),
+        grid.size,
+        grid.lower[0],
+        grid.upper[0],
+        grid.lower[1],
+        grid.upper[1],
+        grid.lower[2],
+        grid.upper[2],
+    )
     return grid

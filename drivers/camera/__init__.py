@@ -6,6 +6,11 @@
 ``pip install 'vastcal[rig]'`` (:func:`require_harvesters`).
 """
 
-from vastcal.drivers.camera.genicam_camera import GenICamCamera, find_producers, require_harvesters, settings_from_config
+from vastcal.drivers.camera.genicam_camera import (
+    GenICamCamera,
+    find_producers,
+    require_harvesters,
+    settings_from_config,
+)
 
 __all__ = ["GenICamCamera", "find_producers", "require_harvesters", "settings_from_config"]

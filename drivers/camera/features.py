@@ -9,7 +9,8 @@ that names the feature and the value.
 from __future__ import annotations
 
 import logging
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from vastcal.errors import CameraError
 

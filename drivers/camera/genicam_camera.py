@@ -33,10 +33,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from vastcal.drivers.camera import features as ft
-from vastcal.drivers.camera.pixel_formats import from_component_data
 from vastcal.config import CameraConfig
 from vastcal.devices import Camera, CameraSettings, Frame
+from vastcal.drivers.camera import features as ft
+from vastcal.drivers.camera.pixel_formats import from_component_data
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError
 
 log = logging.getLogger(__name__)
@@ -60,7 +60,13 @@ WAIT_SLICE_S = 0.05
 def settings_from_config(cfg: CameraConfig) -> CameraSettings:
     """The :class:`CameraSettings` a :class:`CameraConfig` asks for (ROI as x, y, w, h px)."""
     roi = (cfg.roi.x, cfg.roi.y, cfg.roi.width, cfg.roi.height)
-    return CameraSettings(pixel_format=cfg.pixel_format, exposure_us=cfg.exposure_us, gain_db=cfg.gain_db, roi=roi, packet_size=cfg.packet_size)
+    return CameraSettings(
+        pixel_format=cfg.pixel_format,
+        exposure_us=cfg.exposure_us,
+        gain_db=cfg.gain_db,
+        roi=roi,
+        packet_size=cfg.packet_size,
+    )
 
 
 RIG_EXTRA = "pip install 'vastcal[rig]'"
@@ -80,7 +86,9 @@ def require_harvesters() -> None:
         import harvesters.core  # noqa: F401 - imports genicam too
     except ImportError as exc:
         missing = getattr(exc, "name", None) or ft.first_line(exc)
-        raise CameraError(f"a real camera needs harvesters and genicam ({missing} cannot be imported): {RIG_EXTRA}") from exc
+        raise CameraError(
+            f"a real camera needs harvesters and genicam ({missing} cannot be imported): {RIG_EXTRA}"
+        ) from exc
 
 
 def find_producers(cti: str | os.PathLike[str] | None) -> list[Path]:
@@ -114,7 +122,14 @@ class GenICamCamera(Camera):
             (AVT Prosilica: 1 unit = 1 dB — *unverified*, hence configurable).
     """
 
-    def __init__(self, cti: str | os.PathLike[str] | None = None, serial_number: str | None = None, *, drain_timeout_s: float = 0.002, gain_raw_per_db: float = 1.0) -> None:
+    def __init__(
+        self,
+        cti: str | os.PathLike[str] | None = None,
+        serial_number: str | None = None,
+        *,
+        drain_timeout_s: float = 0.002,
+        gain_raw_per_db: float = 1.0,
+    ) -> None:
         super().__init__()
         self._cti = cti
         self._serial_number = serial_number
@@ -131,7 +146,7 @@ class GenICamCamera(Camera):
         self._lock = threading.Lock()
 
     @classmethod
-    def from_config(cls, cfg: CameraConfig) -> "GenICamCamera":
+    def from_config(cls, cfg: CameraConfig) -> GenICamCamera:
         """A camera for ``cfg.cti`` / ``cfg.serial_number`` (not opened; settings not applied)."""
         return cls(cfg.cti, cfg.serial_number)
 
@@ -164,7 +179,9 @@ class GenICamCamera(Camera):
             if self._serial_number is not None:
                 serials = [str(i.serial_number) for i in infos]
                 if str(self._serial_number) not in serials:
-                    raise CameraError(f"no camera with serial number {self._serial_number!r}; found {', '.join(serials)}")
+                    raise CameraError(
+                        f"no camera with serial number {self._serial_number!r}; found {', '.join(serials)}"
+                    )
                 ia = h.create({"serial_number": str(self._serial_number)})
             else:
                 ia = h.create()
@@ -173,13 +190,23 @@ class GenICamCamera(Camera):
             raise
         except Exception as exc:  # noqa: BLE001 - genicam errors: one clear line
             h.reset()
-            raise CameraError(f"cannot open camera through {', '.join(map(str, producers))}: {ft.first_line(exc)}") from exc
+            raise CameraError(
+                f"cannot open camera through {', '.join(map(str, producers))}: {ft.first_line(exc)}"
+            ) from exc
         self._harvester, self._ia = h, ia
         self._identity = self._read_identity(producers)
         nm = ia.remote_device.node_map
-        self._software_trigger = ft.has_feature(nm, "TriggerSoftware") and "Software" in ft.enum_entries(nm, "TriggerSource")
+        self._software_trigger = ft.has_feature(nm, "TriggerSoftware") and "Software" in ft.enum_entries(
+            nm, "TriggerSource"
+        )
         self._last_frame_id = None
-        log.info("opened camera %s %s serial %s (%s)", self._identity["vendor"], self._identity["model"], self._identity["serial"], "software trigger" if self._software_trigger else "free-running")
+        log.info(
+            "opened camera %s %s serial %s (%s)",
+            self._identity["vendor"],
+            self._identity["model"],
+            self._identity["serial"],
+            "software trigger" if self._software_trigger else "free-running",
+        )
 
     def _read_identity(self, producers: list[Path]) -> dict[str, Any]:
         nm = self._ia.remote_device.node_map
@@ -230,7 +257,9 @@ class GenICamCamera(Camera):
         """
         self._check_open()
         if self._streaming:
-            raise CameraError("configure() must be called before start(): the buffer size is fixed when the stream starts")
+            raise CameraError(
+                "configure() must be called before start(): the buffer size is fixed when the stream starts"
+            )
         nm = self._ia.remote_device.node_map
         back: dict[str, Any] = {}
         missing: list[str] = []
@@ -243,7 +272,10 @@ class GenICamCamera(Camera):
 
         if settings.roi is not None:
             x, y, w, h = settings.roi
-            for axis, off, size, off_name, size_name in (("x", x, w, "OffsetX", "Width"), ("y", y, h, "OffsetY", "Height")):
+            for axis, off, size, off_name, size_name in (
+                ("x", x, w, "OffsetX", "Width"),
+                ("y", y, h, "OffsetY", "Height"),
+            ):
                 has_off = ft.has_feature(nm, off_name)
                 if has_off:
                     ft.write_feature(nm, off_name, 0)  # shrink-safe order: offset 0, size, offset
@@ -277,9 +309,14 @@ class GenICamCamera(Camera):
                 missing.append(PACKET_SIZE_FEATURE)
                 back["packet_size"] = None
         else:
-            back["packet_size"] = ft.read_feature(nm, PACKET_SIZE_FEATURE) if ft.has_feature(nm, PACKET_SIZE_FEATURE) else None
+            back["packet_size"] = (
+                ft.read_feature(nm, PACKET_SIZE_FEATURE) if ft.has_feature(nm, PACKET_SIZE_FEATURE) else None
+            )
 
-        for key, want in (("width", settings.roi[2] if settings.roi else None), ("height", settings.roi[3] if settings.roi else None)):
+        for key, want in (
+            ("width", settings.roi[2] if settings.roi else None),
+            ("height", settings.roi[3] if settings.roi else None),
+        ):
             if want is not None and back.get(key) is not None and int(back[key]) != int(want):
                 raise CameraError(f"camera set {key.capitalize()} to {back[key]} instead of {want} (increment?)")
         if missing:
@@ -362,7 +399,12 @@ class GenICamCamera(Camera):
                 frame = self._wait_new_frame(timeout_s, cancel)
                 if frame is not None:
                     return frame
-                log.warning("no frame within %.3g s (attempt %d of 2)%s", timeout_s, attempt, ", re-triggering" if attempt == 1 else "")
+                log.warning(
+                    "no frame within %.3g s (attempt %d of 2)%s",
+                    timeout_s,
+                    attempt,
+                    ", re-triggering" if attempt == 1 else "",
+                )
         raise DeviceTimeoutError(
             f"camera {self._identity.get('serial')} delivered no new frame within 2 x {timeout_s:g} s "
             "(GigE: is GevSCPSPacketSize larger than the network MTU?)"
@@ -431,7 +473,11 @@ class GenICamCamera(Camera):
             ticks = int(m.timestamp)
         except Exception:  # noqa: BLE001 - no timestamps at all (viky)
             return None
-        freq = ft.read_feature(nm, TIMESTAMP_FREQUENCY_FEATURE) if ft.has_feature(nm, TIMESTAMP_FREQUENCY_FEATURE) else None
+        freq = (
+            ft.read_feature(nm, TIMESTAMP_FREQUENCY_FEATURE)
+            if ft.has_feature(nm, TIMESTAMP_FREQUENCY_FEATURE)
+            else None
+        )
         return ticks / float(freq) if freq else None
 
     def _current_exposure_us(self) -> float:
@@ -462,15 +508,29 @@ class GenICamCamera(Camera):
         if self._is_open and self._ia is not None:
             nm = self._ia.remote_device.node_map
             settings: dict[str, Any] = {}
-            for name in ("PixelFormat", "Width", "Height", "OffsetX", "OffsetY", *EXPOSURE_FEATURES, GAIN_DB_FEATURE, GAIN_RAW_FEATURE,
-                         PACKET_SIZE_FEATURE, "AcquisitionFrameRate", "TriggerMode", "TriggerSource", "PayloadSize"):
+            for name in (
+                "PixelFormat",
+                "Width",
+                "Height",
+                "OffsetX",
+                "OffsetY",
+                *EXPOSURE_FEATURES,
+                GAIN_DB_FEATURE,
+                GAIN_RAW_FEATURE,
+                PACKET_SIZE_FEATURE,
+                "AcquisitionFrameRate",
+                "TriggerMode",
+                "TriggerSource",
+                "PayloadSize",
+            ):
                 if ft.has_feature(nm, name):
                     settings[name] = ft.read_feature(nm, name)
             d["settings"] = settings
             try:
-                d["stream_buffer_handling_mode"] = ft.read_feature(self._ia.data_streams[0].node_map, "StreamBufferHandlingMode")
+                d["stream_buffer_handling_mode"] = ft.read_feature(
+                    self._ia.data_streams[0].node_map, "StreamBufferHandlingMode"
+                )
             except Exception:  # noqa: BLE001
                 d["stream_buffer_handling_mode"] = None
         d["unavailable"] = list(self._unavailable)
         return d
-

@@ -62,7 +62,9 @@ def bytes_per_pixel(pixel_format: str) -> float:
     try:
         return _BYTES_PER_PIXEL[pixel_format]
     except KeyError:
-        raise CameraError(f"pixel format {pixel_format!r} is not supported; use one of {', '.join(SUPPORTED_FORMATS)}") from None
+        raise CameraError(
+            f"pixel format {pixel_format!r} is not supported; use one of {', '.join(SUPPORTED_FORMATS)}"
+        ) from None
 
 
 def strip_x_padding(raw: np.ndarray, height: int, line_bytes: int, x_padding: int) -> np.ndarray:
@@ -81,7 +83,9 @@ def strip_x_padding(raw: np.ndarray, height: int, line_bytes: int, x_padding: in
     stride = line_bytes + x_padding
     need = height * stride
     if raw.size < need:
-        raise CameraError(f"buffer holds {raw.size} bytes, expected {need} ({height} lines of {line_bytes} + {x_padding} padding)")
+        raise CameraError(
+            f"buffer holds {raw.size} bytes, expected {need} ({height} lines of {line_bytes} + {x_padding} padding)"
+        )
     return raw[:need].reshape(height, stride)[:, :line_bytes]
 
 
@@ -106,7 +110,9 @@ def bayer_to_rgb(mosaic: np.ndarray, pixel_format: str) -> np.ndarray:
     try:
         code = BAYER_TO_CV2[pixel_format]
     except KeyError:
-        raise CameraError(f"{pixel_format!r} is not a Bayer format; expected one of {', '.join(BAYER_TO_CV2)}") from None
+        raise CameraError(
+            f"{pixel_format!r} is not a Bayer format; expected one of {', '.join(BAYER_TO_CV2)}"
+        ) from None
     return cv2.cvtColor(np.ascontiguousarray(mosaic), code)
 
 
@@ -163,7 +169,9 @@ def from_component_data(data: np.ndarray, pixel_format: str, width: int, height:
     data = np.asarray(data)
     if pixel_format in PACKED12_FORMATS:
         if x_padding:
-            raise CameraError(f"{pixel_format} with {x_padding} bytes of line padding is not supported; choose Mono12 or Mono16")
+            raise CameraError(
+                f"{pixel_format} with {x_padding} bytes of line padding is not supported; choose Mono12 or Mono16"
+            )
         if data.size != width * height:
             raise CameraError(f"{pixel_format}: harvesters delivered {data.size} values for {width}x{height} px")
         img = data.astype(np.uint16).reshape(height, width)

@@ -7,7 +7,7 @@ second protocol (Trinamic TMCL) is added here without touching acquisition.
 from __future__ import annotations
 
 import logging
-from typing import Callable
+from collections.abc import Callable
 
 from vastcal.config import StageConfig
 from vastcal.devices import RotationStage

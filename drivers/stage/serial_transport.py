@@ -13,16 +13,18 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 import serial
 
 try:
     from termios import error as _TermiosError
 except ImportError:  # pragma: no cover - not POSIX
+
     class _TermiosError(Exception):  # type: ignore[no-redef]
         """Stand-in where the termios module does not exist (never raised)."""
+
 
 from vastcal.errors import DeviceDisconnectedError, DeviceError, DeviceTimeoutError
 
@@ -43,6 +45,7 @@ def port_error_reason(exc: BaseException) -> str:
     else:
         reason = str(exc).strip() or type(exc).__name__
     return reason if len(reason) <= 200 else reason[:199] + "…"
+
 
 URL_HANDLER_PACKAGES: dict[str, str] = {"sim": "vastcal.simulators.stage"}
 """Extra pyserial URL schemes → package holding ``protocol_<scheme>``; registered by *name*
@@ -92,7 +95,11 @@ class SerialTransport:
         if self._port is not None:
             return
         ensure_url_handler(self.url)
-        kwargs: dict[str, object] = {"baudrate": self.baudrate, "timeout": self.timeout_s, "write_timeout": self.timeout_s}
+        kwargs: dict[str, object] = {
+            "baudrate": self.baudrate,
+            "timeout": self.timeout_s,
+            "write_timeout": self.timeout_s,
+        }
         if "://" not in self.url:
             kwargs["exclusive"] = True  # advisory flock on POSIX device paths
         try:
@@ -143,7 +150,9 @@ class SerialTransport:
         except serial.SerialTimeoutException as exc:
             raise DeviceTimeoutError(f"{self.url}: write timed out") from exc
         except PORT_ERRORS as exc:
-            raise DeviceDisconnectedError(f"{self.url}: write failed, the port went away: {port_error_reason(exc)}") from exc
+            raise DeviceDisconnectedError(
+                f"{self.url}: write failed, the port went away: {port_error_reason(exc)}"
+            ) from exc
 
     def read_line(self, timeout_s: float | None = None) -> bytes:
         """Read one line ending in the terminator within ``timeout_s`` (default: the port's).
@@ -159,7 +168,9 @@ class SerialTransport:
                 port.timeout = timeout
             line = port.read_until(self.terminator)
         except PORT_ERRORS as exc:
-            raise DeviceDisconnectedError(f"{self.url}: read failed, the port went away: {port_error_reason(exc)}") from exc
+            raise DeviceDisconnectedError(
+                f"{self.url}: read failed, the port went away: {port_error_reason(exc)}"
+            ) from exc
         if not line.endswith(self.terminator):
             self.drain()
             what = f"a partial line {line!r}" if line else "nothing"
@@ -175,4 +186,6 @@ class SerialTransport:
         try:
             port.reset_input_buffer()
         except PORT_ERRORS as exc:
-            raise DeviceDisconnectedError(f"{self.url}: cannot reset input, the port went away: {port_error_reason(exc)}") from exc
+            raise DeviceDisconnectedError(
+                f"{self.url}: cannot reset input, the port went away: {port_error_reason(exc)}"
+            ) from exc

@@ -111,7 +111,9 @@ class Request:
     checksum_ok: bool | None = None
 
 
-def format_request(device: int, axis: int, words: str = "", *, msgid: int | None = None, checksum: bool = False) -> bytes:
+def format_request(
+    device: int, axis: int, words: str = "", *, msgid: int | None = None, checksum: bool = False
+) -> bytes:
     """Bytes of one request line, e.g. ``b"/1 1 get pos:AC\\n"``.
 
     ``device`` 0 with ``axis`` 0 and no words/id gives the discovery line ``b"/\\n"``.

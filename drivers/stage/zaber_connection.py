@@ -32,7 +32,9 @@ class ZaberConnection:
         reply_timeout_s: wait for one reply, seconds.
     """
 
-    def __init__(self, transport: SerialTransport, device: int = 1, *, checksums: bool = True, reply_timeout_s: float = 0.5) -> None:
+    def __init__(
+        self, transport: SerialTransport, device: int = 1, *, checksums: bool = True, reply_timeout_s: float = 0.5
+    ) -> None:
         self.transport = transport
         self.device = device
         self.checksums = checksums
@@ -77,7 +79,10 @@ class ZaberConnection:
                     continue
                 break
         if reply.rejected:
-            raise CommandRejectedError(f"{self.transport.url}: device {self.device} axis {axis} rejected {words!r}: {reply.data}", reason=reply.data)
+            raise CommandRejectedError(
+                f"{self.transport.url}: device {self.device} axis {axis} rejected {words!r}: {reply.data}",
+                reason=reply.data,
+            )
         return reply
 
     def _exchange(self, words: str, axis: int, timeout_s: float | None) -> za.Reply:
@@ -91,7 +96,14 @@ class ZaberConnection:
                 raise DeviceTimeoutError(f"{self.transport.url}: no reply to {words!r} (id {msgid}) within the timeout")
             message = za.parse_message(self.transport.read_line(remaining))
             if isinstance(message, za.Alert):
-                log.info("%s: alert from device %d axis %d: %s %s", self.transport.url, message.device, message.axis, message.status, message.warning)
+                log.info(
+                    "%s: alert from device %d axis %d: %s %s",
+                    self.transport.url,
+                    message.device,
+                    message.axis,
+                    message.status,
+                    message.warning,
+                )
                 continue
             if message.msgid != msgid or message.device != self.device:
                 self.stale_replies_dropped += 1
@@ -119,4 +131,14 @@ class ZaberConnection:
             more = text.endswith("\\")
             parts.append(text.rstrip("\\").rstrip())
             if not more:
-                return za.Reply(first.device, first.axis, first.msgid, first.flag, first.status, first.warning, " ".join(parts), False, first.checksum_ok)
+                return za.Reply(
+                    first.device,
+                    first.axis,
+                    first.msgid,
+                    first.flag,
+                    first.status,
+                    first.warning,
+                    " ".join(parts),
+                    False,
+                    first.checksum_ok,
+                )

@@ -13,12 +13,12 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from vastcal.config import StageConfig
+from vastcal.devices import MoveResult, RotationStage
 from vastcal.drivers.stage import zaber_ascii as za
 from vastcal.drivers.stage.motion_profile import ZaberUnits, move_time_s
 from vastcal.drivers.stage.serial_transport import SerialTransport
 from vastcal.drivers.stage.zaber_connection import ZaberConnection
-from vastcal.config import StageConfig
-from vastcal.devices import MoveResult, RotationStage
 from vastcal.errors import (
     AcquisitionAborted,
     CommandRejectedError,
@@ -56,13 +56,17 @@ class ZaberRotationStage(RotationStage):
         timing: motion wait policy.
     """
 
-    def __init__(self, cfg: StageConfig, *, units: ZaberUnits | None = None, timing: MotionTiming | None = None) -> None:
+    def __init__(
+        self, cfg: StageConfig, *, units: ZaberUnits | None = None, timing: MotionTiming | None = None
+    ) -> None:
         super().__init__()
         self.cfg = cfg
         self.units = units or ZaberUnits()
         self.timing = timing or MotionTiming()
         self.transport = SerialTransport(cfg.url, cfg.baudrate, cfg.reply_timeout_s)
-        self.connection = ZaberConnection(self.transport, cfg.device, checksums=cfg.checksums, reply_timeout_s=cfg.reply_timeout_s)
+        self.connection = ZaberConnection(
+            self.transport, cfg.device, checksums=cfg.checksums, reply_timeout_s=cfg.reply_timeout_s
+        )
         self._cycle = 0
         self._maxspeed = 0
         self._accel = 0
@@ -95,7 +99,9 @@ class ZaberRotationStage(RotationStage):
         except DeviceTimeoutError as exc:
             raise DeviceTimeoutError(f"{url}: no Zaber device {self.cfg.device} answered ({exc})") from exc
         except CommandRejectedError as exc:
-            raise ProtocolError(f"{url}: device {self.cfg.device} axis {self.cfg.axis} is not a rotary axis ({exc.reason})") from exc
+            raise ProtocolError(
+                f"{url}: device {self.cfg.device} axis {self.cfg.axis} is not a rotary axis ({exc.reason})"
+            ) from exc
         if self._cycle <= 0:
             raise ProtocolError(f"{url}: limit.cycle.dist is {self._cycle}; axis {self.cfg.axis} is not a rotary axis")
 
@@ -142,7 +148,9 @@ class ZaberRotationStage(RotationStage):
                 return reply
             if time.monotonic() - start > deadline_s:
                 self.stop()
-                raise DeviceTimeoutError(f"{self.cfg.url}: {what} did not finish within {deadline_s:.3g} s; the stage was stopped")
+                raise DeviceTimeoutError(
+                    f"{self.cfg.url}: {what} did not finish within {deadline_s:.3g} s; the stage was stopped"
+                )
             if cancel is not None:
                 cancel.wait(self.timing.poll_interval_s)
             else:
@@ -258,6 +266,10 @@ class ZaberRotationStage(RotationStage):
             "accel_device_units": self._accel,
             "maxspeed_usteps_per_s": self.units.usteps_per_s(self._maxspeed),
             "accel_usteps_per_s2": self.units.usteps_per_s2(self._accel),
-            "unit_conversions": {"velocity_divisor": self.units.velocity_divisor, "accel_divisor": self.units.accel_divisor, "verified": False},
+            "unit_conversions": {
+                "velocity_divisor": self.units.velocity_divisor,
+                "accel_divisor": self.units.accel_divisor,
+                "verified": False,
+            },
             "position_tolerance_usteps": self.cfg.position_tolerance_usteps,
         }

@@ -30,7 +30,23 @@ from vastcal.simulators.camera.simulated_camera import SimulatedCamera
 from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
 
 __all__ = [
-    "PHANTOMS", "BrightfieldRenderer", "Capillary", "EllipsoidFeature", "FinFold", "Phantom", "PinholeIntrinsics", "RigTruth", "Sensor",
-    "SimulatedCamera", "Specimen", "battery_config", "camera_pose", "capsule_phantom", "draw_specimen", "orthographic_hull_factor",
-    "spheroid_phantom", "truth_projection_matrix", "zebrafish_phantom",
+    "PHANTOMS",
+    "BrightfieldRenderer",
+    "Capillary",
+    "EllipsoidFeature",
+    "FinFold",
+    "Phantom",
+    "PinholeIntrinsics",
+    "RigTruth",
+    "Sensor",
+    "SimulatedCamera",
+    "Specimen",
+    "battery_config",
+    "camera_pose",
+    "capsule_phantom",
+    "draw_specimen",
+    "orthographic_hull_factor",
+    "spheroid_phantom",
+    "truth_projection_matrix",
+    "zebrafish_phantom",
 ]

@@ -53,8 +53,14 @@ class NumericHull:
     n_theta: int
 
 
-def numeric_hull(phantom: Phantom, camera_centres_um: np.ndarray, body_offset_um: tuple[float, float] = (0.0, 0.0),
-                 n_x: int = 200, n_theta: int = 360, steps: int = 40) -> NumericHull:
+def numeric_hull(
+    phantom: Phantom,
+    camera_centres_um: np.ndarray,
+    body_offset_um: tuple[float, float] = (0.0, 0.0),
+    n_x: int = 200,
+    n_theta: int = 360,
+    steps: int = 40,
+) -> NumericHull:
     """The visual hull of ``phantom``'s body from pinhole cameras at ``camera_centres_um`` (V × 3,
     world frame, µm) — module docstring. ``body_offset_um``: (y, z) of the body's axis in the world."""
     s = phantom.lateral_scale

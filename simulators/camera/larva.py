@@ -36,15 +36,16 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom, zebrafish_phantom
-from vastcal.simulators.camera.profiles import LarvaProfile
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 from vastcal.errors import ConfigError
+from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom, zebrafish_phantom
+from vastcal.simulators.camera.profiles import LarvaProfile
 
 log = logging.getLogger(__name__)
 
@@ -118,8 +119,17 @@ class FinFold:
         ay = np.abs(y)
         return (ay >= r) & (ay <= outer) & (u >= start)
 
-    def optical_depth(self, C: np.ndarray, d: np.ndarray, s_lo: np.ndarray, s_hi: np.ndarray, offset_um: tuple[float, float],
-                      lumen_radius_um: float, samples: int = 16, footprint_um: float = 0.0) -> np.ndarray:
+    def optical_depth(
+        self,
+        C: np.ndarray,
+        d: np.ndarray,
+        s_lo: np.ndarray,
+        s_hi: np.ndarray,
+        offset_um: tuple[float, float],
+        lumen_radius_um: float,
+        samples: int = 16,
+        footprint_um: float = 0.0,
+    ) -> np.ndarray:
         """μ · path length in the sheet of rays X(s) = C + s·d (phantom frame, µm) for s in [s_lo, s_hi].
 
         The sheet |z| ≤ t/2 clips each ray to a segment; ``samples`` points spread over it decide
@@ -196,7 +206,9 @@ class Specimen:
         """Largest distance of the fins from the body's axis, µm (0 without fins)."""
         reach = self.fin_fold.reach_um if self.fin_fold else 0.0
         for f in self.pectoral_fins:
-            reach = max(reach, math.hypot(abs(f.centre_um[1]) + f.semi_axes_um[1], abs(f.centre_um[2]) + f.semi_axes_um[2]))
+            reach = max(
+                reach, math.hypot(abs(f.centre_um[1]) + f.semi_axes_um[1], abs(f.centre_um[2]) + f.semi_axes_um[2])
+            )
         return reach
 
     @property
@@ -213,7 +225,9 @@ class Specimen:
 def _check_range(name: str, rng_: tuple[float, float], lo: float, hi: float) -> tuple[float, float]:
     a, b = float(rng_[0]), float(rng_[1])
     if not (lo <= a <= b <= hi):
-        raise ConfigError(f"simulation.{name}: expected [low, high] with {lo} <= low <= high <= {hi}, got [{a:g}, {b:g}]")
+        raise ConfigError(
+            f"simulation.{name}: expected [low, high] with {lo} <= low <= high <= {hi}, got [{a:g}, {b:g}]"
+        )
     return a, b
 
 
@@ -223,14 +237,22 @@ def _stream(sim: SimulationConfig, tag: int) -> np.random.Generator:
 
 def frame_x_edges_um(optics: OpticsConfig, camera: CameraConfig) -> tuple[float, float]:
     """World x (µm, at the rotation axis, untilted rig) of the frame's left and right pixel edges."""
-    f = optics.focal_length_px if optics.focal_length_px else optics.working_distance_um * optics.magnification / optics.pixel_size_um
+    f = (
+        optics.focal_length_px
+        if optics.focal_length_px
+        else optics.working_distance_um * optics.magnification / optics.pixel_size_um
+    )
     cx = optics.principal_point_px[0] if optics.principal_point_px is not None else 0.5 * (optics.sensor_width_px - 1)
     scale = optics.working_distance_um / f
     roi = camera.roi
     return (roi.x - 0.5 - cx) * scale, (roi.x + roi.width - 0.5 - cx) * scale
 
 
-ZF1_SHAPE: dict[str, Any] = {"c0": 0.052, "k": 0.0, "bumps": ((2.023, 0.008, 0.073), (0.457, 0.198, 0.143), (0.077, 0.476, 0.085))}
+ZF1_SHAPE: dict[str, Any] = {
+    "c0": 0.052,
+    "k": 0.0,
+    "bumps": ((2.023, 0.008, 0.073), (0.457, 0.198, 0.143), (0.077, 0.476, 0.085)),
+}
 """:class:`LarvaProfile` parameters of a real 3-dpf larva: a least-squares fit (rms 0.004 L) of the
 dorso-ventral height profile — the largest of its 21 silhouettes, column by column, over its length —
 of the shared ZF1 masks (``../shared/data/zf_3dpf_s001/silhouettes``): a big head (u ≈ 0–0.1),
@@ -240,7 +262,9 @@ lateral scale 0.6–0.7 it gives 0.225–0.263 mm³ and 3.0–3.2 mm² (publishe
 kept for the existing tests."""
 
 
-def _fit_inside(profile: LarvaProfile, lateral: float, make: Callable[[float], tuple[EllipsoidFeature, ...]]) -> tuple[EllipsoidFeature, ...]:
+def _fit_inside(
+    profile: LarvaProfile, lateral: float, make: Callable[[float], tuple[EllipsoidFeature, ...]]
+) -> tuple[EllipsoidFeature, ...]:
     """``make(shrink)`` for the largest shrink in 1, 0.9, … 0.4 whose ellipsoids all lie inside the body."""
     for shrink in (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4):
         feats = make(shrink)
@@ -265,7 +289,9 @@ def _larva_body(sim: SimulationConfig, rng: np.random.Generator, x_centre: float
     head, trunk, tail = (float(v) for v in rng.uniform([0.85, 0.7, 0.8], [1.15, 1.3, 1.2]))
     (hh, hm, hw), (yh, ym, yw), (th, tm, tw) = ZF1_SHAPE["bumps"]
     bumps = ((hh * head, hm, hw), (yh * (0.3 + 0.7 * yolk_left), ym, yw), (th * trunk, tm, tw))
-    profile = LarvaProfile(length=length, max_diameter=height, c0=ZF1_SHAPE["c0"] * tail, k=ZF1_SHAPE["k"], bumps=bumps, x_centre=x_centre)
+    profile = LarvaProfile(
+        length=length, max_diameter=height, c0=ZF1_SHAPE["c0"] * tail, k=ZF1_SHAPE["k"], bumps=bumps, x_centre=x_centre
+    )
     L = length
 
     def r_at(u: float) -> float:
@@ -276,18 +302,42 @@ def _larva_body(sim: SimulationConfig, rng: np.random.Generator, x_centre: float
     def eyes(k: float) -> tuple[EllipsoidFeature, ...]:
         a = (0.035 * L * k, 0.33 * r_eye * k, 0.25 * r_eye * k)
         zc = lateral * r_eye - 1.1 * a[2] - 3.0
-        return tuple(EllipsoidFeature(f"{side} eye", (profile.x_head + 0.075 * L, 0.0, sign * zc), a, 0.02)
-                     for side, sign in (("left", 1.0), ("right", -1.0)))
+        return tuple(
+            EllipsoidFeature(f"{side} eye", (profile.x_head + 0.075 * L, 0.0, sign * zc), a, 0.02)
+            for side, sign in (("left", 1.0), ("right", -1.0))
+        )
 
     def yolk(k: float) -> tuple[EllipsoidFeature, ...]:
         k = k * (0.35 + 0.65 * yolk_left) ** 0.5
-        return (EllipsoidFeature("yolk", (profile.x_head + ym * L, 0.15 * r_yolk, 0.0), (0.1 * L * k, 0.7 * r_yolk * k, 0.7 * lateral * r_yolk * k), mu_yolk),)
+        return (
+            EllipsoidFeature(
+                "yolk",
+                (profile.x_head + ym * L, 0.15 * r_yolk, 0.0),
+                (0.1 * L * k, 0.7 * r_yolk * k, 0.7 * lateral * r_yolk * k),
+                mu_yolk,
+            ),
+        )
 
     feats = _fit_inside(profile, lateral, eyes) + _fit_inside(profile, lateral, yolk)
-    ph = Phantom(profile, feats, body_attenuation_per_um=mu_body, edge_transmission=edge_t, lateral_scale=lateral, name="zebrafish-larva")
-    info = {"age_dpf": age, "length_um": length, "height_um": height, "lateral_scale": lateral, "edge_transmission": edge_t,
-            "body_attenuation_per_um": mu_body, "yolk_fraction": yolk_left, "yolk_attenuation_per_um": mu_yolk,
-            "shape_head_trunk_tail": [head, trunk, tail]}
+    ph = Phantom(
+        profile,
+        feats,
+        body_attenuation_per_um=mu_body,
+        edge_transmission=edge_t,
+        lateral_scale=lateral,
+        name="zebrafish-larva",
+    )
+    info = {
+        "age_dpf": age,
+        "length_um": length,
+        "height_um": height,
+        "lateral_scale": lateral,
+        "edge_transmission": edge_t,
+        "body_attenuation_per_um": mu_body,
+        "yolk_fraction": yolk_left,
+        "yolk_attenuation_per_um": mu_yolk,
+        "shape_head_trunk_tail": [head, trunk, tail],
+    }
     return ph, info
 
 
@@ -300,7 +350,9 @@ def _inside(profile: LarvaProfile, lateral: float, f: EllipsoidFeature, margin_u
     return bool(np.all(rho < r - margin_um))
 
 
-def _melanophores(profile: LarvaProfile, lateral: float, mean: float, rng: np.random.Generator) -> list[EllipsoidFeature]:
+def _melanophores(
+    profile: LarvaProfile, lateral: float, mean: float, rng: np.random.Generator
+) -> list[EllipsoidFeature]:
     """Flat dark specks just under the skin (module docstring); those that do not fit are dropped."""
     n = int(rng.poisson(mean)) if mean > 0 else 0
     out: list[EllipsoidFeature] = []
@@ -340,12 +392,18 @@ def _pectoral_fins(profile: LarvaProfile, lateral: float, rng: np.random.Generat
     mu = float(rng.uniform(0.006, 0.012))
     az = 0.5 * (reach + 20.0)
     zc = lateral * r + reach - az
-    return tuple(EllipsoidFeature(f"{side} pectoral fin", (x, -0.1 * r, sign * zc), (long_, 5.0, az), mu)
-                 for side, sign in (("left", 1.0), ("right", -1.0)))
+    return tuple(
+        EllipsoidFeature(f"{side} pectoral fin", (x, -0.1 * r, sign * zc), (long_, 5.0, az), mu)
+        for side, sign in (("left", 1.0), ("right", -1.0))
+    )
 
 
-def draw_specimen(sim: SimulationConfig, optics: OpticsConfig | None = None, camera: CameraConfig | None = None,
-                  lumen_radius_um: float = CAPILLARY_INNER_RADIUS_UM) -> Specimen:
+def draw_specimen(
+    sim: SimulationConfig,
+    optics: OpticsConfig | None = None,
+    camera: CameraConfig | None = None,
+    lumen_radius_um: float = CAPILLARY_INNER_RADIUS_UM,
+) -> Specimen:
     """The specimen of ``sim`` (module docstring). With every switch off: the fixed 3 mm phantom.
 
     Args:
@@ -394,11 +452,20 @@ def draw_specimen(sim: SimulationConfig, optics: OpticsConfig | None = None, cam
     if sim.fin_fold:
         r = _stream(sim, 0xF1F)
         h0, h1 = _check_range("fin_fold_height_um", sim.fin_fold_height_um, 0.0, 500.0)
-        fold = FinFold(profile, height_um=float(r.uniform(h0, h1)), dorsal_start=float(r.uniform(0.28, 0.38)),
-                       ventral_start=float(r.uniform(0.58, 0.66)), tail_extension_um=float(r.uniform(60.0, 160.0)),
-                       thickness_um=float(r.uniform(4.0, 8.0)), attenuation_per_um=float(r.uniform(0.006, 0.012)))
-        features.update(fin_fold_height_um=fold.height_um, fin_fold_tail_extension_um=fold.tail_extension_um,
-                        fin_fold_transmission_face_on=math.exp(-fold.attenuation_per_um * fold.thickness_um))
+        fold = FinFold(
+            profile,
+            height_um=float(r.uniform(h0, h1)),
+            dorsal_start=float(r.uniform(0.28, 0.38)),
+            ventral_start=float(r.uniform(0.58, 0.66)),
+            tail_extension_um=float(r.uniform(60.0, 160.0)),
+            thickness_um=float(r.uniform(4.0, 8.0)),
+            attenuation_per_um=float(r.uniform(0.006, 0.012)),
+        )
+        features.update(
+            fin_fold_height_um=fold.height_um,
+            fin_fold_tail_extension_um=fold.tail_extension_um,
+            fin_fold_transmission_face_on=math.exp(-fold.attenuation_per_um * fold.thickness_um),
+        )
     pecs: tuple[EllipsoidFeature, ...] = ()
     features["pectoral_fins"] = sim.pectoral_fins
     if sim.pectoral_fins:
@@ -437,6 +504,10 @@ def _shift(ph: Phantom, x_centre: float) -> Phantom:
     assert isinstance(prof, LarvaProfile)
     dx = x_centre - prof.x_centre
     new = LarvaProfile(prof.length, prof.max_diameter, prof.c0, prof.k, prof.bumps, prof.name, x_centre)
-    feats = tuple(EllipsoidFeature(f.name, (f.centre_um[0] + dx, f.centre_um[1], f.centre_um[2]), f.semi_axes_um, f.attenuation_per_um)
-                  for f in ph.features)
+    feats = tuple(
+        EllipsoidFeature(
+            f.name, (f.centre_um[0] + dx, f.centre_um[1], f.centre_um[2]), f.semi_axes_um, f.attenuation_per_um
+        )
+        for f in ph.features
+    )
     return replace(ph, profile=new, features=feats)

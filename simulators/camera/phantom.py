@@ -35,13 +35,13 @@ r √(1 + h_k² r'²) dx dt, so the hull area is Σ_k L_k ∫ √(q + h_k² q'²
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
-from vastcal.simulators.camera.profiles import CapsuleProfile, LarvaProfile, RevolutionProfile, SpheroidProfile
 from vastcal.errors import AnalysisError
+from vastcal.simulators.camera.profiles import CapsuleProfile, LarvaProfile, RevolutionProfile, SpheroidProfile
 
 log = logging.getLogger(__name__)
 
@@ -155,6 +155,7 @@ class Phantom:
             return float("inf")
         total = 0.0
         for h, side in zip(*poly):
+
             def face_density(x: np.ndarray, h: float = float(h)) -> np.ndarray:
                 q, dq, _ = self.profile.q(x)
                 return np.sqrt(np.maximum(q + 0.25 * h * h * dq * dq, 0.0))
@@ -195,7 +196,9 @@ def _distinct_directions(angles_deg: Sequence[float]) -> np.ndarray:
     return phi
 
 
-def circumscribed_polygon(angles_deg: Sequence[float], lateral_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray] | None:
+def circumscribed_polygon(
+    angles_deg: Sequence[float], lateral_scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Supports h_k and side lengths L_k of the polygon circumscribing the unit ellipse
     y² + (z/s)² ≤ 1 with the tangent normals of views at ``angles_deg`` (module docstring).
 
@@ -234,7 +237,8 @@ def zebrafish_phantom() -> Phantom:
     """
     profile = LarvaProfile()
     eyes = tuple(
-        EllipsoidFeature(f"{side} eye", (-1090.0, 0.0, sign * 80.0), (75.0, 55.0, 45.0), 0.02) for side, sign in (("left", 1.0), ("right", -1.0))
+        EllipsoidFeature(f"{side} eye", (-1090.0, 0.0, sign * 80.0), (75.0, 55.0, 45.0), 0.02)
+        for side, sign in (("left", 1.0), ("right", -1.0))
     )
     yolk = EllipsoidFeature("yolk", (-480.0, 30.0, 0.0), (190.0, 130.0, 130.0), 0.004)
     return Phantom(profile, eyes + (yolk,), lateral_scale=LARVA_LATERAL_SCALE)

@@ -40,10 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from vastcal.errors import CameraError
 from vastcal.simulators.camera.larva import FinFold, ellipsoid_depth
 from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom
 from vastcal.simulators.camera.scene import Illumination, Particle, paint_particles
-from vastcal.errors import CameraError
 
 log = logging.getLogger(__name__)
 
@@ -143,9 +143,16 @@ class BrightfieldRenderer:
         fins: thin ellipsoids outside the body (pectoral fins; not measured).
     """
 
-    def __init__(self, phantom: Phantom, capillary: Capillary | None = None, sensor: Sensor | None = None, *,
-                 fin_fold: FinFold | None = None, fins: tuple[EllipsoidFeature, ...] = (),
-                 acceptance_half_angle_rad: float = DEFAULT_ACCEPTANCE_RAD) -> None:
+    def __init__(
+        self,
+        phantom: Phantom,
+        capillary: Capillary | None = None,
+        sensor: Sensor | None = None,
+        *,
+        fin_fold: FinFold | None = None,
+        fins: tuple[EllipsoidFeature, ...] = (),
+        acceptance_half_angle_rad: float = DEFAULT_ACCEPTANCE_RAD,
+    ) -> None:
         self.phantom = phantom
         self.acceptance_half_angle_rad = float(acceptance_half_angle_rad)
         self.capillary = capillary or Capillary()
@@ -156,12 +163,21 @@ class BrightfieldRenderer:
         """The ray geometry of the last rendered frame (coverage of the body, for the truth record)."""
         self._r_max = phantom.profile.max_radius_um()
         if self._r_max >= self.capillary.inner_radius_um:
-            raise CameraError(f"phantom radius {self._r_max:.0f} µm does not fit in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)")
+            raise CameraError(
+                f"phantom radius {self._r_max:.0f} µm does not fit in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
+            )
 
     # -- geometry ----------------------------------------------------------------------------
 
-    def ray_geometry(self, K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
-                     body_offset_um: tuple[float, float] = (0.0, 0.0)) -> RayGeometry:
+    def ray_geometry(
+        self,
+        K: np.ndarray,
+        R: np.ndarray,
+        t: np.ndarray,
+        width: int,
+        height: int,
+        body_offset_um: tuple[float, float] = (0.0, 0.0),
+    ) -> RayGeometry:
         """Coverage, optical depths and capillary-axis distance of every pixel's ray (see module docstring).
 
         Args:
@@ -176,12 +192,18 @@ class BrightfieldRenderer:
         if abs(K[0, 1]) > 0 or abs(K[1, 1] - f) > 1e-9 * f:
             raise CameraError("the renderer supports square pixels without skew")
         off = math.hypot(*body_offset_um)
-        support = self._r_max * (math.hypot(body_offset_um[0], self.phantom.lateral_scale * body_offset_um[1]) / off if off > 0 else 1.0)
+        support = self._r_max * (
+            math.hypot(body_offset_um[0], self.phantom.lateral_scale * body_offset_um[1]) / off if off > 0 else 1.0
+        )
         if support + off >= self.capillary.inner_radius_um:
-            raise CameraError(f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis does not fit "
-                              f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)")
+            raise CameraError(
+                f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis does not fit "
+                f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
+            )
         C_world = -R.T @ t
-        C_phantom = C_world - np.array([0.0, float(body_offset_um[0]), float(body_offset_um[1])])  # camera centre in the phantom frame
+        C_phantom = C_world - np.array(
+            [0.0, float(body_offset_um[0]), float(body_offset_um[1])]
+        )  # camera centre in the phantom frame
         du = (np.arange(width) - cx) / f
         dv = (np.arange(height) - cy) / f
         # d_world[k] = R[0,k]·du + R[1,k]·dv + R[2,k]  (separable in u and v)
@@ -249,8 +271,11 @@ class BrightfieldRenderer:
                 c = np.asarray(feat.centre_um, float)
                 # only rays passing the feature's x slab can meet it (rays are within a few degrees
                 # of perpendicular to x: a generous margin), then the exact ray–ellipsoid chord
-                s_f = ((c[0] - C_phantom[0]) * dx_[sel] + (c[1] - C_phantom[1]) * dy_[sel] + (c[2] - C_phantom[2]) * dz_[sel]) \
-                    / (dnorm[sel] ** 2)
+                s_f = (
+                    (c[0] - C_phantom[0]) * dx_[sel]
+                    + (c[1] - C_phantom[1]) * dy_[sel]
+                    + (c[2] - C_phantom[2]) * dz_[sel]
+                ) / (dnorm[sel] ** 2)
                 near = sel[np.abs(C_phantom[0] + s_f * dx_[sel] - c[0]) < ax[0] + 0.2 * ax.max() + 2.0 * footprint_um]
                 if not near.size:
                     continue
@@ -269,8 +294,9 @@ class BrightfieldRenderer:
             tau_extra = self._extra_depth(C_phantom, R, du, dv, dy_w, dz_w, body_offset_um, footprint_um)
         return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra, collected)
 
-    def _collected_over_pixel(self, m: np.ndarray, q: np.ndarray, delta: np.ndarray, grad_m: np.ndarray,
-                              samples: int = 8) -> np.ndarray:
+    def _collected_over_pixel(
+        self, m: np.ndarray, q: np.ndarray, delta: np.ndarray, grad_m: np.ndarray, samples: int = 8
+    ) -> np.ndarray:
         """:func:`refraction_collected` averaged over the part of each pixel the body covers.
 
         The ray's impact parameter in the local cross-section is b = √(m + q) of radius √q (scaled
@@ -286,13 +312,24 @@ class BrightfieldRenderer:
             dk = delta + (k + 0.5) / samples - 0.5
             inside = dk < 0
             mk = m + (dk - delta) * grad_m
-            f = refraction_collected(np.sqrt(np.clip(1.0 + mk / qq, 0.0, 1.0)), self.phantom.refractive_index, self.acceptance_half_angle_rad)
+            f = refraction_collected(
+                np.sqrt(np.clip(1.0 + mk / qq, 0.0, 1.0)), self.phantom.refractive_index, self.acceptance_half_angle_rad
+            )
             total += np.where(inside, f, 0.0)
             count += inside
         return np.where(count > 0, total / np.maximum(count, 1.0), 1.0).astype(np.float32)
 
-    def _extra_depth(self, Cp: np.ndarray, R: np.ndarray, du: np.ndarray, dv: np.ndarray, dy_w: np.ndarray, dz_w: np.ndarray,
-                     body_offset_um: tuple[float, float], footprint_um: float) -> np.ndarray:
+    def _extra_depth(
+        self,
+        Cp: np.ndarray,
+        R: np.ndarray,
+        du: np.ndarray,
+        dv: np.ndarray,
+        dy_w: np.ndarray,
+        dz_w: np.ndarray,
+        body_offset_um: tuple[float, float],
+        footprint_um: float,
+    ) -> np.ndarray:
         """Optical depth of the fin fold and fins (phantom frame, unscaled), H × W float32."""
         height, width = dy_w.shape
         out = np.zeros((height, width), np.float32)
@@ -304,7 +341,9 @@ class BrightfieldRenderer:
             reach = max(reach, self.fin_fold.reach_um)
             lo, hi = min(lo, self.fin_fold.x_range[0]), max(hi, self.fin_fold.x_range[1])
         for f in self.fins:
-            reach = max(reach, math.hypot(abs(f.centre_um[1]) + f.semi_axes_um[1], abs(f.centre_um[2]) + f.semi_axes_um[2]))
+            reach = max(
+                reach, math.hypot(abs(f.centre_um[1]) + f.semi_axes_um[1], abs(f.centre_um[2]) + f.semi_axes_um[2])
+            )
             lo, hi = min(lo, f.centre_um[0] - f.semi_axes_um[0]), max(hi, f.centre_um[0] + f.semi_axes_um[0])
         margin = 3.0 * footprint_um
         iy, ix = np.nonzero(rho0 < reach + margin)
@@ -320,8 +359,9 @@ class BrightfieldRenderer:
         tau = np.zeros(iy.size)
         if self.fin_fold is not None:
             half = (self.capillary.inner_radius_um + math.hypot(*body_offset_um)) / np.sqrt(a2c)
-            tau += self.fin_fold.optical_depth(Cp, d, s0 - half, s0 + half, body_offset_um, self.capillary.inner_radius_um,
-                                               footprint_um=footprint_um)
+            tau += self.fin_fold.optical_depth(
+                Cp, d, s0 - half, s0 + half, body_offset_um, self.capillary.inner_radius_um, footprint_um=footprint_um
+            )
         for f in self.fins:
             tau += ellipsoid_depth(Cp, d, f)
         out[iy, ix] = tau
@@ -339,8 +379,14 @@ class BrightfieldRenderer:
         return (T * self.capillary.transmission(geom.rho0)).astype(np.float32)
 
     @staticmethod
-    def _scene(T: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray, particles: list[Particle],
-               illumination: Illumination | None) -> np.ndarray:
+    def _scene(
+        T: np.ndarray,
+        K: np.ndarray,
+        R: np.ndarray,
+        t: np.ndarray,
+        particles: list[Particle],
+        illumination: Illumination | None,
+    ) -> np.ndarray:
         """Particles, defocus blur and lamp field applied to a transmission image (float32)."""
         if particles:
             T = T.copy()
@@ -385,22 +431,36 @@ class BrightfieldRenderer:
             illumination: lamp field and defocus blur, or ``None`` (flat, sharp).
         """
         if pixel_format not in OUTPUT_FORMATS:
-            raise CameraError(f"simulated camera cannot deliver {pixel_format!r}; use one of {', '.join(OUTPUT_FORMATS)}")
+            raise CameraError(
+                f"simulated camera cannot deliver {pixel_format!r}; use one of {', '.join(OUTPUT_FORMATS)}"
+            )
         rng = rng if rng is not None else np.random.default_rng()
         geom = self.ray_geometry(K, R, t, width, height, body_offset_um)
         self.last_geometry = geom
         parts = list(particles or [])
         if pixel_format == "RGB8":
-            chans = [self._to_dn(self._scene(self.transmission(geom, s), K, R, t, parts, illumination) * tint, noise, rng, exposure_scale, gain_db)
-                     for s, tint in zip(self.phantom.colour_scale, self.sensor.tint_rgb)]
+            chans = [
+                self._to_dn(
+                    self._scene(self.transmission(geom, s), K, R, t, parts, illumination) * tint,
+                    noise,
+                    rng,
+                    exposure_scale,
+                    gain_db,
+                )
+                for s, tint in zip(self.phantom.colour_scale, self.sensor.tint_rgb)
+            ]
             return np.stack([np.rint(c / 16.0).astype(np.uint8) for c in chans], -1)
-        dn = self._to_dn(self._scene(self.transmission(geom), K, R, t, parts, illumination), noise, rng, exposure_scale, gain_db)
+        dn = self._to_dn(
+            self._scene(self.transmission(geom), K, R, t, parts, illumination), noise, rng, exposure_scale, gain_db
+        )
         if pixel_format == "Mono8":
             return np.rint(dn / 16.0).astype(np.uint8)
         out = np.rint(dn).astype(np.uint16)
         return out * np.uint16(16) if pixel_format == "Mono16" else out
 
-    def _to_dn(self, T: np.ndarray, noise: float, rng: np.random.Generator, exposure_scale: float, gain_db: float) -> np.ndarray:
+    def _to_dn(
+        self, T: np.ndarray, noise: float, rng: np.random.Generator, exposure_scale: float, gain_db: float
+    ) -> np.ndarray:
         """Transmission → 12-bit digital numbers (float32, clipped to 0–4095) with noise."""
         s = self.sensor
         electrons = T * np.float32(s.background_level * s.full_well_e * exposure_scale)

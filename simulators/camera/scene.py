@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from vastcal.simulators.camera.larva import CAPILLARY_INNER_RADIUS_UM, Specimen, _check_range, frame_x_edges_um
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
+from vastcal.simulators.camera.larva import CAPILLARY_INNER_RADIUS_UM, Specimen, _check_range, frame_x_edges_um
 
 
 @dataclass(frozen=True)
@@ -80,18 +80,35 @@ class ParticleCloud:
                 limit = self.lumen_radius_um - self.radius_um[i]
                 if rho > limit:
                     p[1:] *= limit / rho
-            out.append(Particle(kind, (float(p[0]), float(p[1]), float(p[2])), float(self.radius_um[i]), float(self.elongation[i]),
-                                float(self.orientation_deg[i]), float(self.strength[i])))
+            out.append(
+                Particle(
+                    kind,
+                    (float(p[0]), float(p[1]), float(p[2])),
+                    float(self.radius_um[i]),
+                    float(self.elongation[i]),
+                    float(self.orientation_deg[i]),
+                    float(self.strength[i]),
+                )
+            )
         return out
 
     def describe(self) -> dict[str, Any]:
         """Counts and sizes, JSON-able."""
-        return {"debris": int(sum(k == "debris" for k in self.kinds)), "bubbles": int(sum(k == "bubble" for k in self.kinds)),
-                "particle_radius_um": [float(r) for r in self.radius_um]}
+        return {
+            "debris": int(sum(k == "debris" for k in self.kinds)),
+            "bubbles": int(sum(k == "bubble" for k in self.kinds)),
+            "particle_radius_um": [float(r) for r in self.radius_um],
+        }
 
 
-def draw_particles(sim: SimulationConfig, specimen: Specimen, body_offset_um: tuple[float, float],
-                   optics: OpticsConfig, camera: CameraConfig, lumen_radius_um: float = CAPILLARY_INNER_RADIUS_UM) -> ParticleCloud:
+def draw_particles(
+    sim: SimulationConfig,
+    specimen: Specimen,
+    body_offset_um: tuple[float, float],
+    optics: OpticsConfig,
+    camera: CameraConfig,
+    lumen_radius_um: float = CAPILLARY_INNER_RADIUS_UM,
+) -> ParticleCloud:
     """Debris and bubbles of ``sim`` at their first positions: uniform over the lumen seen by the
     frame, outside the larva's body (with the particle's radius to spare)."""
     rng = np.random.default_rng(np.random.SeedSequence([sim.seed, 0xDEB]))
@@ -140,7 +157,9 @@ def paint_particles(T: np.ndarray, particles: list[Particle], K: np.ndarray, R: 
         a, b = (c * uu + s * vv) / (r_px * p.elongation), (-s * uu + c * vv) / r_px
         rho = np.sqrt(a * a + b * b)
         if p.kind == "bubble":
-            patch = (1.0 + 0.15 * np.exp(-((rho / 0.35) ** 2))) * (1.0 - p.strength * np.exp(-(((rho - 0.85) / 0.13) ** 2)))
+            patch = (1.0 + 0.15 * np.exp(-((rho / 0.35) ** 2))) * (
+                1.0 - p.strength * np.exp(-(((rho - 0.85) / 0.13) ** 2))
+            )
         else:
             patch = np.exp(-p.strength * np.sqrt(np.clip(1.0 - rho * rho, 0.0, 1.0)))
         T[v0:v1, u0:u1] *= patch.astype(T.dtype)
@@ -174,11 +193,17 @@ class Illumination:
         xi = ((np.arange(width) - K[0, 2]) / hx)[None, :]
         eta = ((np.arange(height) - K[1, 2]) / hy)[:, None]
         rho2 = (xi * xi * hx * hx + eta * eta * hy * hy) / (hx * hx + hy * hy)
-        return ((1.0 + self.gradient[0] * xi + self.gradient[1] * eta) * (1.0 - self.vignetting * rho2)).astype(np.float32)
+        return ((1.0 + self.gradient[0] * xi + self.gradient[1] * eta) * (1.0 - self.vignetting * rho2)).astype(
+            np.float32
+        )
 
     def describe(self) -> dict[str, Any]:
         """JSON-able record."""
-        return {"illumination_gradient": list(self.gradient), "vignetting": self.vignetting, "defocus_sigma_px": self.defocus_sigma_px}
+        return {
+            "illumination_gradient": list(self.gradient),
+            "vignetting": self.vignetting,
+            "defocus_sigma_px": self.defocus_sigma_px,
+        }
 
 
 def draw_illumination(sim: SimulationConfig, optics: OpticsConfig) -> Illumination:

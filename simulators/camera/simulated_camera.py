@@ -13,18 +13,19 @@ import dataclasses
 import logging
 import threading
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
+from vastcal.devices import Camera, CameraSettings, Frame
+from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError
 from vastcal.simulators.camera.larva import Specimen, draw_specimen
 from vastcal.simulators.camera.phantom import Phantom
 from vastcal.simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, Sensor
 from vastcal.simulators.camera.scene import draw_illumination, draw_particles
 from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
-from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
-from vastcal.devices import Camera, CameraSettings, Frame
-from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError
 
 log = logging.getLogger(__name__)
 
@@ -68,20 +69,34 @@ class SimulatedCamera(Camera):
         self._sim = simulation
         self._angle_source = angle_source
         capillary = capillary or Capillary()
-        self.specimen = Specimen(phantom) if phantom is not None else draw_specimen(simulation, optics, camera, capillary.inner_radius_um)
+        self.specimen = (
+            Specimen(phantom)
+            if phantom is not None
+            else draw_specimen(simulation, optics, camera, capillary.inner_radius_um)
+        )
         self.phantom = self.specimen.phantom
         self._truth = truth or RigTruth.draw(simulation, optics)
         if truth is None and self.specimen.wall_offset_um is not None:
             self._truth = dataclasses.replace(self._truth, specimen_offset_um=self.specimen.wall_offset_um)
-        self._renderer = BrightfieldRenderer(self.phantom, capillary, sensor, fin_fold=self.specimen.fin_fold, fins=self.specimen.pectoral_fins)
-        self._particles = draw_particles(simulation, self.specimen, self._truth.specimen_offset_um, optics, camera, capillary.inner_radius_um)
+        self._renderer = BrightfieldRenderer(
+            self.phantom, capillary, sensor, fin_fold=self.specimen.fin_fold, fins=self.specimen.pectoral_fins
+        )
+        self._particles = draw_particles(
+            simulation, self.specimen, self._truth.specimen_offset_um, optics, camera, capillary.inner_radius_um
+        )
         illumination = draw_illumination(simulation, optics)
         self._illumination = None if illumination.is_flat and illumination.defocus_sigma_px == 0 else illumination
         self._illumination_record = illumination.describe()
         self._camera_cfg = camera
         self._reference_exposure_us = float(camera.exposure_us)
         roi = camera.roi
-        self._settings = CameraSettings(camera.pixel_format, camera.exposure_us, camera.gain_db, (roi.x, roi.y, roi.width, roi.height), camera.packet_size)
+        self._settings = CameraSettings(
+            camera.pixel_format,
+            camera.exposure_us,
+            camera.gain_db,
+            (roi.x, roi.y, roi.width, roi.height),
+            camera.packet_size,
+        )
         self._streaming = False
         self._frame_id = 0
         self._t_open = 0.0
@@ -119,9 +134,17 @@ class SimulatedCamera(Camera):
         """Apply settings (before :meth:`start`); return them as read back (like the real driver)."""
         self._check_open()
         if self._streaming:
-            raise CameraError("configure() must be called before start(): the buffer size is fixed when the stream starts")
+            raise CameraError(
+                "configure() must be called before start(): the buffer size is fixed when the stream starts"
+            )
         self._check_settings(settings)
-        self._settings = CameraSettings(settings.pixel_format, float(settings.exposure_us), float(settings.gain_db), settings.roi, settings.packet_size)
+        self._settings = CameraSettings(
+            settings.pixel_format,
+            float(settings.exposure_us),
+            float(settings.gain_db),
+            settings.roi,
+            settings.packet_size,
+        )
         return self._readback()
 
     def _roi(self) -> tuple[int, int, int, int]:
@@ -130,8 +153,17 @@ class SimulatedCamera(Camera):
     def _readback(self) -> dict[str, Any]:
         x, y, w, h = self._roi()
         s = self._settings
-        return {"pixel_format": s.pixel_format, "width": w, "height": h, "offset_x": x, "offset_y": y, "exposure_us": s.exposure_us,
-                "gain_db": s.gain_db, "packet_size": s.packet_size, "unavailable": []}
+        return {
+            "pixel_format": s.pixel_format,
+            "width": w,
+            "height": h,
+            "offset_x": x,
+            "offset_y": y,
+            "exposure_us": s.exposure_us,
+            "gain_db": s.gain_db,
+            "packet_size": s.packet_size,
+            "unavailable": [],
+        }
 
     # -- streaming ---------------------------------------------------------------------------
 
@@ -177,20 +209,39 @@ class SimulatedCamera(Camera):
             self._frame_id += 1
             rng = np.random.default_rng(np.random.SeedSequence([self._sim.seed, 0xF4A, self._frame_id]))
             s = self._settings
-            pixels = self._renderer.render(K, R, t, w, h, s.pixel_format, noise=self._sim.noise, rng=rng,
-                                           exposure_scale=s.exposure_us / self._reference_exposure_us, gain_db=s.gain_db,
-                                           body_offset_um=self._truth.specimen_offset_um,
-                                           particles=self._particles.at_view(self._frame_id - 1) if len(self._particles) else None,
-                                           illumination=self._illumination)
+            pixels = self._renderer.render(
+                K,
+                R,
+                t,
+                w,
+                h,
+                s.pixel_format,
+                noise=self._sim.noise,
+                rng=rng,
+                exposure_scale=s.exposure_us / self._reference_exposure_us,
+                gain_db=s.gain_db,
+                body_offset_um=self._truth.specimen_offset_um,
+                particles=self._particles.at_view(self._frame_id - 1) if len(self._particles) else None,
+                illumination=self._illumination,
+            )
             geom = self._renderer.last_geometry
             assert geom is not None
             cov = geom.coverage
             cut = bool(cov[:, 0].any() or cov[:, -1].any() or cov[0].any() or cov[-1].any())
             host = time.time()
             device = time.monotonic() - self._t_open
-            self._snaps.append({"frame_id": self._frame_id, "actual_angle_deg": angle, "host_time_s": host, "body_cut_by_frame": cut})
-            return Frame(pixels=pixels, frame_id=self._frame_id, host_time_s=host, device_time_s=round(device * DEVICE_TICK_HZ) / DEVICE_TICK_HZ,
-                         exposure_us=s.exposure_us, gain_db=s.gain_db, pixel_format=s.pixel_format)
+            self._snaps.append(
+                {"frame_id": self._frame_id, "actual_angle_deg": angle, "host_time_s": host, "body_cut_by_frame": cut}
+            )
+            return Frame(
+                pixels=pixels,
+                frame_id=self._frame_id,
+                host_time_s=host,
+                device_time_s=round(device * DEVICE_TICK_HZ) / DEVICE_TICK_HZ,
+                exposure_us=s.exposure_us,
+                gain_db=s.gain_db,
+                pixel_format=s.pixel_format,
+            )
 
     @staticmethod
     def _wait(timeout_s: float, cancel: threading.Event | None) -> None:
@@ -205,8 +256,16 @@ class SimulatedCamera(Camera):
 
     def describe(self) -> dict[str, Any]:
         """What a real camera would say about itself (no hidden truth in here)."""
-        return {"driver": "simulated", "vendor": "vastcal", "model": "SimulatedCamera", "serial": f"sim-{self._sim.seed}", "firmware": "1",
-                "trigger": "software", "settings": self._readback(), "unavailable": []}
+        return {
+            "driver": "simulated",
+            "vendor": "vastcal",
+            "model": "SimulatedCamera",
+            "serial": f"sim-{self._sim.seed}",
+            "firmware": "1",
+            "trigger": "software",
+            "settings": self._readback(),
+            "unavailable": [],
+        }
 
     @property
     def truth(self) -> RigTruth:
@@ -250,8 +309,10 @@ class SimulatedCamera(Camera):
         ha = self.phantom.hull_area_mm2(angles) if angles else float("inf")
         x, y, w, h = self._roi()
         cut_views = [i for i, s in enumerate(snaps) if s.get("body_cut_by_frame")]
-        extra: dict[str, Any] = {"specimen": {**self.specimen.features, **self._particles.describe(), **self._illumination_record},
-                                 "frame_cut_views": cut_views}
+        extra: dict[str, Any] = {
+            "specimen": {**self.specimen.features, **self._particles.describe(), **self._illumination_record},
+            "frame_cut_views": cut_views,
+        }
         if cut_views and np.isfinite(hv):
             xr = self.frame_x_range_um(angles)
             extra["frame_x_range_um"] = list(xr)

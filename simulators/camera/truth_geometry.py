@@ -72,7 +72,7 @@ class RigTruth:
         return {**asdict(self), "specimen_offset_um": list(self.specimen_offset_um), "gamma_deg": self.gamma_deg}
 
     @classmethod
-    def draw(cls, sim: SimulationConfig, optics: OpticsConfig) -> "RigTruth":
+    def draw(cls, sim: SimulationConfig, optics: OpticsConfig) -> RigTruth:
         """Draw yaw, pitch within ±max_tilt_deg, the offset within ±max_axis_offset_um and the
         specimen offset uniformly over the disc of radius max_specimen_offset_um.
 
@@ -84,7 +84,13 @@ class RigTruth:
         offset = rng.uniform(-sim.max_axis_offset_um, sim.max_axis_offset_um)
         rho, phi = sim.max_specimen_offset_um * math.sqrt(rng.uniform()), rng.uniform(0.0, 2.0 * math.pi)
         specimen = (rho * math.cos(phi), rho * math.sin(phi))
-        return cls(float(yaw), float(pitch), float(offset), float(optics.working_distance_um), (float(specimen[0]), float(specimen[1])))
+        return cls(
+            float(yaw),
+            float(pitch),
+            float(offset),
+            float(optics.working_distance_um),
+            (float(specimen[0]), float(specimen[1])),
+        )
 
 
 @dataclass(frozen=True)
@@ -101,9 +107,13 @@ class PinholeIntrinsics:
         return np.array([[self.f, 0.0, self.cx], [0.0, self.f, self.cy], [0.0, 0.0, 1.0]])
 
     @classmethod
-    def from_optics(cls, optics: OpticsConfig, roi_offset_px: tuple[int, int] = (0, 0)) -> "PinholeIntrinsics":
+    def from_optics(cls, optics: OpticsConfig, roi_offset_px: tuple[int, int] = (0, 0)) -> PinholeIntrinsics:
         """K for frames cropped at ``roi_offset_px`` = (x, y) full-sensor pixels."""
-        f = optics.focal_length_px if optics.focal_length_px else optics.working_distance_um * optics.magnification / optics.pixel_size_um
+        f = (
+            optics.focal_length_px
+            if optics.focal_length_px
+            else optics.working_distance_um * optics.magnification / optics.pixel_size_um
+        )
         if optics.principal_point_px is not None:
             cx, cy = optics.principal_point_px
         else:
@@ -115,7 +125,9 @@ def camera_pose(truth: RigTruth, angle_deg: float) -> tuple[np.ndarray, np.ndarr
     """(R, t) of the view at stage angle ``angle_deg``: x_cam = R·X_world + t (µm)."""
     R = _rz(math.radians(truth.pitch_deg)) @ _ry(math.radians(truth.yaw_deg)) @ _rx(math.radians(angle_deg))
     g, p = math.radians(truth.gamma_deg), math.radians(truth.pitch_deg)
-    t = truth.distance_um * np.array([-math.sin(g) * math.sin(p), math.sin(g) * math.cos(p), math.cos(g)])  # the axis point nearest the principal ray
+    t = truth.distance_um * np.array(
+        [-math.sin(g) * math.sin(p), math.sin(g) * math.cos(p), math.cos(g)]
+    )  # the axis point nearest the principal ray
     return R, t
 
 

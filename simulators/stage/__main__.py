@@ -19,22 +19,26 @@ import sys
 import threading
 from types import FrameType
 
+from vastcal.config import SimulationConfig
 from vastcal.simulators.stage.faults import Fault
 from vastcal.simulators.stage.server import listen_tcp, open_pty, serve_pty, serve_tcp
 from vastcal.simulators.stage.simulator import StageSimulator
-from vastcal.config import SimulationConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
     defaults = SimulationConfig()
-    p = argparse.ArgumentParser(prog="python -m vastcal.simulators.stage", description="Simulated Zaber ASCII rotary stage.")
+    p = argparse.ArgumentParser(
+        prog="python -m vastcal.simulators.stage", description="Simulated Zaber ASCII rotary stage."
+    )
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--pty", action="store_true", help="serve on a new pseudo-terminal; print its path")
     where.add_argument("--tcp", type=int, metavar="PORT", help="serve on 127.0.0.1:PORT (0 = any); print socket://…")
     p.add_argument("--device", type=int, default=1, help="device address 1-99 (default 1)")
     p.add_argument("--seed", type=int, default=defaults.seed, help="drift seed")
     p.add_argument("--max-drift-deg", type=float, default=defaults.max_drift_deg, help="uneven-step amplitude, degrees")
-    p.add_argument("--usteps-per-rev", type=int, default=defaults.usteps_per_revolution, help="limit.cycle.dist, µsteps")
+    p.add_argument(
+        "--usteps-per-rev", type=int, default=defaults.usteps_per_revolution, help="limit.cycle.dist, µsteps"
+    )
     p.add_argument("--backlash-usteps", type=int, default=defaults.backlash_usteps, help="µsteps lost on reversal")
     p.add_argument("--time-scale", type=float, default=10.0, help="simulated seconds per wall-clock second")
     p.add_argument("--stall-at", type=int, metavar="USTEPS", help="the first move through USTEPS stalls there (FS)")
@@ -44,7 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def make_simulator(args: argparse.Namespace) -> StageSimulator:
-    cfg = SimulationConfig(seed=args.seed, max_drift_deg=args.max_drift_deg, usteps_per_revolution=args.usteps_per_rev, backlash_usteps=args.backlash_usteps)
+    cfg = SimulationConfig(
+        seed=args.seed,
+        max_drift_deg=args.max_drift_deg,
+        usteps_per_revolution=args.usteps_per_rev,
+        backlash_usteps=args.backlash_usteps,
+    )
     sim = StageSimulator(device=args.device, sim_cfg=cfg, time_scale=args.time_scale)
     if args.stall_at is not None:
         sim.inject(Fault.stall(args.stall_at))
@@ -55,7 +64,9 @@ def make_simulator(args: argparse.Namespace) -> StageSimulator:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    logging.basicConfig(
+        level=args.log_level.upper(), stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s"
+    )
     sim = make_simulator(args)
     stop = threading.Event()
 

@@ -30,31 +30,31 @@ class Fault:
     data: bytes = DEFAULT_GARBAGE
 
     @classmethod
-    def stall(cls, at_usteps: int) -> "Fault":
+    def stall(cls, at_usteps: int) -> Fault:
         """The next move through ``at_usteps`` (µsteps) stops there and raises flag ``FS``."""
         return cls("stall", at_usteps=int(at_usteps))
 
     @classmethod
-    def drop(cls, count: int = 1) -> "Fault":
+    def drop(cls, count: int = 1) -> Fault:
         """The next ``count`` replies are lost."""
         return cls("drop", count=count)
 
     @classmethod
-    def late(cls, delay_s: float, count: int = 1) -> "Fault":
+    def late(cls, delay_s: float, count: int = 1) -> Fault:
         """The next ``count`` replies arrive ``delay_s`` seconds (wall clock) late."""
         return cls("late", count=count, delay_s=delay_s)
 
     @classmethod
-    def garbage(cls, count: int = 1, data: bytes = DEFAULT_GARBAGE) -> "Fault":
+    def garbage(cls, count: int = 1, data: bytes = DEFAULT_GARBAGE) -> Fault:
         """The next ``count`` replies are replaced by ``data``."""
         return cls("garbage", count=count, data=data)
 
     @classmethod
-    def corrupt(cls, count: int = 1) -> "Fault":
+    def corrupt(cls, count: int = 1) -> Fault:
         """The next ``count`` requests arrive with a wrong checksum (no reply, not executed)."""
         return cls("corrupt", count=count)
 
     @classmethod
-    def disconnect(cls) -> "Fault":
+    def disconnect(cls) -> Fault:
         """The link goes away now (the cable is pulled)."""
         return cls("disconnect")

@@ -18,7 +18,9 @@ def start_stage_process(*args: str, startup_timeout_s: float = 10.0) -> tuple[su
         RuntimeError: the process did not print its URL within ``startup_timeout_s`` seconds
             (it is killed; stderr is in the message).
     """
-    proc = subprocess.Popen([sys.executable, "-m", "vastcal.simulators.stage", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vastcal.simulators.stage", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
     assert proc.stdout is not None
     deadline = time.monotonic() + startup_timeout_s
     line = b""

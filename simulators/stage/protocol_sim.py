@@ -12,9 +12,9 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
+from vastcal.errors import DeviceDisconnectedError
 from vastcal.simulators.stage import registry
 from vastcal.simulators.stage.simulator import SimLink
-from vastcal.errors import DeviceDisconnectedError
 
 
 def parse_sim_url(url: str) -> str:

@@ -8,7 +8,7 @@ simulator calls :func:`get` with the same name to render at that stage's actual 
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 from vastcal.simulators.stage.simulator import StageSimulator
 

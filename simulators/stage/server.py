@@ -14,10 +14,10 @@ import socket
 import threading
 import time
 import tty
-from typing import Callable
+from collections.abc import Callable
 
-from vastcal.simulators.stage.simulator import SimLink, StageSimulator
 from vastcal.errors import DeviceDisconnectedError
+from vastcal.simulators.stage.simulator import SimLink, StageSimulator
 
 log = logging.getLogger(__name__)
 
@@ -25,7 +25,9 @@ POLL_S = 0.05
 """Longest sleep of a serving loop, seconds."""
 
 
-def _pump(fd: int, link: SimLink, stop: threading.Event, recv: Callable[[], bytes | None], send: Callable[[bytes], None]) -> None:
+def _pump(
+    fd: int, link: SimLink, stop: threading.Event, recv: Callable[[], bytes | None], send: Callable[[bytes], None]
+) -> None:
     """Move bytes between ``fd`` and ``link`` until EOF (``recv`` gives ``b""``), a dead link or ``stop``."""
     while not stop.is_set():
         nxt = link.next_delivery()
@@ -69,7 +71,7 @@ def serve_pty(sim: StageSimulator, master: int, stop: threading.Event) -> None:
     def send(data: bytes) -> None:
         view = memoryview(data)
         while view:
-            view = view[os.write(master, view):]
+            view = view[os.write(master, view) :]
 
     try:
         _pump(master, link, stop, recv, send)

@@ -14,12 +14,12 @@ import threading
 import time
 from dataclasses import replace
 
+from vastcal.config import SimulationConfig
 from vastcal.drivers.stage.motion_profile import ZaberUnits
+from vastcal.errors import DeviceDisconnectedError
 from vastcal.simulators.stage.faults import Fault
 from vastcal.simulators.stage.mechanics import StageMechanics
 from vastcal.simulators.stage.zaber_device import ZaberDevice
-from vastcal.config import SimulationConfig
-from vastcal.errors import DeviceDisconnectedError
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,7 @@ class StageSimulator:
         with self._lock:
             self._faults.clear()
 
-    def connect(self) -> "SimLink":
+    def connect(self) -> SimLink:
         """A new host-side byte pipe to this stage."""
         return SimLink(self)
 

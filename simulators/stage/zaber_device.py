@@ -18,8 +18,8 @@ from __future__ import annotations
 import logging
 
 from vastcal.drivers.stage import zaber_ascii as za
-from vastcal.simulators.stage.mechanics import StageMechanics
 from vastcal.errors import ProtocolError
+from vastcal.simulators.stage.mechanics import StageMechanics
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +105,9 @@ class ZaberDevice:
         return [reply]
 
     def _reply(self, axis: int, msgid: int | None, flag: str, data: str, checksum: bool) -> bytes:
-        return za.format_reply(self.device, axis, flag, self._status(), self._warn(), data, msgid=msgid, checksum=checksum)
+        return za.format_reply(
+            self.device, axis, flag, self._status(), self._warn(), data, msgid=msgid, checksum=checksum
+        )
 
     def _execute(self, axis: int, words: str) -> str:
         """Run one command; return the data word or raise :class:`_Reject`."""

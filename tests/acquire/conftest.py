@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 import vastcal.simulators.stage as simstage
-from vastcal.simulators.stage import StageSimulator
 from vastcal.config import RigConfig, dump_config, load_config
 from vastcal.rig import Rig
 from vastcal.session import Session
+from vastcal.simulators.stage import StageSimulator
 
 REPO = Path(__file__).resolve().parents[2]
 CLI_TIMEOUT_S = 60.0
@@ -41,8 +41,12 @@ def small_config(*, views: int = 6, slow: bool = False, reply_timeout_s: float =
     cfg = load_config(None)
     roi = dataclasses.replace(cfg.camera.roi, x=448, y=448, width=128, height=128)
     stage = dataclasses.replace(cfg.stage, reply_timeout_s=reply_timeout_s, maxspeed=SLOW_MAXSPEED if slow else None)
-    return dataclasses.replace(cfg, stage=stage, camera=dataclasses.replace(cfg.camera, roi=roi, fetch_timeout_s=0.3),
-                               acquisition=dataclasses.replace(cfg.acquisition, views=views))
+    return dataclasses.replace(
+        cfg,
+        stage=stage,
+        camera=dataclasses.replace(cfg.camera, roi=roi, fetch_timeout_s=0.3),
+        acquisition=dataclasses.replace(cfg.acquisition, views=views),
+    )
 
 
 def write_config(cfg: RigConfig, path: Path) -> Path:
@@ -89,8 +93,14 @@ def check_kept_views(path: Path, expected_views: int, cfg: RigConfig, planned: i
 
 def cli(*args: str, cwd: Path, timeout_s: float = CLI_TIMEOUT_S) -> subprocess.CompletedProcess[str]:
     """Run ``python -m vastcal.cli ARGS`` to completion (finite wait)."""
-    return subprocess.run([sys.executable, "-m", "vastcal.cli", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout_s, env=_env())
+    return subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=_env(),
+    )
 
 
 def _env() -> dict[str, str]:
@@ -105,8 +115,14 @@ def spawn() -> Iterator:
     procs: list[subprocess.Popen[str]] = []
 
     def start(*args: str, cwd: Path) -> subprocess.Popen[str]:
-        proc = subprocess.Popen([sys.executable, "-m", "vastcal.cli", *args], cwd=cwd, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, env=_env())
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "vastcal.cli", *args],
+            cwd=cwd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=_env(),
+        )
         procs.append(proc)
         return proc
 

@@ -17,7 +17,8 @@ VIEWS = 20
 
 
 def test_ctrl_c_stops_a_cli_acquisition_with_exit_130_one_result_line_and_a_closed_readable_file(
-        tmp_path: Path, acq: ModuleType, spawn, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, acq: ModuleType, spawn, capsys: pytest.CaptureFixture[str]
+) -> None:
     cfg = acq.small_config(views=VIEWS, slow=True)
     config = acq.write_config(cfg, tmp_path / "rig.yaml")
     proc = spawn("-q", "acquire", "--simulate", "--config", str(config), "-o", "S.h5", cwd=tmp_path)
@@ -44,7 +45,8 @@ def _reason(path: Path) -> str:
 
 
 def test_sigkill_mid_run_leaves_every_completed_view_readable_and_resume_completes_it(
-        tmp_path: Path, acq: ModuleType, spawn, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, acq: ModuleType, spawn, capsys: pytest.CaptureFixture[str]
+) -> None:
     cfg = acq.small_config(views=VIEWS, slow=True)
     config = acq.write_config(cfg, tmp_path / "rig.yaml")
     out = tmp_path / "S.h5"
@@ -76,6 +78,6 @@ def test_sigkill_mid_run_leaves_every_completed_view_readable_and_resume_complet
         (ending,) = s.resume_history()  # a killed run had no stop record: its ending is recorded as such
         assert ending["exit_status"] == "incomplete" and ending["views_written"] == kept
     resumed_truth = acq.read_truth(out)["actual_angles_deg"]
-    assert len(resumed_truth) == VIEWS and resumed_truth[:len(truth)] == truth
+    assert len(resumed_truth) == VIEWS and resumed_truth[: len(truth)] == truth
     assert cli.main(["info", str(out)]) == 0
     assert "status       success" in capsys.readouterr().out

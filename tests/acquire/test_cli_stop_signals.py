@@ -17,7 +17,9 @@ VIEWS = 20
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
-def test_stop_signal_aborts_a_cli_acquisition_like_ctrl_c(tmp_path: Path, acq: ModuleType, spawn, sig: signal.Signals) -> None:
+def test_stop_signal_aborts_a_cli_acquisition_like_ctrl_c(
+    tmp_path: Path, acq: ModuleType, spawn, sig: signal.Signals
+) -> None:
     cfg = acq.small_config(views=VIEWS, slow=True)
     config = acq.write_config(cfg, tmp_path / "rig.yaml")
     proc = spawn("-q", "acquire", "--simulate", "--config", str(config), "-o", "S.h5", cwd=tmp_path)
@@ -41,7 +43,9 @@ def test_sigterm_during_demo_ends_it_with_143_and_one_line(tmp_path: Path, spawn
     proc = spawn("-q", "demo", "-o", "D", "--views", "6", cwd=tmp_path)
     deadline = time.monotonic() + 60
     while not any((tmp_path / "D").glob("*.h5")):  # the handlers are installed long before the session appears
-        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1] if proc.poll() is not None else "no session"
+        assert proc.poll() is None and time.monotonic() < deadline, (
+            proc.communicate()[1] if proc.poll() is not None else "no session"
+        )
         time.sleep(0.02)
     proc.send_signal(signal.SIGTERM)
     stdout, stderr = proc.communicate(timeout=30)

@@ -40,13 +40,17 @@ def test_info_and_an_swmr_reader_follow_an_acquisition_while_it_writes(tmp_path:
     assert json.loads(info.stdout)["exit_status"] == "abort"
 
 
-def test_a_second_writer_on_the_same_path_fails_at_once_and_the_first_is_untouched(tmp_path: Path, acq: ModuleType, spawn) -> None:
+def test_a_second_writer_on_the_same_path_fails_at_once_and_the_first_is_untouched(
+    tmp_path: Path, acq: ModuleType, spawn
+) -> None:
     cfg = acq.small_config(views=LONG_VIEWS, slow=True)
     config = acq.write_config(cfg, tmp_path / "rig.yaml")
     first = spawn("-q", "acquire", "--simulate", "--config", str(config), "-o", "S.h5", cwd=tmp_path)
     acq.wait_for_views(tmp_path / "S.h5", 2, first)
     second = acq.cli("-q", "acquire", "--simulate", "--config", str(config), "-o", "S.h5", "--force", cwd=tmp_path)
-    assert second.returncode != 0 and "another vastcal process" in second.stderr and len(second.stderr.splitlines()) == 1
+    assert (
+        second.returncode != 0 and "another vastcal process" in second.stderr and len(second.stderr.splitlines()) == 1
+    )
     resume = acq.cli("-q", "acquire", "--resume", "S.h5", cwd=tmp_path)
     assert resume.returncode != 0 and "another vastcal process" in resume.stderr
     assert first.poll() is None, "the first acquisition must still be running"

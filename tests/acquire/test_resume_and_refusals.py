@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 import vastcal.simulators.stage as simstage
-from vastcal.simulators.stage import Fault, StageSimulator
-from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
 from vastcal import cli
 from vastcal.acquire import acquire
 from vastcal.errors import ProtocolError
 from vastcal.rig import connect_rig
 from vastcal.session import Session
+from vastcal.simulators.stage import Fault, StageSimulator
+from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
 
 VIEWS = 6
 
@@ -28,14 +28,17 @@ def _digest(path: Path) -> str:
 
 
 @pytest.mark.parametrize("ending", ["abort", "fail"])
-def test_resume_continues_an_interrupted_session_to_completion_keeping_its_history(tmp_path: Path, acq: ModuleType, ending: str,
-                                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+def test_resume_continues_an_interrupted_session_to_completion_keeping_its_history(
+    tmp_path: Path, acq: ModuleType, ending: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     cfg = acq.small_config(views=VIEWS)
     out = tmp_path / "s.h5"
     cancel = threading.Event()
     with connect_rig(cfg, truth_path=acq.truth_path(out)) as rig:
         if ending == "fail":  # the move to view 3 stalls
-            acq.simulator_of(rig).inject(Fault.stall(at_usteps=round(2.5 * cfg.simulation.usteps_per_revolution / VIEWS)))
+            acq.simulator_of(rig).inject(
+                Fault.stall(at_usteps=round(2.5 * cfg.simulation.usteps_per_revolution / VIEWS))
+            )
 
         def on_view(k: int) -> None:
             rig.on_view(k)
@@ -60,14 +63,17 @@ def test_resume_continues_an_interrupted_session_to_completion_keeping_its_histo
         assert s.start_record["uid"] == uid and s.is_complete
         history = s.h5["/entry/vastcal/resumed"]
         assert list(history) == ["stop_000"]
-        assert history["stop_000"].attrs["exit_status"] == ending and history["stop_000"].attrs["reason"] == first.reason
+        assert (
+            history["stop_000"].attrs["exit_status"] == ending and history["stop_000"].attrs["reason"] == first.reason
+        )
         assert history["stop_000"].attrs["views_written"] == 3
     truth = acq.read_truth(out)["actual_angles_deg"]
     assert len(truth) == VIEWS and truth[:3] == truth_before, "the truth of the earlier views survives the resume"
     record = acq.read_truth(out)
     cut = [i for i, snap in enumerate(record["snaps"]) if snap["body_cut_by_frame"]]
-    assert len(record["snaps"]) == VIEWS and record["frame_cut_views"] == cut == list(range(VIEWS)), \
+    assert len(record["snaps"]) == VIEWS and record["frame_cut_views"] == cut == list(range(VIEWS)), (
         "the 128-px frame cuts the 3-mm body in every view, earlier run's views included"
+    )
     assert cli.main(["info", str(out)]) == 0
     assert "status       success" in capsys.readouterr().out
 
@@ -81,11 +87,15 @@ def test_resuming_a_complete_session_is_a_one_line_error_and_changes_nothing(tmp
     config = acq.write_config(cfg, tmp_path / "rig.yaml")
     run = acq.cli("-q", "acquire", "--simulate", "--config", str(config), "--resume", "s.h5", cwd=tmp_path)
     assert run.returncode == 2 and run.stdout == ""
-    assert run.stderr.splitlines() == ["vastcal: error: s.h5: the session is complete (exit_status success); nothing to resume"]
+    assert run.stderr.splitlines() == [
+        "vastcal: error: s.h5: the session is complete (exit_status success); nothing to resume"
+    ]
     assert _digest(out) == digest and acq.truth_path(out).read_text() == truth
 
 
-def test_output_onto_an_existing_file_without_force_is_a_one_line_error_and_the_file_is_untouched(tmp_path: Path, acq: ModuleType) -> None:
+def test_output_onto_an_existing_file_without_force_is_a_one_line_error_and_the_file_is_untouched(
+    tmp_path: Path, acq: ModuleType
+) -> None:
     out = tmp_path / "S.h5"
     out.write_bytes(b"precious data, not even a session")
     config = acq.write_config(acq.small_config(views=3), tmp_path / "rig.yaml")
@@ -96,7 +106,9 @@ def test_output_onto_an_existing_file_without_force_is_a_one_line_error_and_the_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["S.h5", "rig.yaml"], "no truth file, no partial file"
 
 
-def test_a_stage_that_answers_garbage_on_open_is_refused_before_any_file_exists(tmp_path: Path, acq: ModuleType) -> None:
+def test_a_stage_that_answers_garbage_on_open_is_refused_before_any_file_exists(
+    tmp_path: Path, acq: ModuleType
+) -> None:
     import dataclasses
 
     name = "garbage-on-open"
@@ -112,14 +124,17 @@ def test_a_stage_that_answers_garbage_on_open_is_refused_before_any_file_exists(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_cli_with_a_stage_process_that_answers_garbage_exits_non_zero_with_one_error_line_and_no_file(tmp_path: Path,
-                                                                                                     acq: ModuleType) -> None:
+def test_cli_with_a_stage_process_that_answers_garbage_exits_non_zero_with_one_error_line_and_no_file(
+    tmp_path: Path, acq: ModuleType
+) -> None:
     import dataclasses
 
     proc, url = start_stage_process("--tcp", "0", "--garbage")
     try:
         cfg = acq.small_config(views=3)
-        config = acq.write_config(dataclasses.replace(cfg, stage=dataclasses.replace(cfg.stage, url=url)), tmp_path / "rig.yaml")
+        config = acq.write_config(
+            dataclasses.replace(cfg, stage=dataclasses.replace(cfg.stage, url=url)), tmp_path / "rig.yaml"
+        )
         run = acq.cli("-q", "acquire", "--simulate", "--config", str(config), "-o", "S.h5", cwd=tmp_path)
     finally:
         stop_stage_process(proc)
@@ -140,7 +155,12 @@ def test_resume_without_config_uses_the_rig_stored_in_the_session(tmp_path: Path
 
     session = tmp_path / "s.h5"
     env_cmd = [sys.executable, "-m", "vastcal.cli", "-q"]
-    first = subprocess.run([*env_cmd, "acquire", "--simulate", "-o", str(session), "--views", "4"], capture_output=True, text=True, timeout=120)
+    first = subprocess.run(
+        [*env_cmd, "acquire", "--simulate", "-o", str(session), "--views", "4"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert first.returncode == 0, first.stderr
     import h5py
 

@@ -11,12 +11,12 @@ from types import ModuleType
 import h5py
 import numpy as np
 
-from vastcal.simulators.camera import SimulatedCamera
 from vastcal import cli
 from vastcal.acquire import acquire, camera_settings
 from vastcal.config import RigConfig, load_config
 from vastcal.rig import connect_rig, simulated_capillary
 from vastcal.session import Session
+from vastcal.simulators.camera import SimulatedCamera
 
 VIEWS = 21
 
@@ -82,8 +82,9 @@ def _float_datasets(h5: h5py.File) -> list[h5py.Dataset]:
     return out
 
 
-def test_simulated_revolution_is_a_valid_session_with_truth_beside_it_and_frames_at_the_actual_angles(tmp_path: Path, acq: ModuleType,
-                                                                                                      capsys) -> None:
+def test_simulated_revolution_is_a_valid_session_with_truth_beside_it_and_frames_at_the_actual_angles(
+    tmp_path: Path, acq: ModuleType, capsys
+) -> None:
     cfg = acq.small_config(views=VIEWS)  # a 128 x 128 ROI: the renders of this test (and their re-renders) stay cheap
     out = tmp_path / "rev.h5"
     with connect_rig(cfg, truth_path=acq.truth_path(out)) as rig:
@@ -99,7 +100,13 @@ def test_simulated_revolution_is_a_valid_session_with_truth_beside_it_and_frames
         commanded = s.angles_deg
     for angles, same in ((truth["actual_angles_deg"], True), (commanded[:3], False)):
         it = iter(angles)
-        with SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, angle_source=lambda: float(next(it)), capillary=simulated_capillary()) as cam:
+        with SimulatedCamera(
+            cfg.optics,
+            cfg.camera,
+            cfg.simulation,
+            angle_source=lambda: float(next(it)),
+            capillary=simulated_capillary(),
+        ) as cam:
             cam.configure(camera_settings(cfg))
             cam.start()
             for k in range(len(angles)):
@@ -125,7 +132,9 @@ def test_cli_acquire_simulate_writes_a_complete_session_that_info_accepts(tmp_pa
     assert "status       success" in info.stdout and f"{VIEWS} commanded, 0 .. 342.857 deg" in info.stdout
 
 
-def test_a_stage_url_naming_its_simulator_drives_the_one_the_camera_renders_from(tmp_path: Path, acq: ModuleType) -> None:
+def test_a_stage_url_naming_its_simulator_drives_the_one_the_camera_renders_from(
+    tmp_path: Path, acq: ModuleType
+) -> None:
     import dataclasses
 
     import vastcal.simulators.stage as simstage

@@ -30,19 +30,29 @@ def _fast_session(path: Path, views: PhantomViews) -> Path:
     from vastcal.config import CalibrationConfig, ReconstructionConfig, RigConfig, dump_config
     from vastcal.session import SessionWriter
 
-    cfg = dataclasses.replace(RigConfig(), calibration=dataclasses.replace(CalibrationConfig(), free=("yaw",)),
-                              reconstruction=ReconstructionConfig(target_voxels=100_000))
+    cfg = dataclasses.replace(
+        RigConfig(),
+        calibration=dataclasses.replace(CalibrationConfig(), free=("yaw",)),
+        reconstruction=ReconstructionConfig(target_voxels=100_000),
+    )
     n = len(views.angles_deg)
     frames = (230 - 150 * views.coverage).astype(np.uint8)
-    with SessionWriter.create(path, frame_shape=frames.shape[1:], dtype=np.uint8, rig_yaml=dump_config(cfg), plan={"views": n}, live=False,
-                              pixel_size_um=(5.5, 5.5), title="phantom") as w:
+    with SessionWriter.create(
+        path,
+        frame_shape=frames.shape[1:],
+        dtype=np.uint8,
+        rig_yaml=dump_config(cfg),
+        plan={"views": n},
+        live=False,
+        pixel_size_um=(5.5, 5.5),
+        title="phantom",
+    ) as w:
         for i in range(n):
             w.append_view(frames[i], 360.0 * i / n)
         w.write_masks(views.silhouettes)
         w.write_cameras(views.P, source="phantom truth")
         w.finish("success")
     return path
-
 
 
 def _screen(folder: Path, n: int) -> Path:
@@ -53,13 +63,16 @@ def _screen(folder: Path, n: int) -> Path:
         _fast_session(folder / f"larva{i}.h5", views)
     return folder
 
+
 @pytest.mark.slow
 def test_batch_table_failure_and_resume(tmp_path: Path) -> None:
     from vastcal.batch import run_batch
 
     screen = _screen(tmp_path / "screen", 3)
     (screen / "broken.h5").write_bytes(b"not an HDF5 file at all")
-    (screen / "larva1.specimen.json").write_text(json.dumps({"specimen_id": "L-<1>", "age_dpf": 5, "strain": "AB", "well": "B3"}))
+    (screen / "larva1.specimen.json").write_text(
+        json.dumps({"specimen_id": "L-<1>", "age_dpf": 5, "strain": "AB", "well": "B3"})
+    )
     out = tmp_path / "results"
 
     first = run_batch([screen], out, starts=1, n_workers=2, quiet=True)
@@ -75,7 +88,9 @@ def test_batch_table_failure_and_resume(tmp_path: Path) -> None:
         assert 1.5 < float(r["area_mm2"]) < 3.0 and float(r["U_area_mm2"]) > 0
         assert r["verdict"] != "-" and r["vastcal_version"] != "-" and r["length_unit"] == "um"  # the mm columns are mm
         assert (out / "reports" / name / "report.json").is_file()
-    assert rows["larva1"]["specimen_id"] == "L-<1>" and rows["larva1"]["well"] == "B3" and rows["larva0"]["strain"] == "-"
+    assert (
+        rows["larva1"]["specimen_id"] == "L-<1>" and rows["larva1"]["well"] == "B3" and rows["larva0"]["strain"] == "-"
+    )
     page = (out / "index.html").read_text()
     assert "L-&lt;1&gt;" in page and "L-<1>" not in page  # escaped
     assert 'href="reports/larva0/report.html"' in page and "NotASessionError" in page
@@ -122,8 +137,12 @@ def test_a_killed_worker_is_retried_and_no_row_is_duplicated(tmp_path: Path) -> 
 
     screen = _screen(tmp_path / "screen", 6)
     killed: list[int] = []
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=50) as cluster, \
-            Client(cluster) as client:
+    with (
+        LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=50
+        ) as cluster,
+        Client(cluster) as client,
+    ):
 
         def kill_one() -> None:
             deadline = time.monotonic() + 120
@@ -165,8 +184,26 @@ def test_a_killed_batch_resumes_with_what_is_missing(tmp_path: Path) -> None:
     screen = _screen(tmp_path / "screen", 6)
     out = tmp_path / "out"
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "vastcal", "batch", str(screen), "-o", str(out), "--workers", "2", "--starts", "1", "-q"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "vastcal",
+            "batch",
+            str(screen),
+            "-o",
+            str(out),
+            "--workers",
+            "2",
+            "--starts",
+            "1",
+            "-q",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+        start_new_session=True,
+    )
     done: dict = {}
     try:
         deadline = time.monotonic() + 240

@@ -28,9 +28,17 @@ def _earlier_batch(folder: Path, n: int = 20, noise: float = 0.05) -> Path:
     """RESULTS/rig_health.json of ``n`` sessions that measured the stage error (± ``noise`` per view)."""
     rng = np.random.default_rng(3)
     true = _stage_error(COMMANDED) - _stage_error(COMMANDED[:1])
-    recs = [{"commanded_deg": COMMANDED.tolist(), "delta_deg": (true + rng.normal(0, noise, 12) * (COMMANDED > 0)).tolist(),
-             "yaw_deg": 0.2 + rng.normal(0, 0.01), "pitch_deg": -0.3 + rng.normal(0, 0.01), "drift_status": "measured",
-             "time": f"2026-11-{1 + k % 28:02d}T10:00:00+00:00"} for k in range(n)]
+    recs = [
+        {
+            "commanded_deg": COMMANDED.tolist(),
+            "delta_deg": (true + rng.normal(0, noise, 12) * (COMMANDED > 0)).tolist(),
+            "yaw_deg": 0.2 + rng.normal(0, 0.01),
+            "pitch_deg": -0.3 + rng.normal(0, 0.01),
+            "drift_status": "measured",
+            "time": f"2026-11-{1 + k % 28:02d}T10:00:00+00:00",
+        }
+        for k in range(n)
+    ]
     folder.mkdir()
     (folder / HEALTH_FILE).write_text(json.dumps(rig_health_dict(rig_health(recs))))
     return folder
@@ -42,8 +50,16 @@ def _session(path: Path, prior_from: str | None) -> Path:
 
     cfg = dataclasses.replace(RigConfig(), calibration=dataclasses.replace(CalibrationConfig(), prior_from=prior_from))
     frames = np.random.default_rng(0).integers(0, 255, (12, 24, 32), dtype=np.uint8)
-    with SessionWriter.create(path, frame_shape=(24, 32), dtype=np.uint8, rig_yaml=dump_config(cfg), plan={"views": 12}, live=False,
-                              pixel_size_um=(5.5, 5.5), title="prior") as w:
+    with SessionWriter.create(
+        path,
+        frame_shape=(24, 32),
+        dtype=np.uint8,
+        rig_yaml=dump_config(cfg),
+        plan={"views": 12},
+        live=False,
+        pixel_size_um=(5.5, 5.5),
+        title="prior",
+    ) as w:
         for i in range(12):
             w.append_view(frames[i], float(COMMANDED[i]))
         w.finish("success")
@@ -101,8 +117,12 @@ def test_prior_from_errors_are_one_line(tmp_path: Path, monkeypatch: pytest.Monk
     (tmp_path / "empty").mkdir()
     (tmp_path / "old").mkdir()
     (tmp_path / "old" / HEALTH_FILE).write_text(json.dumps({"schema": "something/else"}))
-    for where, expect in ((tmp_path / "none", "no such folder"), (tmp_path / "empty", "no such file"), (tmp_path / "old", "expected schema"),
-                          ("", "empty")):
+    for where, expect in (
+        (tmp_path / "none", "no such folder"),
+        (tmp_path / "empty", "no such file"),
+        (tmp_path / "old", "expected schema"),
+        ("", "empty"),
+    ):
         with pytest.raises(ConfigError) as err:
             load_rig_prior(where)
         text = str(err.value)
@@ -119,7 +139,9 @@ def test_batch_prior_from_is_checked_before_any_work(tmp_path: Path, capsys: pyt
     (tmp_path / "a.h5").write_bytes(b"x")
     results = _earlier_batch(tmp_path / "RESULTS")
     capsys.readouterr()
-    assert main(["batch", str(tmp_path / "a.h5"), "-o", str(tmp_path / "r"), "--prior-from", str(tmp_path / "none")]) == 2
+    assert (
+        main(["batch", str(tmp_path / "a.h5"), "-o", str(tmp_path / "r"), "--prior-from", str(tmp_path / "none")]) == 2
+    )
     assert main(["batch", str(tmp_path / "a.h5"), "-o", str(results), "--prior-from", str(results)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(line.startswith("vastcal: error: --prior-from") for line in err), err

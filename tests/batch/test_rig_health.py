@@ -13,9 +13,18 @@ def _records(n: int, amplitude: float, noise: float, seed: int = 0) -> list[dict
     rng = np.random.default_rng(seed)
     commanded = np.arange(12) * 30.0
     periodic = amplitude * np.sin(np.radians(commanded))  # a once-per-turn drive error, 0 at view 0
-    return [{"commanded_deg": commanded.tolist(), "delta_deg": (periodic + rng.normal(0, noise, 12) * (commanded > 0)).tolist(),
-             "yaw_deg": 0.1 + rng.normal(0, 0.02), "pitch_deg": -0.05 + 0.01 * k, "free": ["yaw", "pitch", "gamma", "rolls"],
-             "drift_status": "estimated", "time": f"2026-11-{1 + k:02d}T10:00:00+00:00"} for k in range(n)]
+    return [
+        {
+            "commanded_deg": commanded.tolist(),
+            "delta_deg": (periodic + rng.normal(0, noise, 12) * (commanded > 0)).tolist(),
+            "yaw_deg": 0.1 + rng.normal(0, 0.02),
+            "pitch_deg": -0.05 + 0.01 * k,
+            "free": ["yaw", "pitch", "gamma", "rolls"],
+            "drift_status": "estimated",
+            "time": f"2026-11-{1 + k:02d}T10:00:00+00:00",
+        }
+        for k in range(n)
+    ]
 
 
 def test_periodic_error_recovered_within_its_standard_error() -> None:
@@ -34,7 +43,9 @@ def test_sessions_with_held_rolls_are_left_out_and_trends_have_slopes() -> None:
     h = rig_health(recs + [held])
     assert h.n_sessions == 7 and h.n_rolls_informative == 6
     assert any("held the rolls" in n for n in h.notes)
-    assert h.pitch is not None and h.pitch.slope_deg_per_day is not None and abs(h.pitch.slope_deg_per_day - 0.01) < 0.02
+    assert (
+        h.pitch is not None and h.pitch.slope_deg_per_day is not None and abs(h.pitch.slope_deg_per_day - 0.01) < 0.02
+    )
     page = rig_health_html(h)
     assert "<svg" in page and "relative to view 0" in page
 

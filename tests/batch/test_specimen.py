@@ -31,12 +31,17 @@ def test_annotate_fields_and_manifest(tmp_path: Path, capsys: pytest.CaptureFixt
     assert json.loads(before)["strain"] == "AB"
 
 
-def test_acquire_specimen_is_stored_in_the_session_and_reaches_the_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_acquire_specimen_is_stored_in_the_session_and_reaches_the_table(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from vastcal.batch import table_rows
     from vastcal.specimen import session_specimen
 
     a = tmp_path / "larva_001.h5"
-    assert main(["acquire", "--simulate", "-o", str(a), "--views", "3", "-q", "--specimen", "ID=F1, age_dpf=5,strain=AB"]) == 0
+    assert (
+        main(["acquire", "--simulate", "-o", str(a), "--views", "3", "-q", "--specimen", "ID=F1, age_dpf=5,strain=AB"])
+        == 0
+    )
     assert session_specimen(a) == {"specimen_id": "F1", "age_dpf": 5.0, "strain": "AB"}
     assert not (tmp_path / "larva_001.specimen.json").exists()  # in the session itself, not a sidecar
 
@@ -49,7 +54,11 @@ def test_acquire_specimen_is_stored_in_the_session_and_reaches_the_table(tmp_pat
 
     # the table: the session's own fields, a later sidecar (vastcal annotate) overriding them
     assert main(["annotate", str(b), "--well", "C7"]) == 0
-    state = {"sessions": {p.stem: {"row": {"path": str(p), "status": "ok", "_specimen": session_specimen(p)}} for p in (a, b)}}
+    state = {
+        "sessions": {
+            p.stem: {"row": {"path": str(p), "status": "ok", "_specimen": session_specimen(p)}} for p in (a, b)
+        }
+    }
     rows = {r["session"]: r for r in table_rows(state)}
     assert rows["larva_001"]["specimen_id"] == "F1" and rows["larva_001"]["strain"] == "AB"
     assert rows["larva_002"]["well"] == "C7" and rows["larva_002"]["age_dpf"] == 6.0

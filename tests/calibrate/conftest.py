@@ -14,7 +14,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import synthetic as sy  # noqa: E402
 
 from vastcal.calibrate import CalibrationSettings, Level  # noqa: E402
-from vastcal.config import CalibrationBounds, CalibrationConfig, CameraConfig, OpticsConfig, RigConfig, RoiConfig, dump_config  # noqa: E402
+from vastcal.config import (
+    CalibrationBounds,
+    CalibrationConfig,
+    CameraConfig,
+    OpticsConfig,
+    RigConfig,
+    RoiConfig,
+    dump_config,
+)  # noqa: E402
 from vastcal.session import SessionWriter  # noqa: E402
 
 FAST = CalibrationSettings(levels=(Level(160, 1500, 0.3, 600), Level(320, 3000, 0.03, 300)))
@@ -22,16 +30,36 @@ FAST = CalibrationSettings(levels=(Level(160, 1500, 0.3, 600), Level(320, 3000, 
 
 def rig_yaml(bounds: CalibrationBounds | None = None) -> str:
     """Rig description whose optics give the synthetic camera."""
-    optics = OpticsConfig(pixel_size_um=5.5, magnification=1.0, working_distance_um=sy.D, focal_length_px=sy.F,
-                          sensor_width_px=sy.W, sensor_height_px=sy.H, principal_point_px=((sy.W - 1) / 2, (sy.H - 1) / 2))
-    return dump_config(RigConfig(name="synthetic", optics=optics, camera=CameraConfig(roi=RoiConfig(0, 0, sy.W, sy.H)),
-                                 calibration=CalibrationConfig(bounds=bounds or CalibrationBounds(3.0, 3.0, 0.2, 4.0))))
+    optics = OpticsConfig(
+        pixel_size_um=5.5,
+        magnification=1.0,
+        working_distance_um=sy.D,
+        focal_length_px=sy.F,
+        sensor_width_px=sy.W,
+        sensor_height_px=sy.H,
+        principal_point_px=((sy.W - 1) / 2, (sy.H - 1) / 2),
+    )
+    return dump_config(
+        RigConfig(
+            name="synthetic",
+            optics=optics,
+            camera=CameraConfig(roi=RoiConfig(0, 0, sy.W, sy.H)),
+            calibration=CalibrationConfig(bounds=bounds or CalibrationBounds(3.0, 3.0, 0.2, 4.0)),
+        )
+    )
 
 
 def write_session(path: Path, images: np.ndarray, angles: np.ndarray, masks: np.ndarray | None = None) -> Path:
     """A complete session holding ``images`` at commanded ``angles``."""
-    with SessionWriter.create(path, frame_shape=images.shape[1:], dtype=images.dtype, rig_yaml=rig_yaml(), plan={"views": len(images)}, live=False,
-                              pixel_size_um=(5.5, 5.5)) as w:
+    with SessionWriter.create(
+        path,
+        frame_shape=images.shape[1:],
+        dtype=images.dtype,
+        rig_yaml=rig_yaml(),
+        plan={"views": len(images)},
+        live=False,
+        pixel_size_um=(5.5, 5.5),
+    ) as w:
         for im, a in zip(images, angles):
             w.append_view(im, float(a))
         if masks is not None:

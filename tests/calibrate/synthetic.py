@@ -13,8 +13,11 @@ import numpy as np
 from vastcal.geometry import projection_matrices
 
 #: (centre µm, semi-axes µm) of a small larva-like phantom: body, head, yolk (off-axis → roll signal).
-PHANTOM = (((150.0, 30.0, 0.0), (650.0, 90.0, 70.0)), ((-450.0, -20.0, 40.0), (200.0, 150.0, 120.0)),
-           ((-250.0, 90.0, -60.0), (160.0, 90.0, 100.0)))
+PHANTOM = (
+    ((150.0, 30.0, 0.0), (650.0, 90.0, 70.0)),
+    ((-450.0, -20.0, 40.0), (200.0, 150.0, 120.0)),
+    ((-250.0, 90.0, -60.0), (160.0, 90.0, 100.0)),
+)
 
 F = 65000.0 / 5.5 / 2.0
 D = 65000.0
@@ -48,7 +51,9 @@ def silhouettes(theta: np.ndarray, phantom=PHANTOM) -> np.ndarray:
     return out.reshape(-1, H, W)
 
 
-def render(theta: np.ndarray, *, dark_specimen: bool = True, noise: float = 3.0, seed: int = 0, phantom=PHANTOM) -> np.ndarray:
+def render(
+    theta: np.ndarray, *, dark_specimen: bool = True, noise: float = 3.0, seed: int = 0, phantom=PHANTOM
+) -> np.ndarray:
     """(N, H, W) uint8 grey views of the phantom under θ (degrees)."""
     rng = np.random.default_rng(seed)
     sil = silhouettes(theta, phantom).astype(np.float32)

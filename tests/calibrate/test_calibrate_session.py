@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import hashlib
+import importlib.util as _importlib_util
 from pathlib import Path
 
 import numpy as np
 import pytest
 import synthetic as sy
-import importlib.util as _importlib_util
-_spec = _importlib_util.spec_from_file_location("calibrate_test_helpers", __import__("pathlib").Path(__file__).with_name("conftest.py"))
+
+_spec = _importlib_util.spec_from_file_location(
+    "calibrate_test_helpers", __import__("pathlib").Path(__file__).with_name("conftest.py")
+)
 _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
 FAST = _helpers.FAST
@@ -34,8 +37,19 @@ def test_run_is_stored_with_every_field(session_path: Path, views: np.ndarray) -
         np.testing.assert_allclose(g["delta_angle_deg"][...], g["theta_deg"][3:] - g["theta0_deg"][3:])
         assert g["cost_trace"].shape[1] == 2
         a = read_attrs(g)
-        for key in ("method", "seed", "free", "bounds", "settings", "wall_time_s", "n_evaluations", "time_per_evaluation_s",
-                    "n_voxels", "versions", "distance"):
+        for key in (
+            "method",
+            "seed",
+            "free",
+            "bounds",
+            "settings",
+            "wall_time_s",
+            "n_evaluations",
+            "time_per_evaluation_s",
+            "n_voxels",
+            "versions",
+            "distance",
+        ):
             assert key in a, key
         assert a["method"] == "pi" and a["seed"] == 1 and a["free"] == ["pitch", "gamma", "rolls"]
         cm = ColourModel.from_group(g["colour_model"])
@@ -63,12 +77,17 @@ def test_vr_uses_imported_masks(tmp_path: Path, views: np.ndarray, truth: np.nda
 
 
 @pytest.mark.parametrize("case", ["two-views", "blank", "mask-size", "mask-view", "bad-free"])
-def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(tmp_path: Path, views: np.ndarray, case: str) -> None:
+def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(
+    tmp_path: Path, views: np.ndarray, case: str
+) -> None:
     kwargs: dict = {"settings": FAST}
     if case == "two-views":
         p, err = write_session(tmp_path / "s.h5", views[:2], np.array([0.0, 180.0])), SessionIncompleteError
     elif case == "blank":
-        p, err = write_session(tmp_path / "s.h5", np.full_like(views, 200), np.arange(len(views)) * 30.0), ColourModelError
+        p, err = (
+            write_session(tmp_path / "s.h5", np.full_like(views, 200), np.arange(len(views)) * 30.0),
+            ColourModelError,
+        )
     else:
         p, err = write_session(tmp_path / "s.h5", views, np.arange(len(views)) * 30.0), UserInputError
         if case == "mask-size":
@@ -97,11 +116,15 @@ def test_offset_scan_option_reaches_the_settings(session_path: Path, monkeypatch
     monkeypatch.setattr(cal, "calibrate_session", fake)
     assert main(["calibrate", str(session_path), "--offset-scan", "0.5"]) == 0
     assert seen["offset_scan_deg"] == 0.5
-    assert main(["calibrate", str(session_path), "--offset-scan", "0"]) == 0 and seen["offset_scan_deg"] == 0.0  # 0 = off
+    assert (
+        main(["calibrate", str(session_path), "--offset-scan", "0"]) == 0 and seen["offset_scan_deg"] == 0.0
+    )  # 0 = off
     assert main(["calibrate", str(session_path)]) == 0 and seen["offset_scan_deg"] is None
     monkeypatch.undo()  # the range is checked where the override is applied, for library callers too
     before = _digest(session_path)
-    assert main(["calibrate", str(session_path), "--offset-scan", "7"]) == 2  # one line, no run (the rig file's range: 0–5°)
+    assert (
+        main(["calibrate", str(session_path), "--offset-scan", "7"]) == 2
+    )  # one line, no run (the rig file's range: 0–5°)
     with pytest.raises(ValueError, match="offset scan"):
         calibrate_session(session_path, offset_scan_deg=7.0)
     assert _digest(session_path) == before
@@ -126,8 +149,9 @@ def test_prior_and_scan_come_from_the_rig_config(session_path: Path, monkeypatch
     assert seen["settings"].roll_offset_scan_deg == 0.5 and seen["settings"].roll_prior_weight == 0.05
 
 
-def test_scribbles_option_passes_labels_and_refuses_other_values(session_path: Path, views: np.ndarray, truth: np.ndarray,
-                                                                 tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_scribbles_option_passes_labels_and_refuses_other_values(
+    session_path: Path, views: np.ndarray, truth: np.ndarray, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """`--scribbles VIEW:FILE` reaches the colour model as labels (0 unknown, 1 specimen, 2 background);
     before, a scribble image given to --mask made its background strokes specimen. A label image
     with other values is one line, exit 2, and no run is stored."""
@@ -159,9 +183,13 @@ def test_scribbles_option_passes_labels_and_refuses_other_values(session_path: P
         fit_from_scribbles(views[0], labels * 120)
 
 
-def test_run_takes_a_mask_for_every_start_and_refuses_it_with_imported_cameras(session_path: Path, truth: np.ndarray, tmp_path: Path,
-                                                                              monkeypatch: pytest.MonkeyPatch,
-                                                                              capsys: pytest.CaptureFixture[str]) -> None:
+def test_run_takes_a_mask_for_every_start_and_refuses_it_with_imported_cameras(
+    session_path: Path,
+    truth: np.ndarray,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
     """`vastcal run --mask VIEW:FILE` (a turntable scene: the user marks it as background) reaches the calibration's
     colour model, as `vastcal calibrate --mask` does; with `--cameras imported` nothing is calibrated: one line, exit 2."""
     import cv2
@@ -181,9 +209,17 @@ def test_run_takes_a_mask_for_every_start_and_refuses_it_with_imported_cameras(s
     before = _digest(session_path)
     assert main(["run", str(session_path), "-o", str(tmp_path / "r"), "--mask", f"0:{mask}"]) != 0
     view, arr = seen["mask"]
-    assert view == 0 and arr.shape[:2] == sy.silhouettes(truth)[0].shape and seen["scribbles"] is None and seen["starts"] == 3
+    assert (
+        view == 0
+        and arr.shape[:2] == sy.silhouettes(truth)[0].shape
+        and seen["scribbles"] is None
+        and seen["starts"] == 3
+    )
     capsys.readouterr()
-    assert main(["run", str(session_path), "-o", str(tmp_path / "r2"), "--mask", f"0:{mask}", "--cameras", "imported"]) == 2
+    assert (
+        main(["run", str(session_path), "-o", str(tmp_path / "r2"), "--mask", f"0:{mask}", "--cameras", "imported"])
+        == 2
+    )
     assert "nothing is calibrated" in capsys.readouterr().err
     assert _digest(session_path) == before
 

@@ -8,8 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vastcal.calibrate.objective_coherence import (CoherenceObjective, axis_crossings, dark_feature_probability, signed_distance_maps,
-                                                   silhouette_edges)
+from vastcal.calibrate.objective_coherence import (
+    CoherenceObjective,
+    axis_crossings,
+    dark_feature_probability,
+    signed_distance_maps,
+    silhouette_edges,
+)
 from vastcal.errors import AnalysisError
 from vastcal.geometry import projection_matrices
 
@@ -136,8 +141,14 @@ def david_scene(david_dir: Path) -> tuple[np.ndarray, np.ndarray, object, float]
 
 def _roll_minimum(theta: np.ndarray, pf: np.ndarray, K: np.ndarray, d: float, view: int, steps: np.ndarray) -> float:
     P = projection_matrices(K, d, theta[None])[0]
-    obj = CoherenceObjective(signed_distance_maps(pf), silhouette_edges(pf, axis_crossings(P, pf.shape[1:]), max_lines=24), K, d,
-                             radius_um=3.0, sigma_px=0.1)
+    obj = CoherenceObjective(
+        signed_distance_maps(pf),
+        silhouette_edges(pf, axis_crossings(P, pf.shape[1:]), max_lines=24),
+        K,
+        d,
+        radius_um=3.0,
+        sigma_px=0.1,
+    )
     th = np.repeat(theta[None], len(steps), 0)
     th[:, 3 + view] += steps
     return float(steps[np.argmin(obj(th))])
@@ -181,7 +192,9 @@ def test_very_large_samplings_are_remapped_in_blocks(scene: tuple[np.ndarray, np
     k = 12345
     import cv2
 
-    ref = cv2.remap(obj.atlas.image, u[:1, k:k + 1], v[:1, k:k + 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    ref = cv2.remap(
+        obj.atlas.image, u[:1, k : k + 1], v[:1, k : k + 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+    )
     assert out[0, k] == ref[0, 0]
 
 
@@ -200,7 +213,9 @@ def _residuals_without_slides(obj: CoherenceObjective, theta: np.ndarray, z: np.
         obj.max_slides = slides
 
 
-def test_a_candidate_is_scored_on_its_own_rays_wherever_the_population_is(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
+def test_a_candidate_is_scored_on_its_own_rays_wherever_the_population_is(
+    scene: tuple[np.ndarray, np.ndarray, CoherenceObjective],
+) -> None:
     """The ray windows sit at the population's peaks. A candidate whose own peaks lie outside them
     must still get (about) the residuals of its own full search — not the window's end value (too
     low: exploration is penalised) nor a parabola extrapolated beyond it (unbounded)."""
@@ -220,7 +235,9 @@ def test_a_candidate_is_scored_on_its_own_rays_wherever_the_population_is(scene:
         assert np.median((own - stuck)[w]) > 0.2  # what the window alone reads
 
 
-def test_the_parabola_never_extrapolates_past_the_window(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
+def test_the_parabola_never_extrapolates_past_the_window(
+    scene: tuple[np.ndarray, np.ndarray, CoherenceObjective],
+) -> None:
     """With sliding switched off, a window far from every peak reads the best sample it has."""
     theta, _, obj = scene
     r = _residuals_without_slides(obj, theta, _ray_maxima(obj, theta) + np.float32(10 * obj.window_um))
@@ -293,7 +310,9 @@ def test_atlas_tiles_many_maps_in_columns() -> None:
     ox, oy = atlas.origin(views)
     got = cv2.remap(atlas.image, (u + ox)[None], (v + oy)[None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
     for g, j, uu, vv in zip(got, views, u, v):
-        ref = cv2.remap(maps[j], np.array([[uu]]), np.array([[vv]]), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0, 0]
+        ref = cv2.remap(maps[j], np.array([[uu]]), np.array([[vv]]), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[
+            0, 0
+        ]
         assert abs(g - ref) < 1e-4
 
 
@@ -317,7 +336,9 @@ def test_displacement_bound_moves_each_roll_alone() -> None:
         for sgn in (-1.0, 1.0):
             t = theta.copy()
             t[k] += sgn * hw[k]
-            moves.append(np.linalg.norm(project(projection_matrices(K, d, t[None])[0], pts) - project(P0, pts), axis=-1))
+            moves.append(
+                np.linalg.norm(project(projection_matrices(K, d, t[None])[0], pts) - project(P0, pts), axis=-1)
+            )
         per.append(np.maximum(*moves))
     brute = np.sum(per, axis=0).max(axis=1)
     assert np.allclose(displacement_bound(K, d, theta, hw, free, pts), brute, rtol=1e-9, atol=1e-9)
@@ -355,7 +376,9 @@ def test_photometric_bytes_count_one_sub_revolution_beside_every_view() -> None:
 
 
 @pytest.mark.parametrize("per_candidate", [True, False])
-def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(per_candidate: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(
+    per_candidate: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A per-view polish scores x and x ± h in one roll at a time; only the rays of the moved view and of
     the views that have it as a partner are searched again, and the costs equal the full searches (the judge's
     cost, per candidate) or the whole batch's rays taken near the batch mean's peaks (the polish's cost)."""
@@ -365,9 +388,18 @@ def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(pe
     pf = np.stack([s.astype(np.float32) for s in synthetic.silhouettes(theta)])
     P = projection_matrices(K, d, theta[None])[0]
     edges = silhouette_edges(pf, axis_crossings(P, pf.shape[1:]), max_lines=12)
+
     def objective() -> CoherenceObjective:
-        return CoherenceObjective(signed_distance_maps(pf), edges, K, d, radius_um=400.0, max_partners=6, per_candidate=per_candidate,
-                                  angles_deg=theta[3:])
+        return CoherenceObjective(
+            signed_distance_maps(pf),
+            edges,
+            K,
+            d,
+            radius_um=400.0,
+            max_partners=6,
+            per_candidate=per_candidate,
+            angles_deg=theta[3:],
+        )
 
     x = theta + np.r_[0.0, 0.0, 0.0, np.random.default_rng(0).normal(0, 0.3, n)]
     X = np.repeat(x[None], 2 * n - 1, 0)
@@ -378,15 +410,16 @@ def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(pe
     if per_candidate:
         obj = objective()
         for i in (0, 1, 7, n + 3, 2 * n - 2):
-            assert fast[i] == pytest.approx(obj(X[i:i + 1])[0], rel=1e-6, abs=1e-9)
+            assert fast[i] == pytest.approx(obj(X[i : i + 1])[0], rel=1e-6, abs=1e-9)
     else:  # the same batch with every view's rays taken for every candidate
         monkeypatch.setattr(CoherenceObjective, "_single_roll_moves", lambda self, th: None)
         np.testing.assert_allclose(fast, objective()(X), rtol=1e-6, atol=1e-9)
 
 
 @pytest.mark.parametrize("per_candidate", [False, True])
-def test_threads_give_the_same_costs_bit_for_bit(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], per_candidate: bool,
-                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+def test_threads_give_the_same_costs_bit_for_bit(
+    scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], per_candidate: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The views' slices of an evaluation run side by side (vastcal.calibrate.threads): the same numbers as one after the other."""
     theta, pf, obj = scene
     batch = theta[None] + np.random.default_rng(4).normal(0.0, 0.05, (6, theta.size)) * (np.arange(theta.size) != 3)
@@ -398,7 +431,9 @@ def test_threads_give_the_same_costs_bit_for_bit(scene: tuple[np.ndarray, np.nda
     assert np.array_equal(costs["1"][0], costs["3"][0]) and np.array_equal(costs["1"][1], costs["3"][1])
 
 
-def test_ray_points_keep_float64_accuracy_at_a_microscope_distance(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
+def test_ray_points_keep_float64_accuracy_at_a_microscope_distance(
+    scene: tuple[np.ndarray, np.ndarray, CoherenceObjective],
+) -> None:
     """The homogeneous ray points, float32, are within 5e-8 of the axis distance of Rᵀ(z·ray − t) in float64 (adding the
     camera centre to z·Rᵀray in float32 would miss by 1e-7: their axis-distance-sized parts must cancel first)."""
     theta, _, obj = scene
@@ -412,8 +447,9 @@ def test_ray_points_keep_float64_accuracy_at_a_microscope_distance(scene: tuple[
     assert np.abs(X[:, :, :3] - ref).max() < 5e-8 * obj.distance
 
 
-def test_long_chords_are_searched_by_bounds_with_every_sample_s_maximum(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective],
-                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_long_chords_are_searched_by_bounds_with_every_sample_s_maximum(
+    scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A chord of ≥ CHORD_BOUND_MIN_SAMPLES samples is read every CHORD_STRIDE-th sample and between them only where the
     profile's Lipschitz bound reaches the best: each ray's maximum — its sample and value — must be that of the dense pass,
     for candidates off the truth too, while far fewer samples are read."""
@@ -436,8 +472,10 @@ def test_long_chords_are_searched_by_bounds_with_every_sample_s_maximum(scene: t
     np.testing.assert_array_equal(bounded[read], dense[read])
     some = np.array([1, 4, 5, 9])  # the rays of some views only (a per-view polish's moves)
     Rs, Zs = R[:, some], Z[:, some]
-    np.testing.assert_array_equal(np.argmax(wide._chord_profiles(Rs, t, Zs, Pm, some), axis=-1),
-                                  np.argmax(wide._sample_min_others(Rs, t, Zs, Pm, some), axis=-1))
+    np.testing.assert_array_equal(
+        np.argmax(wide._chord_profiles(Rs, t, Zs, Pm, some), axis=-1),
+        np.argmax(wide._sample_min_others(Rs, t, Zs, Pm, some), axis=-1),
+    )
     with_bounds = wide._search_peaks(th), wide._search_peaks(th[1:2], views=some)
     monkeypatch.setattr(oc, "CHORD_BOUND_MIN_SAMPLES", 10**6)  # the dense pass everywhere: the same peaks
     np.testing.assert_array_equal(with_bounds[0], wide._search_peaks(th))

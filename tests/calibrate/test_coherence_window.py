@@ -8,8 +8,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vastcal.calibrate.objective_coherence import (CoherenceObjective, axis_crossings, coherence_atlas, signed_distance_maps,
-                                                   silhouette_edges)
+from vastcal.calibrate.objective_coherence import (
+    CoherenceObjective,
+    axis_crossings,
+    coherence_atlas,
+    signed_distance_maps,
+    silhouette_edges,
+)
 from vastcal.geometry import projection_matrices
 
 _spec = importlib.util.spec_from_file_location("synthetic_views", Path(__file__).with_name("synthetic.py"))
@@ -20,16 +25,23 @@ _spec.loader.exec_module(synthetic)  # type: ignore[union-attr]
 def test_the_window_holds_the_whole_frames_maps_and_the_same_cost() -> None:
     theta = synthetic.truth_theta(n=12, seed=3)
     K, d = synthetic.camera()
-    pf = np.stack([cv2.GaussianBlur(s.astype(np.float32), (0, 0), 0.7) for s in synthetic.silhouettes(theta)])  # soft rims
+    pf = np.stack(
+        [cv2.GaussianBlur(s.astype(np.float32), (0, 0), 0.7) for s in synthetic.silhouettes(theta)]
+    )  # soft rims
     full = signed_distance_maps(pf)
     atlas = coherence_atlas(pf)
     assert atlas.window is not None
     x0, y0, fw, fh = atlas.window
-    assert (fw, fh) == (pf.shape[2], pf.shape[1]) and atlas.image.size < 0.7 * full.size  # the phantom fills part of its frame
-    tiles = np.stack([atlas.image[int(oy):int(oy) + atlas.h, int(ox):int(ox) + atlas.w] for ox, oy in atlas.offsets])
-    assert np.array_equal(tiles, full[:, y0:y0 + atlas.h, x0:x0 + atlas.w])  # bit for bit inside the window
+    assert (fw, fh) == (
+        pf.shape[2],
+        pf.shape[1],
+    ) and atlas.image.size < 0.7 * full.size  # the phantom fills part of its frame
+    tiles = np.stack(
+        [atlas.image[int(oy) : int(oy) + atlas.h, int(ox) : int(ox) + atlas.w] for ox, oy in atlas.offsets]
+    )
+    assert np.array_equal(tiles, full[:, y0 : y0 + atlas.h, x0 : x0 + atlas.w])  # bit for bit inside the window
     outside = np.ones(full.shape, bool)
-    outside[:, y0:y0 + atlas.h, x0:x0 + atlas.w] = False
+    outside[:, y0 : y0 + atlas.h, x0 : x0 + atlas.w] = False
     assert np.all(full[outside] == -6.0)  # and the clamp everywhere else: what a sample clamped to the window reads
 
     P = projection_matrices(K, d, theta[None])[0]

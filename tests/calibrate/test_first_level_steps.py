@@ -8,7 +8,6 @@ at 8 px of image motion (``Level.max_initial_step_px``) fixes it.
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
@@ -17,7 +16,9 @@ from vastcal.calibrate import calibrate_views
 from vastcal.config import CalibrationBounds
 
 
-def test_gamma_step_is_capped_in_image_pixels(simulated: tuple[np.ndarray, np.ndarray, dict], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_gamma_step_is_capped_in_image_pixels(
+    simulated: tuple[np.ndarray, np.ndarray, dict], monkeypatch: pytest.MonkeyPatch
+) -> None:
     images, commanded, truth = simulated
     seen: list[np.ndarray] = []
 
@@ -27,8 +28,14 @@ def test_gamma_step_is_capped_in_image_pixels(simulated: tuple[np.ndarray, np.nd
 
     monkeypatch.setattr(run, "minimise", spy)
     with pytest.raises(KeyboardInterrupt):
-        calibrate_views(images, np.array(truth["K"]), truth["distance_um"], np.r_[0.0, 0.0, 0.0, commanded], free="pitch,gamma,rolls",
-                        bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0))
+        calibrate_views(
+            images,
+            np.array(truth["K"]),
+            truth["distance_um"],
+            np.r_[0.0, 0.0, 0.0, commanded],
+            free="pitch,gamma,rolls",
+            bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0),
+        )
     pitch_std, gamma_std = seen[0]
     assert pitch_std == 1.0  # pitch moves the image a few pixels per box step: left alone
     # γ: one box unit (1°) moves the image ~52 px at this level, so the 0.3-unit first step (~15 px)
@@ -36,9 +43,18 @@ def test_gamma_step_is_capped_in_image_pixels(simulated: tuple[np.ndarray, np.nd
     assert 0.3 < gamma_std < 0.7
 
 
-def test_two_free_axis_angles_with_a_wide_gamma_box_do_not_wander_off(simulated: tuple[np.ndarray, np.ndarray, dict]) -> None:
+def test_two_free_axis_angles_with_a_wide_gamma_box_do_not_wander_off(
+    simulated: tuple[np.ndarray, np.ndarray, dict],
+) -> None:
     images, commanded, truth = simulated
-    r = calibrate_views(images, np.array(truth["K"]), truth["distance_um"], np.r_[0.0, 0.0, 0.0, commanded], free="pitch,gamma,rolls",
-                        bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0), seed=0)
+    r = calibrate_views(
+        images,
+        np.array(truth["K"]),
+        truth["distance_um"],
+        np.r_[0.0, 0.0, 0.0, commanded],
+        free="pitch,gamma,rolls",
+        bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0),
+        seed=0,
+    )
     assert abs(r.theta_deg[1] - truth["pitch_deg"]) < 0.03
     assert abs(r.theta_deg[2] - truth["gamma_deg"]) < 0.003

@@ -47,7 +47,9 @@ def test_a_turntable_marked_as_background_leaves_the_silhouettes() -> None:
     maps = specimen_maps(model, frames) > 0.5
     assert np.mean(maps[figures]) > 0.97
     assert np.mean(maps[tables | patches]) < 0.01
-    half = np.stack([cv2.resize(f, (120, 100), interpolation=cv2.INTER_AREA) for f in frames])  # a coarse level's frames
+    half = np.stack(
+        [cv2.resize(f, (120, 100), interpolation=cv2.INTER_AREA) for f in frames]
+    )  # a coarse level's frames
     small = model.foreground_probability(half) > 0.5
     assert np.mean(small[:, 77:78, 30:50]) < 0.05  # the turntable's places scale with the frames
     dominant = specimen_maps(fit_from_mask(frames[0], figures[0]), frames) > 0.5
@@ -131,10 +133,10 @@ def test_a_shadow_the_specimen_casts_is_not_background_by_place() -> None:
     for x0 in (100, 80, 140, 60, 120):
         img = np.full((120, 220), 20.0)
         fig = np.zeros(img.shape, bool)
-        fig[30:90, x0:x0 + 30] = True
-        img[30:90, x0:x0 + 15] = 65.0  # shaded side
-        img[30:90, x0 + 15:x0 + 30] = 200.0  # lit side
-        img[40:90, x0 - 25:x0 - 5] = 60.0  # the shadow it casts on the backdrop
+        fig[30:90, x0 : x0 + 30] = True
+        img[30:90, x0 : x0 + 15] = 65.0  # shaded side
+        img[30:90, x0 + 15 : x0 + 30] = 200.0  # lit side
+        img[40:90, x0 - 25 : x0 - 5] = 60.0  # the shadow it casts on the backdrop
         frames.append(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8))
         figures.append(fig)
     frames_rgb = np.repeat(np.stack(frames)[..., None], 3, axis=-1)

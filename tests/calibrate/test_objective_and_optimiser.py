@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib.util as _importlib_util
 
 import numpy as np
 import pytest
 import synthetic as sy
-import importlib.util as _importlib_util
-_spec = _importlib_util.spec_from_file_location("calibrate_test_helpers", __import__("pathlib").Path(__file__).with_name("conftest.py"))
+
+_spec = _importlib_util.spec_from_file_location(
+    "calibrate_test_helpers", __import__("pathlib").Path(__file__).with_name("conftest.py")
+)
 _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
 FAST = _helpers.FAST
@@ -28,8 +31,11 @@ def _objectives(views: np.ndarray, truth: np.ndarray):
     region = specimen_region(K, d, truth, np.full(n + 3, 1.0), np.zeros(n + 3, bool), pf > 0.5, 4000, extra_px=2.0)
     proj = Projector(K, d, region.voxels)
     logp = np.log(np.clip(pf, 1e-4, 1 - 1e-4)).astype(np.float32)
-    return {"pi-count": PIObjective(logp, proj), "pi-loglik": PIObjective(logp, proj, form="loglik"),
-            "vr": VRObjective((pf > 0.5).astype(np.float32), proj)}
+    return {
+        "pi-count": PIObjective(logp, proj),
+        "pi-loglik": PIObjective(logp, proj, form="loglik"),
+        "vr": VRObjective((pf > 0.5).astype(np.float32), proj),
+    }
 
 
 @pytest.mark.parametrize("name", ["pi-count", "pi-loglik", "vr"])
@@ -80,9 +86,19 @@ def test_progress_callback_reports_evaluations_and_eta(views: np.ndarray) -> Non
     K, d = sy.camera()
     n = len(views)
     calls: list[tuple[int, float, float, float]] = []
-    calibrate_views(views, K, d, np.r_[0.0, 0.0, 0.0, np.arange(n) * 30.0], seed=0, free="pitch", settings=FAST,
-                    progress=lambda *a: calls.append(a))
-    assert calls and all(c[2] >= 0 for c in calls) and all(c[3] >= 0 for c in calls[1:])  # the first ETA is unknown (NaN)
+    calibrate_views(
+        views,
+        K,
+        d,
+        np.r_[0.0, 0.0, 0.0, np.arange(n) * 30.0],
+        seed=0,
+        free="pitch",
+        settings=FAST,
+        progress=lambda *a: calls.append(a),
+    )
+    assert (
+        calls and all(c[2] >= 0 for c in calls) and all(c[3] >= 0 for c in calls[1:])
+    )  # the first ETA is unknown (NaN)
     assert [c[0] for c in calls] == sorted(c[0] for c in calls)
 
 
@@ -116,18 +132,25 @@ def test_recovers_pitch_and_gamma_with_true_rolls(views: np.ndarray, truth: np.n
     K, d = sy.camera()
     th0 = truth.copy()
     th0[:3] = 0.0
-    r = calibrate_views(views, K, d, th0, seed=0, free=["pitch", "gamma"], bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=FAST)
+    r = calibrate_views(
+        views, K, d, th0, seed=0, free=["pitch", "gamma"], bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=FAST
+    )
     assert abs(r.theta_deg[1] - truth[1]) < 0.1
     assert abs(r.theta_deg[2] - truth[2]) < 0.01
 
 
-@pytest.mark.xfail(reason="issue 4 (blocked): per-view rolls and yaw are nearly unobservable from silhouettes of convex "
-                          "cross-sections; the coherence cost recovers pitch and gamma, not these", strict=False)
+@pytest.mark.xfail(
+    reason="issue 4 (blocked): per-view rolls and yaw are nearly unobservable from silhouettes of convex "
+    "cross-sections; the coherence cost recovers pitch and gamma, not these",
+    strict=False,
+)
 def test_recovers_perturbed_rolls_and_axis(views: np.ndarray, truth: np.ndarray) -> None:
     K, d = sy.camera()
     n = len(views)
     th0 = np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n]
-    r = calibrate_views(views, K, d, th0, seed=0, bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=dataclasses.replace(FAST))
+    r = calibrate_views(
+        views, K, d, th0, seed=0, bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=dataclasses.replace(FAST)
+    )
     err = r.theta_deg - truth
     assert np.sqrt(np.mean(err[4:] ** 2)) < 0.1 and abs(err[0]) < 0.1 and abs(err[1]) < 0.1
 
@@ -144,19 +167,25 @@ def test_common_roll_offset_scan_finds_the_view0_trap() -> None:
 
     def cost(th: np.ndarray) -> np.ndarray:  # two basins: the true one (−6°) deeper than the trap at 0
         d = np.atleast_2d(th)[:, 4:] - target[None]
-        return 1.0 - np.exp(-np.mean(d ** 2, axis=1)) + 0.5 * (1.0 - np.exp(-np.mean((d - 6.0) ** 2, axis=1) * 4)) - 0.5
+        return 1.0 - np.exp(-np.mean(d**2, axis=1)) + 0.5 * (1.0 - np.exp(-np.mean((d - 6.0) ** 2, axis=1) * 4)) - 0.5
 
     x, n = _common_roll_offset_scan(cost, space, np.zeros(space.n_free), 0.5)
     assert n == 61
     np.testing.assert_allclose(space.theta(x)[0][4:], target, atol=1e-9)
-    x_none, _ = _common_roll_offset_scan(lambda th: np.sum((np.atleast_2d(th)[:, 4:] - theta0[4:]) ** 2, axis=1), space,
-                                         np.zeros(space.n_free), 0.5)
+    x_none, _ = _common_roll_offset_scan(
+        lambda th: np.sum((np.atleast_2d(th)[:, 4:] - theta0[4:]) ** 2, axis=1), space, np.zeros(space.n_free), 0.5
+    )
     np.testing.assert_array_equal(x_none, 0.0)  # already at the best offset: unchanged
 
 
 def test_per_candidate_coherence_does_not_depend_on_the_batch() -> None:
     """With ``per_candidate`` every θ searches its own rays: the same θ costs the same in any population."""
-    from vastcal.calibrate.objective_coherence import CoherenceObjective, axis_crossings, signed_distance_maps, silhouette_edges
+    from vastcal.calibrate.objective_coherence import (
+        CoherenceObjective,
+        axis_crossings,
+        signed_distance_maps,
+        silhouette_edges,
+    )
     from vastcal.geometry import projection_matrices
 
     theta = sy.truth_theta(n=8, seed=5)
@@ -217,10 +246,12 @@ def test_cma_is_imported_without_its_plotting_and_surrogate_imports_which_stay_i
     import subprocess
     import sys
 
-    code = ("import sys; from vastcal.calibrate.optimise import _cma, minimise; import numpy as np; cma = _cma(); "
-            "assert 'matplotlib' not in sys.modules and 'scipy.stats' not in sys.modules, sorted(sys.modules); "
-            "r = minimise(lambda X: np.sum(np.asarray(X) ** 2, axis=1), np.full(3, 0.5), 0.3, np.ones(3), seed=1, "
-            "max_evaluations=400, tolx=1e-6, tolfun=1e-12); assert r.f_best < 1e-3, r.f_best; "
-            "import scipy.stats, matplotlib.pyplot; assert scipy.stats.kendalltau([1, 2, 3], [1, 2, 3])[0] == 1.0; print('ok')")
+    code = (
+        "import sys; from vastcal.calibrate.optimise import _cma, minimise; import numpy as np; cma = _cma(); "
+        "assert 'matplotlib' not in sys.modules and 'scipy.stats' not in sys.modules, sorted(sys.modules); "
+        "r = minimise(lambda X: np.sum(np.asarray(X) ** 2, axis=1), np.full(3, 0.5), 0.3, np.ones(3), seed=1, "
+        "max_evaluations=400, tolx=1e-6, tolfun=1e-12); assert r.f_best < 1e-3, r.f_best; "
+        "import scipy.stats, matplotlib.pyplot; assert scipy.stats.kendalltau([1, 2, 3], [1, 2, 3])[0] == 1.0; print('ok')"
+    )
     out = subprocess.run([sys.executable, "-W", "error", "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

@@ -17,8 +17,17 @@ import pytest
 
 from vastcal.calibrate import calibrate_views
 from vastcal.calibrate.colour_model import fit_automatic
-from vastcal.calibrate.photometric_yaw import (AbsorptionMatch, absorption_images, combine_group_yaws, distinct_directions,
-                                            drop_static, grid_phase, refine_yaw, spread_order, yaw_groups)
+from vastcal.calibrate.photometric_yaw import (
+    AbsorptionMatch,
+    absorption_images,
+    combine_group_yaws,
+    distinct_directions,
+    drop_static,
+    grid_phase,
+    refine_yaw,
+    spread_order,
+    yaw_groups,
+)
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.geometry import projection_matrices
 
@@ -72,11 +81,15 @@ def test_no_absorption_contrast_leaves_the_yaw_alone(caplog: pytest.LogCaptureFi
     K, d = synthetic.camera()
     pf = specimen_maps(fit_automatic(images), images)
     with caplog.at_level(logging.WARNING, logger="vastcal.calibrate.photometric_yaw"):
-        assert refine_yaw(images, pf, K, d, theta, (theta[0] - 1, theta[0] + 1), min_directions=0) is None  # 8 views: the contrast alone
+        assert (
+            refine_yaw(images, pf, K, d, theta, (theta[0] - 1, theta[0] + 1), min_directions=0) is None
+        )  # 8 views: the contrast alone
     assert "not darker than its background" in caplog.text
 
 
-def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: tuple[np.ndarray, np.ndarray, dict]) -> None:
+def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(
+    simulated: tuple[np.ndarray, np.ndarray, dict],
+) -> None:
     images, commanded, truth = simulated
     K, d = np.array(truth["K"]), truth["distance_um"]
     r = calibrate_views(images, K, d, np.r_[0.0, 0.0, 0.0, commanded], seed=0)
@@ -88,41 +101,81 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(simulated: 
     assert refined.scanned_yaw_deg.min() < refined.yaw_deg < refined.scanned_yaw_deg.max()
     assert refined.converged and refined.final_iterations >= 100  # the yaw stopped moving between two doublings
     assert refined.report()["final_iterations"] == refined.final_iterations
-    assert refined.group_yaws_deg is not None and refined.group_yaws_deg.size == 1  # 21 views: one reconstruction of them all
+    assert (
+        refined.group_yaws_deg is not None and refined.group_yaws_deg.size == 1
+    )  # 21 views: one reconstruction of them all
     # split into two interleaved sub-revolutions: the last stage on each, the yaw their mean
-    split = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=10, min_directions=9)
+    split = refine_yaw(
+        images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=10, min_directions=9
+    )
     assert split is not None and split.group_yaws_deg is not None and list(split.group_views) == [9, 9]
     assert split.yaw_deg == pytest.approx(float(np.mean(split.group_yaws_deg)))
-    assert abs(split.yaw_deg - truth["yaw_deg"]) < 0.1 and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
+    assert (
+        abs(split.yaw_deg - truth["yaw_deg"]) < 0.1
+        and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
+    )
     # a sub-revolution larger than the group size (21 views against 15): reconstructed at three lattice phases, their median
     named: list[str] = []
-    phased = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=15,
-                        part=lambda what, n: named.append(what))
-    assert [p for p in named if p.endswith("first samples")] == ["lattice phase 2/3: first samples", "lattice phase 3/3: first samples"]
+    phased = refine_yaw(
+        images,
+        specimen_maps(r.colour_model, images),
+        K,
+        d,
+        r.theta_deg,
+        (-3.0, 3.0),
+        group_views=15,
+        part=lambda what, n: named.append(what),
+    )
+    assert [p for p in named if p.endswith("first samples")] == [
+        "lattice phase 2/3: first samples",
+        "lattice phase 3/3: first samples",
+    ]
     assert phased is not None and phased.group_yaws_deg is not None and list(phased.group_views) == [21, 21, 21]
-    assert phased.yaw_deg == pytest.approx(float(np.median(phased.group_yaws_deg))) and len(set(phased.group_yaws_deg.tolist())) == 3
+    assert (
+        phased.yaw_deg == pytest.approx(float(np.median(phased.group_yaws_deg)))
+        and len(set(phased.group_yaws_deg.tolist())) == 3
+    )
     assert abs(phased.yaw_deg - truth["yaw_deg"]) < 0.05 and phased.yaw_sigma_deg is not None
     # seven sub-revolutions of three views: after five (not three), their median's standard error is within a loose tolerance
     parts: list[str] = []
     stages: list[tuple[int, int]] = []
-    stopped = refine_yaw(images, specimen_maps(r.colour_model, images), K, d, r.theta_deg, (-3.0, 3.0), group_views=3,
-                         yaw_standard_error_deg=1.0, part=lambda what, n: parts.append(what), stage=lambda w, n: stages.append((w, n)),
-                         min_directions=3)
+    stopped = refine_yaw(
+        images,
+        specimen_maps(r.colour_model, images),
+        K,
+        d,
+        r.theta_deg,
+        (-3.0, 3.0),
+        group_views=3,
+        yaw_standard_error_deg=1.0,
+        part=lambda what, n: parts.append(what),
+        stage=lambda w, n: stages.append((w, n)),
+        min_directions=3,
+    )
     assert stages[-1] == (1024, 5)  # the first sub-revolution's first samples; the later ones' are parts of their own
-    assert [p for p in parts if p.endswith("first samples")] == [f"sub-revolution {k}/7: first samples" for k in range(2, 6)]
+    assert [p for p in parts if p.endswith("first samples")] == [
+        f"sub-revolution {k}/7: first samples" for k in range(2, 6)
+    ]
     assert stopped is not None and stopped.group_yaws_deg is not None and list(stopped.group_views) == [3] * 5  # not 7
     assert stopped.yaw_deg == pytest.approx(float(np.median(stopped.group_yaws_deg)))
-    assert stopped.yaw_sigma_deg is not None and stopped.yaw_sigma_deg >= 1.2533 * np.std(stopped.group_yaws_deg, ddof=1) / np.sqrt(5) - 1e-12
+    assert (
+        stopped.yaw_sigma_deg is not None
+        and stopped.yaw_sigma_deg >= 1.2533 * np.std(stopped.group_yaws_deg, ddof=1) / np.sqrt(5) - 1e-12
+    )
 
 
-def test_too_few_directions_leave_the_yaw_alone(simulated: tuple[np.ndarray, np.ndarray, dict], caplog: pytest.LogCaptureFixture) -> None:
+def test_too_few_directions_leave_the_yaw_alone(
+    simulated: tuple[np.ndarray, np.ndarray, dict], caplog: pytest.LogCaptureFixture
+) -> None:
     """An even revolution's views face each other in pairs: 12 views look along 6 directions, 11 along 11; the yaw is
     searched from 11 directions on, and not from fewer (a warning says why)."""
     rng = np.random.default_rng(3)
     for n, expected in ((8, 4), (9, 9), (10, 5), (11, 11), (12, 6), (13, 13), (21, 21)):
         angles = np.arange(n) * 360.0 / n + rng.normal(0.0, 1.0, n)  # a stage's drift of ~1°
         assert distinct_directions(angles[yaw_groups(angles)[0]]) == expected, n
-    angles = np.arange(36) * 360.0 / 36 + rng.normal(0.0, 1.0, 36)  # 18 directions, facing pairs ~1.4° apart: 18 or more
+    angles = np.arange(36) * 360.0 / 36 + rng.normal(
+        0.0, 1.0, 36
+    )  # 18 directions, facing pairs ~1.4° apart: 18 or more
     assert 18 <= distinct_directions(angles[yaw_groups(angles)[0]]) <= 35
     images, commanded, truth = simulated
     K, d = np.array(truth["K"]), truth["distance_um"]
@@ -158,7 +211,9 @@ def test_yaw_groups_are_interleaved_sub_revolutions_of_at_least_the_group_size()
         assert np.abs(gaps - 180.0).min() > 360.0 / 21 / 6  # no two of them (nearly) facing each other
     assert [g.size for g in yaw_groups(np.arange(24) * 15.0, 21)] == [23]  # an even revolution: one view left out
     assert [g.size for g in yaw_groups(np.arange(21) * 360.0 / 21, 21)] == [21]  # a 21-view session: one reconstruction
-    spread = np.floor(np.arange(88) * 360 / 88)  # 88 of 360 views at 1° steps: 4 odd revolutions, none with facing views
+    spread = np.floor(
+        np.arange(88) * 360 / 88
+    )  # 88 of 360 views at 1° steps: 4 odd revolutions, none with facing views
     groups = yaw_groups(spread, 21)
     assert [g.size for g in groups] == [21] * 4 and np.unique(np.concatenate(groups)).size == 84
     for g in groups:
@@ -182,7 +237,9 @@ def test_each_sub_revolution_has_its_own_lattice_phase_spread_over_the_voxel() -
     m1 = AbsorptionMatch(a, pf, K, d, theta, grid_phase=(0.5, 0.25, 0.75))
     shift = np.array([0.5 * m0.voxel_um, 0.25 * m0.voxel_across_um, 0.75 * m0.voxel_across_um])
     grid0 = {tuple(np.round(x, 6)) for x in m0.X + shift}
-    assert len(grid0 & {tuple(np.round(x, 6)) for x in m1.X}) > 0.5 * m1.n_voxels  # the same lattice, moved by the phase
+    assert (
+        len(grid0 & {tuple(np.round(x, 6)) for x in m1.X}) > 0.5 * m1.n_voxels
+    )  # the same lattice, moved by the phase
 
 
 def test_sub_revolutions_combine_by_their_median_with_an_error_from_their_spread() -> None:
@@ -200,14 +257,26 @@ def test_sub_revolutions_combine_by_their_median_with_an_error_from_their_spread
         assert max(order[:3]) - min(order[:3]) >= g // 3  # the first three span the spacing
 
 
-def test_samples_moved_past_a_lowest_one_at_an_end_are_announced_before_they_run(simulated: tuple[np.ndarray, np.ndarray, dict]) -> None:
+def test_samples_moved_past_a_lowest_one_at_an_end_are_announced_before_they_run(
+    simulated: tuple[np.ndarray, np.ndarray, dict],
+) -> None:
     images, commanded, truth = simulated
     K, d = np.array(truth["K"]), truth["distance_um"]
     theta = np.r_[0.0, 0.0, 0.0, commanded]  # yaw 0.72° from the truth: ±0.1° of samples all lie on one side of it
     pf = specimen_maps(fit_automatic(images), images)
     events: list[tuple[str, object]] = []
-    refine_yaw(images, pf, K, d, theta, (-3.0, 3.0), schedule=((128, 0.05, 2),), final_iterations=(25, 50),
-               part=lambda what, n: events.append(("part", what)), progress=lambda e, c: events.append(("eval", e)))
+    refine_yaw(
+        images,
+        pf,
+        K,
+        d,
+        theta,
+        (-3.0, 3.0),
+        schedule=((128, 0.05, 2),),
+        final_iterations=(25, 50),
+        part=lambda what, n: events.append(("part", what)),
+        progress=lambda e, c: events.append(("eval", e)),
+    )
     extended = [i for i, ev in enumerate(events) if ev == ("part", "samples extended past the lowest")]
     assert len(extended) == 2  # the box allows both extensions; each named before its reconstructions
     for i in extended:
@@ -264,8 +333,14 @@ def test_the_cost_does_not_depend_on_how_many_threads_blas_is_given() -> None:
     runs = []
     for threads in ("1", "2"):
         env = {**os.environ, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
-        out = subprocess.run([sys.executable, "-c", _COST_SCRIPT, str(Path(__file__).with_name("synthetic.py"))], env=env,
-                             capture_output=True, text=True, timeout=300, check=True)
+        out = subprocess.run(
+            [sys.executable, "-c", _COST_SCRIPT, str(Path(__file__).with_name("synthetic.py"))],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=True,
+        )
         runs.append(out.stdout.strip())
     assert runs[0] == runs[1]
 
@@ -279,7 +354,9 @@ def test_splats_off_the_frame_stay_within_their_own_view() -> None:
     h, w = 8, 10
     K = np.array([[100.0, 0.0, 4.5], [0.0, 100.0, 3.5], [0.0, 0.0, 1.0]])
     P = projection_matrices(K, 1000.0, np.array([[0.0, 0.0, 0.0, 0.0, 90.0]]))[0]
-    X = np.array([[0.0, 0.0, 0.0], [0.0, 300.0, 0.0], [0.0, 0.0, -300.0], [400.0, 0.0, 0.0]])  # one inside, three off the frame
+    X = np.array(
+        [[0.0, 0.0, 0.0], [0.0, 300.0, 0.0], [0.0, 0.0, -300.0], [400.0, 0.0, 0.0]]
+    )  # one inside, three off the frame
     match = SimpleNamespace(shape=(2, h, w), _Xt=np.ascontiguousarray(X.T), voxel_um=1.0, voxel_across_um=1.0, K=K)
     for i in range(2):
         pixel, weight = AbsorptionMatch._splats(match, P, i, slice(None))

@@ -45,7 +45,9 @@ def test_a_position_repeated_a_turn_later_is_imported_a_repeated_angle_is_not(tm
         import_folder(img, tmp_path / "t.h5", angles=tmp_path / "twice.txt")
 
 
-@pytest.mark.skipif(not (DINO / "dinoR_par.txt").is_file(), reason="../shared/data/middlebury_dinoRing is not on this machine")
+@pytest.mark.skipif(
+    not (DINO / "dinoR_par.txt").is_file(), reason="../shared/data/middlebury_dinoRing is not on this machine"
+)
 def test_dino_ring_imports_all_48_views_with_its_true_angles(tmp_path: Path) -> None:
     P, names = read_cameras(DINO / "dinoR_par.txt", 48)
     assert names[1] == "dinoR0002.png" and names[47] == "dinoR0048.png"
@@ -53,14 +55,17 @@ def test_dino_ring_imports_all_48_views_with_its_true_angles(tmp_path: Path) -> 
     rolls = decompose_circular(P).motion.rolls_deg
     assert rolls[47] == pytest.approx(rolls[1] + 360.0, abs=1e-6)
     (tmp_path / "angles.txt").write_text("\n".join(f"{a:.6f}" for a in rolls))
-    s = import_folder(DINO, tmp_path / "dino.h5", angles=tmp_path / "angles.txt", cameras=DINO / "dinoR_par.txt", length_unit="m")
+    s = import_folder(
+        DINO, tmp_path / "dino.h5", angles=tmp_path / "angles.txt", cameras=DINO / "dinoR_par.txt", length_unit="m"
+    )
     with Session.open(s) as ss:
         assert ss.n_views == 48 and ss.known_cameras is not None
         np.testing.assert_allclose(ss.known_cameras, shift_pixels(P, 0, 0))
 
 
-def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(views: np.ndarray, truth: np.ndarray,
-                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(
+    views: np.ndarray, truth: np.ndarray, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The yaw search is replaced by one that moves the yaw 0.4°: the stored final_cost must be the judge's cost
     there without the yaw prior (scored by a run without the yaw step: same seed, same judge, less the prior's
     yaw term), not the silhouettes' optimum's, and never above the commanded angles' at that yaw."""
@@ -72,17 +77,37 @@ def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(views: np.ndarr
     settings = dataclasses.replace(FAST, polish=False)
 
     def moved_yaw(images, pf, K, d, theta, box, **_):  # noqa: ANN001, ANN003, ANN202 - refine_yaw's signature
-        return SimpleNamespace(yaw_deg=float(theta[0]) + 0.4, n_evaluations=1, time_s=0.0, report=lambda: {"stage": "photometric yaw"})
+        return SimpleNamespace(
+            yaw_deg=float(theta[0]) + 0.4, n_evaluations=1, time_s=0.0, report=lambda: {"stage": "photometric yaw"}
+        )
 
     monkeypatch.setattr(run_module, "refine_yaw", moved_yaw)
-    monkeypatch.setattr(run_module, "enough_directions", lambda angles: True)  # 12 views: 6 directions, but the search is faked
-    r = calibrate_views(views, K, d, theta0, seed=0, free=["yaw", "pitch", "gamma"], settings=dataclasses.replace(settings, photometric_yaw=True))
+    monkeypatch.setattr(
+        run_module, "enough_directions", lambda angles: True
+    )  # 12 views: 6 directions, but the search is faked
+    r = calibrate_views(
+        views,
+        K,
+        d,
+        theta0,
+        seed=0,
+        free=["yaw", "pitch", "gamma"],
+        settings=dataclasses.replace(settings, photometric_yaw=True),
+    )
     judge = next(rep for rep in r.level_reports if "judge" in rep)
     assert judge["final_cost_after"] == "photometric yaw" and judge["final_cost"] == r.final_cost
     silhouette_pose = r.theta_deg.copy()
     silhouette_pose[0] -= 0.4
-    check = calibrate_views(views, K, d, theta0, seed=0, free=["yaw", "pitch", "gamma"], settings=settings,
-                            score_thetas=[r.theta_deg, silhouette_pose])
+    check = calibrate_views(
+        views,
+        K,
+        d,
+        theta0,
+        seed=0,
+        free=["yaw", "pitch", "gamma"],
+        settings=settings,
+        score_thetas=[r.theta_deg, silhouette_pose],
+    )
     assert check.final_cost == pytest.approx(judge["silhouette_cost"], rel=1e-6)
     yaw_prior = settings.roll_prior_weight * ((r.theta_deg[0] - theta0[0]) / settings.yaw_prior_deg) ** 2
     assert yaw_prior > 1e-3  # the moved yaw carries a prior term the stored cost must not hold
@@ -107,7 +132,9 @@ def test_restarts_spend_the_budget_and_keep_the_best_run(restarts: str) -> None:
         one = minimise(_rastrigin, np.full(4, -0.8), seed=seed, **kw)  # type: ignore[arg-type]
         r = minimise(_rastrigin, np.full(4, -0.8), seed=seed, restarts=restarts, **kw)  # type: ignore[arg-type]
         runs = {k.split(":")[0] for k in r.stop}
-        assert len(runs) >= 2 and 6000 <= r.n_evaluations <= 6000 + 64 + 2 * len(runs)  # cma ends a generation; 2 re-scorings a run
+        assert len(runs) >= 2 and 6000 <= r.n_evaluations <= 6000 + 64 + 2 * len(
+            runs
+        )  # cma ends a generation; 2 re-scorings a run
         assert r.f_best == pytest.approx(float(_rastrigin(r.x_best[None])[0]))
         assert r.f_best <= min(r.trace_best) + 1e-12 and all(np.diff(r.trace_evals) > 0)
         wins += r.f_best < one.f_best - 1e-9
@@ -117,6 +144,7 @@ def test_restarts_spend_the_budget_and_keep_the_best_run(restarts: str) -> None:
 
 def test_unknown_restart_strategy_is_one_clear_error(views: np.ndarray, truth: np.ndarray) -> None:
     import synthetic as sy
+
     from vastcal.errors import UserInputError
 
     K, d = sy.camera()

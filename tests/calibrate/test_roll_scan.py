@@ -9,10 +9,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vastcal.calibrate.objective_coherence import CoherenceObjective, axis_crossings, signed_distance_maps, silhouette_edges
+from vastcal.calibrate.objective_coherence import (
+    CoherenceObjective,
+    axis_crossings,
+    signed_distance_maps,
+    silhouette_edges,
+)
 from vastcal.calibrate.parameters import ParameterSpace
-from vastcal.calibrate.roll_scan import (MAX_OUTLIER_VIEWS, basin_half_widths_deg, outlier_views, plan_grid, roll_motion_px_per_deg,
-                                        roll_scan, scan_outlier_views)
+from vastcal.calibrate.roll_scan import (
+    MAX_OUTLIER_VIEWS,
+    basin_half_widths_deg,
+    outlier_views,
+    plan_grid,
+    roll_motion_px_per_deg,
+    roll_scan,
+    scan_outlier_views,
+)
 from vastcal.calibrate.run import POLISH_REACH, polish_rolls, roll_share
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import projection_matrices
@@ -23,11 +35,17 @@ _spec.loader.exec_module(synthetic)  # type: ignore[union-attr]
 
 #: Two rods and a blob, 300–400 µm off the axis: every slice across the axis cuts two or three separate sections, so a
 #: view's roll moves its silhouette against the others' (a lone convex section would hide it).
-OFF_AXIS = (((0.0, 350.0, 0.0), (900.0, 80.0, 80.0)), ((-200.0, -150.0, 300.0), (700.0, 90.0, 70.0)),
-            ((500.0, -250.0, -250.0), (250.0, 120.0, 120.0)))
+OFF_AXIS = (
+    ((0.0, 350.0, 0.0), (900.0, 80.0, 80.0)),
+    ((-200.0, -150.0, 300.0), (700.0, 90.0, 70.0)),
+    ((500.0, -250.0, -250.0), (250.0, 120.0, 120.0)),
+)
 #: A body on the axis with two lobes attached off it: one connected silhouette, as the calibration's maps expect.
-ATTACHED = (((0.0, 0.0, 0.0), (900.0, 110.0, 90.0)), ((300.0, 230.0, 0.0), (450.0, 140.0, 70.0)),
-            ((-400.0, -60.0, 230.0), (350.0, 80.0, 150.0)))
+ATTACHED = (
+    ((0.0, 0.0, 0.0), (900.0, 110.0, 90.0)),
+    ((300.0, 230.0, 0.0), (450.0, 140.0, 70.0)),
+    ((-400.0, -60.0, 230.0), (350.0, 80.0, 150.0)),
+)
 BOX = CalibrationBounds(0.0, 0.0, 0.0, 15.0)
 REACH = POLISH_REACH * sum((0.2, 0.1, 0.05, 0.025))  # how far the per-view polish can move a roll
 
@@ -58,8 +76,18 @@ def _scan(scene: tuple, commanded: np.ndarray) -> tuple[ParameterSpace, np.ndarr
     def widths(theta: np.ndarray) -> np.ndarray:
         return basin_half_widths_deg(roll_motion_px_per_deg(K, d, theta, points), fast.cap_px)
 
-    x, f, evals, report = roll_scan(fast, lambda th: np.zeros(len(th)), exact, space, x, f0, half_width_deg=widths, gauge=True,
-                                    reach_deg=REACH, share=roll_share(fast, len(commanded) - 3))
+    x, f, evals, report = roll_scan(
+        fast,
+        lambda th: np.zeros(len(th)),
+        exact,
+        space,
+        x,
+        f0,
+        half_width_deg=widths,
+        gauge=True,
+        reach_deg=REACH,
+        share=roll_share(fast, len(commanded) - 3),
+    )
     assert evals == report["evaluations"] > 0
     return space, x, f0, f, report
 
@@ -69,11 +97,15 @@ def test_the_grid_step_is_half_the_narrowest_basin_and_a_microscope_box_is_not_s
     K, d = synthetic.camera()
     m = roll_motion_px_per_deg(K, d, theta, points)
     w = basin_half_widths_deg(m, fast.cap_px)
-    assert np.all(w <= fast.cap_px / np.sqrt(np.mean(m * m)) + 1e-12) and np.all(w > 2.0)  # ~0.4 px per degree: w ≈ 3.6–3.8°
+    assert np.all(w <= fast.cap_px / np.sqrt(np.mean(m * m)) + 1e-12) and np.all(
+        w > 2.0
+    )  # ~0.4 px per degree: w ≈ 3.6–3.8°
     wide = plan_grid(ParameterSpace.build(theta, ["rolls"], BOX), np.zeros(11), w, gauge=True)
     assert wide.views.tolist() == list(range(12)) and np.allclose(wide.step_deg, 0.5 * w[wide.views])
     assert np.all(wide.pairs * wide.step_deg >= 15.0)  # each view's trials reach both ends of its box
-    narrow = plan_grid(ParameterSpace.build(theta, ["rolls"], CalibrationBounds(0.0, 0.0, 0.0, 1.5)), np.zeros(11), w, gauge=True)
+    narrow = plan_grid(
+        ParameterSpace.build(theta, ["rolls"], CalibrationBounds(0.0, 0.0, 0.0, 1.5)), np.zeros(11), w, gauge=True
+    )
     assert narrow.views.size == 0 and narrow.n_trials == 0 and len(narrow.skipped) == 12  # ±1.5°: inside one basin
 
 
@@ -121,8 +153,18 @@ def test_the_scan_never_raises_the_judged_cost() -> None:
         near = np.exp(-0.5 * ((r - dip) / 1.0) ** 2)
         return 1.0 - 0.3 * near.sum(1) + 0.9 * np.maximum(near.sum(1) - 1.0, 0.0) ** 2
 
-    x, f, _, report = roll_scan(cost, lambda th: np.zeros(len(th)), cost, space, np.zeros(n - 1), 1.0,
-                                half_width_deg=lambda th: np.full(n, 2.0), gauge=False, reach_deg=REACH, share=1.0)
+    x, f, _, report = roll_scan(
+        cost,
+        lambda th: np.zeros(len(th)),
+        cost,
+        space,
+        np.zeros(n - 1),
+        1.0,
+        half_width_deg=lambda th: np.full(n, 2.0),
+        gauge=False,
+        reach_deg=REACH,
+        share=1.0,
+    )
     assert f <= 1.0 and f == pytest.approx(float(cost(space.theta(x))[0]))
     assert np.sum(np.abs(space.theta(x)[0][4:] - dip) < 0.5) <= 1  # one view moved, not the joint move that costs more
     assert all(e["judged_after"] <= e["judged_before"] for e in report["rounds"])
@@ -133,12 +175,14 @@ def test_the_polish_moves_view_0_through_the_gauge() -> None:
     The free rolls' own polish cannot mend it; with the gauge, view 0's parabola does."""
     n = 8
     target = np.r_[0.0, np.linspace(-0.4, 0.5, n - 1)]
-    space = ParameterSpace.build(np.r_[np.zeros(3), target + np.r_[0.0, np.full(n - 1, 0.3)]], ["rolls"], CalibrationBounds(0, 0, 0, 2.0))
+    space = ParameterSpace.build(
+        np.r_[np.zeros(3), target + np.r_[0.0, np.full(n - 1, 0.3)]], ["rolls"], CalibrationBounds(0, 0, 0, 2.0)
+    )
 
     def cost(th: np.ndarray) -> np.ndarray:
         r = np.atleast_2d(th)[:, 3:]
         rel = r - r[:, :1] - target
-        return np.sum((rel - rel.mean(1, keepdims=True)) ** 2, 1) + 0.5 * np.sum(rel ** 2, 1)
+        return np.sum((rel - rel.mean(1, keepdims=True)) ** 2, 1) + 0.5 * np.sum(rel**2, 1)
 
     x0 = np.zeros(space.n_free)
     x_plain, f_plain, _, _ = polish_rolls(cost, space, x0)
@@ -160,18 +204,32 @@ def test_a_calibration_records_the_scan_in_its_level_reports() -> None:
     K, d = synthetic.camera()
     levels = (Level(160, 1500, 0.3, 300), Level(320, 3000, 0.03, 200))
     for on in (True, False):
-        r = calibrate_views(images, K, d, commanded, free=["rolls"], bounds=BOX,
-                            settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, roll_scan=on))
+        r = calibrate_views(
+            images,
+            K,
+            d,
+            commanded,
+            free=["rolls"],
+            bounds=BOX,
+            settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, roll_scan=on),
+        )
         assert r.final_cost <= r.theta0_cost
         assert "roll_scan" not in r.level_reports[1]  # the last level is followed by the polish, not by a scan
         if not on:
             assert "roll_scan" not in r.level_reports[0]
             continue
         scan = r.level_reports[0]["roll_scan"]
-        assert scan["ran"] and scan["rounds"] and scan["rounds"][0]["trials"] > 0 and 0 in scan["rounds"][0]["views_scanned"]
+        assert (
+            scan["ran"]
+            and scan["rounds"]
+            and scan["rounds"][0]["trials"] > 0
+            and 0 in scan["rounds"][0]["views_scanned"]
+        )
         assert scan["judged_after"] <= scan["judged_before"]
         assert all(e["judged_after"] <= e["judged_before"] for e in scan["rounds"])
-        assert r.level_reports[0]["max_evaluations"] == 300 and r.level_reports[1]["max_evaluations"] == (400 if scan["moved"] else 200)
+        assert r.level_reports[0]["max_evaluations"] == 300 and r.level_reports[1]["max_evaluations"] == (
+            400 if scan["moved"] else 200
+        )
 
 
 def test_views_moved_by_the_scan_double_the_next_level_s_budget(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -188,8 +246,15 @@ def test_views_moved_by_the_scan_double_the_next_level_s_budget(monkeypatch: pyt
     images = synthetic.render(theta, phantom=ATTACHED)
     K, d = synthetic.camera()
     levels = (Level(160, 1500, 0.3, 300), Level(320, 3000, 0.03, 200))
-    r = calibrate_views(images, K, d, theta, free=["rolls"], bounds=BOX,
-                        settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, polish=False))
+    r = calibrate_views(
+        images,
+        K,
+        d,
+        theta,
+        free=["rolls"],
+        bounds=BOX,
+        settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, polish=False),
+    )
     assert r.level_reports[0]["roll_scan"]["moved"] == [8]
     assert r.level_reports[1]["max_evaluations"] == int(MOVED_BUDGET_SCALE * 200) > 200
 
@@ -235,14 +300,31 @@ def test_outlier_views_are_judged_by_the_median_and_its_absolute_deviation() -> 
     assert len(outlier_views(many, np.arange(1, 12))) == MAX_OUTLIER_VIEWS
 
 
-
 def test_a_moved_outlier_view_is_named_in_the_calibration_summary() -> None:
     from vastcal.calibrate.run import CalibrationResult, CalibrationSettings
 
     def result(scan: dict) -> CalibrationResult:
         th = np.zeros(3 + 4)
-        return CalibrationResult("coherence", th, th, np.eye(3), 1.0, np.zeros((4, 3, 4)), None, 0, ("rolls",), {}, CalibrationSettings(),
-                                 10, 1.0, 0.1, 100, 50.0, np.zeros((1, 2)), level_reports=[{"judge": "…", "outlier_scan": scan}])
+        return CalibrationResult(
+            "coherence",
+            th,
+            th,
+            np.eye(3),
+            1.0,
+            np.zeros((4, 3, 4)),
+            None,
+            0,
+            ("rolls",),
+            {},
+            CalibrationSettings(),
+            10,
+            1.0,
+            0.1,
+            100,
+            50.0,
+            np.zeros((1, 2)),
+            level_reports=[{"judge": "…", "outlier_scan": scan}],
+        )
 
     moved = result({"flagged": {"2": 77.2}, "moved": {"2": -17.04}})
     assert "outlier view(s) moved by a scan of their whole roll box: 2 (-17.04°, z 77)" in moved.summary()

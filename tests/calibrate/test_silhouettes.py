@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel, Gaussian
-from vastcal.calibrate.silhouettes import half_contrast_edges, specimen_maps, specimen_only, static_bands, touches_frame_edge
+from vastcal.calibrate.silhouettes import (
+    half_contrast_edges,
+    specimen_maps,
+    specimen_only,
+    static_bands,
+    touches_frame_edge,
+)
 
 
 def _walls_and_blob(n: int = 12, h: int = 80, w: int = 200) -> np.ndarray:
@@ -39,7 +45,9 @@ def test_half_contrast_moves_a_blurred_rim_to_the_physical_edge() -> None:
     r_true = np.sqrt((img < 150).sum() / np.pi)  # equivalent radius of the drawn disc, px
     img = cv2.GaussianBlur(img, (0, 0), 1.5)[None].astype(np.uint8)
     # features are flattened by the background level (230 → 1), as the fitted models are
-    model = ColourModel(Gaussian(np.array([80 / 230.0]), np.array([[1e-3]])), Gaussian(np.array([1.0]), np.array([[1e-4]])), 0.3, "grey")
+    model = ColourModel(
+        Gaussian(np.array([80 / 230.0]), np.array([[1e-3]])), Gaussian(np.array([1.0]), np.array([[1e-4]])), 0.3, "grey"
+    )
     bayes = model.foreground_probability(img)[0] > 0.5
     refined = specimen_maps(model, img)[0] > 0.5
     r_bayes, r_refined = np.sqrt(bayes.sum() / np.pi), np.sqrt(refined.sum() / np.pi)
@@ -76,7 +84,9 @@ _BG = 230.0
 
 def _absorbing_model() -> ColourModel:
     """Grey model of a specimen at 45 % transmission on a background flattened to 1."""
-    return ColourModel(Gaussian(np.array([0.45]), np.array([[0.02]])), Gaussian(np.array([1.0]), np.array([[1e-4]])), 0.2, "grey")
+    return ColourModel(
+        Gaussian(np.array([0.45]), np.array([[0.02]])), Gaussian(np.array([1.0]), np.array([[1e-4]])), 0.2, "grey"
+    )
 
 
 def _render(absorption: np.ndarray, blur_px: float = 1.0, seed: int = 0) -> np.ndarray:

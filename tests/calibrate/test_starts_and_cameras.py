@@ -3,12 +3,13 @@ handedness and format, the cameras' length unit."""
 
 from __future__ import annotations
 
+import importlib.util as _importlib_util
 from pathlib import Path
 
 import numpy as np
 import pytest
 import synthetic as sy
-import importlib.util as _importlib_util
+
 _spec = _importlib_util.spec_from_file_location("calibrate_test_helpers", Path(__file__).with_name("conftest.py"))
 _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
@@ -57,7 +58,9 @@ def test_polish_reaches_the_minimum_of_each_roll() -> None:
 
 
 def test_starts_are_stored_and_never_worse_than_commanded(session_path: Path, views: np.ndarray) -> None:
-    r = calibrate_session(session_path, seed=1, free=["pitch", "gamma", "rolls"], settings=FAST, starts=2, fixed_views="5-6")
+    r = calibrate_session(
+        session_path, seed=1, free=["pitch", "gamma", "rolls"], settings=FAST, starts=2, fixed_views="5-6"
+    )
     n = len(views)
     assert r.method == "coherence"
     assert r.final_cost <= r.theta0_cost
@@ -126,11 +129,13 @@ def test_length_unit_is_given_inferred_or_unknown() -> None:
 def test_a_level_that_hands_over_shows_exploring_until_its_end_is_planned(session_path: Path) -> None:
     """The first level ends at a generation planned from its step's descent: until that plan is frozen it is shown as
     exploring, with its time only (no ETA to be wrong), then as the level itself, whose end is then known."""
-    from vastcal.progress import CalibrationProgress, PhaseProgress
-
     import dataclasses
 
-    settings = dataclasses.replace(FAST, levels=(dataclasses.replace(FAST.levels[0], max_evaluations=4000), FAST.levels[1]))
+    from vastcal.progress import CalibrationProgress, PhaseProgress
+
+    settings = dataclasses.replace(
+        FAST, levels=(dataclasses.replace(FAST.levels[0], max_evaluations=4000), FAST.levels[1])
+    )
     bar = PhaseProgress("calibrate", enabled=False)
     with bar:
         calibrate_session(session_path, seed=1, settings=settings, progress=CalibrationProgress(bar))
@@ -158,20 +163,34 @@ def test_a_session_s_imported_cameras_are_kept_when_the_calibration_ends_costlie
     n = len(views)
     K, d = sy.camera()
     path = tmp_path / "s.h5"
-    with SessionWriter.create(path, frame_shape=views.shape[1:], dtype=views.dtype, rig_yaml=_helpers.rig_yaml(CalibrationBounds(3.0, 3.0, 0.2, 15.0)),
-                              plan={"views": n}, live=False, pixel_size_um=(5.5, 5.5)) as w:
+    with SessionWriter.create(
+        path,
+        frame_shape=views.shape[1:],
+        dtype=views.dtype,
+        rig_yaml=_helpers.rig_yaml(CalibrationBounds(3.0, 3.0, 0.2, 15.0)),
+        plan={"views": n},
+        live=False,
+        pixel_size_um=(5.5, 5.5),
+    ) as w:
         for i in range(n):
             w.append_view(views[i], truth[3 + i] + (10.0 if i % 2 else 0.0))
         w.write_cameras(projection_matrices(K, d, truth[None])[0], source="the truth")
-    one_generation = dataclasses.replace(FAST, levels=tuple(dataclasses.replace(lv, max_evaluations=8) for lv in FAST.levels),
-                                         polish=False, roll_scan=False, roll_prior_weight=0.0)
+    one_generation = dataclasses.replace(
+        FAST,
+        levels=tuple(dataclasses.replace(lv, max_evaluations=8) for lv in FAST.levels),
+        polish=False,
+        roll_scan=False,
+        roll_prior_weight=0.0,
+    )
     r = calibrate_session(path, seed=0, settings=one_generation, fixed_views="5")
     with Session.open(path) as s:
         a = read_attrs(s.latest_result("calibration"))
     known = np.asarray(a["imported_cameras_theta_deg"])
     np.testing.assert_allclose(known[3:], truth[3:], atol=1e-6)  # the cameras' rolls, view 0 at its commanded angle
     judge = next(rep for rep in r.level_reports if "judge" in rep)
-    assert judge["kept"] == "the imported cameras" and judge["reference_costs"][0] < min(judge["start_costs"] + [judge["theta0_cost"]])
+    assert judge["kept"] == "the imported cameras" and judge["reference_costs"][0] < min(
+        judge["start_costs"] + [judge["theta0_cost"]]
+    )
     expected = known.copy()
     expected[3 + 5] = r.theta0_deg[3 + 5]  # a fixed view stays at its commanded angle
     np.testing.assert_allclose(r.theta_deg, expected, atol=1e-12)
@@ -180,5 +199,10 @@ def test_a_session_s_imported_cameras_are_kept_when_the_calibration_ends_costlie
     assert judge["reference_costs"] == [] and judge["kept"] != "the imported cameras"
     from vastcal.reconstruct import reconstruct_session
 
-    m = reconstruct_session(path, calibration_run="imported")  # no masks: the silhouettes of the latest run's colour model
-    assert m.provenance["camera_source"] == "cameras (imported)" and "colour_model of calibration/run_001" in m.provenance["silhouette_source"]
+    m = reconstruct_session(
+        path, calibration_run="imported"
+    )  # no masks: the silhouettes of the latest run's colour model
+    assert (
+        m.provenance["camera_source"] == "cameras (imported)"
+        and "colour_model of calibration/run_001" in m.provenance["silhouette_source"]
+    )

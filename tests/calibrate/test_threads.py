@@ -7,7 +7,9 @@ import pytest
 from vastcal.calibrate import threads
 
 
-def test_thread_count_comes_from_the_environment_or_the_cpus(monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+def test_thread_count_comes_from_the_environment_or_the_cpus(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
     monkeypatch.setenv(threads.ENV, "3")
     assert threads.compute_threads() == 3
     monkeypatch.setenv(threads.ENV, "0")

@@ -9,9 +9,9 @@ from dataclasses import replace
 import pytest
 
 import vastcal.simulators.stage as simstage
+from vastcal.config import StageConfig
 from vastcal.drivers.stage.zaber_stage import ZaberRotationStage
 from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
-from vastcal.config import StageConfig
 
 TIME_SCALE = 20.0
 BASE_CFG = StageConfig(reply_timeout_s=0.5, settle_s=0.0, home_on_start=False)

@@ -12,10 +12,10 @@ from dataclasses import replace
 
 import pytest
 
-from vastcal.drivers.stage import open_stage
-from vastcal.drivers.stage.zaber_stage import ZaberRotationStage
 from vastcal.config import StageConfig
 from vastcal.devices import MoveResult, RotationStage
+from vastcal.drivers.stage import open_stage
+from vastcal.drivers.stage.zaber_stage import ZaberRotationStage
 from vastcal.errors import AcquisitionAborted, CommandRejectedError, DeviceError, NotHomedError
 
 CYCLE = 1_152_000

@@ -59,7 +59,9 @@ EIO_OS = OSError(errno.EIO, "Input/output error")
         ("reset_input_buffer", EIO_TERMIOS, "drain", "cannot reset input"),
     ],
 )
-def test_port_failures_become_disconnect_errors_with_the_reason(op: str, exc: BaseException, call: str, words: str) -> None:
+def test_port_failures_become_disconnect_errors_with_the_reason(
+    op: str, exc: BaseException, call: str, words: str
+) -> None:
     t = SerialTransport("loop://", timeout_s=0.05)
     t._port = _Unplugged(op, exc)  # type: ignore[assignment]
     with pytest.raises(DeviceDisconnectedError) as info:

@@ -12,8 +12,8 @@ import vastcal.simulators.stage as simstage
 from vastcal.drivers.stage import zaber_ascii as za
 from vastcal.drivers.stage.serial_transport import SerialTransport
 from vastcal.drivers.stage.zaber_connection import ZaberConnection
-from vastcal.simulators.stage import Fault, StageSimulator
 from vastcal.errors import CommandRejectedError, DeviceDisconnectedError, DeviceError, DeviceTimeoutError, ProtocolError
+from vastcal.simulators.stage import Fault, StageSimulator
 
 
 @pytest.fixture
@@ -121,7 +121,17 @@ class ScriptedTransport:
 
 
 def test_alerts_info_and_stale_ids_are_skipped() -> None:
-    t = ScriptedTransport([[b"!01 1 IDLE --\r\n", b"@01 1 98 OK IDLE -- 1\r\n", b"#01 1 {id} hello\r\n", b"@02 1 {id} OK IDLE -- 2\r\n", b"@01 1 {id} OK IDLE -- 3\r\n"]])
+    t = ScriptedTransport(
+        [
+            [
+                b"!01 1 IDLE --\r\n",
+                b"@01 1 98 OK IDLE -- 1\r\n",
+                b"#01 1 {id} hello\r\n",
+                b"@02 1 {id} OK IDLE -- 2\r\n",
+                b"@01 1 {id} OK IDLE -- 3\r\n",
+            ]
+        ]
+    )
     conn = ZaberConnection(t, 1)  # type: ignore[arg-type]
     assert conn.command("get pos", axis=1).data == "3"
     assert conn.stale_replies_dropped == 2
@@ -129,7 +139,9 @@ def test_alerts_info_and_stale_ids_are_skipped() -> None:
 
 
 def test_continuation_packets_are_joined() -> None:
-    t = ScriptedTransport([[b"@01 1 {id} OK IDLE -- 1 2\\\r\n", b"#01 1 {id} cont 3 4\\\r\n", b"#01 1 {id} cont 5\r\n"]])
+    t = ScriptedTransport(
+        [[b"@01 1 {id} OK IDLE -- 1 2\\\r\n", b"#01 1 {id} cont 3 4\\\r\n", b"#01 1 {id} cont 5\r\n"]]
+    )
     conn = ZaberConnection(t, 1, checksums=False)  # type: ignore[arg-type]
     assert conn.command("get pos", axis=1).data == "1 2 3 4 5"
 

@@ -8,7 +8,18 @@ from vastcal.drivers.stage import zaber_ascii as za
 from vastcal.drivers.stage.motion_profile import ZaberUnits, move_time_s, trapezoid_phases
 from vastcal.errors import ProtocolError
 
-REJECT_REASONS = ["BADCOMMAND", "BADAXIS", "BADDATA", "DEVICEONLY", "AGAIN", "BADMESSAGEID", "PARKED", "STATUSBUSY", "NOACCESS", "SYSTEMERROR"]
+REJECT_REASONS = [
+    "BADCOMMAND",
+    "BADAXIS",
+    "BADDATA",
+    "DEVICEONLY",
+    "AGAIN",
+    "BADMESSAGEID",
+    "PARKED",
+    "STATUSBUSY",
+    "NOACCESS",
+    "SYSTEMERROR",
+]
 
 
 @pytest.mark.parametrize(

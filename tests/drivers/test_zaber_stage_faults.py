@@ -9,10 +9,9 @@ from dataclasses import replace
 import pytest
 
 import vastcal.simulators.stage as simstage
+from vastcal.config import StageConfig
 from vastcal.drivers.stage import open_stage
 from vastcal.drivers.stage.zaber_stage import MotionTiming, ZaberRotationStage
-from vastcal.simulators.stage import Fault, StageSimulator
-from vastcal.config import StageConfig
 from vastcal.errors import (
     DeviceDisconnectedError,
     DeviceTimeoutError,
@@ -20,6 +19,7 @@ from vastcal.errors import (
     ProtocolError,
     StageFaultError,
 )
+from vastcal.simulators.stage import Fault, StageSimulator
 
 REPLY_TIMEOUT_S = 0.25
 
@@ -63,16 +63,26 @@ def test_stall_raises_stage_fault_with_flag_and_position(stage: ZaberRotationSta
     assert stage.move_absolute(9000).readback_usteps == 9000
 
 
-@pytest.mark.parametrize("fault", [Fault.drop(), Fault.garbage(), Fault.corrupt()], ids=["drop", "garbage", "wrong-checksum"])
-def test_one_bad_exchange_on_a_query_is_retried_once_and_succeeds(stage: ZaberRotationStage, sim: StageSimulator, fault: Fault) -> None:
+@pytest.mark.parametrize(
+    "fault", [Fault.drop(), Fault.garbage(), Fault.corrupt()], ids=["drop", "garbage", "wrong-checksum"]
+)
+def test_one_bad_exchange_on_a_query_is_retried_once_and_succeeds(
+    stage: ZaberRotationStage, sim: StageSimulator, fault: Fault
+) -> None:
     stage.move_absolute(5000)
     sim.inject(fault)
     assert stage.position() == 5000
     assert stage.connection.retries == 1
 
 
-@pytest.mark.parametrize(("fault", "error"), [(Fault.drop(count=2), DeviceTimeoutError), (Fault.garbage(count=2), ProtocolError)], ids=["drop", "garbage"])
-def test_two_bad_exchanges_on_a_query_raise_then_the_link_recovers(stage: ZaberRotationStage, sim: StageSimulator, fault: Fault, error: type[Exception]) -> None:
+@pytest.mark.parametrize(
+    ("fault", "error"),
+    [(Fault.drop(count=2), DeviceTimeoutError), (Fault.garbage(count=2), ProtocolError)],
+    ids=["drop", "garbage"],
+)
+def test_two_bad_exchanges_on_a_query_raise_then_the_link_recovers(
+    stage: ZaberRotationStage, sim: StageSimulator, fault: Fault, error: type[Exception]
+) -> None:
     sim.inject(fault)
     with pytest.raises(error):
         stage.position()
@@ -108,7 +118,9 @@ def test_late_reply_to_a_move_does_not_confuse_later_queries(stage: ZaberRotatio
     assert stage.connection.stale_replies_dropped >= 1
 
 
-def test_garbage_reply_to_a_move_is_a_protocol_error_then_recovers(stage: ZaberRotationStage, sim: StageSimulator) -> None:
+def test_garbage_reply_to_a_move_is_a_protocol_error_then_recovers(
+    stage: ZaberRotationStage, sim: StageSimulator
+) -> None:
     sim.inject(Fault.garbage())
     with pytest.raises(ProtocolError):
         stage.connection.command("move abs 1000", axis=1)
@@ -147,14 +159,18 @@ def test_disconnect_is_a_connection_error(stage: ZaberRotationStage, sim: StageS
     stage.close()
 
 
-def test_read_back_mismatch_is_reported(stage: ZaberRotationStage, sim: StageSimulator, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_read_back_mismatch_is_reported(
+    stage: ZaberRotationStage, sim: StageSimulator, monkeypatch: pytest.MonkeyPatch
+) -> None:
     true_position = sim.mechanics.commanded_position
     monkeypatch.setattr(sim.mechanics, "commanded_position", lambda: true_position() + 3)
     with pytest.raises(PositionMismatchError, match="off by 3"):
         stage.move_absolute(10_000)
 
 
-def test_tolerance_accepts_small_read_back_errors(cfg: StageConfig, sim: StageSimulator, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_tolerance_accepts_small_read_back_errors(
+    cfg: StageConfig, sim: StageSimulator, monkeypatch: pytest.MonkeyPatch
+) -> None:
     true_position = sim.mechanics.commanded_position
     monkeypatch.setattr(sim.mechanics, "commanded_position", lambda: true_position() + 3)
     with open_stage(replace(cfg, position_tolerance_usteps=3)) as stage:

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vastcal.drivers.camera import GenICamCamera, settings_from_config
 from vastcal.config import CameraConfig, RoiConfig
 from vastcal.devices import CameraSettings
+from vastcal.drivers.camera import GenICamCamera, settings_from_config
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceError, DeviceTimeoutError
 
 
@@ -31,7 +31,9 @@ def _viky_path() -> Path | None:
 
 
 VIKY = _viky_path()
-pytestmark = pytest.mark.skipif(VIKY is None, reason="harvesters, genicam or its viky.cti not installed (the [rig] extra)")
+pytestmark = pytest.mark.skipif(
+    VIKY is None, reason="harvesters, genicam or its viky.cti not installed (the [rig] extra)"
+)
 
 
 @pytest.fixture

@@ -60,8 +60,21 @@ def _run(argv: list[str], n: int | None, stub: str | None, inject: str = "signal
     os.waitpid(pid, os.WUNTRACED)
     tracer = None
     if n is not None:
-        tracer = subprocess.Popen(["strace", "-qq", "-o", os.devnull, "-p", str(pid), "-e", "trace=pwrite64",
-                                   "-e", f"inject=pwrite64:{inject}:when={n}"], stderr=subprocess.PIPE)
+        tracer = subprocess.Popen(
+            [
+                "strace",
+                "-qq",
+                "-o",
+                os.devnull,
+                "-p",
+                str(pid),
+                "-e",
+                "trace=pwrite64",
+                "-e",
+                f"inject=pwrite64:{inject}:when={n}",
+            ],
+            stderr=subprocess.PIPE,
+        )
         # strace is attached once the child shows a tracer in /proc
         for _ in range(2000):
             with open(f"/proc/{pid}/status") as f:
@@ -79,10 +92,10 @@ def _run(argv: list[str], n: int | None, stub: str | None, inject: str = "signal
 
 def main() -> None:
     plan = json.loads(Path(sys.argv[1]).read_text())
-    import vastcal.simulators.camera  # noqa: F401  (paid once, inherited by every child)
     import vastcal.calibrate.session_run  # noqa: F401
     import vastcal.cli  # noqa: F401
     import vastcal.reconstruct  # noqa: F401
+    import vastcal.simulators.camera  # noqa: F401  (paid once, inherited by every child)
 
     work = Path(plan["work"])
     for n in range(plan["first"], plan["last"] + 1, plan.get("step", 1)):

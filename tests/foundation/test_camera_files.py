@@ -51,7 +51,9 @@ def _write(kind: str, P: np.ndarray, folder: Path) -> Path:
         rows = [f"{_fmt(K)} {_fmt(np.linalg.solve(K, p)[:, :3])} {_fmt(np.linalg.solve(K, p)[:, 3])}" for p in P]
         (f := folder / "c_par.txt").write_text(f"{len(P)}\n" + "".join(f"v{i}.png {r}\n" for i, r in enumerate(rows)))
     elif kind == "rows":
-        (f := folder / "c.txt").write_text("".join(f"P{i}:\n" + "".join(f"{_fmt(r)}\n" for r in p) + "\n" for i, p in enumerate(P)))
+        (f := folder / "c.txt").write_text(
+            "".join(f"P{i}:\n" + "".join(f"{_fmt(r)}\n" for r in p) + "\n" for i, p in enumerate(P))
+        )
     elif kind == "name-line":  # each name on its own line, its 12 numbers on the next
         (f := folder / "c.txt").write_text("".join(f"P{i}:\n{_fmt(p)}\n" for i, p in enumerate(P)))
     elif kind == "rows-unnamed":
@@ -123,7 +125,11 @@ def test_arrays_that_are_not_cameras_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ImportDataError, match=r"junk\.mat: not a readable \.mat file"):
         read_cameras(tmp_path / "junk.mat", N)
     for name in ("cut.npz", "cut.mat", "cut.npy"):  # truncated files: their parsers raise BadZipFile, IndexError, ...
-        f = _write({"cut.npz": "npz", "cut.mat": "mat-cell", "cut.npy": "npy"}[name], _cameras(), tmp_path / name.replace(".", "_"))
+        f = _write(
+            {"cut.npz": "npz", "cut.mat": "mat-cell", "cut.npy": "npy"}[name],
+            _cameras(),
+            tmp_path / name.replace(".", "_"),
+        )
         (tmp_path / name).write_bytes(f.read_bytes()[: f.stat().st_size // 2])
         with pytest.raises(ImportDataError, match=rf"{name.replace('.', '[.]')}: not a readable"):
             read_cameras(tmp_path / name, N)
@@ -132,7 +138,9 @@ def test_arrays_that_are_not_cameras_are_refused(tmp_path: Path) -> None:
         read_cameras(tmp_path / "P.npy", N)
     (tmp_path / "pa").mkdir()
     (tmp_path / "pa" / "v0.pa").write_text("CONTOUR\n1 2 3\n")
-    with pytest.raises(ImportDataError, match=r"v0\.pa: expected a 3 x 4 matrix \(12 numbers, after an optional CONTOUR line\), got 3"):
+    with pytest.raises(
+        ImportDataError, match=r"v0\.pa: expected a 3 x 4 matrix \(12 numbers, after an optional CONTOUR line\), got 3"
+    ):
         read_cameras(tmp_path / "pa", 1)
 
 
@@ -143,8 +151,19 @@ def test_import_takes_the_oxford_mat_file_as_the_text_file(tmp_path: Path) -> No
     stored = []
     for kind in ("mat-cell", "name+P"):
         out = tmp_path / f"{kind}.h5"
-        code = cli.main(["-q", "import", str(img), "-o", str(out), "--cameras", str(_write(kind, P, tmp_path / kind)),
-                         "--pixel-origin", "1"])
+        code = cli.main(
+            [
+                "-q",
+                "import",
+                str(img),
+                "-o",
+                str(out),
+                "--cameras",
+                str(_write(kind, P, tmp_path / kind)),
+                "--pixel-origin",
+                "1",
+            ]
+        )
         assert code == 0
         with Session.open(out) as s:
             stored.append(s.known_cameras)
@@ -161,8 +180,9 @@ def _import(tmp_path: Path, P: np.ndarray, name: str) -> Path:
     return out
 
 
-def test_import_says_how_well_circular_motion_describes_the_cameras(tmp_path: Path, caplog: pytest.LogCaptureFixture,
-                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+def test_import_says_how_well_circular_motion_describes_the_cameras(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
+) -> None:
     """A ring fits to ~0 px; a view with its own focal length (2 % longer) or cameras that turn about no common axis
     are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot reach them."""
     from vastcal.calibrate.session_run import session_camera_model
@@ -195,7 +215,9 @@ def test_import_says_how_well_circular_motion_describes_the_cameras(tmp_path: Pa
         elif "not circular motion" in line:  # no common axis found at all
             assert "do not describe circular motion" in warned
         else:  # or one found that reproduces them hundreds of px off
-            assert "px RMS only" in warned and float(line.split("circular fit ")[1].split()[0]) > 10 * CIRCULAR_FIT_WARN_PX
+            assert (
+                "px RMS only" in warned and float(line.split("circular fit ")[1].split()[0]) > 10 * CIRCULAR_FIT_WARN_PX
+            )
 
 
 def test_named_cameras_are_matched_to_the_images_by_name(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
@@ -211,14 +233,22 @@ def test_named_cameras_are_matched_to_the_images_by_name(tmp_path: Path, caplog:
     for cams in (in_order, lexical):
         caplog.clear()
         with caplog.at_level("WARNING", logger="vastcal.importer"):
-            assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / f"{cams.stem}.h5"), "--cameras", str(cams)]) == 0
+            assert (
+                cli.main(
+                    ["-q", "import", str(img), "-o", str(out := tmp_path / f"{cams.stem}.h5"), "--cameras", str(cams)]
+                )
+                == 0
+            )
         assert ("matched to images by name" in caplog.text) == (cams is lexical)
         with Session.open(out) as s:
             stored.append(s.known_cameras)
     np.testing.assert_array_equal(stored[0], stored[1])
     partial = tmp_path / "partial.txt"
     partial.write_text("".join(f"{'img' if i < 6 else 'shot'}{i}.png {_fmt(P[i])}\n" for i in range(12)))
-    with pytest.raises(ImportDataError, match=r"partial\.txt: its view names match 6 of 12 images: cameras shot6, shot7, shot8 name no image"):
+    with pytest.raises(
+        ImportDataError,
+        match=r"partial\.txt: its view names match 6 of 12 images: cameras shot6, shot7, shot8 name no image",
+    ):
         from vastcal.importer import import_folder
 
         import_folder(img, tmp_path / "p.h5", cameras=partial)
@@ -228,7 +258,9 @@ def test_named_cameras_are_matched_to_the_images_by_name(tmp_path: Path, caplog:
 def test_named_angles_are_matched_to_the_images_by_name(tmp_path: Path) -> None:
     """`--angles` with `name angle` lines in a lexical order gives each image its own angle, as cameras do."""
     img = _images(tmp_path / "img", [f"img{i}.png" for i in range(12)])
-    (angles := tmp_path / "angles.txt").write_text("".join(f"img{i}.png {i * 30.0}\n" for i in sorted(range(12), key=str)))
+    (angles := tmp_path / "angles.txt").write_text(
+        "".join(f"img{i}.png {i * 30.0}\n" for i in sorted(range(12), key=str))
+    )
     assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / "s.h5"), "--angles", str(angles)]) == 0
     with Session.open(out) as s:
         np.testing.assert_allclose(s.angles_deg, np.arange(12) * 30.0)

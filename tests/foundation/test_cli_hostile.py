@@ -26,8 +26,9 @@ def _one_line(err: str) -> str:
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT], ids=lambda s: s.name)
-def test_stop_signals_end_any_command_with_128_plus_signum(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
-                                                           sig: signal.Signals) -> None:
+def test_stop_signals_end_any_command_with_128_plus_signum(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], sig: signal.Signals
+) -> None:
     before = {s: signal.getsignal(s) for s in cli.STOP_SIGNALS}
 
     def slow_command(args: object) -> int:
@@ -44,17 +45,28 @@ def test_stop_signals_end_any_command_with_128_plus_signum(monkeypatch: pytest.M
 @pytest.mark.parametrize(
     ("exc", "expected"),
     [
-        (MemoryError("Unable to allocate 61.5 MiB for an array with shape (21, 250, 1024, 3)"), "vastcal: error: out of memory (Unable to allocate 61.5 MiB"),
-        (OSError(errno.ENOSPC, "No space left on device", "S.h5"), "vastcal: error: no space left on the device writing S.h5"),
-        (RuntimeError("Can't flush cache (file write failed: time = Wed Nov 25 2026\n, filename = 'out/S.h5', file descriptor = 3, "
-                      "errno = 28, error message = 'No space left on device', buf = 0x5, total write size = 4616)"),
-         "vastcal: error: no space left on the device writing out/S.h5"),
+        (
+            MemoryError("Unable to allocate 61.5 MiB for an array with shape (21, 250, 1024, 3)"),
+            "vastcal: error: out of memory (Unable to allocate 61.5 MiB",
+        ),
+        (
+            OSError(errno.ENOSPC, "No space left on device", "S.h5"),
+            "vastcal: error: no space left on the device writing S.h5",
+        ),
+        (
+            RuntimeError(
+                "Can't flush cache (file write failed: time = Wed Nov 25 2026\n, filename = 'out/S.h5', file descriptor = 3, "
+                "errno = 28, error message = 'No space left on device', buf = 0x5, total write size = 4616)"
+            ),
+            "vastcal: error: no space left on the device writing out/S.h5",
+        ),
         (OSError(errno.EDQUOT, "Disk quota exceeded"), "vastcal: error: no space left on the device"),
     ],
     ids=["memory", "enospc", "h5py-enospc", "quota"],
 )
-def test_resource_exhaustion_is_one_line_naming_what_ran_out(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
-                                                            exc: BaseException, expected: str) -> None:
+def test_resource_exhaustion_is_one_line_naming_what_ran_out(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], exc: BaseException, expected: str
+) -> None:
     def failing(args: object) -> int:
         raise exc
 
@@ -63,8 +75,9 @@ def test_resource_exhaustion_is_one_line_naming_what_ran_out(monkeypatch: pytest
     assert _one_line(capsys.readouterr().err).startswith(expected)
 
 
-def test_other_os_errors_are_bugs_one_line_exit_1_and_their_traceback_with_v(monkeypatch: pytest.MonkeyPatch,
-                                                                               capsys: pytest.CaptureFixture[str]) -> None:
+def test_other_os_errors_are_bugs_one_line_exit_1_and_their_traceback_with_v(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     def failing(args: object) -> int:
         raise OSError(errno.EBADF, "Bad file descriptor")
 
@@ -76,7 +89,9 @@ def test_other_os_errors_are_bugs_one_line_exit_1_and_their_traceback_with_v(mon
         cli.main(["-v", "info", "S.h5"])
 
 
-def test_a_huge_error_message_is_cut_to_one_short_line(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_huge_error_message_is_cut_to_one_short_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     def failing(args: object) -> int:
         raise UserInputError("x" * 1_000_000 + "\nsecond line")
 
@@ -93,8 +108,9 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, int]]:
 
 
 @pytest.mark.parametrize("force", [False, True], ids=["plain", "force"])
-def test_acquire_and_import_refuse_a_directory_as_output_before_anything_moves(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                                               force: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_acquire_and_import_refuse_a_directory_as_output_before_anything_moves(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], force: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     import vastcal.rig
 
     def no_devices(*args: object, **kwargs: object) -> None:
@@ -156,7 +172,9 @@ def test_output_checks_accept_what_may_be_written(tmp_path: Path) -> None:
     assert (tmp_path / "S.h5").read_bytes() == b"old"
 
 
-def test_a_closed_stdout_pipe_ends_quietly_with_0(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_closed_stdout_pipe_ends_quietly_with_0(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     def reader_gone(args: object) -> int:
         raise BrokenPipeError(errno.EPIPE, "Broken pipe")  # as print() raises under `vastcal info S.h5 | head -1`
 
@@ -179,8 +197,14 @@ def test_a_real_write_limit_during_import_is_one_line_without_a_crash(tmp_path: 
     def limit() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
 
-    proc = subprocess.run([sys.executable, "-m", "vastcal.cli", "-q", "import", "imgs", "-o", "S.h5"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120, preexec_fn=limit)
+    proc = subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", "-q", "import", "imgs", "-o", "S.h5"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=limit,
+    )
     assert proc.returncode == 1, (proc.returncode, proc.stderr)
     assert _one_line(proc.stderr).startswith("vastcal: error: file size limit reached"), proc.stderr
     assert not (tmp_path / "S.h5").exists()
@@ -196,15 +220,23 @@ sys.exit(vastcal.cli.main(sys.argv[1:]))
 """
 
 
-@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc to set an address-space limit just above the loaded libraries")
+@pytest.mark.skipif(
+    not Path("/proc/self/status").exists(),
+    reason="needs Linux /proc to set an address-space limit just above the loaded libraries",
+)
 def test_a_real_address_space_limit_during_import_is_one_line_naming_memory(tmp_path: Path) -> None:
     """``ulimit -v`` just above the loaded libraries: decoding 4000 x 4000 16-bit images (32 MB each)
     fails inside OpenCV (cv2.error "Insufficient memory") or numpy (MemoryError): one line, exit 1."""
     (tmp_path / "imgs").mkdir()
     for i in range(3):
         cv2.imwrite(str(tmp_path / "imgs" / f"v{i}.png"), np.full((4000, 4000), i, np.uint16))  # compresses to a few kB
-    proc = subprocess.run([sys.executable, "-c", MEMORY_CHILD, "-q", "import", "imgs", "-o", "S.h5"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", MEMORY_CHILD, "-q", "import", "imgs", "-o", "S.h5"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 1, (proc.returncode, proc.stderr)
     assert _one_line(proc.stderr).startswith("vastcal: error: out of memory"), proc.stderr
     assert not (tmp_path / "S.h5").exists()

@@ -17,11 +17,17 @@ import pytest
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
 
-def _spawn_demo(tmp_path: Path, views: int) -> tuple[subprocess.Popen[str], "queue.Queue[str]"]:
+def _spawn_demo(tmp_path: Path, views: int) -> tuple[subprocess.Popen[str], queue.Queue[str]]:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "vastcal.cli", "demo", "-o", "D", "--views", str(views)], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: "queue.Queue[str]" = queue.Queue()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vastcal.cli", "demo", "-o", "D", "--views", str(views)],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: queue.Queue[str] = queue.Queue()
 
     def pump() -> None:
         assert proc.stderr is not None
@@ -34,8 +40,13 @@ def _spawn_demo(tmp_path: Path, views: int) -> tuple[subprocess.Popen[str], "que
     return proc, lines
 
 
-def _interrupt_when(proc: subprocess.Popen[str], lines: "queue.Queue[str]", seen: list[str], ready: "callable[[list[str]], bool]",  # type: ignore[valid-type]
-                    what: str) -> tuple[str, str]:
+def _interrupt_when(
+    proc: subprocess.Popen[str],
+    lines: queue.Queue[str],
+    seen: list[str],
+    ready: callable[[list[str]], bool],  # type: ignore[valid-type]
+    what: str,
+) -> tuple[str, str]:
     deadline = time.monotonic() + 240
     while not ready(seen):
         assert proc.poll() is None, f"the demo ended before {what}: {''.join(seen)}"
@@ -69,7 +80,9 @@ def test_ctrl_c_during_the_demo_acquisition_exits_130(tmp_path: Path) -> None:
     proc, lines = _spawn_demo(tmp_path, 60)
     seen: list[str] = []
     stdout, stderr = _interrupt_when(proc, lines, seen, lambda s: any((tmp_path / "D").glob("*.h5")), "session file")
-    assert not any("calibrate" in line for line in seen[:-1] if not line.startswith("vastcal:")), "interrupted in the acquisition"
+    assert not any("calibrate" in line for line in seen[:-1] if not line.startswith("vastcal:")), (
+        "interrupted in the acquisition"
+    )
     _check(proc, stdout, stderr)
 
 
@@ -77,8 +90,13 @@ def test_ctrl_c_during_the_demo_acquisition_exits_130(tmp_path: Path) -> None:
 def test_ctrl_c_during_the_demo_calibration_exits_130(tmp_path: Path) -> None:
     proc, lines = _spawn_demo(tmp_path, 8)
     seen: list[str] = []
-    stdout, stderr = _interrupt_when(proc, lines, seen, lambda s: any(line.startswith("calibrate (") and "level 1/2" in line for line in s),
-                                     "calibration phase")
+    stdout, stderr = _interrupt_when(
+        proc,
+        lines,
+        seen,
+        lambda s: any(line.startswith("calibrate (") and "level 1/2" in line for line in s),
+        "calibration phase",
+    )
     _check(proc, stdout, stderr)
 
 

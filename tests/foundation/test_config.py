@@ -42,10 +42,16 @@ def test_dump_round_trips() -> None:
         ("camera: {pixel_format: Mono7}", "rig.yaml: camera.pixel_format: expected one of 'Mono8'"),
         ("stage: {checksums: 1}", "rig.yaml: stage.checksums: expected true or false, got 1"),
         ("- just\n- a list", "rig.yaml: <top level>: expected a mapping"),
-        ("camera: {roi: {x: 0, y: 900, width: 1024, height: 250}}", "rig.yaml: camera.roi: expected the ROI inside the 1024 x 1024 px sensor"),
+        (
+            "camera: {roi: {x: 0, y: 900, width: 1024, height: 250}}",
+            "rig.yaml: camera.roi: expected the ROI inside the 1024 x 1024 px sensor",
+        ),
         ("stage: [unclosed", "rig.yaml: YAML syntax error at line"),
         ("calibration: {free: [yaw, rol]}", "rig.yaml: calibration.free: expected names from"),
-        ("optics: {principal_point_px: [1, 2, 3]}", "rig.yaml: optics.principal_point_px: expected a list of 2 values, got 3"),
+        (
+            "optics: {principal_point_px: [1, 2, 3]}",
+            "rig.yaml: optics.principal_point_px: expected a list of 2 values, got 3",
+        ),
     ],
 )
 def test_mistakes_name_file_key_and_expectation(tmp_path: Path, text: str, expected: str) -> None:
@@ -69,8 +75,12 @@ def test_unreadable_file(tmp_path: Path) -> None:
 def test_cli_config_error_is_one_line_exit_2(tmp_path: Path) -> None:
     f = tmp_path / "rig.yaml"
     f.write_text("camera: {gain_db: 99}\n")
-    proc = subprocess.run([sys.executable, "-m", "vastcal.cli", "acquire", "--config", str(f), "-o", str(tmp_path / "s.h5")],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", "acquire", "--config", str(f), "-o", str(tmp_path / "s.h5")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0, proc.stderr
     assert "camera.gain_db: expected a number >= 0.0 and <= 48.0, got 99" in proc.stderr

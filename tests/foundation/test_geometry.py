@@ -7,8 +7,18 @@ import pytest
 
 from vastcal.config import OpticsConfig, RoiConfig
 from vastcal.errors import AnalysisError
-from vastcal.geometry import (CircularMotion, decompose_circular, decompose_projection, intrinsics_from_optics, project,
-                              projection_matrices, rot_x, rot_y, rot_z, shift_pixels)
+from vastcal.geometry import (
+    CircularMotion,
+    decompose_circular,
+    decompose_projection,
+    intrinsics_from_optics,
+    project,
+    projection_matrices,
+    rot_x,
+    rot_y,
+    rot_z,
+    shift_pixels,
+)
 
 
 def test_rotations_are_right_handed() -> None:
@@ -27,7 +37,7 @@ def test_axis_is_world_x_and_projects_horizontally() -> None:
     m = CircularMotion(K, 65000.0, 0.0, 0.0, 0.0, np.array([0.0, 90.0]))
     uv = project(m.projection_matrices(), np.array([[1000.0, 0, 0], [-1000.0, 0, 0]]))
     assert np.allclose(uv[..., 1], 511.5)  # points on the axis stay on the image's centre row
-    assert uv[0, 0, 0] > uv[0, 1, 0]       # +x is image right
+    assert uv[0, 0, 0] > uv[0, 1, 0]  # +x is image right
 
 
 def test_batched_projection_matches_single() -> None:
@@ -70,7 +80,9 @@ def test_an_even_ring_with_a_view_facing_view_0_decomposes(n: int, noise_deg: fl
     has no antisymmetric part to read an axis from: the old axis (a mean of those parts) came out 7-14° off and the
     fit 9-19 px wrong. A turntable of 36 views at 10° is such a ring; so is one with the cameras' own noise."""
     K = np.array([[800.0, 0.0, 360.0], [0.0, 800.0, 288.0], [0.0, 0.0, 1.0]])
-    truth = CircularMotion(K, 10.0, 0.5, -90.0, 3.0, np.arange(n) * 360.0 / n)  # the axis upright in the image: a turntable
+    truth = CircularMotion(
+        K, 10.0, 0.5, -90.0, 3.0, np.arange(n) * 360.0 / n
+    )  # the axis upright in the image: a turntable
     S = np.eye(4)  # the data's world: its axis along y, not the model's x
     S[:3, :3] = rot_z(np.pi / 2) @ rot_y(0.3)
     P = truth.projection_matrices() @ S
@@ -121,8 +133,13 @@ def _random_ring(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     images at any slant), looking up or down at it, aimed beside it; right- or left-handed pixels; any world frame."""
     n = int(rng.integers(5, 49))
     f = rng.uniform(300.0, 3000.0)
-    K = np.array([[f, rng.uniform(-2, 2), rng.uniform(200, 500)], [0.0, f * rng.uniform(0.98, 1.02), rng.uniform(150, 350)],
-                  [0.0, 0.0, 1.0]])
+    K = np.array(
+        [
+            [f, rng.uniform(-2, 2), rng.uniform(200, 500)],
+            [0.0, f * rng.uniform(0.98, 1.02), rng.uniform(150, 350)],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     span = rng.choice([360.0, rng.uniform(90.0, 380.0)])
     steps = np.full(n - 1, span / n) if rng.random() < 0.5 else rng.uniform(0.5, 1.5, n - 1) * span / n
     rolls = np.r_[0.0, np.cumsum(steps)]

@@ -32,20 +32,34 @@ def write_images(folder: Path, n: int, shape: tuple[int, ...] = (20, 30), suffix
 def png_claiming(width: int, height: int) -> bytes:
     """A PNG whose (correctly checksummed) IHDR claims ``width`` x ``height`` 8-bit grey pixels,
     followed by a few bytes of compressed data (decoding it would allocate width*height bytes)."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
 
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b"")
+    return (
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b"")
+    )
 
 
 def tiff_claiming(width: int, height: int) -> bytes:
     """A little-endian baseline TIFF whose first IFD claims ``width`` x ``height`` 8-bit grey pixels in one strip."""
-    tags = [(256, 4, width), (257, 4, height), (258, 3, 8), (259, 3, 1), (262, 3, 1), (273, 4, 8), (277, 3, 1),
-            (278, 4, height), (279, 4, 16)]
+    tags = [
+        (256, 4, width),
+        (257, 4, height),
+        (258, 3, 8),
+        (259, 3, 1),
+        (262, 3, 1),
+        (273, 4, 8),
+        (277, 3, 1),
+        (278, 4, height),
+        (279, 4, 16),
+    ]
     ifd_at = 8 + 16
     head = b"II*\x00" + struct.pack("<I", ifd_at) + b"\x00" * 16
-    ifd = struct.pack("<H", len(tags)) + b"".join(struct.pack("<HHI", tag, typ, 1) + struct.pack("<I", val) for tag, typ, val in tags)
+    ifd = struct.pack("<H", len(tags)) + b"".join(
+        struct.pack("<HHI", tag, typ, 1) + struct.pack("<I", val) for tag, typ, val in tags
+    )
     return head + ifd + struct.pack("<I", 0)
 
 
@@ -104,8 +118,14 @@ GOOD_P = "1000 0 15 0  0 1000 10 0  0 0 1 1000"
     ("cameras", "expected"),
     [
         ("\n".join(f"v{i} " + " ".join(["0"] * 12) for i in range(3)), "line 1|camera v0"),
-        ("\n".join(f"v{i} {GOOD_P}" for i in range(2)) + "\nv2 " + GOOD_P.replace("1000 0 15", "nan 0 15"), "line 3|camera v2"),
-        ("\n".join(f"v{i} {GOOD_P}" for i in range(2)) + "\nv2 " + GOOD_P.replace("1 1000", "inf 1000"), "line 3|camera v2"),
+        (
+            "\n".join(f"v{i} {GOOD_P}" for i in range(2)) + "\nv2 " + GOOD_P.replace("1000 0 15", "nan 0 15"),
+            "line 3|camera v2",
+        ),
+        (
+            "\n".join(f"v{i} {GOOD_P}" for i in range(2)) + "\nv2 " + GOOD_P.replace("1 1000", "inf 1000"),
+            "line 3|camera v2",
+        ),
     ],
     ids=["all-zero", "nan", "inf"],
 )
@@ -132,13 +152,17 @@ def test_a_tiff_given_as_cameras_is_one_line(tmp_path: Path, capsys: pytest.Capt
     write_images(tmp_path / "img", 3)
     cv2.imwrite(str(tmp_path / "cams.tif"), (np.arange(64 * 64) % 251).astype(np.uint8).reshape(64, 64))
     before = _snapshot(tmp_path)
-    code = cli.main(["-q", "import", str(tmp_path / "img"), "-o", str(tmp_path / "s.h5"), "--cameras", str(tmp_path / "cams.tif")])
+    code = cli.main(
+        ["-q", "import", str(tmp_path / "img"), "-o", str(tmp_path / "s.h5"), "--cameras", str(tmp_path / "cams.tif")]
+    )
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "Traceback" not in err and "cams.tif" in err, err
     assert _snapshot(tmp_path) == before
 
 
-def test_output_on_a_directory_or_a_read_only_folder_writes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_output_on_a_directory_or_a_read_only_folder_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     write_images(tmp_path / "img", 3)
     (tmp_path / "out").mkdir()
     before = _snapshot(tmp_path)

@@ -92,9 +92,20 @@ def test_existing_output_needs_force(tmp_path: Path) -> None:
 
 def test_zebrafish_imports_with_cameras_exactly(zebrafish_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "zf.h5"
-    proc = run_cli("import", str(zebrafish_dir / "images"), "-o", str(out), "--masks", str(zebrafish_dir / "silhouettes"),
-                   "--cameras", str(zebrafish_dir / "authors_par_pi.txt"), "--pixel-origin", "1",
-                   "--config", str(CONFIG_DIR / "guo2019-zebrafish.yaml"))
+    proc = run_cli(
+        "import",
+        str(zebrafish_dir / "images"),
+        "-o",
+        str(out),
+        "--masks",
+        str(zebrafish_dir / "silhouettes"),
+        "--cameras",
+        str(zebrafish_dir / "authors_par_pi.txt"),
+        "--pixel-origin",
+        "1",
+        "--config",
+        str(CONFIG_DIR / "guo2019-zebrafish.yaml"),
+    )
     assert proc.returncode == 0, proc.stderr
     given, _ = read_cameras(zebrafish_dir / "authors_par_pi.txt", 21)
     with Session.open(out) as s:
@@ -140,13 +151,23 @@ def test_pixel_origin_half_shifts_cameras_by_half_a_pixel(tmp_path: Path) -> Non
     with pytest.raises(ImportDataError, match="pixel origin must be one of 0.0, 0.5, 1.0"):
         import_folder(tmp_path / "img", tmp_path / "t.h5", cameras=tmp_path / "cams.txt", pixel_origin=2)
     assert not (tmp_path / "t.h5").exists()
-    proc = run_cli("import", str(tmp_path / "img"), "-o", str(tmp_path / "u.h5"), "--cameras", str(tmp_path / "cams.txt"), "--pixel-origin", "2")
+    proc = run_cli(
+        "import",
+        str(tmp_path / "img"),
+        "-o",
+        str(tmp_path / "u.h5"),
+        "--cameras",
+        str(tmp_path / "cams.txt"),
+        "--pixel-origin",
+        "2",
+    )
     assert proc.returncode == 2 and "--pixel-origin" in proc.stderr and not (tmp_path / "u.h5").exists()
 
 
 @pytest.mark.parametrize("step, jitter, cameras_taken", [(32.0, 0.0, True), (30.0, 1.0, False)])
-def test_cameras_give_the_angles_where_uniform_steps_would_leave_the_roll_box(tmp_path: Path, step: float, jitter: float,
-                                                                             cameras_taken: bool) -> None:
+def test_cameras_give_the_angles_where_uniform_steps_would_leave_the_roll_box(
+    tmp_path: Path, step: float, jitter: float, cameras_taken: bool
+) -> None:
     """Without angles a revolution is taken as uniform steps over 360°; known cameras ~12° off that at the last view (a
     ring of 384°, roll box ±5°) give their own rolls instead, while cameras within the box (±1° of uniform) leave them."""
     from vastcal.geometry import projection_matrices
@@ -156,7 +177,9 @@ def test_cameras_give_the_angles_where_uniform_steps_would_leave_the_roll_box(tm
     rolls -= rolls[0]
     K = np.array([[800.0, 0.0, 15.0], [0.0, 800.0, 10.0], [0.0, 0.0, 1.0]])
     P = projection_matrices(K, 5000.0, np.r_[0.5, -0.3, 0.1, rolls][None])[0]
-    (tmp_path / "cams.txt").write_text("\n".join(f"view{i} " + " ".join(f"{v:.12g}" for v in P[i].ravel()) for i in range(12)))
+    (tmp_path / "cams.txt").write_text(
+        "\n".join(f"view{i} " + " ".join(f"{v:.12g}" for v in P[i].ravel()) for i in range(12))
+    )
     import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt")
     with Session.open(tmp_path / "s.h5") as s:
         if cameras_taken:

@@ -34,7 +34,9 @@ pytestmark = pytest.mark.slow
 def _strace_can_inject() -> str | None:
     if shutil.which("strace") is None:
         return "strace is not installed (Debian package 'strace'; .ci/run installs it)"
-    probe = subprocess.run(["strace", "-qq", "-o", "/dev/null", "-e", "inject=pwrite64:retval=0", "true"], capture_output=True, timeout=30)
+    probe = subprocess.run(
+        ["strace", "-qq", "-o", "/dev/null", "-e", "inject=pwrite64:retval=0", "true"], capture_output=True, timeout=30
+    )
     if probe.returncode != 0:
         return f"strace cannot trace here: {probe.stderr.decode(errors='replace').strip()[:120]}"
     return None
@@ -47,8 +49,15 @@ def _need_strace() -> None:
         pytest.skip(reason)
 
 
-def kill_at_every_write(tmp: Path, argv: list[str], *, input_file: Path | None = None, then: list[str] | None = None,
-                        stub: Path | None = None, inject: str = "signal=SIGKILL") -> list[dict]:
+def kill_at_every_write(
+    tmp: Path,
+    argv: list[str],
+    *,
+    input_file: Path | None = None,
+    then: list[str] | None = None,
+    stub: Path | None = None,
+    inject: str = "signal=SIGKILL",
+) -> list[dict]:
     """Run the fork server over every write; one record per N (the last one unkilled).
 
     One driver per CPU (at most two), each taking every other N: the Ns are independent runs, so together they
@@ -56,14 +65,34 @@ def kill_at_every_write(tmp: Path, argv: list[str], *, input_file: Path | None =
     at the first N that was not killed (a driver may have gone one N past it).
     """
     workers = max(1, min(2, len(os.sched_getaffinity(0))))
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}  # one process per core: no BLAS thread pools
+    env = {
+        **os.environ,
+        "OPENBLAS_NUM_THREADS": "1",
+        "OMP_NUM_THREADS": "1",
+    }  # one process per core: no BLAS thread pools
     drivers = []
     for w in range(workers):
-        plan = {"argv": argv, "work": str(tmp / "runs"), "input": str(input_file) if input_file else None, "first": 1 + w,
-                "last": 2000, "step": workers, "then": then, "stub_calibration": str(stub) if stub else None, "inject": inject}
+        plan = {
+            "argv": argv,
+            "work": str(tmp / "runs"),
+            "input": str(input_file) if input_file else None,
+            "first": 1 + w,
+            "last": 2000,
+            "step": workers,
+            "then": then,
+            "stub_calibration": str(stub) if stub else None,
+            "inject": inject,
+        }
         (tmp / f"plan{w}.json").write_text(json.dumps(plan))
-        drivers.append(subprocess.Popen([sys.executable, str(HERE / "kill_driver.py"), str(tmp / f"plan{w}.json")],
-                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env))
+        drivers.append(
+            subprocess.Popen(
+                [sys.executable, str(HERE / "kill_driver.py"), str(tmp / f"plan{w}.json")],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                env=env,
+            )
+        )
     records = []
     for proc in drivers:
         out, err = proc.communicate(timeout=1500)
@@ -72,7 +101,7 @@ def kill_at_every_write(tmp: Path, argv: list[str], *, input_file: Path | None =
     records.sort(key=lambda r: r["n"])
     end = next((k for k, r in enumerate(records) if not r["killed"]), None)
     assert end is not None, "the driver stopped before the run could finish"
-    records = records[:end + 1]
+    records = records[: end + 1]
     assert [r["n"] for r in records] == list(range(1, len(records) + 1)), "an N was not run"
     assert all(r["killed"] for r in records[:-1])
     return records
@@ -86,8 +115,11 @@ def _small_rig(path: Path, views: int) -> Path:
 
     cfg = load_config(None)
     roi = dataclasses.replace(cfg.camera.roi, x=448, y=448, width=128, height=128)
-    cfg = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, roi=roi),
-                              acquisition=dataclasses.replace(cfg.acquisition, views=views))
+    cfg = dataclasses.replace(
+        cfg,
+        camera=dataclasses.replace(cfg.camera, roi=roi),
+        acquisition=dataclasses.replace(cfg.acquisition, views=views),
+    )
     path.write_text(dump_config(cfg))
     return path
 
@@ -97,14 +129,19 @@ def test_acquire_killed_at_every_write_loses_at_most_the_view_in_flight_and_resu
     views = 3
     rig = _small_rig(tmp_path / "rig.yaml", views)
     ref = tmp_path / "ref.h5"
-    run = subprocess.run([sys.executable, "-m", "vastcal.cli", "-q", "acquire", "--config", str(rig), "-o", str(ref)],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", "-q", "acquire", "--config", str(rig), "-o", str(ref)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     with Session.open(ref) as s:
         frames, angles, usteps = s.projections(), s.angles_deg, s.view_table()["commanded_usteps"]
 
-    records = kill_at_every_write(tmp_path, ["-q", "acquire", "--config", str(rig), "-o", "{out}"],
-                                  then=["-q", "acquire", "--resume", "{out}"])
+    records = kill_at_every_write(
+        tmp_path, ["-q", "acquire", "--config", str(rig), "-o", "{out}"], then=["-q", "acquire", "--resume", "{out}"]
+    )
     counts = {"no file": 0, **{k: 0 for k in range(views + 1)}}
     for r in records[:-1]:
         d = tmp_path / "runs" / str(r["n"])
@@ -123,7 +160,9 @@ def test_acquire_killed_at_every_write_loses_at_most_the_view_in_flight_and_resu
                 assert s.angles_deg[i] == angles[i] and s.view_table()["commanded_usteps"][i] == usteps[i]
         assert r["then_exit"] == (2 if status == "success" else 0), r  # a finished session is not resumed
         with Session.open(d / "S.h5") as s:  # resumed: complete, same plan, committed views unchanged, no duplicate
-            assert s.is_complete and s.n_views == views, f"kill at write {r['n']}: resume gave {s.n_views} views ({s.exit_status})"
+            assert s.is_complete and s.n_views == views, (
+                f"kill at write {r['n']}: resume gave {s.n_views} views ({s.exit_status})"
+            )
             np.testing.assert_array_equal(s.angles_deg, angles)
             np.testing.assert_array_equal(s.view_table()["commanded_usteps"], usteps)
             got = s.projections()
@@ -139,8 +178,8 @@ def _analysis_fixture(tmp: Path) -> Path:
     """A phantom session with an earlier calibration run and an earlier reconstruction run."""
     from phantom_views import make_session, render_views  # tests/reconstruct/phantom_views.py
 
-    from vastcal.simulators.camera.phantom import zebrafish_phantom
     from vastcal.reconstruct import reconstruct_session
+    from vastcal.simulators.camera.phantom import zebrafish_phantom
 
     views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)
     path = make_session(tmp / "pristine.h5", views, masks=True, cameras=True, calibration=True)
@@ -151,9 +190,12 @@ def _analysis_fixture(tmp: Path) -> Path:
 def _snapshot(path: Path) -> dict:
     with Session.open(path) as s:
         runs = s.stages_run()
-        return {"frames": s.projections(), "runs": runs,
-                "theta": {n: s.result("calibration", n)["theta_deg"][...] for n in runs.get("calibration", [])},
-                "volume": {n: s.result("measurement", n).attrs.get("volume_mm3") for n in runs.get("measurement", [])}}
+        return {
+            "frames": s.projections(),
+            "runs": runs,
+            "theta": {n: s.result("calibration", n)["theta_deg"][...] for n in runs.get("calibration", [])},
+            "volume": {n: s.result("measurement", n).attrs.get("volume_mm3") for n in runs.get("measurement", [])},
+        }
 
 
 def _check_analysis_kills(tmp: Path, records: list[dict], pristine: dict, stage: str) -> None:
@@ -189,14 +231,18 @@ def test_calibrate_killed_at_every_write_of_its_run_keeps_images_and_earlier_run
     result = calibrate_session(scratch, method="vr", seed=0)
     stub = tmp_path / "result.pickle"
     stub.write_bytes(pickle.dumps(result))
-    records = kill_at_every_write(tmp_path, ["-q", "calibrate", "{out}", "--method", "vr"], input_file=pristine_path, stub=stub)
+    records = kill_at_every_write(
+        tmp_path, ["-q", "calibrate", "{out}", "--method", "vr"], input_file=pristine_path, stub=stub
+    )
     _check_analysis_kills(tmp_path, records, _snapshot(pristine_path), "calibration")
 
 
 @pytest.mark.timeout(1200)
 def test_reconstruct_killed_at_every_write_of_its_run_keeps_images_and_earlier_runs(tmp_path: Path) -> None:
     pristine_path = _analysis_fixture(tmp_path)
-    records = kill_at_every_write(tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path)
+    records = kill_at_every_write(
+        tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path
+    )
     _check_analysis_kills(tmp_path, records, _snapshot(pristine_path), "measurement")
 
 
@@ -204,8 +250,9 @@ def test_reconstruct_killed_at_every_write_of_its_run_keeps_images_and_earlier_r
 def test_a_full_disk_at_any_write_of_a_reconstruction_is_one_error_and_loses_nothing(tmp_path: Path) -> None:
     """ENOSPC injected at every write of storing a reconstruction: exit 1, nothing lost, nothing half-stored."""
     pristine_path = _analysis_fixture(tmp_path)
-    records = kill_at_every_write(tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path,
-                                  inject="error=ENOSPC")
+    records = kill_at_every_write(
+        tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path, inject="error=ENOSPC"
+    )
     assert all(r["exit"] == 1 for r in records[:-1]) and records[-1]["exit"] == 0
     _check_analysis_kills(tmp_path, records, _snapshot(pristine_path), "measurement")
     assert not list((tmp_path / "runs").rglob(".*.partial")), "a failed store left its temporary copy behind"
@@ -216,8 +263,12 @@ def test_a_full_disk_during_acquisition_keeps_the_committed_views_and_resume_com
     """ENOSPC injected at every write of a 3-view acquisition (the disk is freed before --resume)."""
     views = 3
     rig = _small_rig(tmp_path / "rig.yaml", views)
-    records = kill_at_every_write(tmp_path, ["-q", "acquire", "--config", str(rig), "-o", "{out}"],
-                                  then=["-q", "acquire", "--resume", "{out}"], inject="error=ENOSPC")
+    records = kill_at_every_write(
+        tmp_path,
+        ["-q", "acquire", "--config", str(rig), "-o", "{out}"],
+        then=["-q", "acquire", "--resume", "{out}"],
+        inject="error=ENOSPC",
+    )
     for r in records[:-1]:
         assert r["exit"] == 1, r
         d = tmp_path / "runs" / str(r["n"])

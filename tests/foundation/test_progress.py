@@ -47,7 +47,11 @@ def test_plain_mode_writes_one_line_per_phase_start_step_and_end_without_carriag
     assert "\r" not in text and "\x1b" not in text
     lines = text.splitlines()
     assert lines[0] == "calibrate: level 1/2 (256 px) ..."
-    assert [ln.split("  ")[1].strip() for ln in lines[1:4]] == ["30 %", "50 %", "80 %"]  # the first update past each 25 % step
+    assert [ln.split("  ")[1].strip() for ln in lines[1:4]] == [
+        "30 %",
+        "50 %",
+        "80 %",
+    ]  # the first update past each 25 % step
     assert lines[4] == "calibrate: level 1/2 (256 px)  done in 10.0 s"
     assert lines[5] == "calibrate: photometric yaw (512 px) ..." and lines[-1].endswith("done in 2.0 s")
     assert [r.name for r in bar.records] == ["level 1/2 (256 px)", "photometric yaw (512 px)"]
@@ -131,7 +135,9 @@ def test_cma_stop_forecast_follows_the_step_down_to_tolx_and_is_bounded_by_the_b
     fc = CMAStopForecast(tolx=1e-4, max_evaluations=10_000, popsize=10)
     for g in range(1, 16):
         left = fc.add(10.0 ** (-1 - g / 10), 10 * g)
-    assert left == pytest.approx(10 * 15 + 10, rel=0.05)  # 1.5 decades left at 0.1 decade per generation, plus the re-scores
+    assert left == pytest.approx(
+        10 * 15 + 10, rel=0.05
+    )  # 1.5 decades left at 0.1 decade per generation, plus the re-scores
     tight = CMAStopForecast(tolx=1e-4, max_evaluations=200, popsize=10)
     for g in range(1, 16):
         left = tight.add(10.0 ** (-1 - g / 10), 10 * g)
@@ -139,7 +145,9 @@ def test_cma_stop_forecast_follows_the_step_down_to_tolx_and_is_bounded_by_the_b
     flat = CMAStopForecast(tolx=1e-4, max_evaluations=1000, popsize=10)
     for g in range(1, 16):
         left = flat.add(0.1 * (1 + 0.1 * (g % 2)), 10 * g)
-    assert left == pytest.approx(1000 - 150 + 10)  # stagnant: not even the fastest descent the fit allows gets there first
+    assert left == pytest.approx(
+        1000 - 150 + 10
+    )  # stagnant: not even the fastest descent the fit allows gets there first
     wander = CMAStopForecast(tolx=1e-4, max_evaluations=10_000, popsize=10)
     rng = np.random.default_rng(0)
     for g in range(1, 16):
@@ -161,10 +169,16 @@ def test_a_planned_cma_forecast_freezes_its_end_at_a_third_and_counts_down_to_it
         g += 1
         lefts.append(fc.add(10.0 ** (2 - g / 10 + 0.1 * rng.normal()), 10 * g))
         assert g < 200
-    assert fc.plan == g and 15 <= g <= 25  # two decades at 0.1 decade per generation (tolx after 20), fixed from the noisy descent
+    assert (
+        fc.plan == g and 15 <= g <= 25
+    )  # two decades at 0.1 decade per generation (tolx after 20), fixed from the noisy descent
     known = [i for i in range(len(lefts)) if not math.isnan(lefts[i])]
-    assert known[0] == CMAStopForecast.MIN_WINDOW - 1 < g / 2  # frozen at its first forecast here (a third of the run was past)
-    assert [lefts[i] for i in known] == [10 * (g - i - 1) + 10 for i in known]  # from the freeze on: exact, generation by generation
+    assert (
+        known[0] == CMAStopForecast.MIN_WINDOW - 1 < g / 2
+    )  # frozen at its first forecast here (a third of the run was past)
+    assert [lefts[i] for i in known] == [
+        10 * (g - i - 1) + 10 for i in known
+    ]  # from the freeze on: exact, generation by generation
     free = CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10)
     for k in range(1, g + 1):
         free.add(10.0 ** (2 - k / 10), 10 * k)
@@ -183,15 +197,35 @@ def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_ne
     resolution = 1e-3 / scale  # every coordinate: 1e-3 of image motion
     told: list[tuple[int, float]] = []
     planned_at: list[int] = []  # the convergence reports before on_plan: the generation the plan froze in is the next
-    r = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8,
-                 resolution=resolution, convergence=lambda d, left: told.append((d, left)), on_plan=lambda: planned_at.append(len(told)))
-    assert len(planned_at) == 1 and 0 < planned_at[0] < len(told) // 2  # once, within the run's first half of generations
-    assert all(left == pytest.approx(told[-1][0] + 2 - d + 6) for d, left in told[planned_at[0]:])  # from then on: the end known
-    full = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8)
+    r = minimise(
+        sphere,
+        np.full(3, 0.5),
+        0.3,
+        np.ones(3),
+        seed=2,
+        max_evaluations=5000,
+        tolx=1e-9,
+        tolfun=1e-30,
+        popsize=8,
+        resolution=resolution,
+        convergence=lambda d, left: told.append((d, left)),
+        on_plan=lambda: planned_at.append(len(told)),
+    )
+    assert (
+        len(planned_at) == 1 and 0 < planned_at[0] < len(told) // 2
+    )  # once, within the run's first half of generations
+    assert all(
+        left == pytest.approx(told[-1][0] + 2 - d + 6) for d, left in told[planned_at[0] :]
+    )  # from then on: the end known
+    full = minimise(
+        sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8
+    )
     assert list(r.stop) == ["resolution"] and r.n_evaluations < full.n_evaluations
     assert r.n_evaluations == 8 * r.n_generations + 2
     end = told[-1][0] + 2
-    assert all(left == pytest.approx(end - d + 6) for d, left in told[len(told) // 3 + 1:])  # + a generation for the re-scores, less their 2
+    assert all(
+        left == pytest.approx(end - d + 6) for d, left in told[len(told) // 3 + 1 :]
+    )  # + a generation for the re-scores, less their 2
     assert np.all(np.abs(r.x_best) * scale < 0.1)  # converged to well under the start's spread
 
     class Es:  # what tolx_quantities reads of a cma strategy
@@ -212,15 +246,19 @@ def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_
     m = np.zeros(3)
     fulls = []
     for g in range(30):  # the step shrinks 20 % per generation from 10x the threshold; the mean walks by a step
-        step = np.full(3, 0.1 * 0.8 ** g)
+        step = np.full(3, 0.1 * 0.8**g)
         m = m + step * rng.normal(size=3)
         b = m + step / np.sqrt(10) * rng.normal(size=3)
         before = None if gt.searched_at is None else gt.searched_at.copy()
-        gt.add(b, m, step, 3.0 if (before is None or np.any(np.abs(b - before)[:2] > 0.01)) else 1.0)  # "seconds": made up
+        gt.add(
+            b, m, step, 3.0 if (before is None or np.any(np.abs(b - before)[:2] > 0.01)) else 1.0
+        )  # "seconds": made up
         fulls.append(gt.full[-1])
         assert gt.full[-1] == (before is None or bool(np.any(np.abs(b - before)[:2] > 0.01)))
     assert fulls[:5] == [True] * 5 and not any(fulls[-5:])  # a wide step searches every generation, a narrow one never
-    assert gt.time_model() == pytest.approx((1.0, 2.0, 0.0), abs=1e-9) and gt.done == sum(3.0 if f else 1.0 for f in fulls)
+    assert gt.time_model() == pytest.approx((1.0, 2.0, 0.0), abs=1e-9) and gt.done == sum(
+        3.0 if f else 1.0 for f in fulls
+    )
     done, left = gt.work(10)
     assert done == gt.done and left == pytest.approx(11.0, abs=0.5)  # 10 generations and the tail, hardly a full search
     wide = GenerationTime(research, popsize=10)
@@ -229,16 +267,22 @@ def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_
     assert wide.expected_full(10) == pytest.approx(10.0, abs=0.2)
     assert math.isnan(wide.work(math.nan)[1])
     slides = GenerationTime(np.full(2, 0.01), popsize=10)
-    for g in range(20):  # time 1 + 0.5 per threshold of step (no full search after the first): the time falls with the step
-        st = 0.05 * 0.8 ** g
-        slides.add(np.zeros(2), np.zeros(2), np.full(2, st), 1.0 + 0.5 * st / 0.01 + (3.0 if g == 7 else 0.0))  # one stall
+    for g in range(
+        20
+    ):  # time 1 + 0.5 per threshold of step (no full search after the first): the time falls with the step
+        st = 0.05 * 0.8**g
+        slides.add(
+            np.zeros(2), np.zeros(2), np.full(2, st), 1.0 + 0.5 * st / 0.01 + (3.0 if g == 7 else 0.0)
+        )  # one stall
     assert slides.full == [True] + [False] * 19
     assert slides.time_model() == pytest.approx((1.0, 0.0, 0.5))  # the stall left out
-    r = 0.05 * 0.8 ** 19 / 0.01
-    assert slides.work(5)[1] == pytest.approx(6.0 + 0.5 * r * sum(0.8 ** k for k in range(1, 6)), rel=1e-6)
+    r = 0.05 * 0.8**19 / 0.01
+    assert slides.work(5)[1] == pytest.approx(6.0 + 0.5 * r * sum(0.8**k for k in range(1, 6)), rel=1e-6)
     steep = GenerationTime(np.full(2, 0.01), popsize=10)
-    for g in range(15):  # time cubic in a step that stays far from 0: a line through it would cross 0 before the step does
-        st = 0.1 * 0.95 ** g
+    for g in range(
+        15
+    ):  # time cubic in a step that stays far from 0: a line through it would cross 0 before the step does
+        st = 0.1 * 0.95**g
         steep.add(np.zeros(2), np.zeros(2), np.full(2, st), 1.0 + (st / 0.01) ** 3)
     alpha, _, gamma = steep.time_model()
     assert alpha > 0 and gamma == 0.0 and steep.work(30)[1] > 0  # no floor below 0: the step's part is left out
@@ -258,7 +302,9 @@ def test_the_polish_runs_one_sweep_per_step_so_its_work_is_known_before_it_start
 
     for steps in ((0.2, 0.1, 0.05, 0.025), (0.4, 0.2)):
         seen: list[int] = []
-        x, f, evals, converged = polish_rolls(cost, space, np.zeros(space.n_free), steps_deg=steps, on_sweep=seen.append)
+        x, f, evals, converged = polish_rolls(
+            cost, space, np.zeros(space.n_free), steps_deg=steps, on_sweep=seen.append
+        )
         n = 4  # free rolls
         assert seen == list(range(len(steps) + 1))  # x scored (0), then one sweep per step, told in order
         assert len(steps) * (2 * n + 1) + 2 <= evals <= len(steps) * (2 * n + 4) + 2
@@ -269,8 +315,18 @@ def test_a_cma_level_reports_its_forecast_and_the_clock_turns_it_into_the_bar_fr
     from vastcal.calibrate.optimise import minimise
 
     told: list[tuple[int, float]] = []
-    r = minimise(lambda X: np.sum(np.asarray(X) ** 2, axis=1), np.full(3, 0.5), 0.3, np.ones(3), seed=1, max_evaluations=3000,
-                 tolx=1e-5, tolfun=1e-14, popsize=8, convergence=lambda d, left: told.append((d, left)))
+    r = minimise(
+        lambda X: np.sum(np.asarray(X) ** 2, axis=1),
+        np.full(3, 0.5),
+        0.3,
+        np.ones(3),
+        seed=1,
+        max_evaluations=3000,
+        tolx=1e-5,
+        tolfun=1e-14,
+        popsize=8,
+        convergence=lambda d, left: told.append((d, left)),
+    )
     assert "tolx" in r.stop and len(told) == r.n_generations
     gens_left = [left / 8 - 1 for _, left in told]  # less the re-scores' generation
     late = [abs(g - (len(told) - 1 - i)) / (len(told) - i) for i, g in enumerate(gens_left) if i >= len(told) // 2]
@@ -287,7 +343,9 @@ def test_a_cma_level_reports_its_forecast_and_the_clock_turns_it_into_the_bar_fr
     rec = bar.records[-1]
     d, left = told[14]
     assert rec.points[-1][1] == pytest.approx(d / (d + left))
-    assert rec.points[-1][2] == pytest.approx(left * 1.0 / (told[14][0] - told[12][0]))  # the recent half: reports 3 to 5, 1 s
+    assert rec.points[-1][2] == pytest.approx(
+        left * 1.0 / (told[14][0] - told[12][0])
+    )  # the recent half: reports 3 to 5, 1 s
     bar.close()
 
 
@@ -307,7 +365,9 @@ def test_a_counted_task_is_a_named_phase_whose_eta_is_the_items_left_times_the_t
     lines = out.getvalue().splitlines()
     assert lines[0] == "acquire: 9 views ..." and lines[-1] == "acquire: 9 views  done in 46.0 s"
     assert "\r" not in out.getvalue() and any("ETA 8.0 s" in ln for ln in lines)
-    errs = bar.bar.records[0].eta_errors()  # the first view's update has no ETA yet (100 %); then exact at a steady rate
+    errs = bar.bar.records[
+        0
+    ].eta_errors()  # the first view's update has no ETA yet (100 %); then exact at a steady rate
     assert errs[0] == 1.0 and all(e < 1e-9 for e in errs[1:])
     term = io.StringIO()
     with CountProgress("import", "views", term, tty=True) as tbar:
@@ -342,11 +402,18 @@ def test_import_names_its_phases_and_counts_the_views_inside_the_copying_one(tmp
     for i in range(5):
         cv2.imwrite(str(tmp_path / "img" / f"view{i}.png"), np.full((20, 30), 10 * i, np.uint8))
     events: list[tuple] = []
-    import_folder(tmp_path / "img", tmp_path / "s.h5", progress=lambda d, t: events.append(("view", d, t)),
-                  phase=lambda name: events.append(("phase", name)))
+    import_folder(
+        tmp_path / "img",
+        tmp_path / "s.h5",
+        progress=lambda d, t: events.append(("view", d, t)),
+        phase=lambda name: events.append(("phase", name)),
+    )
     assert [e[1] for e in events if e[0] == "phase"] == ["reading img", "copying 5 views", "finishing the session"]
     k = events.index(("phase", "copying 5 views"))
-    assert events[k + 1: k + 6] == [("view", d, 5) for d in range(1, 6)] and events[k + 6] == ("phase", "finishing the session")
+    assert events[k + 1 : k + 6] == [("view", d, 5) for d in range(1, 6)] and events[k + 6] == (
+        "phase",
+        "finishing the session",
+    )
 
 
 def test_cli_import_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_to_a_log(tmp_path) -> None:
@@ -358,8 +425,13 @@ def test_cli_import_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_t
     (tmp_path / "img").mkdir()
     for i in range(12):
         cv2.imwrite(str(tmp_path / "img" / f"view{i}.png"), np.full((20, 30), 10 * i, np.uint8))
-    run = subprocess.run([sys.executable, "-m", "vastcal.cli", "import", "img", "-o", "s.h5"], cwd=tmp_path, capture_output=True,
-                         text=True, timeout=120)
+    run = subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", "import", "img", "-o", "s.h5"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     assert "\r" not in run.stderr and "\x1b" not in run.stderr
     lines = [ln for ln in run.stderr.splitlines() if ln.startswith("import:")]
@@ -379,13 +451,25 @@ def test_a_frozen_plan_tells_the_generation_time_the_descent_it_plans() -> None:
         g += 1
         fc.add(10.0 ** (2 - g / 10), 10 * g)
     left = fc.plan - g
-    assert fc.planned_slope() == pytest.approx(-math.log(10.0 ** (2 - g / 10)) / left)  # the low to tolx (log 1 = 0) by the plan's end
-    assert CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10, planned=True).planned_slope() is None  # no plan yet
+    assert fc.planned_slope() == pytest.approx(
+        -math.log(10.0 ** (2 - g / 10)) / left
+    )  # the low to tolx (log 1 = 0) by the plan's end
+    assert (
+        CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10, planned=True).planned_slope() is None
+    )  # no plan yet
     wide = GenerationTime(np.full(2, 0.01), popsize=10)
-    for k in range(12):  # a step that stayed 10x the threshold so far, the mean moving every other generation (then a full search)
+    for k in range(
+        12
+    ):  # a step that stayed 10x the threshold so far, the mean moving every other generation (then a full search)
         wide.add(np.full(2, 0.1 * (k // 2)), np.full(2, 0.1 * (k // 2)), np.full(2, 0.1), 3.0 if k % 2 == 0 else 1.0)
-    assert wide.full == [k % 2 == 0 for k in range(12)] and wide.time_model() == pytest.approx((1.0, 2.0, 0.0), abs=1e-9)
-    assert wide.expected_full(20) == pytest.approx(20.0, abs=0.2)  # by its own (flat) fit every generation ahead searches in full
+    assert wide.full == [k % 2 == 0 for k in range(12)] and wide.time_model() == pytest.approx(
+        (1.0, 2.0, 0.0), abs=1e-9
+    )
+    assert wide.expected_full(20) == pytest.approx(
+        20.0, abs=0.2
+    )  # by its own (flat) fit every generation ahead searches in full
     descent = math.log(0.01) / 10  # a plan that takes the step to a hundredth of it in 10 generations
     assert wide.expected_full(20, slope=descent) < 12
-    assert wide.work(20)[1] - wide.work(20, slope=descent)[1] == pytest.approx(2.0 * (20 - wide.expected_full(20, slope=descent)), rel=0.02)
+    assert wide.work(20)[1] - wide.work(20, slope=descent)[1] == pytest.approx(
+        2.0 * (20 - wide.expected_full(20, slope=descent)), rel=0.02
+    )

@@ -21,10 +21,24 @@ from vastcal.session import Session, SessionWriter
 
 def make_session(path: Path, n: int = 5, shape: tuple[int, ...] = (16, 24), finish: bool = True) -> np.ndarray:
     frames = (np.arange(n * int(np.prod(shape)), dtype=np.uint16).reshape((n,) + shape) % 4096).astype(np.uint16)
-    w = SessionWriter.create(path, frame_shape=shape, dtype=np.uint16, rig_yaml="name: test\n", plan={"views": n},
-                             pixel_size_um=(5.5, 5.5), roi_offset_px=(0, 10))
+    w = SessionWriter.create(
+        path,
+        frame_shape=shape,
+        dtype=np.uint16,
+        rig_yaml="name: test\n",
+        plan={"views": n},
+        pixel_size_um=(5.5, 5.5),
+        roi_offset_px=(0, 10),
+    )
     for i in range(n):
-        w.append_view(frames[i], i * 360.0 / n, commanded_usteps=i * 100, readback_usteps=i * 100 + 1, frame_id=i + 1, exposure_us=2000.0)
+        w.append_view(
+            frames[i],
+            i * 360.0 / n,
+            commanded_usteps=i * 100,
+            readback_usteps=i * 100 + 1,
+            frame_id=i + 1,
+            exposure_us=2000.0,
+        )
     if finish:
         w.finish("success")
     w.close()
@@ -53,12 +67,21 @@ def test_nxtomo_reads_our_session(tmp_path: Path) -> None:
 
     nx = NXtomo().load(str(tmp_path / "s.h5"), "entry", detector_data_as="as_numpy_array")
     np.testing.assert_array_equal(nx.instrument.detector.data, frames)
-    np.testing.assert_allclose(np.asarray(nx.sample.rotation_angle.magnitude if hasattr(nx.sample.rotation_angle, "magnitude") else nx.sample.rotation_angle), np.arange(5) * 72.0)
+    np.testing.assert_allclose(
+        np.asarray(
+            nx.sample.rotation_angle.magnitude
+            if hasattr(nx.sample.rotation_angle, "magnitude")
+            else nx.sample.rotation_angle
+        ),
+        np.arange(5) * 72.0,
+    )
     assert [int(k.value) for k in nx.instrument.detector.image_key] == [0] * 5
     px = nx.sample.x_pixel_size  # the effective pixel (the sensor pitch, detector.x_pixel_size, is not known here)
     assert abs(px.to("um").magnitude - 5.5) < 1e-9 if hasattr(px, "to") else abs(px - 5.5e-6) < 1e-12
     assert nxtomo.__name__ == "nxtomo"
-    with h5py.File(tmp_path / "s.h5", "r") as f:  # NeXus viewers plot against the angle; the effective pixel is the sample's
+    with h5py.File(
+        tmp_path / "s.h5", "r"
+    ) as f:  # NeXus viewers plot against the angle; the effective pixel is the sample's
         assert list(f["/entry/data"].attrs["axes"]) == ["rotation_angle", ".", "."]
         assert f["/entry/sample/x_pixel_size"][()] == 5.5 and f["/entry/sample/x_pixel_size"].attrs["units"] == "um"
 
@@ -164,7 +187,11 @@ def test_later_stage_adds_group_without_touching_images(tmp_path: Path) -> None:
 def test_append_cut_short_before_its_frame_is_tolerated_and_resumed(tmp_path: Path) -> None:
     make_session(tmp_path / "s.h5", n=3, finish=False)
     with h5py.File(tmp_path / "s.h5", "r+") as f:  # records of a 4th view written, its frame not
-        for name in ("/entry/sample/rotation_angle", "/entry/instrument/detector/image_key", "/entry/vastcal/views/frame_id"):
+        for name in (
+            "/entry/sample/rotation_angle",
+            "/entry/instrument/detector/image_key",
+            "/entry/vastcal/views/frame_id",
+        ):
             f[name].resize((4,))
     with Session.open(tmp_path / "s.h5") as s:
         assert s.n_views == 3 and len(s.angles_deg) == 3 and s.exit_status == "incomplete"

@@ -58,8 +58,30 @@ def tree_hashes(*roots: Path) -> dict[str, str]:
 
 
 HOSTILE_NUMBERS: tuple[object, ...] = (
-    float("nan"), float("inf"), float("-inf"), -1, 0, -0.0, 1e308, -1e308, 5e-324, 2**63, -(2**63), 10**30,
-    True, False, None, "", "nan", "12abc", "١٢", [], {}, [1, 2], {"a": 1}, "x" * 5000,
+    float("nan"),
+    float("inf"),
+    float("-inf"),
+    -1,
+    0,
+    -0.0,
+    1e308,
+    -1e308,
+    5e-324,
+    2**63,
+    -(2**63),
+    10**30,
+    True,
+    False,
+    None,
+    "",
+    "nan",
+    "12abc",
+    "١٢",
+    [],
+    {},
+    [1, 2],
+    {"a": 1},
+    "x" * 5000,
 )
 """Values that a numeric setting should refuse (or, for a few, accept within its range)."""
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import os
 import random
-import sys
 import stat
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -34,7 +34,7 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (w / "imgs").mkdir()
     for i in range(4):
         img = np.full((20, 30), 40, np.uint8)
-        img[6:14, 8 + i:20 + i] = 200
+        img[6:14, 8 + i : 20 + i] = 200
         cv2.imwrite(str(w / "imgs" / f"v{i}.png"), img)
     import_folder(w / "imgs", w / "S.h5")
     (w / "S.truncated.h5").write_bytes((w / "S.h5").read_bytes()[:2048])
@@ -50,8 +50,10 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (w / "badimgs" / "b.png").write_bytes((w / "imgs" / "v0.png").read_bytes())
     (w / "empty.yaml").write_text("")
     (w / "nan.yaml").write_text("stage: {home_timeout_s: .nan}\n")
-    (w / "bomb.yaml").write_text("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
-        f"{b}: &{b} [{', '.join([f'*{a}'] * 9)}]\n" for a, b in zip("abcdefgh", "bcdefghi")))
+    (w / "bomb.yaml").write_text(
+        "a: &a [x, x, x, x, x, x, x, x, x]\n"
+        + "".join(f"{b}: &{b} [{', '.join([f'*{a}'] * 9)}]\n" for a, b in zip("abcdefgh", "bcdefghi"))
+    )
     (w / "deep.yaml").write_text("[" * 3000 + "]" * 3000)
     (w / "angles_nan.txt").write_text("0\nnan\n180\n270\n")
     (w / "angles_dup.txt").write_text("0\n90\n90\n270\n")
@@ -67,25 +69,88 @@ def _pools(w: Path) -> dict[str, tuple[list, list]]:
     """slot → (valid values, hostile values); a value is a list of argv words."""
     s = str
     return {
-        "session": ([[s(w / "S.h5")]], [[s(w / n)] for n in ("missing.h5", "emptydir", "text.txt", "img.png", "empty.h5", "bin.bin",
-                                                            "S.truncated.h5", "link_dev", "dangling.h5")] + [["/dev/null"], [""]]),
-        "out_file": ([[s(w / "new" / "T.h5")]], [[s(w / n)] for n in ("emptydir", "link_dev", "text.txt/x.h5", "S.h5", "dangling.h5")]
-                     + [["/dev/null"], [""]]),
+        "session": (
+            [[s(w / "S.h5")]],
+            [
+                [s(w / n)]
+                for n in (
+                    "missing.h5",
+                    "emptydir",
+                    "text.txt",
+                    "img.png",
+                    "empty.h5",
+                    "bin.bin",
+                    "S.truncated.h5",
+                    "link_dev",
+                    "dangling.h5",
+                )
+            ]
+            + [["/dev/null"], [""]],
+        ),
+        "out_file": (
+            [[s(w / "new" / "T.h5")]],
+            [[s(w / n)] for n in ("emptydir", "link_dev", "text.txt/x.h5", "S.h5", "dangling.h5")]
+            + [["/dev/null"], [""]],
+        ),
         "out_dir": ([[s(w / "newdir")]], [[s(w / "text.txt")], [s(w / "text.txt" / "sub")], ["/dev/null"]]),
-        "config": ([[s(w / "nan.yaml")]], [[s(w / n)] for n in ("empty.yaml", "nan.yaml", "bomb.yaml", "deep.yaml", "bin.bin", "emptydir",
-                                                              "missing.yaml", "img.png")] + [["/dev/zero"]]),
-        "views": ([["5"]], [[v] for v in ("-1", "0", "2", "100001", "nan", "1e9", "", "3.5", "0x10", "99999999999999999999")]),
+        "config": (
+            [[s(w / "nan.yaml")]],
+            [
+                [s(w / n)]
+                for n in (
+                    "empty.yaml",
+                    "nan.yaml",
+                    "bomb.yaml",
+                    "deep.yaml",
+                    "bin.bin",
+                    "emptydir",
+                    "missing.yaml",
+                    "img.png",
+                )
+            ]
+            + [["/dev/zero"]],
+        ),
+        "views": (
+            [["5"]],
+            [[v] for v in ("-1", "0", "2", "100001", "nan", "1e9", "", "3.5", "0x10", "99999999999999999999")],
+        ),
         "float": ([["0"]], [[v] for v in ("nan", "inf", "-inf", "abc", "", "1e999", "-1")]),
         "seed": ([["0"]], [[v] for v in ("-1", "2147483648", "nan", "x", "1e3", "-99999999999")]),
         "free": ([["yaw"]], [["bogus"], ["yaw", "bogus"], [""], ["--"]]),
-        "viewfile": ([["0:" + s(w / "img.png")]], [[v] for v in ("0:" + s(w / "missing.png"), "x:" + s(w / "img.png"), "0:", "99:" + s(w / "img.png"),
-                                                                  "0:/dev/zero", "0:" + s(w / "huge.png"), "0:" + s(w / "bin.bin"), "-1:" + s(w / "img.png"),
-                                                                  "0:" + s(w / "emptydir"))]),
-        "folder": ([[s(w / "imgs")]], [[s(w / n)] for n in ("missing", "text.txt", "emptydir", "badimgs", "link_dev")] + [["/dev"], [""]]),
-        "angles": ([[s(w / "angles_few.txt")]], [[s(w / n)] for n in ("angles_nan.txt", "angles_dup.txt", "angles_few.txt", "bin.bin",
-                                                                        "emptydir", "missing.txt")] + [["/dev/zero"]]),
-        "cameras": ([[s(w / "cams_zero.txt")]], [[s(w / n)] for n in ("img.tif", "cams_zero.txt", "cams_short.txt", "bin.bin", "missing.txt",
-                                                                         "emptydir")] + [["/dev/null"]]),
+        "viewfile": (
+            [["0:" + s(w / "img.png")]],
+            [
+                [v]
+                for v in (
+                    "0:" + s(w / "missing.png"),
+                    "x:" + s(w / "img.png"),
+                    "0:",
+                    "99:" + s(w / "img.png"),
+                    "0:/dev/zero",
+                    "0:" + s(w / "huge.png"),
+                    "0:" + s(w / "bin.bin"),
+                    "-1:" + s(w / "img.png"),
+                    "0:" + s(w / "emptydir"),
+                )
+            ],
+        ),
+        "folder": (
+            [[s(w / "imgs")]],
+            [[s(w / n)] for n in ("missing", "text.txt", "emptydir", "badimgs", "link_dev")] + [["/dev"], [""]],
+        ),
+        "angles": (
+            [[s(w / "angles_few.txt")]],
+            [
+                [s(w / n)]
+                for n in ("angles_nan.txt", "angles_dup.txt", "angles_few.txt", "bin.bin", "emptydir", "missing.txt")
+            ]
+            + [["/dev/zero"]],
+        ),
+        "cameras": (
+            [[s(w / "cams_zero.txt")]],
+            [[s(w / n)] for n in ("img.tif", "cams_zero.txt", "cams_short.txt", "bin.bin", "missing.txt", "emptydir")]
+            + [["/dev/null"]],
+        ),
         "roi": ([["0", "0"]], [["-5", "0"], ["0", "1000000000"], ["x", "y"], ["99999999999", "0"]]),
         "origin": ([["0"]], [[v] for v in ("nan", "inf", "0.25", "-1", "2", "x")]),
         "method": ([["pi"]], [["nope"], [""]]),
@@ -97,12 +162,32 @@ def _pools(w: Path) -> dict[str, tuple[list, list]]:
 COMMANDS: dict[str, tuple[list[str], list[tuple[str, str]], list[tuple[str, str]]]] = {
     # command: (flags always given, [(option or "" for positional, slot)] required, [...] optional)
     "info": ([], [("", "session")], []),
-    "import": ([], [("", "folder"), ("-o", "out_file")],
-               [("--masks", "folder"), ("--angles", "angles"), ("--cameras", "cameras"), ("--pixel-origin", "origin"),
-                ("--roi-offset", "roi"), ("--config", "config")]),
+    "import": (
+        [],
+        [("", "folder"), ("-o", "out_file")],
+        [
+            ("--masks", "folder"),
+            ("--angles", "angles"),
+            ("--cameras", "cameras"),
+            ("--pixel-origin", "origin"),
+            ("--roi-offset", "roi"),
+            ("--config", "config"),
+        ],
+    ),
     "acquire": (["--simulate"], [("-o", "out_file")], [("--views", "views"), ("--config", "config")]),
-    "calibrate": ([], [("", "session")], [("--method", "method"), ("--seed", "seed"), ("--free", "free"), ("--mask", "viewfile"),
-                                          ("--offset-scan", "float"), ("--starts", "starts"), ("--fixed-views", "fixed")]),
+    "calibrate": (
+        [],
+        [("", "session")],
+        [
+            ("--method", "method"),
+            ("--seed", "seed"),
+            ("--free", "free"),
+            ("--mask", "viewfile"),
+            ("--offset-scan", "float"),
+            ("--starts", "starts"),
+            ("--fixed-views", "fixed"),
+        ],
+    ),
     "reconstruct": ([], [("", "session")], [("--voxel-size", "float"), ("--mesh", "out_file")]),
     "report": ([], [("", "session"), ("-o", "out_dir")], []),
     "run": ([], [("", "session")], [("-o", "out_dir"), ("--method", "method"), ("--seed", "seed")]),
@@ -132,8 +217,9 @@ def _argv(rng: random.Random, w: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("seed", range(CASES))
-def test_fuzzed_command_line_ends_in_an_error_line_and_changes_nothing(work: Path, fz: ModuleType, seed: int,
-                                                                       capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_fuzzed_command_line_ends_in_an_error_line_and_changes_nothing(
+    work: Path, fz: ModuleType, seed: int, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.chdir(work)
     argv = _argv(random.Random(seed), work)
     before = fz.tree_hashes(work)

@@ -48,7 +48,9 @@ def _build_case(rng: random.Random, root: Path) -> tuple[dict, int]:
     h, w = rng.choice([(1, 1), (8, 8), (20, 30), (33, 17)])
     dtype = rng.choice([np.uint8, np.uint16])
     channels = rng.choice([1, 1, 3, 4])
-    suffix = rng.choice([".png", ".tif", ".png", {1: ".pgm", 3: ".ppm"}.get(channels, ".png"), ".bmp" if dtype is np.uint8 else ".png"])
+    suffix = rng.choice(
+        [".png", ".tif", ".png", {1: ".pgm", 3: ".ppm"}.get(channels, ".png"), ".bmp" if dtype is np.uint8 else ".png"]
+    )
     for i in range(n):
         ok = cv2.imwrite(str(folder / f"v{i}{suffix}"), _image(rng, h, w, dtype, channels))
         assert ok
@@ -75,8 +77,12 @@ def _build_case(rng: random.Random, root: Path) -> tuple[dict, int]:
         elif kind == 8:
             (folder / "zz_text.png").write_text("not an image\n")
         else:
-            cv2.imwrite(str(folder / "zz_type.png"), _image(rng, h, w, np.uint16 if dtype is np.uint8 else np.uint8, channels))
-    n_files = len([p for p in folder.iterdir() if p.suffix.lower() in (".png", ".tif", ".pgm", ".ppm", ".bmp") and p.is_file()])
+            cv2.imwrite(
+                str(folder / "zz_type.png"), _image(rng, h, w, np.uint16 if dtype is np.uint8 else np.uint8, channels)
+            )
+    n_files = len(
+        [p for p in folder.iterdir() if p.suffix.lower() in (".png", ".tif", ".pgm", ".ppm", ".bmp") and p.is_file()]
+    )
     kwargs: dict = {}
     if rng.random() < 0.3:
         masks = root / "masks"
@@ -88,7 +94,9 @@ def _build_case(rng: random.Random, root: Path) -> tuple[dict, int]:
     if rng.random() < 0.4:
         values: list[str] = [f"{360.0 * i / max(n_files, 1):.6f}" for i in range(n_files)]
         if values and rng.random() < 0.6:
-            values[rng.randrange(len(values))] = rng.choice(["nan", "inf", "-inf", "1e999", "abc", values[0], "", "1 2 3"])
+            values[rng.randrange(len(values))] = rng.choice(
+                ["nan", "inf", "-inf", "1e999", "abc", values[0], "", "1 2 3"]
+            )
         if rng.random() < 0.2:
             values.append("7")
         (root / "angles.txt").write_text("\n".join(values) + "\n")
@@ -98,7 +106,9 @@ def _build_case(rng: random.Random, root: Path) -> tuple[dict, int]:
         for i in range(n_files):
             P = _camera(rng, i, max(n_files, 1))
             if rng.random() < 0.15:
-                P = rng.choice([np.zeros((3, 4)), np.full((3, 4), np.nan), np.where(P != 0, np.inf, 0.0), np.ones((3, 4))])
+                P = rng.choice(
+                    [np.zeros((3, 4)), np.full((3, 4), np.nan), np.where(P != 0, np.inf, 0.0), np.ones((3, 4))]
+                )
             rows.append(f"v{i} " + " ".join(f"{x:.9g}" for x in P.ravel()))
         text = "\n".join(rows) + "\n"
         if rng.random() < 0.15:

@@ -16,13 +16,49 @@ from typing import Any
 import pytest
 import yaml
 
-from vastcal.config import CONFIG_DIR, MAX_MESSAGE_CHARS, RigConfig, config_to_dict, dump_config, load_config, parse_config
+from vastcal.config import (
+    CONFIG_DIR,
+    MAX_MESSAGE_CHARS,
+    RigConfig,
+    config_to_dict,
+    dump_config,
+    load_config,
+    parse_config,
+)
 from vastcal.errors import ConfigError
 
 CASES = 130
 SHIPPED = ("simulated.yaml", "vast-rig.yaml", "guo2019-zebrafish.yaml", "eth-david.yaml")
-SNIPPETS = ("&a ", "*a", "!!python/object:os.system ", "!!binary ", "{", "}", "[", "]", ": ", "\t", "%YAML 1.1\n", "---\n", "...\n",
-            "? ", "- ", "|\n", ">-\n", "'", '"', "\\", "\x00", "\ufeff", "#", "<<: *a\n", "!!float 'nan'", "0x1F", "1_000", "~")
+SNIPPETS = (
+    "&a ",
+    "*a",
+    "!!python/object:os.system ",
+    "!!binary ",
+    "{",
+    "}",
+    "[",
+    "]",
+    ": ",
+    "\t",
+    "%YAML 1.1\n",
+    "---\n",
+    "...\n",
+    "? ",
+    "- ",
+    "|\n",
+    ">-\n",
+    "'",
+    '"',
+    "\\",
+    "\x00",
+    "\ufeff",
+    "#",
+    "<<: *a\n",
+    "!!float 'nan'",
+    "0x1F",
+    "1_000",
+    "~",
+)
 
 
 def _leaf_paths(d: Any, prefix: tuple = ()) -> list[tuple]:
@@ -53,11 +89,21 @@ def _mutate_data(rng: random.Random, data: dict, fz: ModuleType) -> dict:
         path = rng.choice(paths)
         kind = rng.random()
         if kind < 0.6:
-            _set(data, path, rng.choice(fz.HOSTILE_NUMBERS + ("Mono7", "sim://nothing", "\u202eevil", [None] * 3, {"deep": {"er": 1}})))
+            _set(
+                data,
+                path,
+                rng.choice(
+                    fz.HOSTILE_NUMBERS + ("Mono7", "sim://nothing", "\u202eevil", [None] * 3, {"deep": {"er": 1}})
+                ),
+            )
         elif kind < 0.75:
             _delete(data, path)
         elif kind < 0.9:
-            _set(data, path[:-1] + (rng.choice(["urll", "exposure", "x" * 300, "1", "views "]),), rng.choice([1, "a", None]))
+            _set(
+                data,
+                path[:-1] + (rng.choice(["urll", "exposure", "x" * 300, "1", "views "]),),
+                rng.choice([1, "a", None]),
+            )
         else:
             _set(data, path[:1], rng.choice([None, 3, "text", [1, 2], []]))
     return data
@@ -81,10 +127,13 @@ def _mutate_text(rng: random.Random, text: str) -> str:
     if kind == 4:  # alias bomb in an unknown key
         levels = rng.randint(5, 9)
         bomb = "b0: &b0 [x, x, x, x, x, x, x, x, x]\n" + "".join(
-            f"b{i}: &b{i} [{', '.join([f'*b{i - 1}'] * 9)}]\n" for i in range(1, levels))
+            f"b{i}: &b{i} [{', '.join([f'*b{i - 1}'] * 9)}]\n" for i in range(1, levels)
+        )
         return bomb + text
     if kind == 5:  # the whole document replaced
-        return rng.choice(["", "null", "~", "---\n", "42", "[1, 2]", "'just a string'", "{}", "!!set {a, b}", "&a [*a]"])
+        return rng.choice(
+            ["", "null", "~", "---\n", "42", "[1, 2]", "'just a string'", "{}", "!!set {a, b}", "&a [*a]"]
+        )
     return text.replace(":", ":" * rng.randint(1, 2), 1)  # one malformed mapping
 
 

@@ -29,21 +29,37 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reconstruct"))  # 
 
 CASES = 90
 
-OBJECTS = ("/entry/instrument/detector/data", "/entry/sample/rotation_angle", "/entry/instrument/detector/image_key",
-           "/entry/vastcal/views/commanded_usteps", "/entry/vastcal/views/frame_crc32", "/entry/vastcal/committed_views",
-           "/entry/vastcal/stop_record", "/entry/vastcal/start", "/entry/vastcal/plan", "/entry/vastcal/rig",
-           "/entry/vastcal/geometry", "/entry/vastcal/cameras", "/entry/vastcal/cameras/P", "/entry/vastcal/masks",
-           "/entry/instrument/detector/x_pixel_size", "/entry/vastcal/calibration/run_000",
-           "/entry/vastcal/calibration/run_000/P", "/entry/vastcal/calibration/run_000/theta_deg",
-           "/entry/vastcal/measurement/run_000", "/entry/vastcal/reconstruction/run_000", "/entry/vastcal")
+OBJECTS = (
+    "/entry/instrument/detector/data",
+    "/entry/sample/rotation_angle",
+    "/entry/instrument/detector/image_key",
+    "/entry/vastcal/views/commanded_usteps",
+    "/entry/vastcal/views/frame_crc32",
+    "/entry/vastcal/committed_views",
+    "/entry/vastcal/stop_record",
+    "/entry/vastcal/start",
+    "/entry/vastcal/plan",
+    "/entry/vastcal/rig",
+    "/entry/vastcal/geometry",
+    "/entry/vastcal/cameras",
+    "/entry/vastcal/cameras/P",
+    "/entry/vastcal/masks",
+    "/entry/instrument/detector/x_pixel_size",
+    "/entry/vastcal/calibration/run_000",
+    "/entry/vastcal/calibration/run_000/P",
+    "/entry/vastcal/calibration/run_000/theta_deg",
+    "/entry/vastcal/measurement/run_000",
+    "/entry/vastcal/reconstruction/run_000",
+    "/entry/vastcal",
+)
 
 
 @pytest.fixture(scope="module")
 def measured(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from phantom_views import make_session, render_views
 
-    from vastcal.simulators.camera.phantom import zebrafish_phantom
     from vastcal.reconstruct import reconstruct_session
+    from vastcal.simulators.camera.phantom import zebrafish_phantom
 
     d = tmp_path_factory.mktemp("fuzzsessions")
     views = render_views(zebrafish_phantom(), 6, width=256, height=96, pixel_um=22.0, seed=3)
@@ -84,10 +100,27 @@ def _mutate(f: h5py.File, rng: random.Random) -> str:
             P[...] = rng.choice([np.nan, 0.0, np.inf, 1e-300])
             _replace(f, path, P)
     elif kind == "attr":
-        name, value = rng.choice([("title", "<script>alert(1)</script>"), ("voxel_size_um", 0.001), ("volume_mm3", np.nan),
-                                  ("views", "abc"), ("roi_x", -10**9), ("exit_status", "=HYPERLINK(1)"), ("uid", b"\xff\xfe")])
-        host = rng.choice(["/entry/vastcal/plan", "/entry/vastcal/geometry", "/entry/vastcal/measurement/run_000",
-                           "/entry/vastcal/reconstruction/run_000", "/entry/vastcal/start", "/"])
+        name, value = rng.choice(
+            [
+                ("title", "<script>alert(1)</script>"),
+                ("voxel_size_um", 0.001),
+                ("volume_mm3", np.nan),
+                ("views", "abc"),
+                ("roi_x", -(10**9)),
+                ("exit_status", "=HYPERLINK(1)"),
+                ("uid", b"\xff\xfe"),
+            ]
+        )
+        host = rng.choice(
+            [
+                "/entry/vastcal/plan",
+                "/entry/vastcal/geometry",
+                "/entry/vastcal/measurement/run_000",
+                "/entry/vastcal/reconstruction/run_000",
+                "/entry/vastcal/start",
+                "/",
+            ]
+        )
         if host in f:
             f[host].attrs[name] = value
     elif kind == "shape" and "/entry/instrument/detector/data" in f:
@@ -99,7 +132,12 @@ def _mutate(f: h5py.File, rng: random.Random) -> str:
 def _mutate_or_skip(f: h5py.File, rng: random.Random) -> str:
     try:
         return _mutate(f, rng)
-    except (OSError, ValueError, KeyError, TypeError) as exc:  # HDF5 refused this edit (e.g. an earlier one removed its parent)
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        TypeError,
+    ) as exc:  # HDF5 refused this edit (e.g. an earlier one removed its parent)
         return f"(mutation refused: {type(exc).__name__})"
 
 
@@ -130,8 +168,9 @@ def _opens(path: Path) -> bool:
 
 
 @pytest.mark.parametrize("seed", range(CASES))
-def test_a_damaged_session_gives_one_error_line_and_is_not_made_worse(seed: int, measured: Path, tmp_path: Path, fz: ModuleType,
-                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_damaged_session_gives_one_error_line_and_is_not_made_worse(
+    seed: int, measured: Path, tmp_path: Path, fz: ModuleType, capsys: pytest.CaptureFixture[str]
+) -> None:
     rng = random.Random(seed)
     s = Path(shutil.copy(measured, tmp_path / "S.h5"))
     if rng.random() < 0.2:
@@ -140,8 +179,12 @@ def test_a_damaged_session_gives_one_error_line_and_is_not_made_worse(seed: int,
         with h5py.File(s, "r+") as f:
             what = "; ".join(_mutate_or_skip(f, rng) for _ in range(rng.randint(1, 3)))
     readable = _opens(s)
-    for argv in (["info", str(s)], ["info", "--json", str(s)], ["report", str(s), "-o", str(tmp_path / "rep")],
-                 ["reconstruct", str(s), "--voxel-size", "60"]):
+    for argv in (
+        ["info", str(s)],
+        ["info", "--json", str(s)],
+        ["report", str(s), "-o", str(tmp_path / "rep")],
+        ["reconstruct", str(s), "--voxel-size", "60"],
+    ):
         before = _digest(s)
         with fz.deadline(30, what=f"{argv[0]} on {what}"):
             code = cli.main(["-q", *argv])
@@ -150,7 +193,9 @@ def test_a_damaged_session_gives_one_error_line_and_is_not_made_worse(seed: int,
         if argv[0] == "info" and code == 3 and not err:  # info's answer for an incomplete session
             continue
         if code != 0:
-            assert err.startswith("vastcal: error:") and len(err.splitlines()) == 1, f"case {seed} ({what}): {argv[0]}: {err!r}"
+            assert err.startswith("vastcal: error:") and len(err.splitlines()) == 1, (
+                f"case {seed} ({what}): {argv[0]}: {err!r}"
+            )
             assert "internal error" not in err, f"case {seed} ({what}): {argv[0]}: an unanticipated error: {err!r}"
         if argv[0] in ("info", "report"):
             assert _digest(s) == before, f"case {seed} ({what}): {argv[0]} changed the session"

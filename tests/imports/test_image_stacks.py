@@ -36,14 +36,23 @@ def _title(s: Session) -> str:
 def _ome_xml(n: int, h: int, w: int, dtype: str, *, size: str = "", angles: list[float] | None = None) -> str:
     ann = planes = ""
     if angles is not None:
-        ann = "<StructuredAnnotations>" + "".join(
-            f'<MapAnnotation ID="Annotation:{k}"><Value><M K="angle">{a}</M></Value></MapAnnotation>' for k, a in enumerate(angles)
-        ) + "</StructuredAnnotations>"
-        planes = "".join(f'<Plane TheC="0" TheZ="0" TheT="{k}"><AnnotationRef ID="Annotation:{k}"/></Plane>' for k in range(n))
-    return ('<?xml version="1.0" encoding="UTF-8"?><OME xmlns="http://www.openmicroscopy.org/Schemas/OME/2016-06">'
-            f'<Image ID="Image:0"><Pixels ID="Pixels:0" DimensionOrder="XYCZT" Type="{dtype}" SizeX="{w}" SizeY="{h}" SizeC="1" '
-            f'SizeZ="1" SizeT="{n}" {size}><Channel ID="Channel:0:0" SamplesPerPixel="1"/><TiffData IFD="0" PlaneCount="{n}"/>'
-            f"{planes}</Pixels></Image>{ann}</OME>")
+        ann = (
+            "<StructuredAnnotations>"
+            + "".join(
+                f'<MapAnnotation ID="Annotation:{k}"><Value><M K="angle">{a}</M></Value></MapAnnotation>'
+                for k, a in enumerate(angles)
+            )
+            + "</StructuredAnnotations>"
+        )
+        planes = "".join(
+            f'<Plane TheC="0" TheZ="0" TheT="{k}"><AnnotationRef ID="Annotation:{k}"/></Plane>' for k in range(n)
+        )
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?><OME xmlns="http://www.openmicroscopy.org/Schemas/OME/2016-06">'
+        f'<Image ID="Image:0"><Pixels ID="Pixels:0" DimensionOrder="XYCZT" Type="{dtype}" SizeX="{w}" SizeY="{h}" SizeC="1" '
+        f'SizeZ="1" SizeT="{n}" {size}><Channel ID="Channel:0:0" SamplesPerPixel="1"/><TiffData IFD="0" PlaneCount="{n}"/>'
+        f"{planes}</Pixels></Image>{ann}</OME>"
+    )
 
 
 def test_a_multipage_tiff_is_every_page_one_session_named_after_the_file(tmp_path: Path) -> None:
@@ -64,7 +73,9 @@ def test_a_folder_holding_one_stack_is_that_stack_and_several_stacks_are_refused
     with Session.open(tmp_path / "a.h5") as s:
         assert s.n_views == 4
     tifffile.imwrite(tmp_path / "one" / "rev2.tif", _frames(4, seed=1), photometric="minisblack")
-    with pytest.raises(ImportDataError, match=r"rev2?\.tif: a stack of 4 views among 2 image files; import one stack per session"):
+    with pytest.raises(
+        ImportDataError, match=r"rev2?\.tif: a stack of 4 views among 2 image files; import one stack per session"
+    ):
         import_folder(tmp_path / "one", tmp_path / "b.h5")
     assert not (tmp_path / "b.h5").exists()
 
@@ -85,12 +96,20 @@ def test_folder_of_images_is_named_after_the_folder_and_name_overrides(tmp_path:
         import_folder(tmp_path / "fish_A", tmp_path / "bad.h5", name="two\nlines")
 
 
-def test_ome_tiff_pixel_size_and_angles_are_read_and_options_override_them(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+def test_ome_tiff_pixel_size_and_angles_are_read_and_options_override_them(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     n, h, w = 5, 16, 24
     frames = _frames(n, (h, w), np.uint8)
     angles = [3.0, 75.0, 147.0, 219.0, 291.0]
-    xml = _ome_xml(n, h, w, "uint8", size='PhysicalSizeX="650" PhysicalSizeXUnit="nm" PhysicalSizeY="650" PhysicalSizeYUnit="nm"',
-                   angles=angles)
+    xml = _ome_xml(
+        n,
+        h,
+        w,
+        "uint8",
+        size='PhysicalSizeX="650" PhysicalSizeXUnit="nm" PhysicalSizeY="650" PhysicalSizeYUnit="nm"',
+        angles=angles,
+    )
     path = tmp_path / "rev.ome.tif"
     tifffile.imwrite(path, frames, description=xml, metadata=None, photometric="minisblack")
     import_folder(path, tmp_path / "s.h5")
@@ -113,7 +132,9 @@ def test_ome_tiff_pixel_size_and_angles_are_read_and_options_override_them(tmp_p
 
 def test_imagej_hyperstack_resolution_and_two_stack_axes(tmp_path: Path) -> None:
     frames = _frames(4, (12, 18), np.uint16)
-    tifffile.imwrite(tmp_path / "ij.tif", frames, imagej=True, resolution=(1 / 0.5, 1 / 0.5), metadata={"unit": "um", "axes": "TYX"})
+    tifffile.imwrite(
+        tmp_path / "ij.tif", frames, imagej=True, resolution=(1 / 0.5, 1 / 0.5), metadata={"unit": "um", "axes": "TYX"}
+    )
     import_folder(tmp_path / "ij.tif", tmp_path / "s.h5")
     with Session.open(tmp_path / "s.h5") as s:
         np.testing.assert_array_equal(s.projections(), frames)
@@ -126,7 +147,9 @@ def test_imagej_hyperstack_resolution_and_two_stack_axes(tmp_path: Path) -> None
 
 def test_imagej_slice_labels_give_the_angles(tmp_path: Path) -> None:
     labels = ["view 0: angle=0", "view 1: angle=117.5", "view 2: angle=241"]
-    tifffile.imwrite(tmp_path / "lab.tif", _frames(3, (12, 18)), imagej=True, metadata={"axes": "TYX", "Labels": labels})
+    tifffile.imwrite(
+        tmp_path / "lab.tif", _frames(3, (12, 18)), imagej=True, metadata={"axes": "TYX", "Labels": labels}
+    )
     import_folder(tmp_path / "lab.tif", tmp_path / "s.h5")
     with Session.open(tmp_path / "s.h5") as s:
         np.testing.assert_allclose(s.angles_deg, [0.0, 117.5, 241.0])
@@ -142,14 +165,25 @@ def test_rgb_stack_is_stored_rgb(tmp_path: Path) -> None:
 
 
 def test_a_print_resolution_is_not_a_pixel_size_and_unknown_optics_are_said(tmp_path: Path) -> None:
-    tifffile.imwrite(tmp_path / "dpi.tif", _frames(3, dtype=np.uint8), photometric="minisblack", resolution=(72, 72), resolutionunit="INCH")
+    tifffile.imwrite(
+        tmp_path / "dpi.tif",
+        _frames(3, dtype=np.uint8),
+        photometric="minisblack",
+        resolution=(72, 72),
+        resolutionunit="INCH",
+    )
     import_folder(tmp_path / "dpi.tif", tmp_path / "s.h5")
     with Session.open(tmp_path / "s.h5") as s:
         assert not pixel_size_known(s.plan)
         assert session_camera_model(s)[3]["length_unit"] == "px"
     text = format_summary(session_summary(tmp_path / "s.h5"))
     assert "pixel size unknown - measurements in pixels" in text
-    import_folder(tmp_path / "dpi.tif", tmp_path / "c.h5", config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"), roi_offset=(0, 0))
+    import_folder(
+        tmp_path / "dpi.tif",
+        tmp_path / "c.h5",
+        config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"),
+        roi_offset=(0, 0),
+    )
     with Session.open(tmp_path / "c.h5") as s:
         assert pixel_size_known(s.plan) and s.plan["pixel_size_source"] == "config"
         assert session_camera_model(s)[3]["length_unit"] == "um"
@@ -157,7 +191,9 @@ def test_a_print_resolution_is_not_a_pixel_size_and_unknown_optics_are_said(tmp_
 
 
 @pytest.mark.parametrize("lo, hi, expected", [(0.0, 1.0, (0.0, 1.0)), (-5.0, 20.0, (-5.0, 20.0))])
-def test_float_images_are_scaled_to_uint16_with_the_range_stated(tmp_path: Path, lo: float, hi: float, expected: tuple[float, float]) -> None:
+def test_float_images_are_scaled_to_uint16_with_the_range_stated(
+    tmp_path: Path, lo: float, hi: float, expected: tuple[float, float]
+) -> None:
     rng = np.random.default_rng(1)
     frames = rng.uniform(lo, hi, size=(4, 10, 12)).astype(np.float32)
     frames[0, 0, 0], frames[1, 0, 0] = lo, hi
@@ -174,7 +210,9 @@ def test_float_images_are_scaled_to_uint16_with_the_range_stated(tmp_path: Path,
 def test_float_folder_and_non_finite_pixels(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "img").mkdir()
     for i in range(3):
-        tifffile.imwrite(tmp_path / "img" / f"v{i}.tif", np.full((8, 9), 0.25 * i, np.float32), photometric="minisblack")
+        tifffile.imwrite(
+            tmp_path / "img" / f"v{i}.tif", np.full((8, 9), 0.25 * i, np.float32), photometric="minisblack"
+        )
     import_folder(tmp_path / "img", tmp_path / "s.h5")
     with Session.open(tmp_path / "s.h5") as s:
         assert [int(s.frame(i)[0, 0]) for i in range(3)] == [0, 16384, 32768]
@@ -204,7 +242,9 @@ def test_a_crop_without_its_offset_names_roi_offset(tmp_path: Path) -> None:
     for i, f in enumerate(_frames(3, (20, 30), np.uint8)):
         cv2.imwrite(str(tmp_path / "img" / f"v{i}.png"), f)
     # A rig whose camera.roi is not the images' size: where do the images sit on its 1024 x 1024 sensor?
-    with pytest.raises(ImportDataError, match=r"the images are 30 x 20 px, but the config's camera.roi is 1024 x 250.*--roi-offset X Y"):
+    with pytest.raises(
+        ImportDataError, match=r"the images are 30 x 20 px, but the config's camera.roi is 1024 x 250.*--roi-offset X Y"
+    ):
         import_folder(tmp_path / "img", tmp_path / "s.h5", config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"))
     # Cameras given for the full sensor (principal point (15, 500)) of images cropped from it.
     rows = []
@@ -214,21 +254,35 @@ def test_a_crop_without_its_offset_names_roi_offset(tmp_path: Path) -> None:
         P = np.array([[1000.0, 0, 15], [0, 1000.0, 500], [0, 0, 1]]) @ np.c_[R, [0.0, 0.0, 1000.0]]
         rows.append(f"v{k} " + " ".join(f"{x:.12g}" for x in P.ravel()))
     (tmp_path / "cams.txt").write_text("\n".join(rows) + "\n")
-    with pytest.raises(ImportDataError, match=r"cams.txt put the principal point at \(15.0, 500.0\) px, outside the 30 x 20 px images.*--roi-offset"):
+    with pytest.raises(
+        ImportDataError,
+        match=r"cams.txt put the principal point at \(15.0, 500.0\) px, outside the 30 x 20 px images.*--roi-offset",
+    ):
         import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt")
     import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt", roi_offset=(0, 490))
     with Session.open(tmp_path / "s.h5") as s:
         assert s.roi_offset_px == (0, 490)
-    assert "pixel size unknown (the imported cameras set the scale)" in format_summary(session_summary(tmp_path / "s.h5"))
+    assert "pixel size unknown (the imported cameras set the scale)" in format_summary(
+        session_summary(tmp_path / "s.h5")
+    )
 
 
 def test_zebrafish_crop_without_its_offset_names_roi_offset(zebrafish_dir: Path, tmp_path: Path) -> None:
     """The zebrafish frames are rows 388-637 of the 1024 x 1024 sensor its cameras were given for."""
     cams = zebrafish_dir / "authors_par_pi.txt"
-    with pytest.raises(ImportDataError, match=r"principal point at \(511.0, 511.0\) px, outside the 1024 x 250 px images.*--roi-offset X Y"):
+    with pytest.raises(
+        ImportDataError,
+        match=r"principal point at \(511.0, 511.0\) px, outside the 1024 x 250 px images.*--roi-offset X Y",
+    ):
         import_folder(zebrafish_dir / "images", tmp_path / "a.h5", cameras=cams, pixel_origin=1)
-    import_folder(zebrafish_dir / "images", tmp_path / "b.h5", cameras=cams, pixel_origin=1,
-                  config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"), name="ZF1")
+    import_folder(
+        zebrafish_dir / "images",
+        tmp_path / "b.h5",
+        cameras=cams,
+        pixel_origin=1,
+        config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"),
+        name="ZF1",
+    )
     with Session.open(tmp_path / "b.h5") as s:
         assert s.roi_offset_px == (0, 387) and s.pixel_size_um == pytest.approx((5.5, 5.5)) and _title(s) == "ZF1"
 
@@ -237,7 +291,22 @@ def test_cli_import_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     tifffile.imwrite(tmp_path / "rev.tif", _frames(3), photometric="minisblack")
     assert main(["-q", "import", str(tmp_path / "rev.tif"), "-o", str(tmp_path / "a.h5")]) == 0
     assert "pixel size unknown - measurements in pixels" in capsys.readouterr().out
-    assert main(["-q", "import", str(tmp_path / "rev.tif"), "-o", str(tmp_path / "b.h5"), "--pixel-size-um", "0.8", "--name", "L7"]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "import",
+                str(tmp_path / "rev.tif"),
+                "-o",
+                str(tmp_path / "b.h5"),
+                "--pixel-size-um",
+                "0.8",
+                "--name",
+                "L7",
+            ]
+        )
+        == 0
+    )
     assert "pixel size unknown" not in capsys.readouterr().out
     with Session.open(tmp_path / "b.h5") as s:
         assert s.pixel_size_um == pytest.approx((0.8, 0.8)) and _title(s) == "L7"
@@ -253,8 +322,19 @@ def test_a_world_in_pixels_is_measured_and_labelled_in_pixels() -> None:
     same, unit = cameras_in_um(P, "px")
     assert unit == "px" and np.array_equal(same, P)
     mesh = Mesh(np.zeros((3, 3)), np.array([[0, 1, 2]], np.int32))
-    m = Measurement(volume_mm3=2e-3, mesh_volume_mm3=2e-3, surface_area_mm2=3e-2, raw_surface_area_mm2=3e-2, n_inside_voxels=10,
-                    voxel_size_um=1.5, n_views=12, iso_level=11.5, settings=MeasureSettings(), mesh=mesh, provenance={"length_unit": "px"})
+    m = Measurement(
+        volume_mm3=2e-3,
+        mesh_volume_mm3=2e-3,
+        surface_area_mm2=3e-2,
+        raw_surface_area_mm2=3e-2,
+        n_inside_voxels=10,
+        voxel_size_um=1.5,
+        n_views=12,
+        iso_level=11.5,
+        settings=MeasureSettings(),
+        mesh=mesh,
+        provenance={"length_unit": "px"},
+    )
     text = m.summary()
     assert "volume        2e+06 px^3" in text and "surface area  30000 px^2" in text and "mm^3" not in text
     assert "pixel size unknown - measurements in pixels" in text and "--pixel-size-um" in text

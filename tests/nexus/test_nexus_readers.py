@@ -19,7 +19,9 @@ import pytest
 
 from vastcal.session import SCHEMA_VERSION, Session, SessionWriter
 
-nxtomo_app = pytest.importorskip("nxtomo.application.nxtomo", reason="nxtomo is in the test extras (pip install -e '.[test]')")
+nxtomo_app = pytest.importorskip(
+    "nxtomo.application.nxtomo", reason="nxtomo is in the test extras (pip install -e '.[test]')"
+)
 silx_io = pytest.importorskip("silx.io", reason="silx is in the test extras (pip install -e '.[test]')")
 from silx.io import nxdata as silx_nxdata  # noqa: E402
 
@@ -38,8 +40,11 @@ def _small_rig(pixel_format: str):  # type: ignore[no-untyped-def]
 
     cfg = load_config(None)
     roi = dataclasses.replace(cfg.camera.roi, x=448, y=448, width=96, height=64)
-    return dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, roi=roi, pixel_format=pixel_format),
-                               acquisition=dataclasses.replace(cfg.acquisition, views=4))
+    return dataclasses.replace(
+        cfg,
+        camera=dataclasses.replace(cfg.camera, roi=roi, pixel_format=pixel_format),
+        acquisition=dataclasses.replace(cfg.acquisition, views=4),
+    )
 
 
 @pytest.fixture(scope="module", params=["Mono12", "RGB8"])
@@ -84,8 +89,12 @@ def test_acquired_sessions_load_with_nxtomo_and_silx(acquired: tuple[Path, objec
     np.testing.assert_array_equal(nx.instrument.detector.data, green)
     np.testing.assert_allclose(nx.sample.rotation_angle.to("degree").magnitude, angles)
     optics = cfg.optics  # type: ignore[attr-defined]
-    assert _um(nx.instrument.detector.x_pixel_size) == pytest.approx(optics.pixel_size_um), "detector: the sensor's own pixel"
-    assert _um(nx.sample.x_pixel_size) == pytest.approx(optics.pixel_size_um / optics.magnification), "sample: the effective pixel"
+    assert _um(nx.instrument.detector.x_pixel_size) == pytest.approx(optics.pixel_size_um), (
+        "detector: the sensor's own pixel"
+    )
+    assert _um(nx.sample.x_pixel_size) == pytest.approx(optics.pixel_size_um / optics.magnification), (
+        "sample: the effective pixel"
+    )
     assert _um(nx.sample.y_pixel_size) == pytest.approx(optics.pixel_size_um / optics.magnification)
     _check_with_silx(path, len(frames), shape[:2])  # type: ignore[arg-type]
     if rgb:
@@ -119,7 +128,9 @@ def test_imported_sessions_load_with_nxtomo_and_silx(tmp_path: Path, colour: boo
 
 
 @pytest.mark.parametrize("name, shape", [("schema2_rgb.h5", (12, 16, 3)), ("schema2_mono.h5", (12, 16))])
-def test_schema2_sessions_still_read_and_resume_rewrites_them_in_the_current_layout(tmp_path: Path, name: str, shape: tuple[int, ...]) -> None:
+def test_schema2_sessions_still_read_and_resume_rewrites_them_in_the_current_layout(
+    tmp_path: Path, name: str, shape: tuple[int, ...]
+) -> None:
     old = Path(shutil.copy(DATA / name, tmp_path / name))
     frames = _fixture_frames(shape)
     with Session.open(old) as s:
@@ -197,8 +208,15 @@ def test_a_damaged_colour_plane_is_named_in_one_error(tmp_path: Path, damage: st
 
     path = tmp_path / "S.h5"
     frames = np.random.default_rng(5).integers(0, 255, size=(3, 8, 10, 3), dtype=np.uint8)
-    with SessionWriter.create(path, frame_shape=(8, 10, 3), dtype=np.uint8, rig_yaml="name: t\n", plan={"views": 3},
-                              pixel_size_um=(2.0, 2.0), live=False) as w:
+    with SessionWriter.create(
+        path,
+        frame_shape=(8, 10, 3),
+        dtype=np.uint8,
+        rig_yaml="name: t\n",
+        plan={"views": 3},
+        pixel_size_um=(2.0, 2.0),
+        live=False,
+    ) as w:
         for i in range(3):
             w.append_view(frames[i], 120.0 * i)
     with h5py.File(path, "r+") as f:

@@ -32,20 +32,28 @@ def test_rgb_acquire_killed_at_every_write_keeps_committed_views_and_resume_comp
     views = 3  # the fewest a rig file allows
     cfg = load_config(None)
     roi = dataclasses.replace(cfg.camera.roi, x=480, y=480, width=64, height=64)
-    cfg = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, roi=roi, pixel_format="RGB8"),
-                              acquisition=dataclasses.replace(cfg.acquisition, views=views))
+    cfg = dataclasses.replace(
+        cfg,
+        camera=dataclasses.replace(cfg.camera, roi=roi, pixel_format="RGB8"),
+        acquisition=dataclasses.replace(cfg.acquisition, views=views),
+    )
     rig = tmp_path / "rig.yaml"
     rig.write_text(dump_config(cfg))
     ref = tmp_path / "ref.h5"
-    run = subprocess.run([sys.executable, "-m", "vastcal.cli", "-q", "acquire", "--config", str(rig), "-o", str(ref)],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", "-q", "acquire", "--config", str(rig), "-o", str(ref)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     with Session.open(ref) as s:
         frames = s.projections()
         assert frames.shape == (views, 64, 64, 3) and s.colour_planes is not None
 
-    records = kill_tests.kill_at_every_write(tmp_path, ["-q", "acquire", "--config", str(rig), "-o", "{out}"],
-                                             then=["-q", "acquire", "--resume", "{out}"])
+    records = kill_tests.kill_at_every_write(
+        tmp_path, ["-q", "acquire", "--config", str(rig), "-o", "{out}"], then=["-q", "acquire", "--resume", "{out}"]
+    )
     counts = {"no file": 0, **{k: 0 for k in range(views + 1)}}
     for r in records[:-1]:
         d = tmp_path / "runs" / str(r["n"])

@@ -53,7 +53,9 @@ def test_python_api_example_runs_as_printed(tmp_path: Path) -> None:
 
     acquire_simulated(load_config(None), tmp_path / "S.h5", views=6)
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    r = subprocess.run([sys.executable, "-c", block], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=540)
+    r = subprocess.run(
+        [sys.executable, "-c", block], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=540
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     assert re.search(r"volume 0\.\d+ mm³, area \d+\.\d+ mm²", r.stdout), r.stdout
     assert (tmp_path / "S.ply").is_file() and (tmp_path / "S-report" / "report.html").is_file()

@@ -28,7 +28,8 @@ def test_require_harvesters_names_the_extra(no_harvesters: None) -> None:
 
 
 def test_acquire_on_a_real_rig_without_the_extra_is_one_line_before_the_stage_opens(
-        no_harvesters: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    no_harvesters: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     import vastcal.drivers.stage as stage_pkg
     from vastcal.cli import main
 
@@ -45,8 +46,10 @@ def test_acquire_on_a_real_rig_without_the_extra_is_one_line_before_the_stage_op
 
 def test_analysis_and_the_simulated_rig_do_not_import_harvesters() -> None:
     """The modules a user without the extra runs never import harvesters/genicam (in a fresh interpreter)."""
-    code = ("import sys; import vastcal.cli, vastcal.pipeline, vastcal.rig, vastcal.importer, vastcal.drivers.camera; "
-            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('harvesters', 'genicam')); "
-            "print(','.join(bad)); sys.exit(1 if bad else 0)")
+    code = (
+        "import sys; import vastcal.cli, vastcal.pipeline, vastcal.rig, vastcal.importer, vastcal.drivers.camera; "
+        "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('harvesters', 'genicam')); "
+        "print(','.join(bad)); sys.exit(1 if bad else 0)"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, f"imported without need: {r.stdout.strip()} {r.stderr.strip()[-300:]}"

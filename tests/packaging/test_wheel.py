@@ -24,9 +24,11 @@ ROOT = Path(__file__).resolve().parents[2]
 SOURCES = ("pyproject.toml", "README.md", "LICENSE", "vastcal", "drivers", "simulators", "config")
 """What a wheel is built from: the packages, the folders mapped into them, and the metadata files."""
 
-OFFLINE = re.compile(r"NewConnectionError|Name or service not known|Temporary failure in name resolution|"
-                     r"Network is unreachable|Could not find a version that satisfies the requirement setuptools|"
-                     r"No matching distribution found for setuptools|ProxyError|Max retries exceeded")
+OFFLINE = re.compile(
+    r"NewConnectionError|Name or service not known|Temporary failure in name resolution|"
+    r"Network is unreachable|Could not find a version that satisfies the requirement setuptools|"
+    r"No matching distribution found for setuptools|ProxyError|Max retries exceeded"
+)
 """pip's words for a registry it cannot reach."""
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
@@ -55,11 +57,19 @@ def _clean_env() -> dict[str, str]:
 
 
 def _pip(python: Path | str, *args: str, cwd: Path) -> None:
-    r = subprocess.run([str(python), "-m", "pip", "--disable-pip-version-check", *args], cwd=cwd, env=_clean_env(),
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [str(python), "-m", "pip", "--disable-pip-version-check", *args],
+        cwd=cwd,
+        env=_clean_env(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     if r.returncode != 0:
         if OFFLINE.search(r.stdout + r.stderr):
-            pytest.skip(f"the package registry cannot be reached (pip {args[0]}): {OFFLINE.search(r.stdout + r.stderr)[0]}")
+            pytest.skip(
+                f"the package registry cannot be reached (pip {args[0]}): {OFFLINE.search(r.stdout + r.stderr)[0]}"
+            )
         raise AssertionError(f"pip {' '.join(args)} failed:\n{(r.stdout + r.stderr)[-3000:]}")
 
 
@@ -76,7 +86,9 @@ def test_every_package_folder_is_listed_in_pyproject() -> None:
                 continue
             if any(f.is_file() and not f.name.endswith(".pyc") for f in d.iterdir()) and d.resolve() not in listed:
                 missing.append(str(d.relative_to(ROOT)))
-    assert not missing, f"folders with files that the wheel would leave out (add them to [tool.setuptools] packages): {missing}"
+    assert not missing, (
+        f"folders with files that the wheel would leave out (add them to [tool.setuptools] packages): {missing}"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -128,21 +140,42 @@ def _run(exe: Path, *args: str, cwd: Path, timeout: float = 400) -> subprocess.C
 
 def test_installed_wheel_runs_the_demo_outside_the_checkout(installed: Path, tmp_path: Path) -> None:
     py = installed / "python"
-    where = _run(py, "-c", "import sysconfig, vastcal, vastcal.config as c; "
-                           "print(sysconfig.get_paths()['purelib']); print(vastcal.__file__); print(c.DEFAULT_CONFIG)", cwd=tmp_path)
+    where = _run(
+        py,
+        "-c",
+        "import sysconfig, vastcal, vastcal.config as c; "
+        "print(sysconfig.get_paths()['purelib']); print(vastcal.__file__); print(c.DEFAULT_CONFIG)",
+        cwd=tmp_path,
+    )
     assert where.returncode == 0, where.stderr
     site, module, default = (Path(s) for s in where.stdout.split())
-    assert module.is_relative_to(site) and default.is_relative_to(site), "vastcal must come from the venv, not the checkout"
+    assert module.is_relative_to(site) and default.is_relative_to(site), (
+        "vastcal must come from the venv, not the checkout"
+    )
     assert default.is_file()
-    assert not {"drivers", "simulators", "config"} & {p.name for p in site.iterdir()}, "generic top-level packages installed"
-    assert not any(p.name.startswith(("harvesters", "genicam")) for p in site.iterdir()), "the [rig] extra was not asked for"
+    assert not {"drivers", "simulators", "config"} & {p.name for p in site.iterdir()}, (
+        "generic top-level packages installed"
+    )
+    assert not any(p.name.startswith(("harvesters", "genicam")) for p in site.iterdir()), (
+        "the [rig] extra was not asked for"
+    )
 
     help_ = _run(py, "-m", "vastcal", "--help", cwd=tmp_path)
     assert help_.returncode == 0 and "usage: vastcal" in help_.stdout, help_.stderr
 
     # Without the [rig] extra a real-rig acquisition is one line naming it (before any device is opened).
-    rig = _run(installed / "vastcal", "acquire", "--config", str(default.with_name("vast-rig.yaml")), "-o", "s.h5", cwd=tmp_path)
-    assert rig.returncode == 1 and rig.stderr.count("\n") == 1 and "pip install 'vastcal[rig]'" in rig.stderr, rig.stderr
+    rig = _run(
+        installed / "vastcal",
+        "acquire",
+        "--config",
+        str(default.with_name("vast-rig.yaml")),
+        "-o",
+        "s.h5",
+        cwd=tmp_path,
+    )
+    assert rig.returncode == 1 and rig.stderr.count("\n") == 1 and "pip install 'vastcal[rig]'" in rig.stderr, (
+        rig.stderr
+    )
 
     demo = _run(installed / "vastcal", "demo", "--views", "6", "-q", "-o", "demo", cwd=tmp_path)
     assert demo.returncode == 0, demo.stderr[-2000:]

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from phantom_views import PhantomViews  # noqa: F401 (tests/reconstruct on sys.path, see conftest)
 
 
@@ -26,5 +25,3 @@ def noisy_frames(coverage: np.ndarray, contrast: float = 150.0, noise: float = 2
     rng = np.random.default_rng(seed)
     f = 230.0 - contrast * coverage + rng.normal(0.0, noise, coverage.shape)
     return np.clip(np.rint(f), 0, 255).astype(np.uint8)
-
-

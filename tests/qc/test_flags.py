@@ -5,16 +5,21 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from qc_sim import Measured, noisy_frames  # type: ignore[import-not-found]
 
 from vastcal import qc
-
-from qc_sim import Measured, noisy_frames  # type: ignore[import-not-found]
 
 
 def run(m: Measured, frames: np.ndarray | None = None, sil: np.ndarray | None = None, **kw: object) -> qc.QCResult:
     mesh = m.measurement.mesh  # type: ignore[attr-defined]
-    return qc.evaluate_qc(m.frames if frames is None else frames, m.silhouettes if sil is None else sil, m.P, mesh.vertices, mesh.faces,
-                          **kw)  # type: ignore[arg-type]
+    return qc.evaluate_qc(
+        m.frames if frames is None else frames,
+        m.silhouettes if sil is None else sil,
+        m.P,
+        mesh.vertices,
+        mesh.faces,
+        **kw,
+    )  # type: ignore[arg-type]
 
 
 def codes(res: qc.QCResult) -> dict[str, tuple[int, ...]]:
@@ -33,7 +38,9 @@ def test_clean_revolution_is_ok_and_agrees_with_its_hull(measured: Measured) -> 
 def test_blank_frame_fails(measured: Measured) -> None:
     frames = measured.frames.copy()
     sil = measured.silhouettes.copy()
-    frames[3] = noisy_frames(np.zeros_like(measured.views.coverage[3]), seed=5)  # the shutter stayed shut: background only
+    frames[3] = noisy_frames(
+        np.zeros_like(measured.views.coverage[3]), seed=5
+    )  # the shutter stayed shut: background only
     sil[3] = False
     res = run(measured, frames, sil)
     assert res.verdict == "fail" and codes(res)["blank"] == (3,)
@@ -50,8 +57,12 @@ def test_saturated_frame_is_flagged(measured: Measured) -> None:
 
 def test_low_contrast_frame_is_flagged(measured: Measured) -> None:
     frames = measured.frames.copy()
-    defocused = cv2.GaussianBlur(measured.views.coverage[4].astype(np.float32), (0, 0), 2.0)  # out of focus: edge blur 2 px
-    frames[4] = noisy_frames(defocused[None], contrast=8.0, noise=2.0, seed=9)[0]  # and a faint specimen: 4 noise sigmas
+    defocused = cv2.GaussianBlur(
+        measured.views.coverage[4].astype(np.float32), (0, 0), 2.0
+    )  # out of focus: edge blur 2 px
+    frames[4] = noisy_frames(defocused[None], contrast=8.0, noise=2.0, seed=9)[
+        0
+    ]  # and a faint specimen: 4 noise sigmas
     res = run(measured, frames)
     assert codes(res)["low_contrast"] == (4,)
     assert res.per_view["edge_noise_px"][4] > qc.LOW_CONTRAST_PX > max(res.per_view["edge_noise_px"][:4])
@@ -73,7 +84,9 @@ def test_specimen_cut_by_the_frame_edge_makes_lower_bounds(measured: Measured) -
 def test_view_whose_silhouette_is_off_the_hull_is_flagged(measured: Measured) -> None:
     sil = measured.silhouettes.copy()
     frames = measured.frames.copy()
-    sil[6] = np.roll(sil[6], 5, axis=0)  # one view's specimen 5 px off where its camera puts it (a wrong camera, a moved larva)
+    sil[6] = np.roll(
+        sil[6], 5, axis=0
+    )  # one view's specimen 5 px off where its camera puts it (a wrong camera, a moved larva)
     frames[6] = np.roll(frames[6], 5, axis=0)
     res = run(measured, frames, sil)
     assert codes(res)["view_disagrees"] == (6,)
@@ -88,7 +101,9 @@ def test_view_that_is_another_object_fails(measured: Measured) -> None:
     sil[1] = np.roll(sil[1], 30, axis=0)
     frames[1] = noisy_frames(sil[1:2].astype(float), seed=4)[0]
     res = run(measured, frames, sil)
-    assert res.verdict == "fail" and any(f.code == "view_disagrees" and f.severity == "fail" and f.views == (1,) for f in res.flags)
+    assert res.verdict == "fail" and any(
+        f.code == "view_disagrees" and f.severity == "fail" and f.views == (1,) for f in res.flags
+    )
 
 
 def test_calibration_at_its_bound_is_flagged() -> None:
@@ -152,4 +167,6 @@ def test_views_off_the_hull_are_flagged_even_when_many_disagree(measured: Measur
     budget, res = uncertainty.assess(frames, sil, measured.P, hull, m, None, samples=0)
     flagged = set(codes(res).get("view_disagrees", ()))
     assert len(flagged & set(moved)) >= 3, (res.per_view["boundary_distance_px"], res.thresholds)
-    assert budget.details["edge_sigma_px"] > budget.details["edge_sigma_images_px"]  # the budget still carries the disagreement
+    assert (
+        budget.details["edge_sigma_px"] > budget.details["edge_sigma_images_px"]
+    )  # the budget still carries the disagreement

@@ -7,10 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from phantom_views import PhantomViews, make_session  # type: ignore[import-not-found]
 
 from vastcal import uncertainty as U
-
-from phantom_views import PhantomViews, make_session  # type: ignore[import-not-found]
 
 
 def test_um_per_px_of_a_pinhole() -> None:
@@ -36,8 +35,12 @@ def test_normal_shift_sensitivity_of_a_sphere() -> None:
 def test_drift_has_one_definition_and_a_status() -> None:
     delta = np.array([0.0, 0.3, -0.4, 0.0])
     rms, mx = U.drift_rms_deg(delta)
-    assert rms == pytest.approx(np.sqrt((0.09 + 0.16) / 3)) and mx == pytest.approx(0.4)  # view 0 defines 0 deg: not counted
-    st = U.drift_status(delta, source="calibration", free=["yaw", "pitch", "gamma", "rolls"], settings={"roll_prior_deg": 1.0})
+    assert rms == pytest.approx(np.sqrt((0.09 + 0.16) / 3)) and mx == pytest.approx(
+        0.4
+    )  # view 0 defines 0 deg: not counted
+    st = U.drift_status(
+        delta, source="calibration", free=["yaw", "pitch", "gamma", "rolls"], settings={"roll_prior_deg": 1.0}
+    )
     assert st["status"] == "undetermined" and st["u_per_view_deg"] == 1.0 and "prior" in st["reason"]
     assert U.drift_status(delta, source="calibration", free=["yaw"])["status"] == "not estimated"
     assert U.drift_status(delta, source="imported")["status"] == "measured"
@@ -52,7 +55,11 @@ def test_rolls_free_without_a_prior_state_the_starts_spread_as_their_dispersion(
     st = U.drift_status(delta, starts_theta=starts, **kw)
     sd = np.std(starts[:, 4:], axis=0)
     assert st["status"] == "measured" and st["u_per_view_deg"] == pytest.approx(np.sqrt(np.mean(sd**2)))
-    assert st["starts_spread_rms_deg"] == st["u_per_view_deg"] and "3 starts" in st["reason"] and "repeatability" in st["reason"]
+    assert (
+        st["starts_spread_rms_deg"] == st["u_per_view_deg"]
+        and "3 starts" in st["reason"]
+        and "repeatability" in st["reason"]
+    )
     one = U.drift_status(delta, starts_theta=starts[:1], **kw)  # one start: nothing to compare, nothing claimed
     assert one["status"] == "measured" and "u_per_view_deg" not in one and "no sigma" in one["reason"]
 
@@ -65,17 +72,33 @@ def test_run_summary_says_how_a_roll_without_prior_was_decided() -> None:
 
     starts = np.zeros((3, 7))
     starts[:, 4:] = [[0.1, -0.2, 0.0], [0.3, 0.0, 0.2], [0.2, -0.1, 0.1]]
-    cal = SimpleNamespace(delta_angle_deg=np.array([0.0, 0.3, -0.4, 0.1]), settings=SimpleNamespace(roll_prior_weight=0.0),
-                          roll_widths=None, start_thetas=starts)
+    cal = SimpleNamespace(
+        delta_angle_deg=np.array([0.0, 0.3, -0.4, 0.1]),
+        settings=SimpleNamespace(roll_prior_weight=0.0),
+        roll_widths=None,
+        start_thetas=starts,
+    )
     text = _calibration_digest(cal)["drift"]
-    assert text.startswith("measured: the rolls were free with no roll prior") and f"{U.starts_spread_deg(starts):.3g} deg apart" in text
-    assert text.endswith(U.drift_status(cal.delta_angle_deg, source="calibration", free=["rolls"], settings={"roll_prior_weight": 0.0},
-                                        starts_theta=starts)["reason"])  # the report's words
+    assert (
+        text.startswith("measured: the rolls were free with no roll prior")
+        and f"{U.starts_spread_deg(starts):.3g} deg apart" in text
+    )
+    assert text.endswith(
+        U.drift_status(
+            cal.delta_angle_deg,
+            source="calibration",
+            free=["rolls"],
+            settings={"roll_prior_weight": 0.0},
+            starts_theta=starts,
+        )["reason"]
+    )  # the report's words
     cal.start_thetas = None
     assert "no sigma estimated" in _calibration_digest(cal)["drift"]
 
 
-def _with_calibration_run(path: Path, views: PhantomViews, starts: tuple[np.ndarray, list[float]] | None = None) -> Path:
+def _with_calibration_run(
+    path: Path, views: PhantomViews, starts: tuple[np.ndarray, list[float]] | None = None
+) -> Path:
     """Add a calibration run in the calibration's own layout (θ, K, distance, settings, bounds), at the true pose."""
     from vastcal.geometry import decompose_circular
     from vastcal.session import Session, write_attrs
@@ -91,10 +114,19 @@ def _with_calibration_run(path: Path, views: PhantomViews, starts: tuple[np.ndar
         g.create_dataset("delta_angle_deg", data=theta[3:] - np.arange(theta.size - 3) * 360.0 / (theta.size - 3))
         g.create_dataset("cost_trace", data=np.c_[np.arange(1, 41) * 50.0, np.geomspace(2.0, 0.5, 40)])
         half = np.r_[1.0, 1.0, 1.0, 0.0, np.full(theta.size - 4, 5.0)]
-        write_attrs(g, {"method": "coherence", "seed": 0, "free": ["yaw", "pitch", "gamma", "rolls"], "distance": float(mo.distance),
-                        "settings": json.dumps({"roll_prior_deg": 1.0, "yaw_prior_deg": 0.5, "photometric_yaw": False}),
-                        "bounds": {"lower_deg": (theta - half).tolist(), "upper_deg": (theta + half).tolist()},
-                        "n_evaluations": 2000, "wall_time_s": 3.0})
+        write_attrs(
+            g,
+            {
+                "method": "coherence",
+                "seed": 0,
+                "free": ["yaw", "pitch", "gamma", "rolls"],
+                "distance": float(mo.distance),
+                "settings": json.dumps({"roll_prior_deg": 1.0, "yaw_prior_deg": 0.5, "photometric_yaw": False}),
+                "bounds": {"lower_deg": (theta - half).tolist(), "upper_deg": (theta + half).tolist()},
+                "n_evaluations": 2000,
+                "wall_time_s": 3.0,
+            },
+        )
         if starts is not None:
             g.create_dataset("starts/theta", data=np.vstack([theta, theta[None] + starts[0]]))
             g.create_dataset("starts/cost", data=starts[1])
@@ -110,7 +142,9 @@ def assessed(tmp_path_factory: pytest.TempPathFactory, qc_views: PhantomViews) -
     return path, reconstruct_session(path, target_voxels=300_000)
 
 
-def test_budget_has_every_component_and_covers_the_true_hull(assessed: tuple[Path, object], qc_views: PhantomViews) -> None:
+def test_budget_has_every_component_and_covers_the_true_hull(
+    assessed: tuple[Path, object], qc_views: PhantomViews
+) -> None:
     _, m = assessed
     u = m.uncertainty  # type: ignore[attr-defined]
     names = [c["name"] for c in u["components"]]
@@ -126,7 +160,9 @@ def test_budget_has_every_component_and_covers_the_true_hull(assessed: tuple[Pat
     assert "±" in m.summary() and "verdict       ok" in m.summary()  # type: ignore[attr-defined]
 
 
-def test_report_carries_the_interval_budget_verdict_and_drift_status(assessed: tuple[Path, object], tmp_path: Path) -> None:
+def test_report_carries_the_interval_budget_verdict_and_drift_status(
+    assessed: tuple[Path, object], tmp_path: Path
+) -> None:
     import csv
 
     from vastcal.report import write_report
@@ -139,14 +175,18 @@ def test_report_carries_the_interval_budget_verdict_and_drift_status(assessed: t
     assert mm["volume_U_mm3"] == pytest.approx(m.uncertainty["U_volume_mm3"]) and mm["verdict"] == "ok"  # type: ignore[attr-defined]
     assert mm["volume_to_cite"] == "volume_mm3" and "diagnostic" in mm["volume_note"]
     assert c["drift"]["status"] == "undetermined" and c["drift_rms_deg"] == pytest.approx(c["drift"]["rms_deg"])
-    assert c["initial_cost"] == pytest.approx(2.0) and c["final_cost"] == pytest.approx(0.5)  # costs, not evaluation counts
+    assert c["initial_cost"] == pytest.approx(2.0) and c["final_cost"] == pytest.approx(
+        0.5
+    )  # costs, not evaluation counts
     row = next(csv.DictReader((out / "report.csv").read_text().splitlines()))
     assert float(row["volume_U_mm3"]) == pytest.approx(mm["volume_U_mm3"], rel=1e-5) and row["verdict"] == "ok"
     assert row["drift_status"] == "undetermined" and row["coverage_factor_k"] == "2"
     page = (out / "report.html").read_text()
     assert "calibration (open directions)" in page and "expanded U (k = 2)" in page and "undetermined" in page
     assert "verdict: ok" in page
-    assert 'id="fig-convergence"' in page and "against the number of cost evaluations" in page  # best cost against evaluations, not the raveled table
+    assert (
+        'id="fig-convergence"' in page and "against the number of cost evaluations" in page
+    )  # best cost against evaluations, not the raveled table
 
 
 def test_imported_cameras_leave_the_calibration_term_not_evaluated(tmp_path: Path, qc_views: PhantomViews) -> None:
@@ -168,8 +208,11 @@ def test_kept_starts_of_equal_cost_make_their_own_line(tmp_path: Path, qc_views:
     rng = np.random.default_rng(1)
     n = len(qc_views.angles_deg)
     dtheta = np.c_[np.zeros((3, 4)), rng.normal(0, 0.5, (3, n - 1))]  # three more starts, rolls 0.5 deg apart
-    path = _with_calibration_run(make_session(tmp_path / "starts.h5", qc_views, masks=True, cameras=False), qc_views,
-                                 starts=(dtheta, [1.0, 1.002, 1.004, 1.5]))  # the last start is not of equal cost
+    path = _with_calibration_run(
+        make_session(tmp_path / "starts.h5", qc_views, masks=True, cameras=False),
+        qc_views,
+        starts=(dtheta, [1.0, 1.002, 1.004, 1.5]),
+    )  # the last start is not of equal cost
     m = reconstruct_session(path, target_voxels=200_000)
     line = next(c for c in m.uncertainty["components"] if c["name"] == "calibration (starts)")
     assert line["u_volume_mm3"] > 0 and "3 starts" in line["method"]
@@ -185,8 +228,9 @@ def test_vastcal_info_shows_the_verdict(assessed: tuple[Path, object]) -> None:
     assert "\nverdict      ok (run_000)" in format_summary(summary)
 
 
-def test_a_failing_assessment_never_loses_the_measurement(tmp_path: Path, qc_views: PhantomViews,
-                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_failing_assessment_never_loses_the_measurement(
+    tmp_path: Path, qc_views: PhantomViews, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from vastcal.errors import AnalysisError
     from vastcal.reconstruct import reconstruct_session
 
@@ -208,12 +252,23 @@ def test_the_yaw_sigma_is_the_prior_s_when_the_photometric_yaw_did_not_run() -> 
     from vastcal.uncertainty import PHOTOMETRIC_YAW_SIGMA_DEG, _photometric_yaw_ran, open_directions_sigma
 
     settings = {"photometric_yaw": True, "yaw_prior_deg": 0.5, "roll_prior_deg": 1.0}
-    ran = {"levels": json.dumps([{"seed": 0, "level": 0}, {"judge": "..."}, {"stage": "photometric yaw", "yaw_deg": 0.3}])}
+    ran = {
+        "levels": json.dumps([{"seed": 0, "level": 0}, {"judge": "..."}, {"stage": "photometric yaw", "yaw_deg": 0.3}])
+    }
     skipped = {"levels": json.dumps([{"seed": 0, "level": 0}, {"judge": "..."}])}
-    assert _photometric_yaw_ran(ran) is True and _photometric_yaw_ran(skipped) is False and _photometric_yaw_ran({}) is None
-    for attrs, sigma, says in ((ran, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw"), (skipped, 0.5, "the yaw prior"),
-                               ({}, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw")):
-        sig, src = open_directions_sigma(3 + 6, ["yaw", "pitch", "gamma", "rolls"], settings, _photometric_yaw_ran(attrs))
+    assert (
+        _photometric_yaw_ran(ran) is True
+        and _photometric_yaw_ran(skipped) is False
+        and _photometric_yaw_ran({}) is None
+    )
+    for attrs, sigma, says in (
+        (ran, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw"),
+        (skipped, 0.5, "the yaw prior"),
+        ({}, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw"),
+    ):
+        sig, src = open_directions_sigma(
+            3 + 6, ["yaw", "pitch", "gamma", "rolls"], settings, _photometric_yaw_ran(attrs)
+        )
         assert sig[0] == sigma and says in src
 
 

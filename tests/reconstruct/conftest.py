@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # phantom_views (tests run with --import-mode=importlib)
@@ -19,4 +18,3 @@ from vastcal.simulators.camera.phantom import spheroid_phantom  # noqa: E402
 def spheroid_views() -> PhantomViews:
     """21 views of a 3.0 × 0.56 mm prolate spheroid, drifting angles, tilted off-centre axis."""
     return render_views(spheroid_phantom(), 21)
-

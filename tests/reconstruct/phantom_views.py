@@ -37,9 +37,19 @@ class PhantomViews:
         return self.phantom.hull_area_mm2(self.angles_deg)
 
 
-def render_views(phantom: Phantom, n_views: int = 21, *, width: int = 1024, height: int = 320, seed: int = 1,
-                 drift_deg: float = 2.0, tilt_deg: float = 0.5, offset_um: float = 40.0, distance_um: float = 65000.0,
-                 pixel_um: float = 5.5) -> PhantomViews:
+def render_views(
+    phantom: Phantom,
+    n_views: int = 21,
+    *,
+    width: int = 1024,
+    height: int = 320,
+    seed: int = 1,
+    drift_deg: float = 2.0,
+    tilt_deg: float = 0.5,
+    offset_um: float = 40.0,
+    distance_um: float = 65000.0,
+    pixel_um: float = 5.5,
+) -> PhantomViews:
     """Exact silhouettes of ``phantom`` for ``n_views`` views with random drift, tilt and axis offset.
 
     The camera is a pinhole at ``distance_um`` from the axis with pixels of ``pixel_um`` on the
@@ -49,7 +59,9 @@ def render_views(phantom: Phantom, n_views: int = 21, *, width: int = 1024, heig
     rng = np.random.default_rng(seed)
     angles = np.arange(n_views) * 360.0 / n_views + rng.uniform(-drift_deg, drift_deg, n_views)
     angles[0] = 0.0
-    truth = RigTruth(float(rng.uniform(-tilt_deg, tilt_deg)), float(rng.uniform(-tilt_deg, tilt_deg)), offset_um, distance_um)
+    truth = RigTruth(
+        float(rng.uniform(-tilt_deg, tilt_deg)), float(rng.uniform(-tilt_deg, tilt_deg)), offset_um, distance_um
+    )
     intr = PinholeIntrinsics(distance_um / pixel_um, (width - 1) / 2, (height - 1) / 2)
     renderer = BrightfieldRenderer(phantom)
     Ps, covs = [], []
@@ -62,20 +74,30 @@ def render_views(phantom: Phantom, n_views: int = 21, *, width: int = 1024, heig
     return PhantomViews(np.array(Ps), cov >= 0.5, cov, angles, phantom)
 
 
-def make_session(path: Path, views: PhantomViews, *, masks: bool = True, cameras: bool = True, calibration: bool = False) -> Path:
+def make_session(
+    path: Path, views: PhantomViews, *, masks: bool = True, cameras: bool = True, calibration: bool = False
+) -> Path:
     """A small session of Mono8 brightfield-like frames of ``views`` (specimen dark on bright).
 
     Optionally with imported masks, imported known cameras, and a calibration run in the
     calibration engineer's layout (P, θ, θ0, delta angles, cost trace, attributes; no colour model).
     """
-    from vastcal.config import dump_config, RigConfig
+    from vastcal.config import RigConfig, dump_config
     from vastcal.session import Session, SessionWriter, write_attrs
 
     n = len(views.angles_deg)
     frames = (230 - 150 * views.coverage).astype(np.uint8)
     commanded = np.arange(n) * 360.0 / n
-    with SessionWriter.create(path, frame_shape=frames.shape[1:], dtype=np.uint8, rig_yaml=dump_config(RigConfig()), plan={"views": n}, live=False,
-                              pixel_size_um=(5.5, 5.5), title=f"phantom {views.phantom.name}") as w:
+    with SessionWriter.create(
+        path,
+        frame_shape=frames.shape[1:],
+        dtype=np.uint8,
+        rig_yaml=dump_config(RigConfig()),
+        plan={"views": n},
+        live=False,
+        pixel_size_um=(5.5, 5.5),
+        title=f"phantom {views.phantom.name}",
+    ) as w:
         for i in range(n):
             w.append_view(frames[i], float(commanded[i]))
         if masks:

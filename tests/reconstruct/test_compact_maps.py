@@ -52,7 +52,9 @@ def test_cropped_maps_read_back_as_the_full_frames(spheroid_views: PhantomViews)
     q = SilhouetteMaps.from_stack(cov, quantise=True)
     assert q.nbytes < 0.15 * cov.nbytes
     assert float(np.abs(np.asarray(q) - cov).max()) <= 0.5 / 255 + 1e-6
-    floor = SilhouetteMaps.from_stack(np.maximum(cov, 1e-4), quantise=True)  # clamped posteriors: p = 1e-4 over the background
+    floor = SilhouetteMaps.from_stack(
+        np.maximum(cov, 1e-4), quantise=True
+    )  # clamped posteriors: p = 1e-4 over the background
     assert floor.nbytes == q.nbytes
     binary = SilhouetteMaps.from_stack(sil)
     assert not binary.soft and np.array_equal(np.asarray(binary), sil) and np.array_equal(binary[3], sil[3])
@@ -73,7 +75,9 @@ def test_the_cropped_soft_test_equals_the_full_frame_test(spheroid_views: Phanto
 
 def test_quantised_maps_carve_the_same_hull(spheroid_views: PhantomViews) -> None:
     dense = visual_hull(spheroid_views.P, spheroid_views.coverage, SMALL_GRID)
-    compact = visual_hull(spheroid_views.P, SilhouetteMaps.from_stack(spheroid_views.coverage, quantise=True), SMALL_GRID)
+    compact = visual_hull(
+        spheroid_views.P, SilhouetteMaps.from_stack(spheroid_views.coverage, quantise=True), SMALL_GRID
+    )
     assert int(np.count_nonzero(dense.occupancy != compact.occupancy)) <= max(2, dense.n_inside // 1000)
 
 
@@ -88,8 +92,9 @@ def test_sub_revolutions_are_interleaved_revolutions() -> None:
     assert 21 < map_group_views(360, 1024 * 320, 1536) < 360
 
 
-def test_grouped_maps_equal_the_whole_stack_when_it_fits_and_match_it_in_groups(spheroid_views: PhantomViews,
-                                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+def test_grouped_maps_equal_the_whole_stack_when_it_fits_and_match_it_in_groups(
+    spheroid_views: PhantomViews, monkeypatch: pytest.MonkeyPatch
+) -> None:
     frames = _frames(spheroid_views)
     model = fit_automatic(frames)
     whole = specimen_maps(model, frames)
@@ -110,8 +115,9 @@ def test_grouped_maps_equal_the_whole_stack_when_it_fits_and_match_it_in_groups(
     assert float(np.mean((out >= 0.5) == (whole >= 0.5))) > 0.999
 
 
-def test_session_maps_hold_one_sub_revolution_at_a_time(spheroid_views: PhantomViews, tmp_path: Path,
-                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_session_maps_hold_one_sub_revolution_at_a_time(
+    spheroid_views: PhantomViews, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     path = make_session(tmp_path / "s.h5", spheroid_views, masks=False, cameras=False)
     model = fit_automatic(_frames(spheroid_views))
 
@@ -169,10 +175,16 @@ def test_session_frames_are_read_when_asked(spheroid_views: PhantomViews, tmp_pa
         frames[21]
     check_images(frames)
     lazy, eager = fit_automatic(frames), fit_automatic(every)
-    assert np.array_equal(lazy.fg.mean, eager.fg.mean) and np.array_equal(lazy.bg.cov, eager.bg.cov) and lazy.prior_fg == eager.prior_fg
+    assert (
+        np.array_equal(lazy.fg.mean, eager.fg.mean)
+        and np.array_equal(lazy.bg.cov, eager.bg.cov)
+        and lazy.prior_fg == eager.prior_fg
+    )
 
 
-def test_maps_made_out_of_order_wait_compactly(spheroid_views: PhantomViews, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_maps_made_out_of_order_wait_compactly(
+    spheroid_views: PhantomViews, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Interleaved sub-revolutions finish views out of order: the ones waiting for their turn are held cropped and
     quantised, not as full float32 frames (360 full frames waited as 1.4 GB)."""
     path = make_session(tmp_path / "s.h5", spheroid_views, masks=False, cameras=False)
@@ -188,9 +200,13 @@ def test_maps_made_out_of_order_wait_compactly(spheroid_views: PhantomViews, tmp
         maps = session_specimen_maps(s, model, memory_mb=1.0)  # 7 interleaved revolutions of 3 views
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
-    assert len(maps) == 21 and np.array_equal(np.asarray(maps)[0], SilhouetteMaps.from_stack(specimen_maps(model, frames[::7]), quantise=True)[0])
+    assert len(maps) == 21 and np.array_equal(
+        np.asarray(maps)[0], SilhouetteMaps.from_stack(specimen_maps(model, frames[::7]), quantise=True)[0]
+    )
     full_frame = 4 * frames[0].size
-    assert peak < one_group + maps.nbytes + 3 * full_frame  # 14 views wait for their turn at most: 14 full frames before
+    assert (
+        peak < one_group + maps.nbytes + 3 * full_frame
+    )  # 14 views wait for their turn at most: 14 full frames before
 
 
 def test_specimen_maps_hold_what_the_budget_states(spheroid_views: PhantomViews) -> None:

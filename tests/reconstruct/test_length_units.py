@@ -28,8 +28,18 @@ def test_an_unknown_unit_is_left_alone_and_the_summary_never_says_mm() -> None:
     assert label == "unknown" and same is P
     m = Measurement.__new__(Measurement)  # only the fields summary() reads
     object.__setattr__(m, "__dict__", {})
-    for k, v in dict(volume_mm3=2e-9, mesh_volume_mm3=2e-9, surface_area_mm2=3e-6, raw_surface_area_mm2=3e-6, n_inside_voxels=10,
-                     voxel_size_um=0.01, n_views=5, uncertainty=None, qc=None, provenance={"length_unit": "unknown"}).items():
+    for k, v in dict(
+        volume_mm3=2e-9,
+        mesh_volume_mm3=2e-9,
+        surface_area_mm2=3e-6,
+        raw_surface_area_mm2=3e-6,
+        n_inside_voxels=10,
+        voxel_size_um=0.01,
+        n_views=5,
+        uncertainty=None,
+        qc=None,
+        provenance={"length_unit": "unknown"},
+    ).items():
         object.__setattr__(m, k, v)
     text = m.summary()
     assert "mm" not in text and "(units of the cameras)^3" in text and "2 (units" in text
@@ -43,16 +53,42 @@ def test_run_summaries_of_an_unknown_unit_carry_its_interval_and_verdict_and_nev
     from vastcal.pipeline import RunSummary
 
     u = {"k": 2.0, "U_volume_mm3": 4e-10, "U_area_mm2": 5e-7, "not_evaluated": ["calibration"]}
-    run = RunSummary(Path("david.h5"), volume_mm3=1.64e-9, surface_area_mm2=1.6e-5, uncertainty=u, length_unit="unknown").summary()
-    assert "mm" not in run and "1.64 ± 0.4 (units of the cameras)^3 (k = 2)" in run and "16 ± 0.5 (units of the cameras)^2" in run
-    assert "0.2521 ± 0.0184 mm^3 (k = 2)" in RunSummary(Path("zf.h5"), volume_mm3=0.2521, surface_area_mm2=3.219,
-                                                        uncertainty={"k": 2.0, "U_volume_mm3": 0.0184, "U_area_mm2": 0.151}).summary()
+    run = RunSummary(
+        Path("david.h5"), volume_mm3=1.64e-9, surface_area_mm2=1.6e-5, uncertainty=u, length_unit="unknown"
+    ).summary()
+    assert (
+        "mm" not in run
+        and "1.64 ± 0.4 (units of the cameras)^3 (k = 2)" in run
+        and "16 ± 0.5 (units of the cameras)^2" in run
+    )
+    assert (
+        "0.2521 ± 0.0184 mm^3 (k = 2)"
+        in RunSummary(
+            Path("zf.h5"),
+            volume_mm3=0.2521,
+            surface_area_mm2=3.219,
+            uncertainty={"k": 2.0, "U_volume_mm3": 0.0184, "U_area_mm2": 0.151},
+        ).summary()
+    )
     m = Measurement.__new__(Measurement)
     object.__setattr__(m, "__dict__", {})
-    for k, v in dict(volume_mm3=1.64e-9, mesh_volume_mm3=2e-9, surface_area_mm2=1.6e-5, raw_surface_area_mm2=2e-5, n_inside_voxels=10,
-                     voxel_size_um=0.01, n_views=18, uncertainty=u, qc={"verdict": "check", "flags": [], "per_view": {}},
-                     provenance={"length_unit": "unknown"}).items():
+    for k, v in dict(
+        volume_mm3=1.64e-9,
+        mesh_volume_mm3=2e-9,
+        surface_area_mm2=1.6e-5,
+        raw_surface_area_mm2=2e-5,
+        n_inside_voxels=10,
+        voxel_size_um=0.01,
+        n_views=18,
+        uncertainty=u,
+        qc={"verdict": "check", "flags": [], "per_view": {}},
+        provenance={"length_unit": "unknown"},
+    ).items():
         object.__setattr__(m, k, v)
     text = m.summary()
-    assert "mm" not in text and "1.64 ± 0.4 (units of the cameras)^3 (k = 2)" in text and "not evaluated: calibration" in text
+    assert (
+        "mm" not in text
+        and "1.64 ± 0.4 (units of the cameras)^3 (k = 2)" in text
+        and "not evaluated: calibration" in text
+    )
     assert "verdict" in text

@@ -8,7 +8,18 @@ import numpy as np
 import pytest
 
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
-from vastcal.measure import Mesh, check_mesh, marching_cubes_mesh, measure_hull, read_ply, read_stl, smooth_mesh, write_mesh, write_ply, write_stl
+from vastcal.measure import (
+    Mesh,
+    check_mesh,
+    marching_cubes_mesh,
+    measure_hull,
+    read_ply,
+    read_stl,
+    smooth_mesh,
+    write_mesh,
+    write_ply,
+    write_stl,
+)
 from vastcal.reconstruct import HullResult
 from vastcal.voxels import VoxelGrid
 
@@ -113,8 +124,13 @@ def test_mesh_file_errors(tmp_path: Path) -> None:
         read_stl(tmp_path / "bad.stl")
 
 
-@pytest.mark.parametrize("unit, volume_units", [("um", "mm^3"), ("mm", "mm^3"), ("unknown", "1e-9 (units of the cameras)^3"), ("px", "1e-9 px^3")])
-def test_a_stored_measurement_labels_its_numbers_in_the_world_s_unit(tmp_path: Path, unit: str, volume_units: str) -> None:
+@pytest.mark.parametrize(
+    "unit, volume_units",
+    [("um", "mm^3"), ("mm", "mm^3"), ("unknown", "1e-9 (units of the cameras)^3"), ("px", "1e-9 px^3")],
+)
+def test_a_stored_measurement_labels_its_numbers_in_the_world_s_unit(
+    tmp_path: Path, unit: str, volume_units: str
+) -> None:
     """A world of unknown unit (imported cameras without one, images without a pixel size) is not stored as mm³."""
     import dataclasses
 

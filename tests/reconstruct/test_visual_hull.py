@@ -9,10 +9,10 @@ import pytest
 import tifffile
 from phantom_views import PhantomViews, read_authors_cameras, render_views
 
-from vastcal.simulators.camera.phantom import capsule_phantom, zebrafish_phantom
 from vastcal.errors import AnalysisError, EmptyHullError
 from vastcal.measure import MeasureSettings, measure_hull
 from vastcal.reconstruct import choose_grid, hull_boundary, silhouette_counts, visual_hull, visual_hull_in_grid
+from vastcal.simulators.camera.phantom import capsule_phantom, zebrafish_phantom
 from vastcal.voxels import VoxelGrid, inside_all
 
 SMALL_GRID = VoxelGrid.from_bounds([-1600.0, -320.0, -320.0], [1600.0, 320.0, 320.0], 20.0)
@@ -25,7 +25,9 @@ def test_hull_and_counts_equal_brute_force(spheroid_views: PhantomViews, soft: b
     counts = silhouette_counts(spheroid_views.P, sil, SMALL_GRID.centres()).reshape(SMALL_GRID.shape)
     assert np.array_equal(hull.occupancy, counts == 21)
     if not soft:
-        assert np.array_equal(hull.occupancy.ravel(), inside_all(spheroid_views.P, spheroid_views.silhouettes, SMALL_GRID.centres()))
+        assert np.array_equal(
+            hull.occupancy.ravel(), inside_all(spheroid_views.P, spheroid_views.silhouettes, SMALL_GRID.centres())
+        )
     # exact wherever marching cubes at a level in (N-2, N] can look: counts >= N-1 and their 6-neighbours
     tracked = counts >= 20
     near = tracked.copy()
@@ -100,7 +102,9 @@ def test_bad_shapes_and_grids_raise_analysis_errors(spheroid_views: PhantomViews
 
 
 @pytest.mark.parametrize(("method", "volume", "area"), [("pi", 0.249, 3.24), ("vr", 0.251, 3.25)])
-def test_published_zebrafish_numbers_with_the_authors_cameras(zebrafish_dir: Path, method: str, volume: float, area: float) -> None:
+def test_published_zebrafish_numbers_with_the_authors_cameras(
+    zebrafish_dir: Path, method: str, volume: float, area: float
+) -> None:
     sil = np.stack([tifffile.imread(f) for f in sorted((zebrafish_dir / "silhouettes").glob("*.tif"))]) > 0
     P = read_authors_cameras(zebrafish_dir / f"authors_par_{method}.txt")
     grid = VoxelGrid.with_voxel_count([-2900.0, -800.0, -800.0], [2900.0, 800.0, 800.0], 5_000_000)

@@ -63,7 +63,9 @@ def test_bad_arguments_are_user_errors(session_factory, tmp_path: Path) -> None:
         reconstruct_session(path, mesh_path=tmp_path / "x.obj")
 
 
-def test_silhouettes_from_the_calibration_colour_model(session_factory, monkeypatch: pytest.MonkeyPatch, small_views: object) -> None:  # type: ignore[no-untyped-def]
+def test_silhouettes_from_the_calibration_colour_model(
+    session_factory, monkeypatch: pytest.MonkeyPatch, small_views: object
+) -> None:  # type: ignore[no-untyped-def]
     """The calibration engineer's contract: ColourModel.from_group(g).foreground_probability(images) → (N, H, W)."""
     path = session_factory(masks=False, cameras=False, calibration=True)
     with h5py.File(path, "a") as f:  # test set-up: mark the stored calibration run as having a colour model
@@ -71,7 +73,7 @@ def test_silhouettes_from_the_calibration_colour_model(session_factory, monkeypa
 
     class FakeModel:
         @classmethod
-        def from_group(cls, group: object) -> "FakeModel":
+        def from_group(cls, group: object) -> FakeModel:
             return cls()
 
         def foreground_probability(self, images: np.ndarray) -> np.ndarray:

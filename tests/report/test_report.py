@@ -35,11 +35,19 @@ def test_json_has_measurements_with_units_calibration_and_provenance(report_dir:
     doc = json.loads((report_dir / "report.json").read_text())
     m, c, p = doc["measurement"], doc["calibration"], doc["provenance"]
     assert doc["schema"] == "vastcal.report/1"
-    assert m["units"]["volume_mm3"] == "mm^3" and m["units"]["surface_area_mm2"] == "mm^2" and m["units"]["voxel_size_um"] == "um"
+    assert (
+        m["units"]["volume_mm3"] == "mm^3"
+        and m["units"]["surface_area_mm2"] == "mm^2"
+        and m["units"]["voxel_size_um"] == "um"
+    )
     assert 0.1 < m["volume_mm3"] < 0.4 and 1.0 < m["surface_area_mm2"] < 4.0 and m["mesh_volume_mm3"] > 0
     assert m["n_views"] == 9 and m["iso_level"] == pytest.approx(7.4)
     assert c["method"] == "pi" and c["seed"] == 7 and c["n_evaluations"] == 4000 and c["wall_time_s"] == 12.5
-    assert c["yaw_deg"] == pytest.approx(0.1) and c["pitch_deg"] == pytest.approx(-0.2) and c["gamma_deg"] == pytest.approx(0.01)
+    assert (
+        c["yaw_deg"] == pytest.approx(0.1)
+        and c["pitch_deg"] == pytest.approx(-0.2)
+        and c["gamma_deg"] == pytest.approx(0.01)
+    )
     assert len(c["delta_angle_deg"]) == 9 and c["final_cost"] == pytest.approx(1.0) and c["drift_rms_deg"] > 0
     assert doc["session"]["uid"] and doc["session"]["file"] == str(measured_session.resolve())
     assert p["measurement_run"] == "run_000" and p["calibration_run"] == "run_000" and "numpy" in p["software_versions"]
@@ -70,8 +78,12 @@ def test_html_is_self_contained(report_dir: Path) -> None:
     assert not re.search(r"https?://(?!www\.w3\.org/)", page), "no network references (but XML namespaces)"
     assert "<link" not in page and "<iframe" not in page
     tags = re.findall(r"<script[^>]*>", page)
-    assert tags == ['<script type="application/octet-stream" id="mesh-vertices">', '<script type="application/octet-stream" id="mesh-faces" data-index-type="u2">',
-                    "<script>", "<script>"], "only the page's own inline scripts, none loaded from a file"
+    assert tags == [
+        '<script type="application/octet-stream" id="mesh-vertices">',
+        '<script type="application/octet-stream" id="mesh-faces" data-index-type="u2">',
+        "<script>",
+        "<script>",
+    ], "only the page's own inline scripts, none loaded from a file"
     srcs = re.findall(r'<img [^>]*src="([^"]*)"', page)
     assert len(srcs) == 9 + 3  # every view, per-view agreement, drift, convergence
     for src in srcs[:9]:  # the views at full resolution
@@ -103,7 +115,9 @@ def test_mesh_is_embedded_for_the_3d_viewer(report_dir: Path, measured_session: 
     with Session.open(measured_session) as s:
         mesh = load_mesh(s.latest_result("measurement"))
     assert len(f) == min(len(mesh.faces), 60_000) and f.max() < len(v)
-    assert np.allclose(v.min(0), mesh.vertices.min(0), atol=1.0) and np.allclose(v.max(0), mesh.vertices.max(0), atol=1.0)
+    assert np.allclose(v.min(0), mesh.vertices.min(0), atol=1.0) and np.allclose(
+        v.max(0), mesh.vertices.max(0), atol=1.0
+    )
     assert f'data-faces="{len(f)}"' in page
 
 
@@ -121,7 +135,11 @@ def test_large_meshes_are_simplified_for_display_only() -> None:
     p = mesh_payload(verts, faces, max_faces=8000)
     assert p["n_faces"] == len(f) and p["n_faces_measured"] == len(faces) and p["index_type"] == "u2"
     big = mesh_payload(np.zeros((70_000, 3)), np.array([[0, 1, 69_999]]))
-    assert big["index_type"] == "u4" and np.frombuffer(base64.b64decode(big["faces_b64"]), "<u4").tolist() == [0, 1, 69_999]
+    assert big["index_type"] == "u4" and np.frombuffer(base64.b64decode(big["faces_b64"]), "<u4").tolist() == [
+        0,
+        1,
+        69_999,
+    ]
 
 
 def _flag_view(session: Path, view: int) -> None:
@@ -132,12 +150,20 @@ def _flag_view(session: Path, view: int) -> None:
         qc["verdict"] = "check"
         qc["per_view"]["disagrees"][view] = True
         qc["per_view"]["boundary_distance_px"][view] = 9.5
-        qc["flags"].append({"code": "view_disagrees", "severity": "check", "views": [view],
-                            "message": f"silhouette off the reprojected hull by more than 4.0 px in view(s) {view}"})
+        qc["flags"].append(
+            {
+                "code": "view_disagrees",
+                "severity": "check",
+                "views": [view],
+                "message": f"silhouette off the reprojected hull by more than 4.0 px in view(s) {view}",
+            }
+        )
         meas.attrs["qc"] = json.dumps(qc)
 
 
-def test_outlines_sit_on_the_specimen_when_the_cameras_are_in_millimetres(session_factory, tmp_path: Path, small_views: object) -> None:  # type: ignore[no-untyped-def]
+def test_outlines_sit_on_the_specimen_when_the_cameras_are_in_millimetres(
+    session_factory, tmp_path: Path, small_views: object
+) -> None:  # type: ignore[no-untyped-def]
     """Imported cameras in mm: the hull is built in µm, and the report projects it through the same µm cameras
     (the outlines are those of the same session with cameras in µm)."""
     from vastcal.reconstruct import reconstruct_session
@@ -154,14 +180,18 @@ def test_outlines_sit_on_the_specimen_when_the_cameras_are_in_millimetres(sessio
         reconstruct_session(path, target_voxels=200_000)
         write_report(path, tmp_path / f"r{mm}")
         page = (tmp_path / f"r{mm}" / "report.html").read_text()
-        return [np.array([[float(x), float(y)] for x, y in re.findall(r"[ML]([-\d.]+) ([-\d.]+)", d)])
-                for d in re.findall(r'<path d="(M[^"]+)"', page)]
+        return [
+            np.array([[float(x), float(y)] for x, y in re.findall(r"[ML]([-\d.]+) ([-\d.]+)", d)])
+            for d in re.findall(r'<path d="(M[^"]+)"', page)
+        ]
 
     sil = np.asarray(small_views.silhouettes)  # type: ignore[attr-defined]
     for i, (um, mm) in enumerate(zip(outlines(False), outlines(True), strict=True)):
         assert np.allclose(um.min(0), mm.min(0), atol=1.0) and np.allclose(um.max(0), mm.max(0), atol=1.0), f"view {i}"
         rows = np.nonzero(sil[i])[0]
-        assert abs(mm[:, 1].min() - rows.min()) < 3 and abs(mm[:, 1].max() - rows.max()) < 3, f"view {i} is off the specimen"
+        assert abs(mm[:, 1].min() - rows.min()) < 3 and abs(mm[:, 1].max() - rows.max()) < 3, (
+            f"view {i} is off the specimen"
+        )
 
 
 def test_views_flagged_by_qc_are_marked_in_the_sheet_and_table(measured_session: Path, tmp_path: Path) -> None:
@@ -180,15 +210,21 @@ def test_simulated_truth_comparison_is_in_the_report(measured_session: Path, tmp
     write_report(measured_session, tmp_path / "r", truth=truth)
     page = (tmp_path / "r" / "report.html").read_text()
     table = re.search(r'<table id="truth-table">(.*?)</table>', page, flags=re.S).group(1)  # type: ignore[union-attr]
-    assert "+0.42 %" in table and "-1.25 %" in table and "0.031 °" in table and "exact visual hull of the true body" in table
+    assert (
+        "+0.42 %" in table
+        and "-1.25 %" in table
+        and "0.031 °" in table
+        and "exact visual hull of the true body" in table
+    )
     assert json.loads((tmp_path / "r" / "report.json").read_text())["simulated_truth"] == truth
     write_report(measured_session, tmp_path / "plain")
     assert "truth-table" not in (tmp_path / "plain" / "report.html").read_text()
     assert "simulated_truth" not in json.loads((tmp_path / "plain" / "report.json").read_text())
 
 
-def test_a_run_with_a_truth_file_puts_the_comparison_in_its_report(measured_session: Path, tmp_path: Path,
-                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_run_with_a_truth_file_puts_the_comparison_in_its_report(
+    measured_session: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """What the demo does (pipeline.run_session with the simulator's truth file), calibration stubbed: the fixture's run stays."""
     import vastcal.calibrate
     from vastcal.pipeline import run_session
@@ -200,12 +236,16 @@ def test_a_run_with_a_truth_file_puts_the_comparison_in_its_report(measured_sess
     truth_path = tmp_path / "fish.truth.json"
     truth_path.write_text(json.dumps(doc))
     res = run_session(measured_session, tmp_path / "r", quiet=True, truth_path=truth_path)
-    assert res.truth["volume_vs_true_hull_pct"] == pytest.approx(2.0, abs=0.3)  # the new measurement is within 0.3 % of run_000's
+    assert res.truth["volume_vs_true_hull_pct"] == pytest.approx(
+        2.0, abs=0.3
+    )  # the new measurement is within 0.3 % of run_000's
     page = (tmp_path / "r" / "report.html").read_text()
     assert "Simulated truth" in page and f"{res.truth['volume_vs_true_hull_pct']:+.2f} %" in page
 
 
-def test_unwritable_folder_is_one_user_error(measured_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_unwritable_folder_is_one_user_error(
+    measured_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     with pytest.raises(UserInputError, match="cannot create the report folder"):
@@ -223,7 +263,9 @@ def test_unmeasured_session_names_the_reconstruct_command(session_factory, tmp_p
         write_report(path, tmp_path / "r", measurement_run="run_003")
 
 
-def test_imported_cameras_report_drift_from_their_circular_fit(session_factory, tmp_path: Path, small_views: object) -> None:  # type: ignore[no-untyped-def]
+def test_imported_cameras_report_drift_from_their_circular_fit(
+    session_factory, tmp_path: Path, small_views: object
+) -> None:  # type: ignore[no-untyped-def]
     from vastcal.reconstruct import reconstruct_session
 
     path = session_factory(masks=True, cameras=True)
@@ -248,7 +290,9 @@ def test_plots_on_their_own() -> None:
     svg(drift_plot([0.0, 0.01, -0.02], u_per_view_deg=1.0, status="undetermined"))
     svg(convergence_plot([10, 20, 30, 40, 50, 60], [5.0, 1.0, 0.1, 4.0, 0.5, 0.05]))  # two starts
     svg(convergence_plot([], []))
-    svg(agreement_plot([0.95, 0.4, None], [0.8, 6.0, None], disagree_px=4.0, fail_iou=0.5, flagged=[False, True, False]))
+    svg(
+        agreement_plot([0.95, 0.4, None], [0.8, 6.0, None], disagree_px=4.0, fail_iou=0.5, flagged=[False, True, False])
+    )
 
 
 def test_view_overlay_outline_follows_the_hull_in_pixel_coordinates() -> None:
@@ -260,14 +304,31 @@ def test_view_overlay_outline_follows_the_hull_in_pixel_coordinates() -> None:
     assert d.startswith("M") and d.endswith("Z") and min(xs) == pytest.approx(10.5) and max(xs) == pytest.approx(49.5)
     P = np.array([[1.0, 0, 0, 40], [0, 1.0, 0, 30], [0, 0, 0, 1]])  # orthographic, 1 px per µm, centre at (40, 30)
     ov = view_overlay(frame, P, np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]), 3.0)
-    assert (ov.width, ov.height) == (80, 60) and ov.image_uri.startswith("data:image/jpeg;base64,") and ov.outline_path.startswith("M")
+    assert (
+        (ov.width, ov.height) == (80, 60)
+        and ov.image_uri.startswith("data:image/jpeg;base64,")
+        and ov.outline_path.startswith("M")
+    )
 
 
 def _chromium(url: str, profile: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     assert CHROMIUM is not None
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-           "--disable-sync", "--no-first-run", "--hide-scrollbars", "--force-device-scale-factor=1", f"--user-data-dir={profile}",
-           "--virtual-time-budget=8000", *extra, url]
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--hide-scrollbars",
+        "--force-device-scale-factor=1",
+        f"--user-data-dir={profile}",
+        "--virtual-time-budget=8000",
+        *extra,
+        url,
+    ]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
 
 
@@ -290,7 +351,7 @@ document.body.dataset.probe=JSON.stringify(out);},300);});</script>"""
 def _crop_is_a_picture(shot: np.ndarray, r: list[float]) -> tuple[float, float]:
     """(grey-level standard deviation, fraction of pixels off the crop's most common colour) inside a rectangle of the screenshot."""
     x, y, w, h = (int(round(v)) for v in r)
-    crop = shot[y + 2:y + h - 2, x + 2:x + w - 2].reshape(-1, 3).astype(int)
+    crop = shot[y + 2 : y + h - 2, x + 2 : x + w - 2].reshape(-1, 3).astype(int)
     assert crop.size, f"empty crop {r}"
     colours, counts = np.unique(crop, axis=0, return_counts=True)
     background = colours[np.argmax(counts)]
@@ -298,8 +359,12 @@ def _crop_is_a_picture(shot: np.ndarray, r: list[float]) -> tuple[float, float]:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (Debian package 'chromium'); the browser check is skipped")
-def test_report_in_headless_chromium_with_screenshot(measured_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.skipif(
+    CHROMIUM is None, reason="chromium is not installed (Debian package 'chromium'); the browser check is skipped"
+)
+def test_report_in_headless_chromium_with_screenshot(
+    measured_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """The page as a reader gets it: every image loads, the 3D view draws, the zoom box opens; then a screenshot is checked."""
     import html as _html
 
@@ -321,7 +386,12 @@ def test_report_in_headless_chromium_with_screenshot(measured_session: Path, tmp
 
     shot_path = tmp_path / "report-screenshot.png"
     height = min(int(info["height"]), 16000)
-    res = _chromium((out / "report.html").as_uri(), tmp_path / "profile2", f"--window-size=1280,{height}", f"--screenshot={shot_path}")
+    res = _chromium(
+        (out / "report.html").as_uri(),
+        tmp_path / "profile2",
+        f"--window-size=1280,{height}",
+        f"--screenshot={shot_path}",
+    )
     shot = cv2.imread(str(shot_path), cv2.IMREAD_COLOR)
     assert shot is not None, f"no screenshot: {res.stderr[-800:]}"
     with capsys.disabled():
@@ -329,19 +399,37 @@ def test_report_in_headless_chromium_with_screenshot(measured_session: Path, tmp
     assert shot.shape[1] == 1280
     for r in info["plots"] + info["views"]:
         std, off = _crop_is_a_picture(shot, r)
-        assert std > 8 and off > 0.01, f"figure at {r} looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
+        assert std > 8 and off > 0.01, (
+            f"figure at {r} looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
+        )
     cx, cy, cw, ch = info["canvas"]
-    centre = [cx + 0.2 * cw, cy + 0.2 * ch, 0.6 * cw, 0.6 * ch]  # the middle of the 3D view: not its buttons or scale bar
+    centre = [
+        cx + 0.2 * cw,
+        cy + 0.2 * ch,
+        0.6 * cw,
+        0.6 * ch,
+    ]  # the middle of the 3D view: not its buttons or scale bar
     std, off = _crop_is_a_picture(shot, centre)
-    assert std > 4 and off > 0.01, f"the 3D view looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
+    assert std > 4 and off > 0.01, (
+        f"the 3D view looks blank in the screenshot (std {std:.1f}, {off:.1%} off background)"
+    )
     # without WebGL the same view is drawn on a 2D canvas (#no-webgl forces it)
     x, y, w, h = (int(round(v)) for v in info["canvas"])
     shot2d_path = tmp_path / "report-screenshot-canvas2d.png"
-    _chromium((out / "report.html").as_uri() + "#no-webgl", tmp_path / "profile3", f"--window-size=1280,{y + h + 20}", f"--screenshot={shot2d_path}")
+    _chromium(
+        (out / "report.html").as_uri() + "#no-webgl",
+        tmp_path / "profile3",
+        f"--window-size=1280,{y + h + 20}",
+        f"--screenshot={shot2d_path}",
+    )
     shot2d = cv2.imread(str(shot2d_path), cv2.IMREAD_COLOR)
     assert shot2d is not None
     std2d, off2d = _crop_is_a_picture(shot2d, centre)
-    assert std2d > 4 and off2d > 0.01, f"the 2D-canvas fallback looks blank (std {std2d:.1f}, {off2d:.1%} off background)"
+    assert std2d > 4 and off2d > 0.01, (
+        f"the 2D-canvas fallback looks blank (std {std2d:.1f}, {off2d:.1%} off background)"
+    )
     x, y, w, h = (int(round(v)) for v in info["flagged"][0])
-    border = shot[y:y + 2, x + w // 4:x + 3 * w // 4].reshape(-1, 3).mean(0)  # the red frame of the flagged view, BGR
+    border = (
+        shot[y : y + 2, x + w // 4 : x + 3 * w // 4].reshape(-1, 3).mean(0)
+    )  # the red frame of the flagged view, BGR
     assert border[2] > 150 and border[1] < 120, f"the flagged view is not framed in red: {border}"

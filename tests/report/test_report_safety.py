@@ -14,8 +14,11 @@ from vastcal.report import write_report
 from vastcal.report.document import csv_cell
 
 HOSTILE = "<script>alert('x')</script>"
-FORMULA = "=HYPERLINK(\"http://evil\",\"click\")"
-OWN_SCRIPTS = ('<script type="application/octet-stream" id="mesh-vertices">', '<script type="application/octet-stream" id="mesh-faces" data-index-type="u2">')
+FORMULA = '=HYPERLINK("http://evil","click")'
+OWN_SCRIPTS = (
+    '<script type="application/octet-stream" id="mesh-vertices">',
+    '<script type="application/octet-stream" id="mesh-faces" data-index-type="u2">',
+)
 """The page's own script elements besides its two inline programs (overlay zoom, 3D viewer): the mesh's data."""
 
 
@@ -40,7 +43,12 @@ def test_hostile_session_text_is_escaped_in_html_and_neutralised_in_csv(measured
     write_report(measured_session, out)
     page = (out / "report.html").read_text()
     assert HOSTILE not in page and "<script>alert" not in page.lower() and "<img src=x" not in page
-    assert re.findall(r"<script[^>]*>", page) == [OWN_SCRIPTS[0], OWN_SCRIPTS[1], "<script>", "<script>"]  # the page's own, nothing injected
+    assert re.findall(r"<script[^>]*>", page) == [
+        OWN_SCRIPTS[0],
+        OWN_SCRIPTS[1],
+        "<script>",
+        "<script>",
+    ]  # the page's own, nothing injected
     assert "&lt;script&gt;" in page and "&lt;img src=x onerror=alert(1)&gt;" in page
     row = next(csv.DictReader((out / "report.csv").read_text().splitlines()))
     assert row["specimen"].startswith("'=") and row["calibration_method"] == "<img src=x onerror=alert(1)>"

@@ -8,10 +8,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from vastcal.drivers.stage import open_stage
-from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
 from vastcal.config import StageConfig
+from vastcal.drivers.stage import open_stage
 from vastcal.errors import DeviceDisconnectedError, ProtocolError, StageFaultError
+from vastcal.simulators.stage.process import start_stage_process, stop_stage_process
 
 
 @pytest.fixture
@@ -30,7 +30,9 @@ def start(procs: list[subprocess.Popen[bytes]], *args: str) -> str:
 
 @pytest.mark.parametrize(("mode", "prefix"), [(("--pty",), "/dev/"), (("--tcp", "0"), "socket://127.0.0.1:")])
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_prints_one_url_and_exits_cleanly_on_signal(launched: list[subprocess.Popen[bytes]], mode: tuple[str, ...], prefix: str, signum: int) -> None:
+def test_prints_one_url_and_exits_cleanly_on_signal(
+    launched: list[subprocess.Popen[bytes]], mode: tuple[str, ...], prefix: str, signum: int
+) -> None:
     url = start(launched, *mode)
     assert url.startswith(prefix)
     proc = launched[0]

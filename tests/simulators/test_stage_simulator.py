@@ -114,7 +114,9 @@ def test_stop_of_a_move_leaves_ni_and_move_rel(port: serial.SerialBase) -> None:
     assert ask(port, b"/1 1 get pos\n") == b"@01 1 OK IDLE -- " + str(pos + 100).encode() + b"\r\n"
 
 
-def test_late_reply_arrives_after_its_delay_and_later_replies_queue_behind(port: serial.SerialBase, named: tuple[str, StageSimulator]) -> None:
+def test_late_reply_arrives_after_its_delay_and_later_replies_queue_behind(
+    port: serial.SerialBase, named: tuple[str, StageSimulator]
+) -> None:
     named[1].inject(Fault.late(delay_s=0.3))
     port.write(b"/1 1 1 get pos\n")
     assert port.read_until(b"\r\n") == b""  # not within 0.2 s
@@ -123,7 +125,9 @@ def test_late_reply_arrives_after_its_delay_and_later_replies_queue_behind(port:
     assert port.read_until(b"\r\n") == b"@01 1 2 OK IDLE WR 0\r\n"
 
 
-def test_dropped_and_garbage_replies_still_execute_the_command(port: serial.SerialBase, named: tuple[str, StageSimulator]) -> None:
+def test_dropped_and_garbage_replies_still_execute_the_command(
+    port: serial.SerialBase, named: tuple[str, StageSimulator]
+) -> None:
     named[1].inject(Fault.drop())
     assert ask(port, b"/1 1 set maxspeed 400000\n") == b""
     named[1].inject(Fault.garbage(data=b"\x00junk\r\n"))

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vastcal.simulators.camera.battery import battery_config
 from vastcal.acquire import acquire
 from vastcal.rig import connect_rig
 from vastcal.session import Session
+from vastcal.simulators.camera.battery import battery_config
 
 
 def test_a_battery_session_and_its_truth_file(tmp_path: Path) -> None:
@@ -22,7 +22,9 @@ def test_a_battery_session_and_its_truth_file(tmp_path: Path) -> None:
     assert res.exit_status == "success", res.reason
     truth = json.loads(truth_path.read_text())
     sp = truth["specimen"]
-    assert sp["larva_varies"] and sp["fin_fold"] and sp["pectoral_fins"] and sp["wall_contact"] and sp["melanophores"] > 50
+    assert (
+        sp["larva_varies"] and sp["fin_fold"] and sp["pectoral_fins"] and sp["wall_contact"] and sp["melanophores"] > 50
+    )
     assert 3.0 <= sp["age_dpf"] <= 5.0 and truth["frame_cut_views"] == []
     assert len(truth["actual_angles_deg"]) == 3
     assert truth["hull_volume_mm3"] > truth["true_volume_mm3"] > 0.1 and truth["hull_area_mm2"] > truth["true_area_mm2"]

@@ -5,12 +5,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom, capsule_phantom, orthographic_hull_factor, spheroid_phantom, zebrafish_phantom
-from vastcal.simulators.camera.profiles import LarvaProfile, SpheroidProfile
 from vastcal.errors import AnalysisError
+from vastcal.simulators.camera.phantom import (
+    EllipsoidFeature,
+    Phantom,
+    capsule_phantom,
+    orthographic_hull_factor,
+    spheroid_phantom,
+    zebrafish_phantom,
+)
+from vastcal.simulators.camera.profiles import LarvaProfile, SpheroidProfile
 
 
-@pytest.mark.parametrize("phantom", [spheroid_phantom(), spheroid_phantom(300.0, 300.0), capsule_phantom()], ids=["spheroid", "sphere", "capsule"])
+@pytest.mark.parametrize(
+    "phantom",
+    [spheroid_phantom(), spheroid_phantom(300.0, 300.0), capsule_phantom()],
+    ids=["spheroid", "sphere", "capsule"],
+)
 def test_quadrature_matches_closed_forms(phantom: Phantom) -> None:
     prof = phantom.profile
     assert phantom.volume_mm3() * 1e9 == pytest.approx(prof.exact_volume_um3(), rel=1e-10)

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from vastcal.config import CameraConfig, OpticsConfig, RoiConfig, SimulationConfig
+from vastcal.errors import ConfigError
 from vastcal.simulators.camera import SimulatedCamera
 from vastcal.simulators.camera.battery import battery_config
 from vastcal.simulators.camera.larva import Specimen, draw_specimen
@@ -17,8 +19,6 @@ from vastcal.simulators.camera.phantom import zebrafish_phantom
 from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary, RayGeometry
 from vastcal.simulators.camera.scene import Particle, draw_illumination, draw_particles, paint_particles
 from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
-from vastcal.config import CameraConfig, OpticsConfig, RoiConfig, SimulationConfig
-from vastcal.errors import ConfigError
 
 OPTICS = OpticsConfig()
 CAMERA = CameraConfig(pixel_format="Mono12", exposure_us=2000.0, roi=RoiConfig(0, 352, 1024, 320))
@@ -32,7 +32,9 @@ def sim(seed: int = 5, **on: object) -> SimulationConfig:
     return dataclasses.replace(SimulationConfig(seed=seed), **{"larva_varies": True, **on})
 
 
-def geometry(sp: Specimen, angle: float, offset: tuple[float, float] = (0.0, 0.0)) -> tuple[BrightfieldRenderer, RayGeometry]:
+def geometry(
+    sp: Specimen, angle: float, offset: tuple[float, float] = (0.0, 0.0)
+) -> tuple[BrightfieldRenderer, RayGeometry]:
     r = BrightfieldRenderer(sp.phantom, CAP, fin_fold=sp.fin_fold, fins=sp.pectoral_fins)
     R, t = camera_pose(TRUTH, angle)
     return r, r.ray_geometry(K, R, t, 1024, 320, offset)
@@ -41,7 +43,10 @@ def geometry(sp: Specimen, angle: float, offset: tuple[float, float] = (0.0, 0.0
 def test_every_feature_is_off_by_default_and_the_default_larva_is_the_fixed_phantom() -> None:
     s = SimulationConfig()
     sp = draw_specimen(s, OPTICS, CAMERA)
-    assert sp.phantom.volume_mm3() == zebrafish_phantom().volume_mm3() and sp.phantom.features == zebrafish_phantom().features
+    assert (
+        sp.phantom.volume_mm3() == zebrafish_phantom().volume_mm3()
+        and sp.phantom.features == zebrafish_phantom().features
+    )
     assert sp.fin_fold is None and sp.pectoral_fins == () and sp.wall_offset_um is None
     assert len(draw_particles(s, sp, (0.0, 0.0), OPTICS, CAMERA)) == 0
     ill = draw_illumination(s, OPTICS)
@@ -71,7 +76,7 @@ def test_fin_fold_is_lighter_than_the_body_darker_than_the_background_and_reache
     assert np.median(T[body]) < T[fold].min() and T[fold].max() < 1.0
     # the rounded paddle past the tail tip: fold pixels right of the body's last column
     tail_col = np.nonzero(g.coverage.any(axis=0))[0].max()
-    assert fold[:, tail_col + 3:].sum() > 20
+    assert fold[:, tail_col + 3 :].sum() > 20
     # edge-on (90°) the sheet is a thin line: far fewer pixels, darker ones
     _, g90 = geometry(sp_on, 90.0)
     line = (g90.tau_extra > 0) & (g90.coverage == 0)
@@ -106,7 +111,9 @@ def test_melanophores_are_dark_specks_inside_the_body_mostly_on_the_outline() ->
     labels, n = ndimage.label(specks)
     assert 0.4 * len(mel) <= n <= len(mel)
     # many on the outline: within 3 px of the silhouette's edge
-    edge = ndimage.binary_dilation(g_on.coverage > 0.5, iterations=3) & ~ndimage.binary_erosion(g_on.coverage > 0.5, iterations=3)
+    edge = ndimage.binary_dilation(g_on.coverage > 0.5, iterations=3) & ~ndimage.binary_erosion(
+        g_on.coverage > 0.5, iterations=3
+    )
     on_edge = len(set(np.unique(labels[specks & edge])) - {0})
     assert on_edge >= 0.3 * n
 
@@ -143,7 +150,11 @@ def test_debris_drifts_between_views_and_bubbles_have_a_bright_centre_and_a_dark
     R, t = np.eye(3), np.array([0.0, 0.0, 65000.0])
     paint_particles(T, [Particle("bubble", (0.0, 0.0, 0.0), 40.0, strength=0.7)], Kp, R, t)
     r_px = 40.0 * 11818.18 / 65000.0
-    assert T[50, 50] > 1.05 and T[50, 50 + int(round(0.85 * r_px))] < 0.5 and T[50, 50 + int(2 * r_px)] == pytest.approx(1.0, abs=1e-3)
+    assert (
+        T[50, 50] > 1.05
+        and T[50, 50 + int(round(0.85 * r_px))] < 0.5
+        and T[50, 50 + int(2 * r_px)] == pytest.approx(1.0, abs=1e-3)
+    )
     T = np.ones((101, 101), np.float32)
     paint_particles(T, [Particle("debris", (0.0, 0.0, 0.0), 15.0, strength=1.5)], Kp, R, t)
     assert T.min() < 0.3 and T.max() == 1.0
@@ -155,7 +166,9 @@ def test_illumination_gradient_vignetting_and_defocus() -> None:
     assert ill.defocus_sigma_px == 1.0 and 0 < ill.vignetting <= 0.2 and max(map(abs, ill.gradient)) <= 0.1
     f = ill.field(PinholeIntrinsics.from_optics(OPTICS).K, 1024, 1024)
     gx, gy = ill.gradient
-    assert (f[512, -1] - f[512, 0]) / 2 == pytest.approx(gx, abs=0.01) and (f[-1, 512] - f[0, 512]) / 2 == pytest.approx(gy, abs=0.01)
+    assert (f[512, -1] - f[512, 0]) / 2 == pytest.approx(gx, abs=0.01) and (
+        f[-1, 512] - f[0, 512]
+    ) / 2 == pytest.approx(gy, abs=0.01)
     assert f[0, 0] * f[-1, -1] < f[511, 0] * f[511, -1]  # corners darker (vignetting)
     with pytest.raises(ConfigError, match="simulation.defocus_blur_px"):
         draw_illumination(sim(defocus_blur_px=(2.0, 1.0)), OPTICS)
@@ -189,8 +202,20 @@ def test_a_battery_larva_is_reproducible_from_its_seed_and_its_truth_says_what_w
     f3, t3 = _snap_all(25, [0.0, 120.0])
     assert not np.array_equal(f1[0], f3[0]) and t3["specimen"] != t1["specimen"]
     sp = t1["specimen"]
-    for key in ("age_dpf", "length_um", "fin_fold", "pectoral_fins", "melanophores", "wall_contact", "tail_out_of_frame", "debris",
-                "bubbles", "illumination_gradient", "vignetting", "defocus_sigma_px"):
+    for key in (
+        "age_dpf",
+        "length_um",
+        "fin_fold",
+        "pectoral_fins",
+        "melanophores",
+        "wall_contact",
+        "tail_out_of_frame",
+        "debris",
+        "bubbles",
+        "illumination_gradient",
+        "vignetting",
+        "defocus_sigma_px",
+    ):
         assert key in sp
     assert sp["fin_fold"] and sp["pectoral_fins"] and sp["wall_contact"]
     # the truth's body excludes the fins: hull and solid body as the plain phantom would give them
@@ -207,12 +232,21 @@ def test_a_tail_out_of_frame_is_recorded_per_view_with_the_in_frame_hull() -> No
     assert t["hull_in_frame_volume_mm3"] < t["hull_volume_mm3"] and t["hull_in_frame_area_mm2"] < t["hull_area_mm2"]
     assert all(f[:, -1].min() < 0.95 * np.median(f[:, 0]) for f in frames)  # the body is dark at the right edge
     _, t_in = _snap_all(3, [0.0], debris=0.0, bubbles=0.0)
-    assert not t_in["specimen"]["tail_out_of_frame"] and t_in["frame_cut_views"] == [] and "hull_in_frame_volume_mm3" not in t_in
+    assert (
+        not t_in["specimen"]["tail_out_of_frame"]
+        and t_in["frame_cut_views"] == []
+        and "hull_in_frame_volume_mm3" not in t_in
+    )
 
 
 def test_battery_overrides_and_colour_frames() -> None:
     cfg = battery_config(8, fin_fold=False, debris=0.0)
-    assert cfg.simulation is not None and cfg.simulation.seed == 8 and not cfg.simulation.fin_fold and cfg.simulation.pectoral_fins
+    assert (
+        cfg.simulation is not None
+        and cfg.simulation.seed == 8
+        and not cfg.simulation.fin_fold
+        and cfg.simulation.pectoral_fins
+    )
     with pytest.raises(TypeError, match="fin_fold_heigth"):
         battery_config(8, fin_fold_heigth=(1.0, 2.0))
     src = _Angle()

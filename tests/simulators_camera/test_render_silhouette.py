@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq, minimize_scalar
 
+from vastcal.config import OpticsConfig, RoiConfig
+from vastcal.errors import CameraError
+from vastcal.geometry import intrinsics_from_optics, projection_matrices
 from vastcal.simulators.camera.phantom import Phantom, spheroid_phantom, zebrafish_phantom
 from vastcal.simulators.camera.profiles import SpheroidProfile
 from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary, refraction_collected
 from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
-from vastcal.config import OpticsConfig, RoiConfig
-from vastcal.errors import CameraError
-from vastcal.geometry import intrinsics_from_optics, projection_matrices
 
 OPTICS = OpticsConfig()
 ROI = RoiConfig(0, 352, 1024, 320)
@@ -25,7 +25,9 @@ TRUTH = RigTruth(yaw_deg=0.7, pitch_deg=-0.9, axis_offset_um=40.0, distance_um=6
 
 def reference_P(angle: float) -> np.ndarray:
     K = intrinsics_from_optics(OPTICS, ROI)
-    return projection_matrices(K, TRUTH.distance_um, np.array([[TRUTH.yaw_deg, TRUTH.pitch_deg, TRUTH.gamma_deg, angle]]))[0, 0]
+    return projection_matrices(
+        K, TRUTH.distance_um, np.array([[TRUTH.yaw_deg, TRUTH.pitch_deg, TRUTH.gamma_deg, angle]])
+    )[0, 0]
 
 
 def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float, offset: tuple[float, float] = (0.0, 0.0)) -> float:
@@ -47,7 +49,9 @@ def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float, offset: tuple[float,
     return float(res.fun)
 
 
-def reference_edges(P: np.ndarray, ph: Phantom, u: float, v_inside: float, offset: tuple[float, float] = (0.0, 0.0)) -> tuple[float, float]:
+def reference_edges(
+    P: np.ndarray, ph: Phantom, u: float, v_inside: float, offset: tuple[float, float] = (0.0, 0.0)
+) -> tuple[float, float]:
     top = brentq(lambda v: ray_gap(P, ph, u, v, offset), v_inside - 150.0, v_inside, xtol=1e-7)
     bottom = brentq(lambda v: ray_gap(P, ph, u, v, offset), v_inside, v_inside + 150.0, xtol=1e-7)
     return top, bottom
@@ -57,14 +61,20 @@ def edges_from_coverage(col: np.ndarray) -> tuple[float, float]:
     """Sub-pixel edges of a column's coverage profile: the area under a box-filtered step."""
     inside = np.nonzero(col >= 1.0)[0]
     a, b = inside[0], inside[-1]
-    top = (a + 0.5) - col[a - 4:a + 1].sum()
-    bottom = (b - 0.5) + col[b:b + 5].sum()
+    top = (a + 0.5) - col[a - 4 : a + 1].sum()
+    bottom = (b - 0.5) + col[b : b + 5].sum()
     return float(top), float(bottom)
 
 
-@pytest.mark.parametrize("phantom,columns", [(spheroid_phantom(), [300, 512, 700]), (zebrafish_phantom(), [300, 380, 470, 560]),
-                                             (Phantom(SpheroidProfile(1500.0, 280.0), lateral_scale=0.5), [300, 512, 700])],
-                         ids=["spheroid", "zebrafish", "flat-spheroid"])
+@pytest.mark.parametrize(
+    "phantom,columns",
+    [
+        (spheroid_phantom(), [300, 512, 700]),
+        (zebrafish_phantom(), [300, 380, 470, 560]),
+        (Phantom(SpheroidProfile(1500.0, 280.0), lateral_scale=0.5), [300, 512, 700]),
+    ],
+    ids=["spheroid", "zebrafish", "flat-spheroid"],
+)
 @pytest.mark.parametrize("angle", [0.0, 73.0])
 def test_silhouette_edges_are_subpixel_exact(phantom: Phantom, columns: list[int], angle: float) -> None:
     r = BrightfieldRenderer(phantom)
@@ -165,7 +175,9 @@ def test_refraction_darkens_the_outline_and_spares_normal_incidence() -> None:
     R, t = camera_pose(TRUTH, 30.0)
     dark_widths = []
     for n in (1.0, 1.01, 1.03):
-        ph = Phantom(SpheroidProfile(1500.0, 280.0), body_attenuation_per_um=0.0, edge_transmission=1.0, refractive_index=n)
+        ph = Phantom(
+            SpheroidProfile(1500.0, 280.0), body_attenuation_per_um=0.0, edge_transmission=1.0, refractive_index=n
+        )
         r = BrightfieldRenderer(ph, Capillary(line_depth=0.0, lumen_transmission=1.0))
         img = r.render(K, R, t, ROI.width, ROI.height, "Mono12", noise=0.0).astype(float)
         geom = r.last_geometry

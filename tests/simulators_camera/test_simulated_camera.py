@@ -9,12 +9,12 @@ import time
 import numpy as np
 import pytest
 
-from vastcal.simulators.camera import SimulatedCamera, spheroid_phantom
-from vastcal.simulators.camera.render import BrightfieldRenderer, Sensor
-from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
 from vastcal.config import CameraConfig, OpticsConfig, RoiConfig, SimulationConfig
 from vastcal.devices import CameraSettings
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceError, DeviceTimeoutError
+from vastcal.simulators.camera import SimulatedCamera, spheroid_phantom
+from vastcal.simulators.camera.render import BrightfieldRenderer, Sensor
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
 
 OPTICS = OpticsConfig()
 CAMERA = CameraConfig(pixel_format="Mono12", exposure_us=2000.0, roi=RoiConfig(0, 352, 1024, 320))
@@ -73,8 +73,15 @@ def test_frame_matches_noise_free_render_with_the_true_pose(stage: FakeStage) ->
     assert not np.array_equal(f.pixels, wrong)
 
 
-@pytest.mark.parametrize("fmt,dtype,shape,hi", [("Mono8", np.uint8, (320, 1024), 255), ("Mono12", np.uint16, (320, 1024), 4095),
-                                                  ("Mono16", np.uint16, (320, 1024), 65535), ("RGB8", np.uint8, (320, 1024, 3), 255)])
+@pytest.mark.parametrize(
+    "fmt,dtype,shape,hi",
+    [
+        ("Mono8", np.uint8, (320, 1024), 255),
+        ("Mono12", np.uint16, (320, 1024), 4095),
+        ("Mono16", np.uint16, (320, 1024), 65535),
+        ("RGB8", np.uint8, (320, 1024, 3), 255),
+    ],
+)
 def test_output_formats(cam: SimulatedCamera, fmt: str, dtype: type, shape: tuple[int, ...], hi: int) -> None:
     cam.stop_stream()
     back = cam.configure(CameraSettings(pixel_format=fmt, exposure_us=2000.0, roi=(0, 352, 1024, 320)))
@@ -104,7 +111,9 @@ def test_roi_moves_the_principal_point(stage: FakeStage) -> None:
 
 
 def test_noise_statistics_are_shot_plus_read_noise(stage: FakeStage) -> None:
-    cam = SimulatedCamera(OPTICS, CAMERA, SimulationConfig(seed=9, noise=1.0), stage.actual_angle_deg, phantom=spheroid_phantom())
+    cam = SimulatedCamera(
+        OPTICS, CAMERA, SimulationConfig(seed=9, noise=1.0), stage.actual_angle_deg, phantom=spheroid_phantom()
+    )
     with cam:
         cam.start()
         a = cam.snap(timeout_s=1.0).pixels.astype(float)
@@ -175,7 +184,17 @@ def test_truth_record_is_json_and_describe_hides_the_truth(cam: SimulatedCamera,
     rec = json.loads(json.dumps(cam.truth_record()))
     assert rec["schema"].startswith("vastcal.simulated-camera-truth/")
     assert rec["phantom"] == "zebrafish-larva"
-    for key in ("yaw_deg", "pitch_deg", "gamma_deg", "axis_offset_um", "distance_um", "true_volume_mm3", "true_area_mm2", "hull_volume_mm3", "hull_area_mm2"):
+    for key in (
+        "yaw_deg",
+        "pitch_deg",
+        "gamma_deg",
+        "axis_offset_um",
+        "distance_um",
+        "true_volume_mm3",
+        "true_area_mm2",
+        "hull_volume_mm3",
+        "hull_area_mm2",
+    ):
         assert isinstance(rec[key], float), key
     assert [s["frame_id"] for s in rec["snaps"]] == [1, 2, 3]
     assert rec["hull_volume_mm3"] > rec["true_volume_mm3"]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
 from vastcal.config import OpticsConfig, RoiConfig, SimulationConfig
 from vastcal.geometry import intrinsics_from_optics, projection_matrices
+from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, truth_projection_matrix
 
 
 @pytest.mark.parametrize("roi", [RoiConfig(0, 352, 1024, 320), RoiConfig(17, 5, 300, 200), RoiConfig()])
@@ -16,7 +16,9 @@ def test_truth_P_equals_vastcal_geometry(roi: RoiConfig) -> None:
     truth = RigTruth(yaw_deg=0.8, pitch_deg=-0.6, axis_offset_um=45.0, distance_um=optics.working_distance_um)
     angles = np.array([0.0, 17.3, 123.4, 359.0])
     K = intrinsics_from_optics(optics, roi)
-    P_ref = projection_matrices(K, truth.distance_um, np.r_[truth.yaw_deg, truth.pitch_deg, truth.gamma_deg, angles][None])[0]
+    P_ref = projection_matrices(
+        K, truth.distance_um, np.r_[truth.yaw_deg, truth.pitch_deg, truth.gamma_deg, angles][None]
+    )[0]
     intr = PinholeIntrinsics.from_optics(optics, (roi.x, roi.y))
     assert np.allclose(intr.K, K, rtol=0, atol=1e-12)
     for P, a in zip(P_ref, angles):

@@ -11,5 +11,16 @@ from vastcal.calibrate.colour_model import ColourModel, Gaussian, fit_automatic,
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Level, calibrate_views
 from vastcal.calibrate.session_run import calibrate_session, load_colour_model
 
-__all__ = ["CalibrationResult", "CalibrationSettings", "ColourModel", "Gaussian", "Level", "calibrate_session", "calibrate_views", "load_colour_model",
-           "fit_automatic", "fit_from_mask", "fit_from_scribbles"]
+__all__ = [
+    "CalibrationResult",
+    "CalibrationSettings",
+    "ColourModel",
+    "Gaussian",
+    "Level",
+    "calibrate_session",
+    "calibrate_views",
+    "load_colour_model",
+    "fit_automatic",
+    "fit_from_mask",
+    "fit_from_scribbles",
+]

@@ -38,11 +38,12 @@ Where the models come from
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, Sequence
+from typing import Literal
 
-import h5py
 import cv2
+import h5py
 import numpy as np
 
 from vastcal.errors import ColourModelError, UserInputError
@@ -117,7 +118,9 @@ def scaled_values(images: np.ndarray) -> np.ndarray:
 def value_scale(images: np.ndarray) -> float:
     """The full scale that :func:`scaled_values` divides by (1 for float images)."""
     a = np.asarray(images)
-    return _scale_of(a.dtype, float(a.max()) if a.size and np.issubdtype(a.dtype, np.integer) and a.dtype.itemsize > 1 else None)
+    return _scale_of(
+        a.dtype, float(a.max()) if a.size and np.issubdtype(a.dtype, np.integer) and a.dtype.itemsize > 1 else None
+    )
 
 
 def _scale_of(dtype: np.dtype, maximum: float | None) -> float:
@@ -194,9 +197,13 @@ def check_images(images: np.ndarray) -> None:
         sub = raw.astype(np.float32) / scale
         sat = float(np.mean(np.all(sub >= 0.999, axis=1)))
         if sat > 0.9:
-            raise ColourModelError(f"view {i} is saturated ({100 * sat:.0f}% of pixels at full scale): reduce the exposure")
+            raise ColourModelError(
+                f"view {i} is saturated ({100 * sat:.0f}% of pixels at full scale): reduce the exposure"
+            )
         if float(sub.std(axis=0).max()) < 2e-3:
-            raise ColourModelError(f"view {i} is blank (constant value {float(sub.mean()):.3g}): no specimen can be seen")
+            raise ColourModelError(
+                f"view {i} is blank (constant value {float(sub.mean()):.3g}): no specimen can be seen"
+            )
 
 
 @dataclass(frozen=True)
@@ -207,7 +214,7 @@ class Gaussian:
     cov: np.ndarray
 
     @classmethod
-    def fit(cls, samples: np.ndarray, weights: np.ndarray | None = None, min_var: float = MIN_VAR) -> "Gaussian":
+    def fit(cls, samples: np.ndarray, weights: np.ndarray | None = None, min_var: float = MIN_VAR) -> Gaussian:
         """(Weighted) maximum-likelihood fit of samples (M, C), regularised by ``min_var`` on the diagonal."""
         s = np.asarray(samples, np.float64)
         w = np.ones(s.shape[0]) if weights is None else np.asarray(weights, np.float64)
@@ -219,7 +226,7 @@ class Gaussian:
         return cls(mean, cov)
 
     @classmethod
-    def fit_robust(cls, samples: np.ndarray, rounds: int = 4) -> "Gaussian":
+    def fit_robust(cls, samples: np.ndarray, rounds: int = 4) -> Gaussian:
         """Fit to the dominant cluster of ``samples`` (M, C), ignoring up to ~half outliers.
 
         Starts from the median and a MAD scale, then refits on the pixels within the 97.5 %
@@ -313,10 +320,14 @@ class GaussianMixture:
         nearest), or None when every component is present everywhere."""
         if self.regions is None:
             return None
-        return np.stack([cv2.resize(r.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).ravel() > 0
-                         for r in self.regions])
+        return np.stack(
+            [
+                cv2.resize(r.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).ravel() > 0
+                for r in self.regions
+            ]
+        )
 
-    def localised(self, features_of_view: np.ndarray, background: np.ndarray) -> "GaussianMixture":
+    def localised(self, features_of_view: np.ndarray, background: np.ndarray) -> GaussianMixture:
         """This mixture with each material present only where a view's marks saw it.
 
         A material of the scene other than the backdrop — a turntable, a stand, a capillary wall — holds still in the
@@ -348,8 +359,9 @@ class GaussianMixture:
         """The most responsible component of each feature (…, C) → (…) int."""
         return np.argmax(self._component_logs(f.reshape(-1, f.shape[-1])), axis=0).reshape(f.shape[:-1])
 
-    def held_still(self, marked_features: np.ndarray, other_features: list[np.ndarray],
-                   keep: float = HELD_STILL) -> "GaussianMixture":
+    def held_still(
+        self, marked_features: np.ndarray, other_features: list[np.ndarray], keep: float = HELD_STILL
+    ) -> GaussianMixture:
         """This placed mixture without the materials that do not hold their places in other views.
 
         A place (:meth:`localised`) stands for every view only if the material stays there: a turntable, a stand, a
@@ -373,16 +385,22 @@ class GaussianMixture:
             if elsewhere >= keep * there:
                 kept.append(k)
             else:
-                log.info("colour model: the marked material of mean colour %s does not hold its place in the other views "
-                         "(it owns %.0f %% of it there, %.0f %% in the marked view): not background by place",
-                         np.round(self.parts[k].mean, 3).tolist(), 100 * elsewhere, 100 * there)
+                log.info(
+                    "colour model: the marked material of mean colour %s does not hold its place in the other views "
+                    "(it owns %.0f %% of it there, %.0f %% in the marked view): not background by place",
+                    np.round(self.parts[k].mean, 3).tolist(),
+                    100 * elsewhere,
+                    100 * there,
+                )
         if len(kept) == len(self.parts):
             return self
         w = np.asarray([self.weights[k] for k in kept])
         return GaussianMixture(w / w.sum(), tuple(self.parts[k] for k in kept), self.regions[kept])
 
     @classmethod
-    def fit(cls, samples: np.ndarray, *, max_components: int = 5, rounds: int = 40, tol: float = 1e-5) -> "GaussianMixture":
+    def fit(
+        cls, samples: np.ndarray, *, max_components: int = 5, rounds: int = 40, tol: float = 1e-5
+    ) -> GaussianMixture:
         """The mixture of 1 … ``max_components`` components of least BIC, each fitted by EM.
 
         BIC = −2 log L + p ln M (p parameters, M samples) chooses the number of materials from the data:
@@ -407,7 +425,7 @@ class GaussianMixture:
             raise ColourModelError(f"too few pixels ({m}) to fit a colour model")
         return best[1]
 
-    def _merged(self, same: float = 1e-3) -> "GaussianMixture":
+    def _merged(self, same: float = 1e-3) -> GaussianMixture:
         """Components that are one material (Bhattacharyya distance below ``same``) as one, their weights summed.
 
         EM keeps identical the components that start inside one tight cluster (a black backdrop quantised to a few grey
@@ -427,7 +445,7 @@ class GaussianMixture:
         return GaussianMixture(np.asarray(weights), tuple(self.parts[i] for i in keep), None)
 
     @classmethod
-    def _em(cls, s: np.ndarray, k: int, rounds: int, tol: float) -> tuple["GaussianMixture", float]:
+    def _em(cls, s: np.ndarray, k: int, rounds: int, tol: float) -> tuple[GaussianMixture, float]:
         m, c = s.shape
         d = s - s.mean(axis=0)
         axis = np.linalg.svd(d[:: max(1, m // 20000)], full_matrices=False)[2][0]
@@ -527,19 +545,23 @@ class ColourModel:
             where = None
             if present is not None:  # the chunk's pixels' places in their frames
                 where = present[:, np.arange(s, min(s + PIXEL_CHUNK, flat.shape[0])) % present.shape[1]]
-            out[s:s + PIXEL_CHUNK] = self._log_foreground_chunk(flat[s:s + PIXEL_CHUNK], where)
+            out[s : s + PIXEL_CHUNK] = self._log_foreground_chunk(flat[s : s + PIXEL_CHUNK], where)
         return out.reshape(f.shape[:-1])
 
     def _log_foreground_chunk(self, f: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
         lf = self.fg.log_pdf(f) + np.float32(np.log(self.prior_fg))
-        lb = (self.bg.log_pdf(f, where) if where is not None else self.bg.log_pdf(f)) + np.float32(np.log1p(-self.prior_fg))
+        lb = (self.bg.log_pdf(f, where) if where is not None else self.bg.log_pdf(f)) + np.float32(
+            np.log1p(-self.prior_fg)
+        )
         # log p_f = −log(1 + exp(lb − lf)), stable for either sign of the difference.
         diff = np.clip(lb - lf, -80.0, 80.0)
         logp = -np.logaddexp(np.float32(0.0), diff)
         # A pixel whose colour the background model explains (within BACKGROUND_GATE × its 99.9 % radius²) is background,
         # however broad the specimen's Gaussian is: the specimen's colours are multimodal (black eyes,
         # grey body, clear fin), so its single Gaussian is wide and would otherwise claim faint halos.
-        logp = np.where(self.bg.mahalanobis2(f) < BACKGROUND_GATE * _CHI2_999[f.shape[-1]], np.float32(np.log(self.eps)), logp)
+        logp = np.where(
+            self.bg.mahalanobis2(f) < BACKGROUND_GATE * _CHI2_999[f.shape[-1]], np.float32(np.log(self.eps)), logp
+        )
         return np.clip(logp, np.log(self.eps), np.log1p(-self.eps)).astype(np.float32)
 
     def foreground_probability(self, images: np.ndarray) -> np.ndarray:
@@ -561,7 +583,9 @@ class ColourModel:
             group.create_dataset("bg_means", data=np.stack([np.asarray(g.mean, float) for g in self.bg.parts]))
             group.create_dataset("bg_covs", data=np.stack([np.asarray(g.cov, float) for g in self.bg.parts]))
             if self.bg.regions is not None:
-                group.create_dataset("bg_regions", data=np.asarray(self.bg.regions, bool), compression="gzip", shuffle=True)
+                group.create_dataset(
+                    "bg_regions", data=np.asarray(self.bg.regions, bool), compression="gzip", shuffle=True
+                )
         group.attrs["space"] = self.space
         group.attrs["prior"] = float(self.prior_fg)
         group.attrs["source"] = self.source
@@ -570,28 +594,45 @@ class ColourModel:
         group.attrs["bhattacharyya"] = float(self.separation)
 
     @classmethod
-    def from_group(cls, group: h5py.Group) -> "ColourModel":
+    def from_group(cls, group: h5py.Group) -> ColourModel:
         """Read a model written by :meth:`to_group` (e.g. ``run["colour_model"]``)."""
+
         def s(v: object) -> str:
             return v.decode() if isinstance(v, bytes) else str(v)
 
         bg: Gaussian | GaussianMixture = Gaussian(group["bg_mean"][...], group["bg_cov"][...])
         if "bg_weights" in group:
-            bg = GaussianMixture(np.asarray(group["bg_weights"][...], float),
-                                 tuple(Gaussian(mu, cov) for mu, cov in zip(group["bg_means"][...], group["bg_covs"][...])),
-                                 np.asarray(group["bg_regions"][...], bool) if "bg_regions" in group else None)
-        return cls(Gaussian(group["fg_mean"][...], group["fg_cov"][...]), bg,
-                   float(group.attrs["prior"]), s(group.attrs["space"]),  # type: ignore[arg-type]
-                   s(group.attrs.get("source", "stored")), float(group.attrs.get("eps", 1e-4)))
+            bg = GaussianMixture(
+                np.asarray(group["bg_weights"][...], float),
+                tuple(Gaussian(mu, cov) for mu, cov in zip(group["bg_means"][...], group["bg_covs"][...])),
+                np.asarray(group["bg_regions"][...], bool) if "bg_regions" in group else None,
+            )
+        return cls(
+            Gaussian(group["fg_mean"][...], group["fg_cov"][...]),
+            bg,
+            float(group.attrs["prior"]),
+            s(group.attrs["space"]),  # type: ignore[arg-type]
+            s(group.attrs.get("source", "stored")),
+            float(group.attrs.get("eps", 1e-4)),
+        )
 
 
 def _checked(model: ColourModel, min_separation: float) -> ColourModel:
     sep = model.separation
-    log.info("colour model (%s, %s): fg mean %s, bg mean %s, prior %.3f, Bhattacharyya %.2f", model.source, model.space,
-             np.round(model.fg.mean, 3), np.round(model.bg.mean, 3), model.prior_fg, sep)
+    log.info(
+        "colour model (%s, %s): fg mean %s, bg mean %s, prior %.3f, Bhattacharyya %.2f",
+        model.source,
+        model.space,
+        np.round(model.fg.mean, 3),
+        np.round(model.bg.mean, 3),
+        model.prior_fg,
+        sep,
+    )
     if not np.isfinite(sep) or sep < min_separation:
-        raise ColourModelError(f"specimen and background colours do not separate (Bhattacharyya distance {sep:.2f} < {min_separation}); "
-                               "give a rough mask or scribbles of one view (calibrate --mask VIEW:FILE or --scribbles VIEW:FILE)")
+        raise ColourModelError(
+            f"specimen and background colours do not separate (Bhattacharyya distance {sep:.2f} < {min_separation}); "
+            "give a rough mask or scribbles of one view (calibrate --mask VIEW:FILE or --scribbles VIEW:FILE)"
+        )
     return model
 
 
@@ -599,8 +640,15 @@ def _prior(p: float) -> float:
     return float(np.clip(p, 0.02, 0.5))
 
 
-def fit_from_mask(image: np.ndarray, mask: np.ndarray, *, view: int = 0, min_separation: float = 0.5,
-                  background: Background = "dominant", others: Sequence[np.ndarray] = ()) -> ColourModel:
+def fit_from_mask(
+    image: np.ndarray,
+    mask: np.ndarray,
+    *,
+    view: int = 0,
+    min_separation: float = 0.5,
+    background: Background = "dominant",
+    others: Sequence[np.ndarray] = (),
+) -> ColourModel:
     """Colour models from a rough mask (H, W), nonzero = specimen, on one image (H, W[, 3]).
 
     ``background``, ``others``: as in :func:`fit_from_scribbles`.
@@ -609,8 +657,15 @@ def fit_from_mask(image: np.ndarray, mask: np.ndarray, *, view: int = 0, min_sep
         UserInputError: the mask's size differs from the image's.
         ColourModelError: a mask with (almost) no specimen or no background, or no separation.
     """
-    return fit_from_scribbles(image, mask_labels(image, mask, view=view), view=view, min_separation=min_separation,
-                              background=background, others=others, _source=f"mask:view {view}")
+    return fit_from_scribbles(
+        image,
+        mask_labels(image, mask, view=view),
+        view=view,
+        min_separation=min_separation,
+        background=background,
+        others=others,
+        _source=f"mask:view {view}",
+    )
 
 
 def mask_labels(image: np.ndarray, mask: np.ndarray, *, view: int = 0) -> np.ndarray:
@@ -623,13 +678,22 @@ def mask_labels(image: np.ndarray, mask: np.ndarray, *, view: int = 0) -> np.nda
     if mask.ndim == 3:
         mask = mask.max(axis=2)
     if mask.shape != image.shape[:2]:
-        raise UserInputError(f"mask is {mask.shape[1]} x {mask.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px")
+        raise UserInputError(
+            f"mask is {mask.shape[1]} x {mask.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px"
+        )
     return np.where(mask > 0, 1, 2).astype(np.uint8)
 
 
-def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, min_separation: float = 0.5,
-                       background: Background = "dominant", others: Sequence[np.ndarray] = (),
-                       _source: str | None = None) -> ColourModel:
+def fit_from_scribbles(
+    image: np.ndarray,
+    labels: np.ndarray,
+    *,
+    view: int = 0,
+    min_separation: float = 0.5,
+    background: Background = "dominant",
+    others: Sequence[np.ndarray] = (),
+    _source: str | None = None,
+) -> ColourModel:
     """Colour models from scribbles: a label image (H, W) with 0 unknown, 1 specimen, 2 background.
 
     The marked background holds other things than the backdrop (capillary walls and the dim strips beside
@@ -653,16 +717,22 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
     if labels.ndim == 3:
         labels = labels.max(axis=2)
     if labels.shape != image.shape[:2]:
-        raise UserInputError(f"scribbles are {labels.shape[1]} x {labels.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px")
+        raise UserInputError(
+            f"scribbles are {labels.shape[1]} x {labels.shape[0]} px but view {view} is {image.shape[1]} x {image.shape[0]} px"
+        )
     stray = np.setdiff1d(np.unique(labels), [0, 1, 2])
     if stray.size:
-        raise UserInputError(f"scribbles of view {view}: expected labels 0 (unknown), 1 (specimen), 2 (background); "
-                             f"found {', '.join(map(str, stray[:5].tolist()))}")
+        raise UserInputError(
+            f"scribbles of view {view}: expected labels 0 (unknown), 1 (specimen), 2 (background); "
+            f"found {', '.join(map(str, stray[:5].tolist()))}"
+        )
     check_images(np.asarray(image)[None])
     f = features(image)
     fg_px, bg_px = f[labels == 1], f[labels == 2]
     if fg_px.shape[0] < 20 or bg_px.shape[0] < 20:
-        raise ColourModelError(f"view {view}: the mask/scribbles mark {fg_px.shape[0]} specimen and {bg_px.shape[0]} background pixels; need at least 20 of each")
+        raise ColourModelError(
+            f"view {view}: the mask/scribbles mark {fg_px.shape[0]} specimen and {bg_px.shape[0]} background pixels; need at least 20 of each"
+        )
     # One Gaussian widened over every marked material would swallow the pale parts of the specimen.
     fg = Gaussian.fit(fg_px)
     bg: Gaussian | GaussianMixture
@@ -678,7 +748,9 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
             sample = sample[np.random.default_rng(0).choice(sample.shape[0], MAX_MIXTURE_SAMPLES, replace=False)]
         bg = GaussianMixture.fit(sample)
         if not np.all(labels > 0):  # scribbles: a stroke on the turntable stands for the turntable it lies on
-            unmarked = ColourModel(fg, bg, 0.5, image_space(np.asarray(image))).log_foreground_probability_of_features(f) < np.log(0.5)
+            unmarked = ColourModel(fg, bg, 0.5, image_space(np.asarray(image))).log_foreground_probability_of_features(
+                f
+            ) < np.log(0.5)
             marked = marked | ((labels == 0) & unmarked)
         bg = bg.localised(f, marked).held_still(f, [features(o) for o in others])
     elif background == "dominant":
@@ -690,7 +762,10 @@ def fit_from_scribbles(image: np.ndarray, labels: np.ndarray, *, view: int = 0, 
     else:
         tmp = ColourModel(fg, bg, 0.5, image_space(np.asarray(image)))
         prior = float(tmp.foreground_probability(np.asarray(image)[None]).mean())
-    return _checked(ColourModel(fg, bg, _prior(prior), image_space(np.asarray(image)), _source or f"scribbles:view {view}"), min_separation)
+    return _checked(
+        ColourModel(fg, bg, _prior(prior), image_space(np.asarray(image)), _source or f"scribbles:view {view}"),
+        min_separation,
+    )
 
 
 def border_pixels(images: np.ndarray, border_frac: float = 0.03) -> np.ndarray:
@@ -701,13 +776,25 @@ def border_pixels(images: np.ndarray, border_frac: float = 0.03) -> np.ndarray:
 def _border_of(f: np.ndarray, border_frac: float) -> np.ndarray:
     n, h, w = f.shape[:3]
     by, bx = max(2, int(round(border_frac * h))), max(2, int(round(border_frac * w)))
-    parts = [f[:, :by].reshape(-1, f.shape[-1]), f[:, -by:].reshape(-1, f.shape[-1]),
-             f[:, by:-by, :bx].reshape(-1, f.shape[-1]), f[:, by:-by, -bx:].reshape(-1, f.shape[-1])]
+    parts = [
+        f[:, :by].reshape(-1, f.shape[-1]),
+        f[:, -by:].reshape(-1, f.shape[-1]),
+        f[:, by:-by, :bx].reshape(-1, f.shape[-1]),
+        f[:, by:-by, -bx:].reshape(-1, f.shape[-1]),
+    ]
     return np.concatenate(parts)
 
 
-def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separation: float = 0.5,
-                  max_samples: int = 200_000, em_rounds: int = 10, seed: int = 0, max_pixels: int = MAX_FIT_PIXELS) -> ColourModel:
+def fit_automatic(
+    images: np.ndarray,
+    *,
+    border_frac: float = 0.03,
+    min_separation: float = 0.5,
+    max_samples: int = 200_000,
+    em_rounds: int = 10,
+    seed: int = 0,
+    max_pixels: int = MAX_FIT_PIXELS,
+) -> ColourModel:
     """Colour models with no user input (assumptions in the module docstring).
 
     Args:
@@ -726,7 +813,12 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
     views = fit_views(stack.shape[0], int(np.prod(stack.shape[1:3])), max_pixels)
     subset = views.size < stack.shape[0]
     if subset:
-        log.info("colour model: fitted on %d of %d views (evenly spread, at most %d pixels)", views.size, stack.shape[0], max_pixels)
+        log.info(
+            "colour model: fitted on %d of %d views (evenly spread, at most %d pixels)",
+            views.size,
+            stack.shape[0],
+            max_pixels,
+        )
     images = np.asarray(stack[views] if subset else stack)
     check_images(stack if subset else images)  # every view; read once when all are fitted
     f = features(images)  # once: the background flattening is the costly part
@@ -740,7 +832,9 @@ def fit_automatic(images: np.ndarray, *, border_frac: float = 0.03, min_separati
     frac = float(far.mean())
     if far.sum() < 50 or frac < 1e-3:
         raise ColourModelError(f"no specimen found: only {100 * frac:.2f}% of pixels differ from the background colour")
-    model = em_refine(ColourModel(Gaussian.fit(sample[far]), bg, _prior(frac), image_space(images), "automatic"), sample, em_rounds)
+    model = em_refine(
+        ColourModel(Gaussian.fit(sample[far]), bg, _prior(frac), image_space(images), "automatic"), sample, em_rounds
+    )
     return _checked(model, min_separation)
 
 
@@ -764,5 +858,12 @@ def em_refine(model: ColourModel, samples: np.ndarray, rounds: int) -> ColourMod
         lf = model.fg.log_pdf(samples) + np.log(model.prior_fg)
         lb = model.bg.log_pdf(samples) + np.log1p(-model.prior_fg)
         r = np.exp(-np.logaddexp(0.0, np.clip(lb - lf, -80, 80)))  # responsibility of the foreground
-        model = ColourModel(Gaussian.fit(wide, r), Gaussian.fit(wide, 1 - r), _prior(float(r.mean())), model.space, model.source, model.eps)
+        model = ColourModel(
+            Gaussian.fit(wide, r),
+            Gaussian.fit(wide, 1 - r),
+            _prior(float(r.mean())),
+            model.space,
+            model.source,
+            model.eps,
+        )
     return model

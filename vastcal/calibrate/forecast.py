@@ -47,7 +47,6 @@ import math
 
 import numpy as np
 
-
 _erfc = np.vectorize(math.erfc, otypes=[float])
 """The complementary error function, elementwise: a forecast takes it of (generations ahead × coordinates) values,
 which ``math.erfc`` does in microseconds each — where importing SciPy's ufunc would cost ~0.1 s of every run."""
@@ -72,7 +71,9 @@ class CMAStopForecast:
     #: up to 2x the last ones), so the half of its wall time comes before the half of its generations
     PLAN_AT = 1.0 / 3.0
 
-    def __init__(self, tolx: float, max_evaluations: float, popsize: int, *, spend_budget: bool = False, planned: bool = False) -> None:
+    def __init__(
+        self, tolx: float, max_evaluations: float, popsize: int, *, spend_budget: bool = False, planned: bool = False
+    ) -> None:
         self.log_tolx = math.log(float(tolx))
         self.max_evaluations = float(max_evaluations) if max_evaluations else math.inf
         self.popsize = max(1, int(popsize))
@@ -90,10 +91,10 @@ class CMAStopForecast:
         n = len(self.logs)
         if n < self.MIN_WINDOW:
             return math.nan
-        y = np.asarray(self.trend[-max(self.MIN_WINDOW, n // 2):])
+        y = np.asarray(self.trend[-max(self.MIN_WINDOW, n // 2) :])
         (slope, _), cov = np.polyfit(np.arange(len(y), dtype=float), y, 1, cov=True)
         se = math.sqrt(max(float(cov[0, 0]), 0.0))
-        distance = max(0.0, min(self.logs[-self.LOW_OF:]) - self.log_tolx)
+        distance = max(0.0, min(self.logs[-self.LOW_OF :]) - self.log_tolx)
         fastest = slope - 2.0 * se
         if fastest < 0 and distance / -fastest >= budget_generations:
             return budget_generations
@@ -128,7 +129,7 @@ class CMAStopForecast:
         left = 0 if self.plan is None else self.plan - len(self.logs)
         if left <= 0:
             return None
-        return min(0.0, (self.log_tolx - min(self.logs[-self.LOW_OF:])) / left)
+        return min(0.0, (self.log_tolx - min(self.logs[-self.LOW_OF :])) / left)
 
     def planned_end(self) -> bool:
         """True when a planned run has run its frozen number of generations (it ends there)."""
@@ -233,7 +234,7 @@ class GenerationTime:
         generation) or else the fitted descent of the recent half."""
         if slope is None:
             n = len(self.log_step)
-            y = np.asarray(self.log_step[-max(CMAStopForecast.MIN_WINDOW, n // 2):])
+            y = np.asarray(self.log_step[-max(CMAStopForecast.MIN_WINDOW, n // 2) :])
             slope = float(np.polyfit(np.arange(len(y), dtype=float), y, 1)[0]) if len(y) >= 3 else 0.0
         return np.exp(min(slope, 0.0) * np.arange(1, generations + 1))
 
@@ -270,12 +271,14 @@ class GenerationTime:
         if not watched.any():
             return 0.0
         shrink = self._shrink(generations, slope)[:, None]
-        recent = np.asarray(self.moves[-max(CMAStopForecast.MIN_WINDOW, len(self.moves) // 2):])
-        spread = np.sqrt(np.mean(recent ** 2, axis=0))[watched]  # the mean's move per generation, in steps
+        recent = np.asarray(self.moves[-max(CMAStopForecast.MIN_WINDOW, len(self.moves) // 2) :])
+        spread = np.sqrt(np.mean(recent**2, axis=0))[watched]  # the mean's move per generation, in steps
         a, st = self.research[watched], self._step[watched]
         walk = np.sum(((spread * st)[None] * shrink / a[None]) ** 2, axis=1)
         scatter = st[None] * shrink / np.sqrt(self.popsize) * math.sqrt(2.0)  # two batches' mean scatter, differenced
-        alone = np.sum(_erfc(a[None] / (math.sqrt(2.0) * np.maximum(scatter, 1e-300))), axis=1)  # P(|N(0, scatter²)| > a)
+        alone = np.sum(
+            _erfc(a[None] / (math.sqrt(2.0) * np.maximum(scatter, 1e-300))), axis=1
+        )  # P(|N(0, scatter²)| > a)
         return float(np.sum(np.minimum(walk + alone, 1.0)))
 
     def work(self, generations_left: float, slope: float | None = None) -> tuple[float, float]:

@@ -16,7 +16,7 @@ marks name as background (scribbles mark a few strokes, which both models often 
 from __future__ import annotations
 
 import logging
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -36,8 +36,15 @@ def marks_agreement(silhouette: np.ndarray, labels: np.ndarray) -> float:
     return float(np.count_nonzero(inside & specimen)) / union if union else 0.0
 
 
-def fit_from_marks(image: np.ndarray, labels: np.ndarray, *, view: int, source: str, others: Sequence[np.ndarray] = (),
-                   min_separation: float = 0.5) -> ColourModel:
+def fit_from_marks(
+    image: np.ndarray,
+    labels: np.ndarray,
+    *,
+    view: int,
+    source: str,
+    others: Sequence[np.ndarray] = (),
+    min_separation: float = 0.5,
+) -> ColourModel:
     """The colour model of a view's marks (labels (H, W): 0 unknown, 1 specimen, 2 background) whose
     specimen map of that view agrees best with them (module docstring); ``source`` names the marks
     (``"mask:view 3"``); ``others``: images of other views, where a marked material must hold its place.
@@ -47,18 +54,32 @@ def fit_from_marks(image: np.ndarray, labels: np.ndarray, *, view: int, source: 
     """
     candidates = []
     for background in ("dominant", "mixture"):
-        model = fit_from_scribbles(image, labels, view=view, min_separation=min_separation, background=background,
-                                   others=others if background == "mixture" else (), _source=source)
+        model = fit_from_scribbles(
+            image,
+            labels,
+            view=view,
+            min_separation=min_separation,
+            background=background,
+            others=others if background == "mixture" else (),
+            _source=source,
+        )
         agreement = marks_agreement(specimen_maps(model, np.asarray(image)[None])[0] > 0.5, labels)
         candidates.append((agreement, model, background))
     # On a tie the mixture: the marks name its materials background, and nothing in them says otherwise (scribbles, whose
     # strokes both models reproduce, would otherwise leave a marked turntable to the specimen).
     best = candidates[1] if candidates[1][0] >= candidates[0][0] else candidates[0]
-    log.info("colour model (%s): the specimen map of view %d agrees with the marks to IoU %s; background modelled as its %s",
-             source, view, " / ".join(f"{a:.4f} ({b})" for a, _, b in candidates),
-             "dominant colour" if best[2] == "dominant" else "materials (a mixture)")
+    log.info(
+        "colour model (%s): the specimen map of view %d agrees with the marks to IoU %s; background modelled as its %s",
+        source,
+        view,
+        " / ".join(f"{a:.4f} ({b})" for a, _, b in candidates),
+        "dominant colour" if best[2] == "dominant" else "materials (a mixture)",
+    )
     bg = best[1].bg
     if isinstance(bg, GaussianMixture) and len(bg.parts) > 1:
-        log.info("colour model: the marked background's materials: weights %s, mean colours %s", np.round(bg.weights, 3).tolist(),
-                 [np.round(g.mean, 3).tolist() for g in bg.parts])
+        log.info(
+            "colour model: the marked background's materials: weights %s, mean colours %s",
+            np.round(bg.weights, 3).tolist(),
+            [np.round(g.mean, 3).tolist() for g in bg.parts],
+        )
     return best[1]

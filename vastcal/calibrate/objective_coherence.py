@@ -118,8 +118,16 @@ def _crossings(profiles: np.ndarray, line: np.ndarray, a: np.ndarray, level: flo
     return np.where(step == 0, a + 0.5, a + (level - pa) / np.where(step == 0, 1.0, step))
 
 
-def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, level: float = 0.5, min_run_px: int = 3,
-                     all_runs: bool = False, full_views: int = 41, min_lines: int = 8) -> EdgeSamples:
+def silhouette_edges(
+    pf: np.ndarray,
+    axis_uv: np.ndarray,
+    max_lines: int = 64,
+    level: float = 0.5,
+    min_run_px: int = 3,
+    all_runs: bool = False,
+    full_views: int = 41,
+    min_lines: int = 8,
+) -> EdgeSamples:
     """Boundary samples of the specimen in every view, on scan lines across the rotation axis.
 
     Scan lines run perpendicular to the image of the axis (image columns when the axis is closer to
@@ -157,7 +165,9 @@ def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, l
         profiles = pf[i] if horizontal else pf[i].T  # (length, lines): column c is scan line c
         length = profiles.shape[0]
         line, start, end = _line_runs(inside if horizontal else inside.T)
-        if not all_runs and line.size:  # per line, the region's first start and last end (runs are ordered by line, then start)
+        if (
+            not all_runs and line.size
+        ):  # per line, the region's first start and last end (runs are ordered by line, then start)
             first = np.r_[True, line[1:] != line[:-1]]
             last = np.r_[line[1:] != line[:-1], True]
             line, start, end = line[first], start[first], end[last]
@@ -168,12 +178,16 @@ def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, l
             lines = lines[np.round(np.linspace(0, lines.size - 1, max_lines)).astype(int)]
         keep = np.isin(line, lines)
         line, start, end = line[keep], start[keep], end[keep]
-        pos = np.stack([_crossings(profiles, line, start - 1, level), _crossings(profiles, line, end - 1, level)], 1).ravel()
+        pos = np.stack(
+            [_crossings(profiles, line, start - 1, level), _crossings(profiles, line, end - 1, level)], 1
+        ).ravel()
         along = np.repeat(line, 2).astype(float)  # each run gives its start and its end crossing, in order
         per_view.append(np.stack([along, pos] if horizontal else [pos, along], 1))
     r_max = max((len(p) for p in per_view), default=0)
     if r_max == 0:
-        raise AnalysisError("no silhouette edge found in any view: the colour model sees no specimen around the rotation axis")
+        raise AnalysisError(
+            "no silhouette edge found in any view: the colour model sees no specimen around the rotation axis"
+        )
     uv = np.zeros((n, r_max, 2), np.float32)
     wt = np.zeros((n, r_max), np.float32)
     for i, pts in enumerate(per_view):
@@ -181,7 +195,7 @@ def silhouette_edges(pf: np.ndarray, axis_uv: np.ndarray, max_lines: int = 64, l
             continue
         arr = pts.astype(np.float32)
         uv[i, : len(arr)] = arr
-        uv[i, len(arr):] = arr[0]
+        uv[i, len(arr) :] = arr[0]
         wt[i, : len(arr)] = 1.0
     return EdgeSamples(uv, wt)
 
@@ -322,7 +336,9 @@ def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
     rel = np.mod(a[None, :] - a[:, None], 360.0)  # (N, N): angle of view j seen from view i
     rel[np.arange(n), np.arange(n)] = np.inf  # own view last
     order = np.argsort(rel, axis=1, kind="stable")[:, : n - 1]
-    pos = np.clip(np.rint(np.arange(1, k + 1) * n / (k + 1) - 1), 0, n - 2).astype(np.intp)  # the m-th of K + 1 even steps
+    pos = np.clip(np.rint(np.arange(1, k + 1) * n / (k + 1) - 1), 0, n - 2).astype(
+        np.intp
+    )  # the m-th of K + 1 even steps
     return np.ascontiguousarray(order[:, pos])
 
 
@@ -334,7 +350,7 @@ def coherence_parts(objective: object) -> list:
 class SumObjective:
     """Sum of objectives over the same θ (e.g. body silhouettes + dark internal features)."""
 
-    def __init__(self, parts: list["CoherenceObjective"], weights: list[float]) -> None:
+    def __init__(self, parts: list[CoherenceObjective], weights: list[float]) -> None:
         self.parts, self.weights = parts, weights
         self.name = "+".join(p.name for p in parts)
         self.n_evaluations = 0
@@ -384,12 +400,28 @@ class CoherenceObjective:
 
     name = "pi-coherence"
 
-    def __init__(self, sd: np.ndarray | Atlas, edges: EdgeSamples, K: np.ndarray, distance: float, radius_um: float,
-                 stages: tuple[int, ...] = (7, 7, 7), window: int = 7, window_px: float = 1.5, max_slides: int = 3,
-                 sigma_px: float = 0.33,
-                 trim: int = 1, cap_px: float = 1.5, max_first_stage: int = 256, research_deg: float = 0.1,
-                 per_candidate: bool = False, max_points: int = 1_000_000, max_partners: int = 20,
-                 angles_deg: np.ndarray | None = None, local_zooms: int = 0) -> None:
+    def __init__(
+        self,
+        sd: np.ndarray | Atlas,
+        edges: EdgeSamples,
+        K: np.ndarray,
+        distance: float,
+        radius_um: float,
+        stages: tuple[int, ...] = (7, 7, 7),
+        window: int = 7,
+        window_px: float = 1.5,
+        max_slides: int = 3,
+        sigma_px: float = 0.33,
+        trim: int = 1,
+        cap_px: float = 1.5,
+        max_first_stage: int = 256,
+        research_deg: float = 0.1,
+        per_candidate: bool = False,
+        max_points: int = 1_000_000,
+        max_partners: int = 20,
+        angles_deg: np.ndarray | None = None,
+        local_zooms: int = 0,
+    ) -> None:
         self.atlas = sd if isinstance(sd, Atlas) else Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
@@ -400,7 +432,9 @@ class CoherenceObjective:
         self.window = int(window)
         self.local_zooms = int(local_zooms)
         self.max_slides = int(max_slides)
-        self.footprint_um = self.distance / float(np.sqrt(abs(np.linalg.det(self.K[:2, :2]))))  # one pixel at the axis, µm
+        self.footprint_um = self.distance / float(
+            np.sqrt(abs(np.linalg.det(self.K[:2, :2])))
+        )  # one pixel at the axis, µm
         self.window_um = float(window_px) * self.footprint_um
         self.first_stage = int(np.clip(np.ceil(2.0 * self.radius / self.footprint_um) + 1, 12, max_first_stage))
         self.z_peak = np.zeros(edges.weight.shape, np.float32)
@@ -415,7 +449,9 @@ class CoherenceObjective:
         self.partners: np.ndarray | None = None if angles_deg is None else partner_views(angles_deg, self.max_partners)
         n, r, _ = edges.uv.shape
         homog = np.concatenate([edges.uv, np.ones((n, r, 1), np.float32)], -1)
-        self.rays_cam = np.einsum("ij,nrj->nri", self.Kinv, homog).astype(np.float32)  # (N, R, 3) camera-frame directions, z = 1
+        self.rays_cam = np.einsum("ij,nrj->nri", self.Kinv, homog).astype(
+            np.float32
+        )  # (N, R, 3) camera-frame directions, z = 1
         self.weight = edges.weight / max(float(edges.weight.sum()), 1.0)
         self.n_evaluations = 0
 
@@ -449,8 +485,8 @@ class CoherenceObjective:
         if self.per_candidate:  # every candidate searches its own rays: its cost does not depend on the batch
             chunk = max(1, self.max_points // max(1, n * r * self.first_stage * k))
             for s in range(0, th.shape[0], chunk):
-                z = self._search_peaks(th[s:s + chunk])
-                out[s:s + chunk] = self._local_max(th[s:s + chunk], z)
+                z = self._search_peaks(th[s : s + chunk])
+                out[s : s + chunk] = self._local_max(th[s : s + chunk], z)
             return out
         mean = th.mean(axis=0)
         if self._searched_at is None or np.max(np.abs(mean - self._searched_at)) > self.research_deg:
@@ -466,7 +502,9 @@ class CoherenceObjective:
         # one (a whole CMA-ES population in one call, unless it is very large, e.g. after IPOP restarts).
         chunk = max(1, self.max_points // max(1, r * self.window * k))
         for s in range(0, th.shape[0], chunk):
-            out[s:s + chunk] = self._local_max(th[s:s + chunk], np.broadcast_to(self.z_peak, (len(th[s:s + chunk]),) + self.z_peak.shape))
+            out[s : s + chunk] = self._local_max(
+                th[s : s + chunk], np.broadcast_to(self.z_peak, (len(th[s : s + chunk]),) + self.z_peak.shape)
+            )
         return out
 
     def _single_roll_moves(self, th: np.ndarray) -> np.ndarray | None:
@@ -478,7 +516,9 @@ class CoherenceObjective:
             return None
         return np.concatenate([[-1], np.where(counts == 1, np.argmax(diff, axis=1) - 3, -1)])
 
-    def _residuals_of_roll_moves(self, th: np.ndarray, moved: np.ndarray, z_peak: np.ndarray | None = None) -> np.ndarray:
+    def _residuals_of_roll_moves(
+        self, th: np.ndarray, moved: np.ndarray, z_peak: np.ndarray | None = None
+    ) -> np.ndarray:
         """Per-candidate residuals (B, N, R) of a batch of single-roll moves (:meth:`_single_roll_moves`).
 
         A ray's residual depends on its own view's camera and its partners' only. Moving view v's roll
@@ -502,12 +542,19 @@ class CoherenceObjective:
             if v < 0:
                 continue
             views = np.array(sorted({v, *users[v]}), dtype=np.intp)
-            z = self._search_peaks(th[b:b + 1], views=views) if z_peak is None else z_peak[None, views]
-            out[b, views] = self._local_max(th[b:b + 1], z, views)[0]
+            z = self._search_peaks(th[b : b + 1], views=views) if z_peak is None else z_peak[None, views]
+            out[b, views] = self._local_max(th[b : b + 1], z, views)[0]
         return out
 
-    def _sample_min_others(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None,
-                           rays: np.ndarray | None = None) -> np.ndarray:
+    def _sample_min_others(
+        self,
+        R: np.ndarray,
+        t: np.ndarray,
+        Z: np.ndarray,
+        P: np.ndarray,
+        views: np.ndarray | None = None,
+        rays: np.ndarray | None = None,
+    ) -> np.ndarray:
         """(Robust) min over the partner views j of sd_j at the edge rays' points at camera depths Z (B, n, R, S) µm;
         returns (B, n, R, S).
 
@@ -526,7 +573,9 @@ class CoherenceObjective:
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
         threads = compute_threads()
-        step = max(1, self.max_points // max(1, b * r * s * k * threads))  # the memory bound holds with every thread busy
+        step = max(
+            1, self.max_points // max(1, b * r * s * k * threads)
+        )  # the memory bound holds with every thread busy
         step = min(step, -(-n // threads))  # at least one slice per thread
 
         def views_slice(a: int) -> None:
@@ -561,7 +610,9 @@ class CoherenceObjective:
         m = pts4.shape[-1]
         rows = np.ascontiguousarray(np.moveaxis(P, -2, 0))  # (3, ..., K, 4): the x, y and w rows of every camera
         u, v, w = np.matmul(rows, pts4)  # (3, ..., K, M)
-        with np.errstate(divide="ignore", invalid="ignore"):  # a point on a partner's focal plane (w = 0): clamped to its frame's edge
+        with np.errstate(
+            divide="ignore", invalid="ignore"
+        ):  # a point on a partner's focal plane (w = 0): clamped to its frame's edge
             np.divide(u, w, out=u)
             np.divide(v, w, out=v)
         self.atlas.to_atlas(u, v, np.broadcast_to(views, u.shape[:-1]))
@@ -581,7 +632,9 @@ class CoherenceObjective:
             return second
         return np.partition(vals, self.trim, axis=1)[:, self.trim]
 
-    def _min_others_of_rays(self, pts4: np.ndarray, P: np.ndarray, candidate: np.ndarray, own: np.ndarray) -> np.ndarray:
+    def _min_others_of_rays(
+        self, pts4: np.ndarray, P: np.ndarray, candidate: np.ndarray, own: np.ndarray
+    ) -> np.ndarray:
         """Like :meth:`_sample_min_others` for an irregular set of M rays: homogeneous points pts4 (M, 4, S) µm
         (:meth:`_ray_points`), all cameras P (B, N, 3, 4), each ray's candidate (M,) and its own view ``own`` (M,);
         returns (M, S)."""
@@ -604,11 +657,23 @@ class CoherenceObjective:
         pad = (-m) % width
         uf = np.concatenate([u.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
         vf = np.concatenate([v.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
-        out = np.concatenate([cv2.remap(self.atlas.image, uf[k:k + block], vf[k:k + block], cv2.INTER_LINEAR,
-                                        borderMode=cv2.BORDER_REPLICATE) for k in range(0, uf.shape[0], block)])
+        out = np.concatenate(
+            [
+                cv2.remap(
+                    self.atlas.image,
+                    uf[k : k + block],
+                    vf[k : k + block],
+                    cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE,
+                )
+                for k in range(0, uf.shape[0], block)
+            ]
+        )
         return out.ravel()[:m].reshape(rows, cols)
 
-    def _search_peaks(self, th: np.ndarray, around: np.ndarray | None = None, views: np.ndarray | None = None) -> np.ndarray:
+    def _search_peaks(
+        self, th: np.ndarray, around: np.ndarray | None = None, views: np.ndarray | None = None
+    ) -> np.ndarray:
         """Depth (B, n, R) of each ray's maximum: a pass over the ray's chord through the cylinder of radius
         ``radius_um`` about the axis (:meth:`_chord_profiles`; or, given ``around``, a pass of ±4 windows about those
         depths), then successive zooms around the best sample. The rays of every view, or of ``views``."""
@@ -636,7 +701,9 @@ class CoherenceObjective:
                 count = self.stages[stage]
         return zc
 
-    def _chord_profiles(self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
+    def _chord_profiles(
+        self, R: np.ndarray, t: np.ndarray, Z: np.ndarray, P: np.ndarray, views: np.ndarray | None = None
+    ) -> np.ndarray:
         """The chord search's samples (B, n, R, S) at depths Z (evenly spaced along each ray): every sample that can be
         a ray's maximum, −inf elsewhere.
 
@@ -655,13 +722,19 @@ class CoherenceObjective:
         if s < CHORD_BOUND_MIN_SAMPLES:
             return self._sample_min_others(R, t, Z, P, views)
         coarse = np.unique(np.r_[np.arange(0, s, CHORD_STRIDE), s - 1])
-        per_sample = self._chord_image_speed(R, t, P, Z[..., 0], Z[..., -1], views) * (Z[..., 1] - Z[..., 0])  # px a sample (B, n, R)
+        per_sample = self._chord_image_speed(R, t, P, Z[..., 0], Z[..., -1], views) * (
+            Z[..., 1] - Z[..., 0]
+        )  # px a sample (B, n, R)
         vc = self._sample_min_others(R, t, np.ascontiguousarray(Z[..., coarse]), P, views)
         out = np.full(Z.shape, -np.inf, np.float32)
         out[..., coarse] = vc
         gaps = np.diff(coarse)
-        bound = 0.5 * (vc[..., :-1] + vc[..., 1:] + np.float32(CHORD_LIPSCHITZ) * per_sample[..., None] * gaps.astype(np.float32))
-        open_gap = (bound >= vc.max(axis=-1, keepdims=True)) & (gaps > 1)  # (B, n, R, G); a NaN bound (no finite speed) stays open
+        bound = 0.5 * (
+            vc[..., :-1] + vc[..., 1:] + np.float32(CHORD_LIPSCHITZ) * per_sample[..., None] * gaps.astype(np.float32)
+        )
+        open_gap = (bound >= vc.max(axis=-1, keepdims=True)) & (
+            gaps > 1
+        )  # (B, n, R, G); a NaN bound (no finite speed) stays open
         open_gap |= np.isnan(bound) & (gaps > 1)
         counts = open_gap.sum(axis=(2, 3))  # (B, n)
         width = int(counts.max())
@@ -669,23 +742,38 @@ class CoherenceObjective:
             return out
         # Each (candidate, view)'s open gaps in order, padded by repeating its first (or gap 0 of ray 0: read, not kept).
         bi, ii, ri, gi = np.nonzero(open_gap)
-        slot = np.arange(bi.size) - np.repeat(np.cumsum(counts.ravel()) - counts.ravel(), counts.ravel())  # rank within its (b, i)
+        slot = np.arange(bi.size) - np.repeat(
+            np.cumsum(counts.ravel()) - counts.ravel(), counts.ravel()
+        )  # rank within its (b, i)
         ray_of, gap_of = np.zeros((b, n, width), np.intp), np.zeros((b, n, width), np.intp)
         ray_of[bi, ii, slot], gap_of[bi, ii, slot] = ri, gi
         valid = np.arange(width) < counts[..., None]  # (B, n, width)
-        inner = np.minimum(coarse[gap_of][..., None] + np.arange(1, CHORD_STRIDE), (coarse[gap_of + 1] - 1)[..., None])  # (B, n, width, stride − 1)
+        inner = np.minimum(
+            coarse[gap_of][..., None] + np.arange(1, CHORD_STRIDE), (coarse[gap_of + 1] - 1)[..., None]
+        )  # (B, n, width, stride − 1)
         bb, nn = np.arange(b)[:, None, None, None], np.arange(n)[None, :, None, None]
         zr = Z[bb, nn, ray_of[..., None], inner]
         own = np.arange(n) if views is None else np.asarray(views)
         rays = self.rays_cam[own[None, :, None], ray_of]  # (B, n, width, 3)
         v = self._sample_min_others(R, t, zr, P, views, rays=rays)
         keep = np.broadcast_to(valid[..., None], inner.shape)
-        out[np.broadcast_to(bb, inner.shape)[keep], np.broadcast_to(nn, inner.shape)[keep],
-            np.broadcast_to(ray_of[..., None], inner.shape)[keep], inner[keep]] = v[keep]
+        out[
+            np.broadcast_to(bb, inner.shape)[keep],
+            np.broadcast_to(nn, inner.shape)[keep],
+            np.broadcast_to(ray_of[..., None], inner.shape)[keep],
+            inner[keep],
+        ] = v[keep]
         return out
 
-    def _chord_image_speed(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, z0: np.ndarray, z1: np.ndarray,
-                           views: np.ndarray | None = None) -> np.ndarray:
+    def _chord_image_speed(
+        self,
+        R: np.ndarray,
+        t: np.ndarray,
+        P: np.ndarray,
+        z0: np.ndarray,
+        z1: np.ndarray,
+        views: np.ndarray | None = None,
+    ) -> np.ndarray:
         """The largest image speed (pixels per µm of camera depth, over the partner views) of each ray's points between
         depths z0 and z1 (B, n, R); inf where a partner's depth reaches zero.
 
@@ -713,7 +801,9 @@ class CoherenceObjective:
                 speed = np.maximum(speed, sp)
         return speed.astype(np.float32)
 
-    def _axis_chords(self, R: np.ndarray, t: np.ndarray, views: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _axis_chords(
+        self, R: np.ndarray, t: np.ndarray, views: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Centre and half-length (B, N, R), camera depths, of each ray's chord through the cylinder.
 
         A ray X(z) = Rᵀ(z·ray − t) comes closest to the axis (world x) at the depth minimising the
@@ -776,8 +866,16 @@ class CoherenceObjective:
         peak = np.where(interior, y1 - 0.25 * (y0 - y2) * delta, y1)
         return np.maximum(peak, vals.max(-1))
 
-    def _follow_rising_ends(self, R: np.ndarray, t: np.ndarray, Pm: np.ndarray, Z: np.ndarray, vals: np.ndarray,
-                            best: np.ndarray, views: np.ndarray | None = None) -> None:
+    def _follow_rising_ends(
+        self,
+        R: np.ndarray,
+        t: np.ndarray,
+        Pm: np.ndarray,
+        Z: np.ndarray,
+        vals: np.ndarray,
+        best: np.ndarray,
+        views: np.ndarray | None = None,
+    ) -> None:
         """Slide the window of every ray whose profile rises to an end of it, until its maximum is bracketed.
 
         The window sits at the population's peaks; a candidate far from the population mean may have
@@ -789,19 +887,29 @@ class CoherenceObjective:
         """
         count = Z.shape[-1]
         for _ in range(self.max_slides):
-            ends = ((best == 0) & (vals[..., 0] > vals[..., 1])) | ((best == count - 1) & (vals[..., -1] > vals[..., -2]))
+            ends = ((best == 0) & (vals[..., 0] > vals[..., 1])) | (
+                (best == count - 1) & (vals[..., -1] > vals[..., -2])
+            )
             if not ends.any():
                 return
             b, i, r = np.nonzero(ends)
             direction = np.where(best[b, i, r] == 0, -1.0, 1.0).astype(np.float32)
-            zr = Z[b, i, r] + (direction * 0.5 * (Z[b, i, r, -1] - Z[b, i, r, 0]))[:, None]  # (M, S): centred on the old best
+            zr = (
+                Z[b, i, r] + (direction * 0.5 * (Z[b, i, r, -1] - Z[b, i, r, 0]))[:, None]
+            )  # (M, S): centred on the old best
             zr = np.maximum(zr, np.float32(1e-3 * self.distance))
             own = i if views is None else views[i]
             pts4 = self._ray_points(self.rays_cam[own, r][:, None], R[b, i], t[b], zr[:, None])[:, :, 0]  # (M, 4, S)
             assert self.partners is not None
-            step = max(1, self.max_points // (self.partners.shape[1] * count))  # rays per chunk: memory as in the batched path
-            v = np.concatenate([self._min_others_of_rays(pts4[c:c + step], Pm, b[c:c + step], own[c:c + step])
-                                for c in range(0, len(b), step)])
+            step = max(
+                1, self.max_points // (self.partners.shape[1] * count)
+            )  # rays per chunk: memory as in the batched path
+            v = np.concatenate(
+                [
+                    self._min_others_of_rays(pts4[c : c + step], Pm, b[c : c + step], own[c : c + step])
+                    for c in range(0, len(b), step)
+                ]
+            )
             Z[b, i, r], vals[b, i, r] = zr, v
             best[b, i, r] = np.argmax(v, axis=-1)
 

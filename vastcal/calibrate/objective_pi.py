@@ -51,7 +51,9 @@ class PIObjective:
 
     name = "pi"
 
-    def __init__(self, log_pf: np.ndarray, projector: Projector, weights: np.ndarray | None = None, form: str = "count") -> None:
+    def __init__(
+        self, log_pf: np.ndarray, projector: Projector, weights: np.ndarray | None = None, form: str = "count"
+    ) -> None:
         if form not in ("count", "loglik"):
             raise ValueError(f"unknown PI objective form {form!r}")
         self.form = form

@@ -35,7 +35,9 @@ class VRObjective:
 
     name = "vr"
 
-    def __init__(self, silhouettes: np.ndarray, projector: Projector, weights: np.ndarray | None = None, eps: float = 1e-4) -> None:
+    def __init__(
+        self, silhouettes: np.ndarray, projector: Projector, weights: np.ndarray | None = None, eps: float = 1e-4
+    ) -> None:
         self.atlas = Atlas.from_stack(np.clip(np.asarray(silhouettes, np.float32), 0.0, 1.0))
         self.projector = projector
         m = projector.n_voxels

@@ -21,8 +21,8 @@ import math
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -80,11 +80,20 @@ class CMAResult:
 RESTARTS = ("none", "ipop", "bipop")
 
 
-def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, opts: dict,
-             progress: Callable[[int, float], None] | None, evals_before: int,
-             convergence: Callable[[float, float], None] | None = None, spend_budget: bool = False,
-             resolution: np.ndarray | None = None, research: np.ndarray | None = None,
-             on_plan: Callable[[], None] | None = None) -> CMAResult:
+def _one_run(
+    cma,
+    objective: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    sigma0: float,
+    opts: dict,
+    progress: Callable[[int, float], None] | None,
+    evals_before: int,
+    convergence: Callable[[float, float], None] | None = None,
+    spend_budget: bool = False,
+    resolution: np.ndarray | None = None,
+    research: np.ndarray | None = None,
+    on_plan: Callable[[], None] | None = None,
+) -> CMAResult:
     """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept.
     ``convergence`` (optional) is told every generation (evaluations so far, counting ``evals_before``; the
     evaluations forecast left, :class:`.forecast.CMAStopForecast`; ``spend_budget``: restarts follow until the
@@ -98,9 +107,18 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
         opts = dict(opts, tolx=0.0)
     es = cma.CMAEvolutionStrategy(list(x0), float(sigma0), opts)
     per_unit = None if resolution is None else 1.0 / np.maximum(np.asarray(resolution, float), 1e-300)
-    forecast = CMAStopForecast(float(opts["tolx"]) if per_unit is None else 1.0, float(opts.get("maxfevals", 0)), int(es.popsize),
-                               spend_budget=spend_budget, planned=per_unit is not None)
-    timing = GenerationTime(research, int(es.popsize)) if research is not None and convergence is not None and not spend_budget else None
+    forecast = CMAStopForecast(
+        float(opts["tolx"]) if per_unit is None else 1.0,
+        float(opts.get("maxfevals", 0)),
+        int(es.popsize),
+        spend_budget=spend_budget,
+        planned=per_unit is not None,
+    )
+    timing = (
+        GenerationTime(research, int(es.popsize))
+        if research is not None and convergence is not None and not spend_budget
+        else None
+    )
     planned_end = False
     t_prev = time.monotonic()
     while not es.stop() and not planned_end:
@@ -109,8 +127,12 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
         es.tell(list(X), list(f))
         if timing is not None:
             now = time.monotonic()
-            timing.add(X.mean(axis=0), np.clip(np.asarray(es.mean, float), -1.0, 1.0),
-                       float(es.sigma) * np.asarray(es.sigma_vec.scaling) * np.sqrt(np.asarray(es.dC)), now - t_prev)
+            timing.add(
+                X.mean(axis=0),
+                np.clip(np.asarray(es.mean, float), -1.0, 1.0),
+                float(es.sigma) * np.asarray(es.sigma_vec.scaling) * np.sqrt(np.asarray(es.dC)),
+                now - t_prev,
+            )
             t_prev = now
         res.n_evaluations += len(X)
         res.n_generations += 1
@@ -130,7 +152,11 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
                 if timing is None:
                     convergence(evals_before + res.n_evaluations, left)
                 else:  # in seconds of the search (generations of two kinds of cost), the re-scores' tail included
-                    convergence(*timing.work((left - es.popsize) / es.popsize if left == left else math.nan, forecast.planned_slope()))
+                    convergence(
+                        *timing.work(
+                            (left - es.popsize) / es.popsize if left == left else math.nan, forecast.planned_slope()
+                        )
+                    )
         if progress is not None:
             progress(evals_before + res.n_evaluations, res.f_best)
     res.stop = dict(es.stop())
@@ -151,11 +177,24 @@ def _one_run(cma, objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
     return res
 
 
-def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigma0: float, stds: np.ndarray, *, seed: int,
-             max_evaluations: int, tolx: float, tolfun: float, popsize: int | None = None,
-             progress: Callable[[int, float], None] | None = None, restarts: str = "none",
-             convergence: Callable[[float, float], None] | None = None, resolution: np.ndarray | None = None,
-             research: np.ndarray | None = None, on_plan: Callable[[], None] | None = None) -> CMAResult:
+def minimise(
+    objective: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    sigma0: float,
+    stds: np.ndarray,
+    *,
+    seed: int,
+    max_evaluations: int,
+    tolx: float,
+    tolfun: float,
+    popsize: int | None = None,
+    progress: Callable[[int, float], None] | None = None,
+    restarts: str = "none",
+    convergence: Callable[[float, float], None] | None = None,
+    resolution: np.ndarray | None = None,
+    research: np.ndarray | None = None,
+    on_plan: Callable[[], None] | None = None,
+) -> CMAResult:
     """Minimise ``objective`` (batch: (λ, F) → (λ,)) over [−1, 1]^F with CMA-ES.
 
     Args:
@@ -192,14 +231,34 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
         raise ValueError(f"restarts: expected one of {RESTARTS}, got {restarts!r}")
     if np.size(x0) == 1:  # cma needs at least two dimensions: add an inert one
         inner = objective
-        r = minimise(lambda X: inner(np.asarray(X)[:, :1]), np.r_[np.ravel(x0), 0.0], sigma0, np.r_[np.ravel(stds), 1.0], seed=seed,
-                     max_evaluations=max_evaluations, tolx=tolx, tolfun=tolfun, popsize=popsize, progress=progress, restarts=restarts,
-                     convergence=convergence, resolution=None if resolution is None else np.r_[np.ravel(resolution), np.inf],
-                     research=None if research is None else np.r_[np.ravel(research), np.inf])
+        r = minimise(
+            lambda X: inner(np.asarray(X)[:, :1]),
+            np.r_[np.ravel(x0), 0.0],
+            sigma0,
+            np.r_[np.ravel(stds), 1.0],
+            seed=seed,
+            max_evaluations=max_evaluations,
+            tolx=tolx,
+            tolfun=tolfun,
+            popsize=popsize,
+            progress=progress,
+            restarts=restarts,
+            convergence=convergence,
+            resolution=None if resolution is None else np.r_[np.ravel(resolution), np.inf],
+            research=None if research is None else np.r_[np.ravel(research), np.inf],
+        )
         r.x_best = r.x_best[:1]
         return r
-    base = {"bounds": [-1.0, 1.0], "CMA_stds": list(np.asarray(stds, float)), "tolx": float(tolx), "tolfun": float(tolfun),
-            "tolfunhist": 0.0, "verbose": -9, "verb_log": 0, "verb_disp": 0}
+    base = {
+        "bounds": [-1.0, 1.0],
+        "CMA_stds": list(np.asarray(stds, float)),
+        "tolx": float(tolx),
+        "tolfun": float(tolfun),
+        "tolfunhist": 0.0,
+        "verbose": -9,
+        "verb_log": 0,
+        "verb_disp": 0,
+    }
     x0 = np.clip(np.asarray(x0, float), -0.99, 0.99)
     best: CMAResult | None = None
     total, gens, k = 0, 0, 0
@@ -226,8 +285,20 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
                 opts["popsize"] = lam_large
             elif lam0:
                 opts["popsize"] = lam0
-            r = _one_run(cma, objective, x0, sig, opts, progress, total, convergence, spend_budget=restarts != "none", on_plan=on_plan,
-                         resolution=resolution if restarts == "none" else None, research=research if restarts == "none" else None)
+            r = _one_run(
+                cma,
+                objective,
+                x0,
+                sig,
+                opts,
+                progress,
+                total,
+                convergence,
+                spend_budget=restarts != "none",
+                on_plan=on_plan,
+                resolution=resolution if restarts == "none" else None,
+                research=research if restarts == "none" else None,
+            )
             if k == 0:
                 lam0 = lam_large = r.popsize  # type: ignore[attr-defined]
             used[regime] += r.n_evaluations
@@ -235,10 +306,21 @@ def minimise(objective: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, sigm
             gens += r.n_generations
             trace_e += r.trace_evals
             trace_f += [min(f, best.f_best) if best else f for f in r.trace_best]
-            stops.update({(f"run {k} ({regime}, popsize {r.popsize}): " if restarts != "none" else "") + key: v  # type: ignore[attr-defined]
-                          for key, v in r.stop.items()})
-            log.debug("CMA-ES run %d (%s, popsize %d): %d evaluations, f=%.6g, stop %s", k, regime, r.popsize,  # type: ignore[attr-defined]
-                      r.n_evaluations, r.f_best, r.stop)
+            stops.update(
+                {
+                    (f"run {k} ({regime}, popsize {r.popsize}): " if restarts != "none" else "") + key: v  # type: ignore[attr-defined]
+                    for key, v in r.stop.items()
+                }
+            )
+            log.debug(
+                "CMA-ES run %d (%s, popsize %d): %d evaluations, f=%.6g, stop %s",
+                k,
+                regime,
+                r.popsize,  # type: ignore[attr-defined]
+                r.n_evaluations,
+                r.f_best,
+                r.stop,
+            )
             if best is None or r.f_best < best.f_best:
                 best = r
             k += 1

@@ -12,8 +12,8 @@ step sizes are comparable fractions of each box.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 
@@ -90,8 +90,13 @@ class ParameterSpace:
     free: tuple[str, ...]
 
     @classmethod
-    def build(cls, theta0: np.ndarray, free: Iterable[str] | str | None, bounds: CalibrationBounds,
-              fixed_views: Iterable[int] = ()) -> "ParameterSpace":
+    def build(
+        cls,
+        theta0: np.ndarray,
+        free: Iterable[str] | str | None,
+        bounds: CalibrationBounds,
+        fixed_views: Iterable[int] = (),
+    ) -> ParameterSpace:
         """Free mask and half-widths for ``free`` groups with ``bounds`` around ``theta0``; the rolls of
         ``fixed_views`` (0-based view indices) stay at θ0 (the paper's protocol keeps the unperturbed views fixed).
 
@@ -113,7 +118,9 @@ class ParameterSpace:
         hw = np.concatenate([[bounds.yaw_deg, bounds.pitch_deg, bounds.gamma_deg], np.full(n, bounds.roll_deg)])
         mask &= hw > 0
         if not mask.any():
-            raise UserInputError(f"nothing to optimise: free={list(groups)} with zero bounds, a single view or every view fixed")
+            raise UserInputError(
+                f"nothing to optimise: free={list(groups)} with zero bounds, a single view or every view fixed"
+            )
         return cls(th, mask, hw, groups)
 
     @property
@@ -159,7 +166,9 @@ class ParameterSpace:
         """Lower and upper θ as JSON-able lists (degrees)."""
         return {"lower_deg": self.lower.tolist(), "upper_deg": self.upper.tolist()}
 
-    def image_sensitivity(self, K: np.ndarray, distance: float, x: np.ndarray, points: np.ndarray, step: float = 1e-3) -> np.ndarray:
+    def image_sensitivity(
+        self, K: np.ndarray, distance: float, x: np.ndarray, points: np.ndarray, step: float = 1e-3
+    ) -> np.ndarray:
         """RMS image motion (pixels of K) of ``points`` (M, 3) µm per unit of each free coordinate at x.
 
         One box unit of γ moves the whole specimen by tens of pixels, one of a roll by a pixel or

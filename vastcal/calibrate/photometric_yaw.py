@@ -55,8 +55,9 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -67,7 +68,9 @@ from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.geometry import project, projection_matrices
 from vastcal.voxels import VoxelGrid, inside_all, viewing_box
 
-if TYPE_CHECKING:  # at run time imported where a system is built: runs without the photometric yaw skip its ~0.1 s import
+if (
+    TYPE_CHECKING
+):  # at run time imported where a system is built: runs without the photometric yaw skip its ~0.1 s import
     import scipy.sparse as sp
 
 log = logging.getLogger(__name__)
@@ -107,13 +110,24 @@ class YawRefinement:
 
     def report(self) -> dict[str, object]:
         """JSON-able summary for the stored calibration run."""
-        return {"stage": "photometric yaw", "start_yaw_deg": self.start_yaw_deg, "yaw_deg": self.yaw_deg,
-                "n_evaluations": self.n_evaluations, "n_voxels": self.n_voxels, "map_shape": list(self.map_shape),
-                "time_s": self.time_s, "scanned_yaw_deg": self.scanned_yaw_deg.tolist(), "cost": self.cost.tolist(),
-                "width_px": self.width_px.tolist(), "iterations": None if self.iterations is None else self.iterations.tolist(),
-                "final_iterations": self.final_iterations, "converged": self.converged, "yaw_sigma_deg": self.yaw_sigma_deg,
-                "group_yaws_deg": None if self.group_yaws_deg is None else self.group_yaws_deg.tolist(),
-                "group_views": None if self.group_views is None else self.group_views.tolist()}
+        return {
+            "stage": "photometric yaw",
+            "start_yaw_deg": self.start_yaw_deg,
+            "yaw_deg": self.yaw_deg,
+            "n_evaluations": self.n_evaluations,
+            "n_voxels": self.n_voxels,
+            "map_shape": list(self.map_shape),
+            "time_s": self.time_s,
+            "scanned_yaw_deg": self.scanned_yaw_deg.tolist(),
+            "cost": self.cost.tolist(),
+            "width_px": self.width_px.tolist(),
+            "iterations": None if self.iterations is None else self.iterations.tolist(),
+            "final_iterations": self.final_iterations,
+            "converged": self.converged,
+            "yaw_sigma_deg": self.yaw_sigma_deg,
+            "group_yaws_deg": None if self.group_yaws_deg is None else self.group_yaws_deg.tolist(),
+            "group_views": None if self.group_views is None else self.group_views.tolist(),
+        }
 
 
 @dataclass(frozen=True)
@@ -225,9 +239,18 @@ class AbsorptionMatch:
     the image direction the axis image runs along, across it (world y, z) the other direction's.
     """
 
-    def __init__(self, absorption: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: float, theta: np.ndarray,
-                 sirt_iterations: int = 100, band_px: int = 3, accelerated: bool = False,
-                 grid_phase: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        absorption: np.ndarray,
+        pf: np.ndarray,
+        K: np.ndarray,
+        distance: float,
+        theta: np.ndarray,
+        sirt_iterations: int = 100,
+        band_px: int = 3,
+        accelerated: bool = False,
+        grid_phase: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
         self.a = np.asarray(absorption, np.float32).reshape(-1)
         self.pf = np.asarray(pf, np.float32)
         self.cov = self.pf.reshape(-1)
@@ -237,7 +260,10 @@ class AbsorptionMatch:
         self.accelerated = bool(accelerated)
         n, h, w = self.pf.shape
         self.shape = (n, h, w)
-        edge = [cv2.dilate(((p > 0.02) & (p < 0.98)).astype(np.uint8), np.ones((band_px, band_px), np.uint8)) > 0 for p in self.pf]
+        edge = [
+            cv2.dilate(((p > 0.02) & (p < 0.98)).astype(np.uint8), np.ones((band_px, band_px), np.uint8)) > 0
+            for p in self.pf
+        ]
         self.w = ~np.stack(edge).reshape(-1)
         # Σ w a², Σ w a p_f, Σ w p_f² over every weighted pixel (float64): c and E need nothing else of the pixels no
         # voxel reaches, so a reconstruction holds vectors of its active pixels only.
@@ -253,15 +279,25 @@ class AbsorptionMatch:
         size = np.array([self.voxel_um, self.voxel_across_um, self.voxel_across_um])
         sil = np.stack([cv2.dilate((p > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)) for p in self.pf]) > 0
         lo, hi = viewing_box(P0, (h, w), self.distance)
-        coarse = VoxelGrid.from_bounds(lo, hi, 4 * float(size.max()))  # the hull's box first: the field's box is ~50× larger
+        coarse = VoxelGrid.from_bounds(
+            lo, hi, 4 * float(size.max())
+        )  # the hull's box first: the field's box is ~50× larger
         Xc = coarse.centres(np.float64)
         Xc = Xc[inside_all(P0, sil, Xc)]
         if Xc.size:
-            lo, hi = Xc.min(axis=0) - 16 * size, Xc.max(axis=0) + 16 * size  # a thin tail tip may escape the coarse test
+            lo, hi = (
+                Xc.min(axis=0) - 16 * size,
+                Xc.max(axis=0) + 16 * size,
+            )  # a thin tail tip may escape the coarse test
         counts = np.maximum(1, np.ceil((hi - lo) / size)).astype(int)
-        axes = [(lo[d] + hi[d]) / 2 + (np.arange(counts[d]) - (counts[d] - 1) / 2 + grid_phase[d]) * size[d] for d in range(3)]
+        axes = [
+            (lo[d] + hi[d]) / 2 + (np.arange(counts[d]) - (counts[d] - 1) / 2 + grid_phase[d]) * size[d]
+            for d in range(3)
+        ]
         X = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        self._Xt = np.ascontiguousarray(X[inside_all(P0, sil, X)].T)  # (3, M): a 3 × 3 camera times it is one BLAS product (M × 3 by 3 × 3 is not)
+        self._Xt = np.ascontiguousarray(
+            X[inside_all(P0, sil, X)].T
+        )  # (3, M): a 3 × 3 camera times it is one BLAS product (M × 3 by 3 × 3 is not)
 
     @property
     def X(self) -> np.ndarray:
@@ -280,12 +316,16 @@ class AbsorptionMatch:
         _, h, w = self.shape
         x = P[i, :, :3] @ self._Xt[:, voxels] + P[i, :, 3:]
         u, v, z = x[0] / x[2], x[1] / x[2], x[2]
-        scale = self.voxel_um * self.voxel_across_um * self.K[0, 0] * self.K[1, 1] / z ** 2  # voxel volume over the pixel's
-        u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)                           # footprint at depth (/ µm)
+        scale = (
+            self.voxel_um * self.voxel_across_um * self.K[0, 0] * self.K[1, 1] / z**2
+        )  # voxel volume over the pixel's
+        u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)  # footprint at depth (/ µm)
         fu, fv = u - u0, v - v0
         pixel = np.empty((4, u.size), np.int64)
         weight = np.empty((4, u.size), np.float32)
-        for k, (du, dv, wt) in enumerate(((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))):
+        for k, (du, dv, wt) in enumerate(
+            ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))
+        ):
             uu, vv = u0 + du, v0 + dv
             ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
             pixel[k] = i * h * w + np.where(ok, vv * w + uu, 0)  # off the frame: the view's first pixel, with weight 0
@@ -315,7 +355,9 @@ class AbsorptionMatch:
 
         def view(i: int) -> None:  # a view's splats: its pixels' sums (in cache) and its entries of every voxel
             pixel, weight = self._splats(P, i, slice(None))
-            row_sum[i * h * w:(i + 1) * h * w] = np.bincount(pixel.ravel() - i * h * w, weight.ravel(), minlength=h * w)
+            row_sum[i * h * w : (i + 1) * h * w] = np.bincount(
+                pixel.ravel() - i * h * w, weight.ravel(), minlength=h * w
+            )
             indices[:, i, :], data[:, i, :] = pixel.T, weight.T
 
         run_slices(view, range(n))
@@ -331,9 +373,9 @@ class AbsorptionMatch:
             rows, vals = index[indices[chunk]], data[chunk]
             keep = (rows >= 0) & (vals > 0)
             k = int(keep.sum())
-            flat_data[nnz:nnz + k], flat_indices[nnz:nnz + k] = vals[keep], rows[keep]
-            np.cumsum(keep.sum(axis=1), out=indptr[chunk.start + 1:chunk.stop + 1])
-            indptr[chunk.start + 1:chunk.stop + 1] += nnz
+            flat_data[nnz : nnz + k], flat_indices[nnz : nnz + k] = vals[keep], rows[keep]
+            np.cumsum(keep.sum(axis=1), out=indptr[chunk.start + 1 : chunk.stop + 1])
+            indptr[chunk.start + 1 : chunk.stop + 1] += nnz
             nnz += k
         import scipy.sparse as sp
 
@@ -410,15 +452,28 @@ def _threaded_product(M: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
 
     cuts = np.searchsorted(M.indptr, np.linspace(0, M.nnz, parts + 1)[1:-1])
     bounds = np.concatenate([[0], cuts, [M.shape[0]]]).astype(int)
-    blocks = [(r0, r1, sp.csr_matrix((M.data[M.indptr[r0]:M.indptr[r1]], M.indices[M.indptr[r0]:M.indptr[r1]],
-                                      M.indptr[r0:r1 + 1] - M.indptr[r0]), shape=(r1 - r0, M.shape[1])))
-              for r0, r1 in zip(bounds[:-1], bounds[1:]) if r1 > r0]
+    blocks = [
+        (
+            r0,
+            r1,
+            sp.csr_matrix(
+                (
+                    M.data[M.indptr[r0] : M.indptr[r1]],
+                    M.indices[M.indptr[r0] : M.indptr[r1]],
+                    M.indptr[r0 : r1 + 1] - M.indptr[r0],
+                ),
+                shape=(r1 - r0, M.shape[1]),
+            ),
+        )
+        for r0, r1 in zip(bounds[:-1], bounds[1:])
+        if r1 > r0
+    ]
 
     def product(x: np.ndarray) -> np.ndarray:
         out = np.empty(M.shape[0], np.result_type(M.dtype, x.dtype))
 
         def block(b: tuple[int, int, sp.csr_matrix]) -> None:
-            out[b[0]:b[1]] = b[2] @ x
+            out[b[0] : b[1]] = b[2] @ x
 
         run_slices(block, blocks)
         return out
@@ -496,7 +551,9 @@ def distinct_directions(angles_deg: np.ndarray) -> int:
     return count
 
 
-def enough_directions(angles_deg: np.ndarray, group_views: int | None = GROUP_VIEWS, min_directions: int = MIN_DIRECTIONS) -> bool:
+def enough_directions(
+    angles_deg: np.ndarray, group_views: int | None = GROUP_VIEWS, min_directions: int = MIN_DIRECTIONS
+) -> bool:
     """Whether views at roll angles ``angles_deg`` (degrees) hold enough directions for :func:`refine_yaw`: its first
     sub-revolution (:func:`yaw_groups`) at least ``min_directions`` (:func:`distinct_directions`). When not, a warning
     says why the yaw is not measured — a check to make before the photometric yaw's full-frame maps."""
@@ -504,9 +561,14 @@ def enough_directions(angles_deg: np.ndarray, group_views: int | None = GROUP_VI
     directions = distinct_directions(angles[yaw_groups(angles, group_views)[0]])
     if directions >= min_directions:
         return True
-    log.warning("photometric yaw: the views look along %d distinct directions (modulo 180°); the yaw needs %d (an odd number "
-                "of at least %d views, or an even number of at least %d): yaw not measured, kept at the silhouette solution",
-                directions, min_directions, min_directions, 2 * min_directions)
+    log.warning(
+        "photometric yaw: the views look along %d distinct directions (modulo 180°); the yaw needs %d (an odd number "
+        "of at least %d views, or an even number of at least %d): yaw not measured, kept at the silhouette solution",
+        directions,
+        min_directions,
+        min_directions,
+        2 * min_directions,
+    )
     return False
 
 
@@ -639,14 +701,27 @@ def _resize_maps(maps: np.ndarray, factor_u: float, factor_v: float) -> tuple[np
     return out, downsample_matrix(w / ws, h / hs)
 
 
-def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: float, theta: np.ndarray,
-               yaw_range_deg: tuple[float, float], *, schedule: tuple[tuple[int, float, int], ...] = SCHEDULE,
-               sirt_iterations: int = 100, final_iterations: tuple[int, int] = FINAL_ITERATIONS,
-               yaw_tolerance_deg: float = 0.01, across_width_px: int | None = ACROSS_WIDTH_PX,
-               progress: Callable[[int, float], None] | None = None,
-               stage: Callable[[int, int], None] | None = None, recarve: bool = False,
-               part: Callable[[str, int], None] | None = None, group_views: int | None = GROUP_VIEWS,
-               yaw_standard_error_deg: float = YAW_STANDARD_ERROR_DEG, min_directions: int = MIN_DIRECTIONS) -> YawRefinement | None:
+def refine_yaw(
+    images: np.ndarray,
+    pf: np.ndarray,
+    K: np.ndarray,
+    distance: float,
+    theta: np.ndarray,
+    yaw_range_deg: tuple[float, float],
+    *,
+    schedule: tuple[tuple[int, float, int], ...] = SCHEDULE,
+    sirt_iterations: int = 100,
+    final_iterations: tuple[int, int] = FINAL_ITERATIONS,
+    yaw_tolerance_deg: float = 0.01,
+    across_width_px: int | None = ACROSS_WIDTH_PX,
+    progress: Callable[[int, float], None] | None = None,
+    stage: Callable[[int, int], None] | None = None,
+    recarve: bool = False,
+    part: Callable[[str, int], None] | None = None,
+    group_views: int | None = GROUP_VIEWS,
+    yaw_standard_error_deg: float = YAW_STANDARD_ERROR_DEG,
+    min_directions: int = MIN_DIRECTIONS,
+) -> YawRefinement | None:
     """The yaw that minimises E(θ) with every other entry of θ held (see the module docstring).
 
     Args:
@@ -716,8 +791,12 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         return None
     contrast = float(np.median(a_full[inside]))
     if contrast < 3.0 * noise:
-        log.warning("photometric yaw: the specimen is not darker than its background (median absorption %.3g, "
-                    "background noise %.3g): no absorption contrast; yaw kept at the silhouette solution", contrast, noise)
+        log.warning(
+            "photometric yaw: the specimen is not darker than its background (median absorption %.3g, "
+            "background noise %.3g): no absorption contrast; yaw kept at the silhouette solution",
+            contrast,
+            noise,
+        )
         return None
     del images, inside
     a_img, b_img = project(P[:1], axis_probe(P))[0]
@@ -727,8 +806,12 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
     last = schedule[-1][0]
     n_views_used = int(sum(g.size for g in groups))
     if len(groups) < MIN_LATTICE_PHASES and max(g.size for g in groups) > (group_views or 0) > 0:
-        groups = [groups[k % len(groups)] for k in range(MIN_LATTICE_PHASES)]  # the same views again, each time at a new lattice phase
-    unit = "lattice phase" if len({tuple(g) for g in groups}) < len(groups) else "sub-revolution"  # what the progress parts name
+        groups = [
+            groups[k % len(groups)] for k in range(MIN_LATTICE_PHASES)
+        ]  # the same views again, each time at a new lattice phase
+    unit = (
+        "lattice phase" if len({tuple(g) for g in groups}) < len(groups) else "sub-revolution"
+    )  # what the progress parts name
     n_groups = len(groups)
     evaluations: list[tuple[float, int, float, int]] = []  # (yaw °, width px, E, iterations), every search's
     widths_named: set[int] = set()
@@ -737,9 +820,15 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         """Evaluations expected at maps of ``width``: the coarse stages' samples once, the last stage's first samples once
         per sub-revolution — or once with ``part``, whose parts name the later sub-revolutions' samples."""
         per_last = 1 if part is not None else n_groups
-        return sum((2 * hf + 1) * (per_last if i == len(schedule) - 1 else 1) for i, (wd, _, hf) in enumerate(schedule) if wd == width)
+        return sum(
+            (2 * hf + 1) * (per_last if i == len(schedule) - 1 else 1)
+            for i, (wd, _, hf) in enumerate(schedule)
+            if wd == width
+        )
 
-    def search(views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0, end_stage: int = len(schedule)) -> _Search:
+    def search(
+        views: np.ndarray, first_stage: int, centre: float, label: str, phase: int = 0, end_stage: int = len(schedule)
+    ) -> _Search:
         """The schedule's stages ``first_stage`` to ``end_stage`` − 1 on the views ``views`` (indices into the
         arguments), from ``centre``, with the voxel lattice at :func:`grid_phase` (``phase``: its place in the
         order the sub-revolutions run, 0 for the first)."""
@@ -766,9 +855,19 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                 pf_small, _ = _resize_maps(pf_v, fu, fv)
                 th_support = th_v.copy()
                 th_support[0] = centre
-                m = matches[key] = AbsorptionMatch(a_small, pf_small, S @ np.asarray(K, float), distance, th_support, sirt_iterations,
-                                                   accelerated=final, grid_phase=grid_phase(phase))
-                if final:  # the convergence rule's noise, before the first sample (a progress bar's last update ends its work)
+                m = matches[key] = AbsorptionMatch(
+                    a_small,
+                    pf_small,
+                    S @ np.asarray(K, float),
+                    distance,
+                    th_support,
+                    sirt_iterations,
+                    accelerated=final,
+                    grid_phase=grid_phase(phase),
+                )
+                if (
+                    final
+                ):  # the convergence rule's noise, before the first sample (a progress bar's last update ends its work)
                     noise_of[key] = background_noise(m.a.reshape(m.shape), m.pf)
             match = matches[key]
             iterations = final_n if final else sirt_iterations
@@ -785,7 +884,14 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                     evaluations.append((yaw, width, rec.cost, iterations))
                     if progress is not None:
                         progress(len(evaluations), rec.cost)
-                    log.debug("photometric yaw%s %+.4f° at width %d, %d iterations: E = %.6g", label, yaw, width, iterations, rec.cost)
+                    log.debug(
+                        "photometric yaw%s %+.4f° at width %d, %d iterations: E = %.6g",
+                        label,
+                        yaw,
+                        width,
+                        iterations,
+                        rec.cost,
+                    )
                 es.append(rec.cost)
             return np.array(es)
 
@@ -801,7 +907,9 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         def sample(step: float, ks: list[int], width: int) -> tuple[np.ndarray, np.ndarray, list[int], int]:
             """The samples, extended while the lowest lies at an end (inside the box), at most twice."""
             for attempt in range(3):
-                if attempt and part is not None and si == len(schedule) - 1:  # work the bar could not know: the samples move on
+                if (
+                    attempt and part is not None and si == len(schedule) - 1
+                ):  # work the bar could not know: the samples move on
                     part(f"{label.strip() + ': ' if label else ''}samples extended past the lowest", half)
                 ys = np.unique(np.clip(centre + step * np.array(ks, float), lo, hi))
                 es = costs_at(ys, width)
@@ -830,13 +938,24 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
                         break
                     final_n *= 2
                     if part is not None:
-                        part(f"{label.strip() + ': ' if label else ''}{final_n} iterations (cap {final_iterations[1]})", len(ys))
+                        part(
+                            f"{label.strip() + ': ' if label else ''}{final_n} iterations (cap {final_iterations[1]})",
+                            len(ys),
+                        )
                     es = costs_at(ys, width)
-                    ys2, es2, ks, _ = sample(step, ks, width) if int(np.argmin(es)) in (0, len(ys) - 1) else (ys, es, ks, 0)
+                    ys2, es2, ks, _ = (
+                        sample(step, ks, width) if int(np.argmin(es)) in (0, len(ys) - 1) else (ys, es, ks, 0)
+                    )
                     ys, es = ys2, es2
                     _, moved, curvature = fit(ys, es)
-                    log.debug("photometric yaw%s: %d iterations: %+.4f° (moved %.4f°, tolerance %.4f°)", label, final_n, moved,
-                              abs(moved - estimate), tol)
+                    log.debug(
+                        "photometric yaw%s: %d iterations: %+.4f° (moved %.4f°, tolerance %.4f°)",
+                        label,
+                        final_n,
+                        moved,
+                        abs(moved - estimate),
+                        tol,
+                    )
                     done = abs(moved - estimate) < tol
                     estimate = moved
                     if done:
@@ -845,39 +964,85 @@ def refine_yaw(images: np.ndarray, pf: np.ndarray, K: np.ndarray, distance: floa
         if si < len(schedule) - 1:  # the coarse stages only
             return _Search(centre, 0, True, None, 0, (0, 0))
         m = matches[(last, si)]
-        return _Search(float(centre), final_n, converged, None if sigma_yaw is None else float(sigma_yaw), m.n_voxels, (m.shape[1], m.shape[2]))
+        return _Search(
+            float(centre),
+            final_n,
+            converged,
+            None if sigma_yaw is None else float(sigma_yaw),
+            m.n_voxels,
+            (m.shape[1], m.shape[2]),
+        )
 
     if n_groups == 1:  # every stage on all views
         finals = [search(groups[0], 0, float(theta[0]), "")]
     else:  # the coarse stages on the first sub-revolution, the last stage on each until their yaws combine well enough
-        log.info("photometric yaw: %d views as %d reconstructions (%s, each at its own lattice phase) of %d-%d views", n_views_used,
-                 n_groups, "interleaved sub-revolutions" if unit == "sub-revolution" else "the same views again",
-                 min(g.size for g in groups), max(g.size for g in groups))
-        coarse = (search(groups[0], 0, float(theta[0]), f" (coarse, {unit} 1)", end_stage=len(schedule) - 1).yaw_deg
-                  if len(schedule) > 1 else float(theta[0]))
+        log.info(
+            "photometric yaw: %d views as %d reconstructions (%s, each at its own lattice phase) of %d-%d views",
+            n_views_used,
+            n_groups,
+            "interleaved sub-revolutions" if unit == "sub-revolution" else "the same views again",
+            min(g.size for g in groups),
+            max(g.size for g in groups),
+        )
+        coarse = (
+            search(groups[0], 0, float(theta[0]), f" (coarse, {unit} 1)", end_stage=len(schedule) - 1).yaw_deg
+            if len(schedule) > 1
+            else float(theta[0])
+        )
         finals, used = [], []
         for k, j in enumerate(spread_order(n_groups)):
             finals.append(search(groups[j], len(schedule) - 1, coarse, f" {unit} {k + 1}/{n_groups}", phase=k))
             used.append(j)
             _, se = combine_group_yaws(np.array([f.yaw_deg for f in finals]), [f.sigma_deg for f in finals])
             if k + 1 >= MIN_GROUPS_TO_STOP and k + 1 < n_groups and se is not None and se <= yaw_standard_error_deg:
-                log.info("photometric yaw: %d of %d sub-revolutions put the yaw's standard error at %.4f° (≤ %.4f°); the rest skipped",
-                         k + 1, n_groups, se, yaw_standard_error_deg)
+                log.info(
+                    "photometric yaw: %d of %d sub-revolutions put the yaw's standard error at %.4f° (≤ %.4f°); the rest skipped",
+                    k + 1,
+                    n_groups,
+                    se,
+                    yaw_standard_error_deg,
+                )
                 break
         groups = [groups[j] for j in used]
     yaws = np.array([f.yaw_deg for f in finals])
     combined, sigma = combine_group_yaws(yaws, [f.sigma_deg for f in finals])
     centre = float(np.clip(combined, lo, hi))
     ev = np.array(evaluations, float)
-    result = YawRefinement(centre, float(theta[0]), ev[:, 0], ev[:, 2], ev[:, 1].astype(int), finals[-1].n_voxels, finals[-1].map_shape,
-                           time.monotonic() - t0, iterations=ev[:, 3].astype(int), final_iterations=max(f.final_iterations for f in finals),
-                           converged=all(f.converged for f in finals), yaw_sigma_deg=sigma,
-                           group_yaws_deg=yaws, group_views=np.array([g.size for g in groups]))
+    result = YawRefinement(
+        centre,
+        float(theta[0]),
+        ev[:, 0],
+        ev[:, 2],
+        ev[:, 1].astype(int),
+        finals[-1].n_voxels,
+        finals[-1].map_shape,
+        time.monotonic() - t0,
+        iterations=ev[:, 3].astype(int),
+        final_iterations=max(f.final_iterations for f in finals),
+        converged=all(f.converged for f in finals),
+        yaw_sigma_deg=sigma,
+        group_yaws_deg=yaws,
+        group_views=np.array([g.size for g in groups]),
+    )
     if centre in (lo, hi):
         log.warning("photometric yaw: the best yaw %+.3f° lies on the search box's edge", centre)
     if not result.converged:
-        log.warning("photometric yaw: the yaw still moved by more than %.3g° at the cap of %d iterations", yaw_tolerance_deg, result.final_iterations)
-    log.info("photometric yaw: %+.4f° → %+.4f° (%d reconstructions, %d iterations at the last stage%s, %d voxels at the finest%s, %.1f s)",
-             result.start_yaw_deg, result.yaw_deg, result.n_evaluations, result.final_iterations, "" if result.converged else " (cap)",
-             result.n_voxels, "" if n_groups == 1 else f", {'median' if yaws.size >= 3 else 'mean'} of " + " ".join(f"{y:+.4f}°" for y in yaws), result.time_s)
+        log.warning(
+            "photometric yaw: the yaw still moved by more than %.3g° at the cap of %d iterations",
+            yaw_tolerance_deg,
+            result.final_iterations,
+        )
+    log.info(
+        "photometric yaw: %+.4f° → %+.4f° (%d reconstructions, %d iterations at the last stage%s, %d voxels at the finest%s, %.1f s)",
+        result.start_yaw_deg,
+        result.yaw_deg,
+        result.n_evaluations,
+        result.final_iterations,
+        "" if result.converged else " (cap)",
+        result.n_voxels,
+        ""
+        if n_groups == 1
+        else f", {'median' if yaws.size >= 3 else 'mean'} of " + " ".join(f"{y:+.4f}°" for y in yaws),
+        result.time_s,
+    )
     return result

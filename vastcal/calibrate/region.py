@@ -41,8 +41,14 @@ class Region:
     upper: np.ndarray
 
 
-def displacement_bound(K: np.ndarray, distance: float, theta0: np.ndarray, half_width: np.ndarray, free_mask: np.ndarray,
-                       points: np.ndarray) -> np.ndarray:
+def displacement_bound(
+    K: np.ndarray,
+    distance: float,
+    theta0: np.ndarray,
+    half_width: np.ndarray,
+    free_mask: np.ndarray,
+    points: np.ndarray,
+) -> np.ndarray:
     """Per-view bound (N,) in pixels of how far ``points`` (M, 3) can move over the search box.
 
     View i's camera depends on the axis angles (yaw, pitch, γ) and on its own roll only, so the
@@ -79,9 +85,19 @@ def dilate(silhouettes: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
     return out
 
 
-def specimen_region(K: np.ndarray, distance: float, theta0: np.ndarray, half_width: np.ndarray, free_mask: np.ndarray,
-                    silhouettes: np.ndarray, target_voxels: int, *, coarse_voxels: int = 60_000, extra_px: float = 1.5,
-                    max_tolerance_px: float | None = None) -> Region:
+def specimen_region(
+    K: np.ndarray,
+    distance: float,
+    theta0: np.ndarray,
+    half_width: np.ndarray,
+    free_mask: np.ndarray,
+    silhouettes: np.ndarray,
+    target_voxels: int,
+    *,
+    coarse_voxels: int = 60_000,
+    extra_px: float = 1.5,
+    max_tolerance_px: float | None = None,
+) -> Region:
     """The voxels where the specimen can be for any θ in the search box (see the module docstring).
 
     Args:
@@ -108,8 +124,10 @@ def specimen_region(K: np.ndarray, distance: float, theta0: np.ndarray, half_wid
     pts = grid.centres()
     keep = pts[inside_all(P0, dilate(silhouettes, tol), pts)]
     if keep.shape[0] == 0:
-        raise EmptyHullError("no voxel projects inside every view's foreground under the commanded angles: "
-                             "the views do not show one specimen rotating about the axis")
+        raise EmptyHullError(
+            "no voxel projects inside every view's foreground under the commanded angles: "
+            "the views do not show one specimen rotating about the axis"
+        )
     probe = keep[rng.choice(len(keep), min(400, len(keep)), replace=False)]
     tol = np.minimum(displacement_bound(K, distance, theta0, half_width, free_mask, probe), cap) + extra_px
     sil = dilate(silhouettes, tol)
@@ -121,6 +139,13 @@ def specimen_region(K: np.ndarray, distance: float, theta0: np.ndarray, half_wid
     fine = VoxelGrid.from_bounds(lower, upper, size)
     pts = fine.centres()
     vox = pts[inside_all(P0, sil, pts)]
-    log.info("specimen region: %d voxels of %.1f µm, tolerance %.1f–%.1f px, box %s–%s µm", len(vox), size, tol.min(), tol.max(),
-             np.round(lower), np.round(upper))
+    log.info(
+        "specimen region: %d voxels of %.1f µm, tolerance %.1f–%.1f px, box %s–%s µm",
+        len(vox),
+        size,
+        tol.min(),
+        tol.max(),
+        np.round(lower),
+        np.round(upper),
+    )
     return Region(vox, size, tol, lower, upper)

@@ -57,8 +57,9 @@ batch-independent cost before it is kept.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -79,7 +80,9 @@ JUDGED_PER_ROUND = 3
 CostFn = Callable[[np.ndarray], np.ndarray]
 
 
-def roll_motion_px_per_deg(K: np.ndarray, distance: float, theta: np.ndarray, points: np.ndarray, step_deg: float = 0.01) -> np.ndarray:
+def roll_motion_px_per_deg(
+    K: np.ndarray, distance: float, theta: np.ndarray, points: np.ndarray, step_deg: float = 0.01
+) -> np.ndarray:
     """RMS image motion (pixels of K per degree) of ``points`` (M, 3) in each view under its own roll, at θ (3 + N,).
 
     Central differences of ``step_deg`` on every roll at once (a roll moves its own view only); (N,).
@@ -163,8 +166,15 @@ def plan_grid(space: ParameterSpace, x: np.ndarray, half_width_deg: np.ndarray, 
         los.append(lo)
         his.append(hi)
         pairs.append(int(np.ceil(max(hi, -lo) / s - 1e-9)))
-    return ScanGrid(np.array(views, np.intp), np.array(steps, float), np.array(los, float), np.array(his, float),
-                    np.array(pairs, np.intp), np.asarray(half_width_deg, float), tuple(skipped))
+    return ScanGrid(
+        np.array(views, np.intp),
+        np.array(steps, float),
+        np.array(los, float),
+        np.array(his, float),
+        np.array(pairs, np.intp),
+        np.asarray(half_width_deg, float),
+        tuple(skipped),
+    )
 
 
 @dataclass(frozen=True)
@@ -176,8 +186,14 @@ class ViewScan:
     gain: float
 
 
-def scan_views(data: CostFn, prior: CostFn, space: ParameterSpace, x: np.ndarray, grid: ScanGrid,
-               on_batch: Callable[[int], None] | None = None) -> tuple[list[ViewScan], float, int]:
+def scan_views(
+    data: CostFn,
+    prior: CostFn,
+    space: ParameterSpace,
+    x: np.ndarray,
+    grid: ScanGrid,
+    on_batch: Callable[[int], None] | None = None,
+) -> tuple[list[ViewScan], float, int]:
     """Score every view of ``grid`` over its range, the others held at x; returns (each view's best move, the
     scan cost of x, evaluations).
 
@@ -255,10 +271,21 @@ def compose(space: ParameterSpace, x: np.ndarray, moves: dict[int, float]) -> np
     return np.clip(space.x(th), -1.0, 1.0)
 
 
-def roll_scan(data: CostFn, prior: CostFn, judge: CostFn, space: ParameterSpace, x: np.ndarray, f_judged: float, *,
-              half_width_deg: Callable[[np.ndarray], np.ndarray], gauge: bool, reach_deg: float, share: float,
-              on_round: Callable[[int, int], None] | None = None,
-              on_batch: Callable[[int], None] | None = None) -> tuple[np.ndarray, float, int, dict[str, Any]]:
+def roll_scan(
+    data: CostFn,
+    prior: CostFn,
+    judge: CostFn,
+    space: ParameterSpace,
+    x: np.ndarray,
+    f_judged: float,
+    *,
+    half_width_deg: Callable[[np.ndarray], np.ndarray],
+    gauge: bool,
+    reach_deg: float,
+    share: float,
+    on_round: Callable[[int, int], None] | None = None,
+    on_batch: Callable[[int], None] | None = None,
+) -> tuple[np.ndarray, float, int, dict[str, Any]]:
     """Rounds of the per-view roll scan from x (judged cost ``f_judged``); returns (x, its judged cost, evaluations,
     report).
 
@@ -276,9 +303,13 @@ def roll_scan(data: CostFn, prior: CostFn, judge: CostFn, space: ParameterSpace,
     f = float(f_judged)
     for r in range(MAX_ROUNDS):
         grid = plan_grid(space, x, half_width_deg(space.theta(x)[0]), gauge)
-        entry: dict[str, Any] = {"round": r + 1, "views_scanned": grid.views.tolist(), "skipped": list(grid.skipped),
-                                 "step_deg": [float(np.min(grid.step_deg)), float(np.max(grid.step_deg))] if grid.views.size else [],
-                                 "judged_before": f}
+        entry: dict[str, Any] = {
+            "round": r + 1,
+            "views_scanned": grid.views.tolist(),
+            "skipped": list(grid.skipped),
+            "step_deg": [float(np.min(grid.step_deg)), float(np.max(grid.step_deg))] if grid.views.size else [],
+            "judged_before": f,
+        }
         rounds.append(entry)
         if not grid.views.size:
             entry.update({"trials": 0, "moved": [], "judged_after": f})
@@ -286,11 +317,19 @@ def roll_scan(data: CostFn, prior: CostFn, judge: CostFn, space: ParameterSpace,
         if on_round is not None:
             on_round(r, grid.n_trials + JUDGED_PER_ROUND)
         base = evals
-        results, f_scan, n = scan_views(data, prior, space, x, grid, None if on_batch is None else (lambda e, _b=base: on_batch(_b + e)))
+        results, f_scan, n = scan_views(
+            data, prior, space, x, grid, None if on_batch is None else (lambda e, _b=base: on_batch(_b + e))
+        )
         evals += n
         threshold = GAIN_RTOL * share * max(abs(f_scan), 1e-12)
         cand = sorted((s for s in results if abs(s.move_deg) > reach_deg and s.gain > threshold), key=lambda s: -s.gain)
-        entry.update({"trials": n, "scan_cost": f_scan, "candidates": {str(s.view): [round(float(s.move_deg), 4), float(s.gain)] for s in cand}})
+        entry.update(
+            {
+                "trials": n,
+                "scan_cost": f_scan,
+                "candidates": {str(s.view): [round(float(s.move_deg), 4), float(s.gain)] for s in cand},
+            }
+        )
         if not cand:
             entry.update({"moved": [], "judged_after": f})
             break
@@ -304,17 +343,33 @@ def roll_scan(data: CostFn, prior: CostFn, judge: CostFn, space: ParameterSpace,
         best = int(np.argmin(fj))
         if fj[best] < f:
             moved = [c.view for c in unique[best]]
-            log.info("roll scan round %d: moved view(s) %s (%s), judged cost %.6g -> %.6g", r + 1, moved,
-                     ", ".join(f"{c.move_deg:+.2f}°" for c in unique[best]), f, fj[best])
+            log.info(
+                "roll scan round %d: moved view(s) %s (%s), judged cost %.6g -> %.6g",
+                r + 1,
+                moved,
+                ", ".join(f"{c.move_deg:+.2f}°" for c in unique[best]),
+                f,
+                fj[best],
+            )
             x, f = X[best].copy(), float(fj[best])
             entry.update({"moved": moved, "moves_deg": [float(c.move_deg) for c in unique[best]], "judged_after": f})
         else:
-            log.info("roll scan round %d: no move of %d candidate view(s) lowered the judged cost %.6g (best %.6g)",
-                     r + 1, len(cand), f, float(fj[best]))
+            log.info(
+                "roll scan round %d: no move of %d candidate view(s) lowered the judged cost %.6g (best %.6g)",
+                r + 1,
+                len(cand),
+                f,
+                float(fj[best]),
+            )
             entry.update({"moved": [], "judged_after": f, "judged_candidates": fj.tolist()})
             break
-    report = {"rounds": rounds, "evaluations": evals, "judged_before": float(f_judged), "judged_after": f,
-              "moved": sorted({v for e in rounds for v in e.get("moved", [])})}
+    report = {
+        "rounds": rounds,
+        "evaluations": evals,
+        "judged_before": float(f_judged),
+        "judged_after": f,
+        "moved": sorted({v for e in rounds for v in e.get("moved", [])}),
+    }
     return x, f, evals, report
 
 
@@ -338,9 +393,15 @@ def outlier_views(view_costs: np.ndarray, free_views: np.ndarray) -> list[tuple[
     return sorted(out, key=lambda vz: -vz[1])[:MAX_OUTLIER_VIEWS]
 
 
-def scan_outlier_views(judge: CostFn, view_costs: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray,
-                       f_judged: float, half_width_deg: np.ndarray,
-                       on_view: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, float, int, dict[str, Any]]:
+def scan_outlier_views(
+    judge: CostFn,
+    view_costs: Callable[[np.ndarray], np.ndarray],
+    space: ParameterSpace,
+    x: np.ndarray,
+    f_judged: float,
+    half_width_deg: np.ndarray,
+    on_view: Callable[[int, int], None] | None = None,
+) -> tuple[np.ndarray, float, int, dict[str, Any]]:
     """A last look for views left in another basin: each outlier view's roll (:func:`outlier_views` of its own edge rays'
     cost at x) scored over its whole box on the batch-independent ``judge`` (with the prior), the others held.
 
@@ -361,8 +422,18 @@ def scan_outlier_views(judge: CostFn, view_costs: Callable[[np.ndarray], np.ndar
     scannable = np.isfinite(w) & (span > w)
     f = float(f_judged)
     if not scannable[free_views].any():
-        return x, f, 0, {"flagged": {}, "moved": {}, "evaluations": 0, "judged_after": f,
-                         "why": "every free roll's box lies within one basin of its cost"}
+        return (
+            x,
+            f,
+            0,
+            {
+                "flagged": {},
+                "moved": {},
+                "evaluations": 0,
+                "judged_after": f,
+                "why": "every free roll's box lies within one basin of its cost",
+            },
+        )
     costs = np.asarray(view_costs(th[None]), float)[0]
     evals = 1
     flagged = outlier_views(costs, free_views)
@@ -380,7 +451,14 @@ def scan_outlier_views(judge: CostFn, view_costs: Callable[[np.ndarray], np.ndar
         evals += len(TH)
         best = 1 + int(np.argmin(fs[1:]))
         if fs[best] < f:
-            log.info("outlier view %d: roll %+.2f° -> %+.2f° lowers the judged cost %.6g -> %.6g", v, th[3 + v], TH[best, 3 + v], f, fs[best])
+            log.info(
+                "outlier view %d: roll %+.2f° -> %+.2f° lowers the judged cost %.6g -> %.6g",
+                v,
+                th[3 + v],
+                TH[best, 3 + v],
+                f,
+                fs[best],
+            )
             report["moved"][str(v)] = float(TH[best, 3 + v] - th[3 + v])
             th, f = TH[best].copy(), float(fs[best])
     x = space.x(th) if report["moved"] else x

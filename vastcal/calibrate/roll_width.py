@@ -22,8 +22,8 @@ Without a roll prior (w = 0) the objective has no temperature: nothing is measur
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -72,8 +72,13 @@ class RollWidths:
         return f"undetermined by the images ({determined} of {n_free} free rolls): the rolls follow the prior (median sigma {sigma:.3g}°)"
 
 
-def roll_widths(data_cost: Callable[[np.ndarray], np.ndarray], theta: np.ndarray, free_rolls: np.ndarray, prior_deg: float,
-                prior_weight: float) -> RollWidths:
+def roll_widths(
+    data_cost: Callable[[np.ndarray], np.ndarray],
+    theta: np.ndarray,
+    free_rolls: np.ndarray,
+    prior_deg: float,
+    prior_weight: float,
+) -> RollWidths:
     """:class:`RollWidths` at θ (3 + N,) degrees, from ``data_cost`` (θ (B, 3 + N) → (B,), without the prior) evaluated
     at θ and at ±``prior_deg`` on each roll of ``free_rolls`` (view indices) in one batch (2F + 1 evaluations)."""
     theta = np.asarray(theta, float)
@@ -88,7 +93,7 @@ def roll_widths(data_cost: Callable[[np.ndarray], np.ndarray], theta: np.ndarray
     batch[1 + np.arange(views.size), 3 + views] += prior_deg
     batch[1 + views.size + np.arange(views.size), 3 + views] -= prior_deg
     c = np.asarray(data_cost(batch), float)
-    r = 0.5 * (c[1:1 + views.size] + c[1 + views.size:]) - c[0]
+    r = 0.5 * (c[1 : 1 + views.size] + c[1 + views.size :]) - c[0]
     rise[views] = r
     kappa_ratio = np.maximum(r, 0.0) / prior_rise  # κ_D / κ_p: both secants over the same ±σ_p
     sigma[views] = prior_deg / np.sqrt(1.0 + kappa_ratio)

@@ -25,28 +25,49 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Literal, Sequence
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 
 from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, mask_labels
+from vastcal.calibrate.forecast import polish_sweeps_left
 from vastcal.calibrate.marks import fit_from_marks
-from vastcal.calibrate.objective_coherence import (CoherenceObjective, SumObjective, axis_crossings, coherence_parts, coherence_atlas,
-                                                   dark_feature_probability, signed_distance_maps, silhouette_edges)
+from vastcal.calibrate.objective_coherence import (
+    CoherenceObjective,
+    SumObjective,
+    axis_crossings,
+    coherence_atlas,
+    coherence_parts,
+    dark_feature_probability,
+    signed_distance_maps,
+    silhouette_edges,
+)
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
-from vastcal.calibrate.forecast import polish_sweeps_left
 from vastcal.calibrate.optimise import RESTARTS, ProgressCallback, ProgressClock, minimise, preload
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
-from vastcal.calibrate.photometric_yaw import SCHEDULE, enough_directions, expected_evaluations, finest_voxel_um, refine_yaw
+from vastcal.calibrate.photometric_yaw import (
+    SCHEDULE,
+    enough_directions,
+    expected_evaluations,
+    finest_voxel_um,
+    refine_yaw,
+)
 from vastcal.calibrate.region import specimen_region
-from vastcal.calibrate.roll_scan import basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan, scan_outlier_views
+from vastcal.calibrate.roll_scan import (
+    basin_half_widths_deg,
+    plan_grid,
+    roll_motion_px_per_deg,
+    roll_scan,
+    scan_outlier_views,
+)
 from vastcal.calibrate.roll_width import RollWidths, roll_widths
-from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.calibrate.sampling import Projector, resize_stack
+from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
 from vastcal.geometry import projection_matrices
@@ -164,8 +185,10 @@ class CalibrationSettings:
             (:mod:`.view_budget`); the silhouette cost's time and memory grow linearly with the views.
     """
 
-    levels: tuple[Level, ...] = (Level(256, 4000, 0.3, 1200, 32, ("yaw", "pitch", "gamma"), max_initial_step_px=8.0),
-                                 Level(512, 16000, 0.05, 800, 48, scaled_steps=True))
+    levels: tuple[Level, ...] = (
+        Level(256, 4000, 0.3, 1200, 32, ("yaw", "pitch", "gamma"), max_initial_step_px=8.0),
+        Level(512, 16000, 0.05, 800, 48, scaled_steps=True),
+    )
     tolx: float = 2e-4
     tolfun: float = 1e-8
     popsize: int | None = None
@@ -253,15 +276,17 @@ class CalibrationResult:
 
         d = self.delta_angle_deg
         where = f" → {self.session_path}:{self.run_name}" if self.run_name else ""
-        return (f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
-                f"{self._outlier_line()}"
-                f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
-                f"roll − commanded (views 1..N-1): RMS {drift_rms_deg(d)[0]:.3f}°, max {drift_rms_deg(d)[1]:.3f}°"
-                f"{' - ' + self.roll_widths.describe() if self.roll_widths is not None else ''}\n"
-                f"  cost {self.final_cost:.6g} (commanded angles: {self.theta0_cost:.6g}), best of {0 if self.start_costs is None else len(self.start_costs)} "
-                f"start(s), {'converged' if self.converged else 'NOT converged'}: {self.stop_reason}\n"
-                f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
-                f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB")
+        return (
+            f"calibration ({self.method}, seed {self.seed}, free {' '.join(self.free)}){where}\n"
+            f"{self._outlier_line()}"
+            f"  yaw {self.theta_deg[0]:+.4f}°  pitch {self.theta_deg[1]:+.4f}°  γ {self.theta_deg[2]:+.4f}°  "
+            f"roll − commanded (views 1..N-1): RMS {drift_rms_deg(d)[0]:.3f}°, max {drift_rms_deg(d)[1]:.3f}°"
+            f"{' - ' + self.roll_widths.describe() if self.roll_widths is not None else ''}\n"
+            f"  cost {self.final_cost:.6g} (commanded angles: {self.theta0_cost:.6g}), best of {0 if self.start_costs is None else len(self.start_costs)} "
+            f"start(s), {'converged' if self.converged else 'NOT converged'}: {self.stop_reason}\n"
+            f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, {self.n_voxels} voxels, "
+            f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB"
+        )
 
     def _outlier_line(self) -> str:
         """A line for the outlier views the judge's whole-box scan moved (:func:`.roll_scan.scan_outlier_views`), or ""."""
@@ -280,7 +305,7 @@ def roll_prior(theta: np.ndarray, theta0: np.ndarray, sigma_deg: float) -> np.nd
     return np.mean(d * d, axis=1) if d.shape[1] else np.zeros(len(np.atleast_2d(theta)))
 
 
-def prior_cost(theta: np.ndarray, theta0: np.ndarray, settings: "CalibrationSettings") -> np.ndarray:
+def prior_cost(theta: np.ndarray, theta0: np.ndarray, settings: CalibrationSettings) -> np.ndarray:
     """The weighted prior (B,) of :class:`CalibrationSettings`: rolls around the commanded angles and,
     when ``yaw_prior_deg`` > 0, the axis yaw around its start (0 on a rig)."""
     if settings.roll_prior_weight <= 0:
@@ -291,8 +316,9 @@ def prior_cost(theta: np.ndarray, theta0: np.ndarray, settings: "CalibrationSett
     return settings.roll_prior_weight * p
 
 
-def _common_roll_offset_scan(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray,
-                              step_deg: float) -> tuple[np.ndarray, int]:
+def _common_roll_offset_scan(
+    cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray, step_deg: float
+) -> tuple[np.ndarray, int]:
     """Try a common offset c of every free roll over the whole box; keep the best (returns x, evaluations).
 
     When many commanded angles are far off (the +10° test), CMA-ES may let the majority agree with
@@ -315,7 +341,9 @@ def _common_roll_offset_scan(cost: Callable[[np.ndarray], np.ndarray], space: Pa
     best = int(np.argmin(costs))
     zero = int(np.argmin(np.abs(offsets)))
     if costs[best] < costs[zero]:
-        log.info("common roll offset scan: %+.2f° lowers the cost from %.6g to %.6g", offsets[best], costs[zero], costs[best])
+        log.info(
+            "common roll offset scan: %+.2f° lowers the cost from %.6g to %.6g", offsets[best], costs[zero], costs[best]
+        )
         x = x.copy()
         x[rolls] = np.clip(x[rolls] + offsets[best] / h, -1.0, 1.0)
     return x, len(offsets)
@@ -333,8 +361,13 @@ def _area_resize(images: np.ndarray, factor: float) -> np.ndarray:
 MARKS_OTHER_VIEWS = 6
 
 
-def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scribbles: tuple[int, np.ndarray] | None,
-                  colour_model: ColourModel | None, seed: int) -> ColourModel:
+def _colour_model(
+    images: np.ndarray,
+    mask: tuple[int, np.ndarray] | None,
+    scribbles: tuple[int, np.ndarray] | None,
+    colour_model: ColourModel | None,
+    seed: int,
+) -> ColourModel:
     if colour_model is not None:
         return colour_model
     for name, spec in (("mask", mask), ("scribbles", scribbles)):
@@ -348,8 +381,11 @@ def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scrib
             raise UserInputError(f"{name}: view {view} does not exist (views 0–{images.shape[0] - 1})")
         labels = mask_labels(images[view], arr, view=view) if name == "mask" else arr
         n = images.shape[0]
-        others = [images[int(j)] for j in np.unique(np.round(view + np.arange(1, MARKS_OTHER_VIEWS + 1) * n / (MARKS_OTHER_VIEWS + 1)) % n)
-                  if int(j) != view]
+        others = [
+            images[int(j)]
+            for j in np.unique(np.round(view + np.arange(1, MARKS_OTHER_VIEWS + 1) * n / (MARKS_OTHER_VIEWS + 1)) % n)
+            if int(j) != view
+        ]
         return fit_from_marks(images[view], labels, view=view, source=f"{name}:view {view}", others=others)
     return fit_automatic(images, seed=seed)
 
@@ -357,12 +393,23 @@ def _colour_model(images: np.ndarray, mask: tuple[int, np.ndarray] | None, scrib
 class _Problem:
     """Everything a start shares (maps, colour model, region of the first level), and the objectives of each level."""
 
-    def __init__(self, images: np.ndarray, pf: np.ndarray, sil_src: np.ndarray, K_small: np.ndarray, distance: float, space: ParameterSpace,
-                 method: str, settings: "CalibrationSettings") -> None:
+    def __init__(
+        self,
+        images: np.ndarray,
+        pf: np.ndarray,
+        sil_src: np.ndarray,
+        K_small: np.ndarray,
+        distance: float,
+        space: ParameterSpace,
+        method: str,
+        settings: CalibrationSettings,
+    ) -> None:
         self.images, self.pf, self.sil_src, self.K_small = images, pf, sil_src, K_small
         self.distance, self.space, self.method, self.settings = distance, space, method, settings
         self._region0: tuple[Any, np.ndarray, Any] | None = None  # (region, K, coarse silhouettes) of level 0
-        self._atlas: tuple[int, Any] | None = None  # (level, signed-distance atlas): one per level, shared by its objectives
+        self._atlas: tuple[int, Any] | None = (
+            None  # (level, signed-distance atlas): one per level, shared by its objectives
+        )
 
     def release_maps(self) -> None:
         """Drop the maps the levels are made from (posteriors, rough silhouettes, the coarse level's carving): once the
@@ -371,7 +418,9 @@ class _Problem:
         del self.pf, self.sil_src
         self._region0 = None
 
-    def level_objective(self, li: int, x: np.ndarray, *, exact: bool = False, local_zooms: int = 0) -> tuple[Any, Any, np.ndarray, tuple[int, ...]]:
+    def level_objective(
+        self, li: int, x: np.ndarray, *, exact: bool = False, local_zooms: int = 0
+    ) -> tuple[Any, Any, np.ndarray, tuple[int, ...]]:
         """(objective, region, K of the level, map shape) of level ``li`` built around the free coordinates ``x``.
 
         ``exact``: the coherence cost searches every candidate's own rays (its value does not depend on the
@@ -385,12 +434,22 @@ class _Problem:
         factor = max(1.0, self.pf.shape[2] / lv.width_px)
         maps_pf, S = resize_stack(self.pf, factor)
         K_lv = S @ self.K_small
-        if self._region0 is None:  # the region is carved from the coarsest rough silhouettes (world µm), first under θ0 …
+        if (
+            self._region0 is None
+        ):  # the region is carved from the coarsest rough silhouettes (world µm), first under θ0 …
             f0 = max(1.0, self.pf.shape[2] / st.levels[0].width_px)
             sil0, S0 = resize_stack(self.sil_src, f0)
             coarse_sil, K_region = sil0 > 0.5, S0 @ self.K_small
-            region = specimen_region(K_region, distance, theta0, space.half_width, space.free_mask, coarse_sil, st.levels[0].voxels,
-                                     max_tolerance_px=st.region_tolerance * coarse_sil.shape[1])
+            region = specimen_region(
+                K_region,
+                distance,
+                theta0,
+                space.half_width,
+                space.free_mask,
+                coarse_sil,
+                st.levels[0].voxels,
+                max_tolerance_px=st.region_tolerance * coarse_sil.shape[1],
+            )
             self._region0 = (region, K_region, coarse_sil)
         if li == 0:
             region = self._region0[0]
@@ -398,12 +457,22 @@ class _Problem:
             _, K_region, coarse_sil = self._region0
             th_prev = space.theta(x)[0]
             try:
-                region = specimen_region(K_region, distance, th_prev, space.half_width, np.zeros_like(space.free_mask),
-                                         coarse_sil, lv.voxels, extra_px=st.refine_tolerance_px)
+                region = specimen_region(
+                    K_region,
+                    distance,
+                    th_prev,
+                    space.half_width,
+                    np.zeros_like(space.free_mask),
+                    coarse_sil,
+                    lv.voxels,
+                    extra_px=st.refine_tolerance_px,
+                )
             except EmptyHullError:
-                raise EmptyHullError(f"the coarse search ended at a pose where the {n} views share no specimen (yaw {th_prev[0]:+.2f}°, "
-                                     f"pitch {th_prev[1]:+.2f}°, γ {th_prev[2]:+.3f}°): their silhouettes do not pin down the axis; "
-                                     f"take more views or hold more of θ fixed (--free)") from None
+                raise EmptyHullError(
+                    f"the coarse search ended at a pose where the {n} views share no specimen (yaw {th_prev[0]:+.2f}°, "
+                    f"pitch {th_prev[1]:+.2f}°, γ {th_prev[2]:+.3f}°): their silhouettes do not pin down the axis; "
+                    f"take more views or hold more of θ fixed (--free)"
+                ) from None
         obj: PIObjective | VRObjective | CoherenceObjective | SumObjective
         vox = region.voxels
         pad = (-len(vox)) % 1024
@@ -420,16 +489,44 @@ class _Problem:
             if self._atlas is None or self._atlas[0] != li:  # the search, the judge and the polish of a level share it
                 self._atlas = None  # the previous level's, before the next is made
                 self._atlas = (li, coherence_atlas(maps_pf))  # held over the specimen's window only
-            obj = CoherenceObjective(self._atlas[1], edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                     trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=local_zooms)
+            obj = CoherenceObjective(
+                self._atlas[1],
+                edges,
+                K_lv,
+                distance,
+                radius,
+                sigma_px=st.coherence_sigma_px,
+                trim=st.coherence_trim,
+                per_candidate=per_candidate,
+                local_zooms=local_zooms,
+            )
             if st.dark_weight > 0:  # the images at the level's size are only needed for the dark features
-                level_images = np.stack([cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA) for im in self.images])
+                level_images = np.stack(
+                    [
+                        cv2.resize(im, (maps_pf.shape[2], maps_pf.shape[1]), interpolation=cv2.INTER_AREA)
+                        for im in self.images
+                    ]
+                )
                 pdark = dark_feature_probability(level_images, maps_pf)
                 if pdark is not None:
-                    dark_edges = silhouette_edges(pdark, axis_crossings(P_now, maps_pf.shape[1:]), max_lines=lv.edge_lines, min_run_px=2,
-                                                  all_runs=True)
-                    dark = CoherenceObjective(signed_distance_maps(pdark), dark_edges, K_lv, distance, radius, sigma_px=st.coherence_sigma_px,
-                                              trim=st.coherence_trim, per_candidate=per_candidate, local_zooms=local_zooms)
+                    dark_edges = silhouette_edges(
+                        pdark,
+                        axis_crossings(P_now, maps_pf.shape[1:]),
+                        max_lines=lv.edge_lines,
+                        min_run_px=2,
+                        all_runs=True,
+                    )
+                    dark = CoherenceObjective(
+                        signed_distance_maps(pdark),
+                        dark_edges,
+                        K_lv,
+                        distance,
+                        radius,
+                        sigma_px=st.coherence_sigma_px,
+                        trim=st.coherence_trim,
+                        per_candidate=per_candidate,
+                        local_zooms=local_zooms,
+                    )
                     obj = SumObjective([obj, dark], [1.0, st.dark_weight])
         elif self.method == "pi":
             lmap = np.clip(np.log(np.clip(maps_pf, st.eps, 1 - st.eps)), np.log(st.eps), np.log1p(-st.eps))
@@ -447,6 +544,7 @@ class _Problem:
 
         def cost(th: np.ndarray) -> np.ndarray:
             return np.asarray(obj(th), float) + prior_cost(th, theta0, st)
+
         return cost
 
 
@@ -464,7 +562,11 @@ def _research_deg(obj: Any) -> float | None:
     """The θ move (degrees, any entry) of a batch's mean after which ``obj`` repeats its full search along the rays
     (the least of a sum's parts); None when it has no such rule (other costs, or every candidate searched alone)."""
     parts = coherence_parts(obj)
-    found = [float(p.research_deg) for p in parts if getattr(p, "research_deg", None) is not None and not getattr(p, "per_candidate", False)]
+    found = [
+        float(p.research_deg)
+        for p in parts
+        if getattr(p, "research_deg", None) is not None and not getattr(p, "per_candidate", False)
+    ]
     return min(found) if found and len(found) == len(parts) else None
 
 
@@ -480,7 +582,9 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
         name = f"level {li + 1}/{len(settings.levels)} ({lv.width_px} px), seed {seed}"
         if budget_scale != 1.0:
             scaled = int(round(lv.max_evaluations * budget_scale))
-            clock.budget += scaled - lv.max_evaluations  # the whole calibration's budget (its overall ETA) grows as much
+            clock.budget += (
+                scaled - lv.max_evaluations
+            )  # the whole calibration's budget (its overall ETA) grows as much
             lv = dataclasses.replace(lv, max_evaluations=scaled)
         clock.name_phase(1, f"{name}: region and maps")  # set-up: no progress of its own to report
         preload()  # cma's first import (~1 s) is set-up too, not the search's time
@@ -490,8 +594,12 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
         sel = space.level_selection(lv.groups)  # which free coordinates this level moves
         cost = problem.cost_fn(obj)
 
-        def batch(xb: np.ndarray, _cost: Callable[[np.ndarray], np.ndarray] = cost, _sel: np.ndarray = sel,
-                  _x: np.ndarray = x.copy()) -> np.ndarray:
+        def batch(
+            xb: np.ndarray,
+            _cost: Callable[[np.ndarray], np.ndarray] = cost,
+            _sel: np.ndarray = sel,
+            _x: np.ndarray = x.copy(),
+        ) -> np.ndarray:
             full = np.repeat(_x[None], len(xb), axis=0)
             full[:, _sel] = xb
             return _cost(space.theta(full))
@@ -499,18 +607,26 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
         stds = np.ones(int(sel.sum()))
         resolution = None
         if lv.scaled_steps or lv.max_initial_step_px or (settings.level_handover > 0 and li + 1 < len(settings.levels)):
-            motion_all = space.image_sensitivity(K_lv, problem.distance, x, region.voxels[:: max(1, len(region.voxels) // 2000)])
+            motion_all = space.image_sensitivity(
+                K_lv, problem.distance, x, region.voxels[:: max(1, len(region.voxels) // 2000)]
+            )
             motion = motion_all[sel]
             if settings.level_handover > 0 and li + 1 < len(settings.levels) and motion_all.min() > 0:
                 # the next level starts every coordinate with an image step of at least sigma0 x the least image motion
                 # (scaled steps: exactly that); this level need not resolve the image finer than a share of it
                 handover_px = settings.level_handover * settings.levels[li + 1].sigma0 * float(motion_all.min())
                 resolution = handover_px / np.maximum(motion, 1e-12)
-            if lv.scaled_steps and motion.min() > 0:  # a coordinate that does not move the image at all keeps equal steps
+            if (
+                lv.scaled_steps and motion.min() > 0
+            ):  # a coordinate that does not move the image at all keeps equal steps
                 stds = np.clip(motion.min() / motion, 1e-3, 1.0)
             if lv.max_initial_step_px:
-                stds = np.minimum(stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0))
-        research_deg = _research_deg(obj)  # its generations' cost differs with the search it repeats: the ETA counts them
+                stds = np.minimum(
+                    stds, np.clip(lv.max_initial_step_px / np.maximum(lv.sigma0 * motion, 1e-9), 1e-3, 1.0)
+                )
+        research_deg = _research_deg(
+            obj
+        )  # its generations' cost differs with the search it repeats: the ETA counts them
         research = None if research_deg is None else research_deg / space.half_width[space.free_mask][sel]
         # The search: its ETA from the CMA-ES stop forecast. A level that hands over at a planned generation is first shown
         # as exploring, with its time only: its end is a forecast that can still move by half until the plan is frozen
@@ -527,10 +643,23 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
             clock.name_phase(1, f"{name}: exploring")
         else:
             clock.name_phase(lv.max_evaluations, name)
-        res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed + li, max_evaluations=lv.max_evaluations,
-                       tolx=settings.tolx, tolfun=settings.tolfun, popsize=settings.popsize, restarts=settings.restarts,
-                       progress=lambda e, f, _b=base: clock.update(_b + e, f) if shown[0] else None, convergence=clock.forecast,
-                       resolution=resolution, research=research, on_plan=plan_frozen if planned else None)
+        res = minimise(
+            batch,
+            x[sel],
+            lv.sigma0,
+            stds,
+            seed=seed + li,
+            max_evaluations=lv.max_evaluations,
+            tolx=settings.tolx,
+            tolfun=settings.tolfun,
+            popsize=settings.popsize,
+            restarts=settings.restarts,
+            progress=lambda e, f, _b=base: clock.update(_b + e, f) if shown[0] else None,
+            convergence=clock.forecast,
+            resolution=resolution,
+            research=research,
+            on_plan=plan_frozen if planned else None,
+        )
         x = x.copy()
         x[sel] = res.x_best
         dt = time.monotonic() - t_lv
@@ -542,22 +671,51 @@ def _run_start(problem: _Problem, seed: int, clock: ProgressClock, evals_before:
             x, n_scan = _common_roll_offset_scan(cost, space, x, settings.roll_offset_scan_deg)
             evals_done += n_scan
         scan_report = None
-        if settings.roll_scan and problem.method == "coherence" and li + 1 < len(settings.levels) and np.any(space.free_mask[4:]):
-            x, n_scan, scan_report = _roll_scan_stage(problem, li, obj, region, K_lv, x, clock, evals_before + evals_done, name)
+        if (
+            settings.roll_scan
+            and problem.method == "coherence"
+            and li + 1 < len(settings.levels)
+            and np.any(space.free_mask[4:])
+        ):
+            x, n_scan, scan_report = _roll_scan_stage(
+                problem, li, obj, region, K_lv, x, clock, evals_before + evals_done, name
+            )
             evals_done += n_scan
         n_vox = len(region.voxels)
-        reports.append({"seed": seed, "level": li, "map_shape": list(shape), "n_voxels": len(region.voxels), "voxel_size_um": region.voxel_size,
-                        "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
-                        "max_evaluations": lv.max_evaluations, "n_evaluations": res.n_evaluations, "generations": res.n_generations, "best_cost": res.f_best,
-                        "time_s": dt, "stop": {k: str(v) for k, v in res.stop.items()}})
+        reports.append(
+            {
+                "seed": seed,
+                "level": li,
+                "map_shape": list(shape),
+                "n_voxels": len(region.voxels),
+                "voxel_size_um": region.voxel_size,
+                "tolerance_px": [float(region.tolerance_px.min()), float(region.tolerance_px.max())],
+                "max_evaluations": lv.max_evaluations,
+                "n_evaluations": res.n_evaluations,
+                "generations": res.n_generations,
+                "best_cost": res.f_best,
+                "time_s": dt,
+                "stop": {k: str(v) for k, v in res.stop.items()},
+            }
+        )
         if scan_report is not None:
             reports[-1]["roll_scan"] = scan_report
             if scan_report.get("moved"):
                 # Views moved to other basins leave the next level errors coupled over neighbouring views, which no
                 # single roll's move lowers: its CMA-ES learns them in a fresh covariance, with twice its budget.
                 budget_scale = MOVED_BUDGET_SCALE
-        log.info("seed %d level %d: maps %s, %d voxels, %d evaluations in %.2f s (%.2f ms each), cost %.6g, stop %s", seed, li, shape,
-                 len(region.voxels), res.n_evaluations, dt, 1e3 * dt / max(res.n_evaluations, 1), res.f_best, list(res.stop))
+        log.info(
+            "seed %d level %d: maps %s, %d voxels, %d evaluations in %.2f s (%.2f ms each), cost %.6g, stop %s",
+            seed,
+            li,
+            shape,
+            len(region.voxels),
+            res.n_evaluations,
+            dt,
+            1e3 * dt / max(res.n_evaluations, 1),
+            res.f_best,
+            list(res.stop),
+        )
     return _Start(x, reports, trace, evals_done, eval_time, n_vox)
 
 
@@ -576,11 +734,21 @@ def _basin_widths(problem: _Problem, obj: Any, region: Any, K_lv: np.ndarray) ->
 
     def widths(theta: np.ndarray) -> np.ndarray:
         return basin_half_widths_deg(roll_motion_px_per_deg(K_lv, problem.distance, theta, points), cap)
+
     return widths
 
 
-def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np.ndarray, x: np.ndarray, clock: ProgressClock,
-                     evals_before: int, name: str) -> tuple[np.ndarray, int, dict[str, Any]]:
+def _roll_scan_stage(
+    problem: _Problem,
+    li: int,
+    obj: Any,
+    region: Any,
+    K_lv: np.ndarray,
+    x: np.ndarray,
+    clock: ProgressClock,
+    evals_before: int,
+    name: str,
+) -> tuple[np.ndarray, int, dict[str, Any]]:
     """The per-view roll scan (:func:`.roll_scan.roll_scan`) from x after level ``li`` on that level's fast cost ``obj``,
     its moves judged on the level's batch-independent cost; returns (x, evaluations, report).
 
@@ -594,7 +762,15 @@ def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np
     first = plan_grid(space, x, widths(space.theta(x)[0]), gauge)
     spread = [float(np.min(first.half_width_deg)), float(np.max(first.half_width_deg))]
     if not first.views.size:
-        return x, 0, {"ran": False, "why": "every roll's range in the box lies within one basin of its cost", "basin_half_width_deg": spread}
+        return (
+            x,
+            0,
+            {
+                "ran": False,
+                "why": "every roll's range in the box lies within one basin of its cost",
+                "basin_half_width_deg": spread,
+            },
+        )
     clock.name_phase(1, f"{name}: per-view roll scan, judge")
     judge = problem.cost_fn(problem.level_objective(li, x, exact=True)[0])
     f = float(judge(space.theta(x))[0])
@@ -607,15 +783,35 @@ def _roll_scan_stage(problem: _Problem, li: int, obj: Any, region: Any, K_lv: np
 
     # what the next level's CMA-ES reaches on its own: its initial step (scaled steps are no larger) in a roll
     reach = st.levels[li + 1].sigma0 * float(np.max(space.half_width[4:][space.free_mask[4:]]))
-    x, f, n_scan, report = roll_scan(obj, lambda th: prior_cost(th, space.theta0, st), judge, space, x, f,
-                                     half_width_deg=widths, gauge=gauge, reach_deg=reach, share=roll_share(obj, space.theta0.size - 3),
-                                     on_round=round_started, on_batch=progressed)
+    x, f, n_scan, report = roll_scan(
+        obj,
+        lambda th: prior_cost(th, space.theta0, st),
+        judge,
+        space,
+        x,
+        f,
+        half_width_deg=widths,
+        gauge=gauge,
+        reach_deg=reach,
+        share=roll_share(obj, space.theta0.size - 3),
+        on_round=round_started,
+        on_batch=progressed,
+    )
     report.update({"ran": True, "level": li, "reach_deg": reach, "basin_half_width_deg": spread})
     return x, n_scan + 1, report
 
 
-def _outlier_scan_stage(problem: _Problem, judge_obj: Any, judge: Callable[[np.ndarray], np.ndarray], region: Any, K_lv: np.ndarray,
-                        x: np.ndarray, f: float, clock: ProgressClock, evals_before: int) -> tuple[np.ndarray, float, int, dict[str, Any]]:
+def _outlier_scan_stage(
+    problem: _Problem,
+    judge_obj: Any,
+    judge: Callable[[np.ndarray], np.ndarray],
+    region: Any,
+    K_lv: np.ndarray,
+    x: np.ndarray,
+    f: float,
+    clock: ProgressClock,
+    evals_before: int,
+) -> tuple[np.ndarray, float, int, dict[str, Any]]:
     """The outlier views' scan (:func:`.roll_scan.scan_outlier_views`) on the judge, from the kept start x (judged
     cost f); returns (x, its judged cost, evaluations, report). Basin widths as in :func:`_roll_scan_stage`, at the
     judge's level; a progress phase per scanned view."""
@@ -649,9 +845,17 @@ def roll_share(obj: Any, n_views: int) -> float:
 POLISH_REACH = 2.0
 
 
-def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace, x: np.ndarray, *,
-                 steps_deg: Sequence[float] = (0.2, 0.1, 0.05, 0.025), rtol: float = 1e-4, share: float = 1.0,
-                 on_sweep: Callable[[int], None] | None = None, gauge: bool = False) -> tuple[np.ndarray, float, int, bool]:
+def polish_rolls(
+    cost: Callable[[np.ndarray], np.ndarray],
+    space: ParameterSpace,
+    x: np.ndarray,
+    *,
+    steps_deg: Sequence[float] = (0.2, 0.1, 0.05, 0.025),
+    rtol: float = 1e-4,
+    share: float = 1.0,
+    on_sweep: Callable[[int], None] | None = None,
+    gauge: bool = False,
+) -> tuple[np.ndarray, float, int, bool]:
     """Per-view polish of every free roll: one parabolic sweep per step size, all views' trials in one batch.
 
     For each step h (degrees, largest first) every free roll is tried at ω ± h with the others fixed, in one
@@ -696,15 +900,21 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
         if g:  # view 0 ± h, after each block of the free rolls' trials (the batch's mean stays x)
             zero = np.repeat(TH[:1], 2, axis=0)
             zero[:, 3] += (h, -h)
-            TH = np.concatenate([TH[: 1 + rolls.size], zero[:1], TH[1 + rolls.size:], zero[1:]])
+            TH = np.concatenate([TH[: 1 + rolls.size], zero[:1], TH[1 + rolls.size :], zero[1:]])
         fs = cost(TH)
         evals += len(TH)
         f = float(fs[0])
-        plus, minus = fs[1: 1 + n_moves], fs[1 + n_moves:]
+        plus, minus = fs[1 : 1 + n_moves], fs[1 + n_moves :]
         threshold = rtol * share * max(abs(f), 1e-12)
-        curv, slope = plus + minus - 2.0 * f, 0.5 * (plus - minus)  # the parabola f + slope·t + curv/2·t², t in units of h
-        t = np.where(curv > 0, np.clip(-slope / np.where(curv > 0, curv, 1.0), -POLISH_REACH, POLISH_REACH),
-                     np.where(plus < minus, 1.0, -1.0))
+        curv, slope = (
+            plus + minus - 2.0 * f,
+            0.5 * (plus - minus),
+        )  # the parabola f + slope·t + curv/2·t², t in units of h
+        t = np.where(
+            curv > 0,
+            np.clip(-slope / np.where(curv > 0, curv, 1.0), -POLISH_REACH, POLISH_REACH),
+            np.where(plus < minus, 1.0, -1.0),
+        )
         gain = -(slope * t + 0.5 * curv * t * t)
         move = gain > threshold
         beyond = int(np.sum(move & (np.abs(t) >= 1.0)))
@@ -730,18 +940,37 @@ def polish_rolls(cost: Callable[[np.ndarray], np.ndarray], space: ParameterSpace
         if on_sweep is not None:
             on_sweep(si + 1)
     if not converged:
-        log.info("per-view polish: %d of %d rolls had their minimum beyond ± %.3g° at the last step", beyond, n_moves, steps_deg[-1])
+        log.info(
+            "per-view polish: %d of %d rolls had their minimum beyond ± %.3g° at the last step",
+            beyond,
+            n_moves,
+            steps_deg[-1],
+        )
     return x, float(cost(space.theta(x))[0]), evals + 1, converged
 
 
-def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_deg: np.ndarray, *, method: Method = "coherence",
-                    seed: int = 0, free: Sequence[str] | str | None = None, bounds: CalibrationBounds | None = None,
-                    mask: tuple[int, np.ndarray] | None = None, scribbles: tuple[int, np.ndarray] | None = None,
-                    silhouettes: np.ndarray | None = None, colour_model: ColourModel | None = None,
-                    settings: CalibrationSettings | None = None, progress: ProgressCallback | None = None,
-                    fixed_views: Sequence[int] = (), starts: int | None = None,
-                    reference_thetas: Sequence[np.ndarray] = (), reference_names: Sequence[str] = (),
-                    score_thetas: Sequence[np.ndarray] = ()) -> CalibrationResult:
+def calibrate_views(
+    images: np.ndarray,
+    K: np.ndarray,
+    distance: float,
+    theta0_deg: np.ndarray,
+    *,
+    method: Method = "coherence",
+    seed: int = 0,
+    free: Sequence[str] | str | None = None,
+    bounds: CalibrationBounds | None = None,
+    mask: tuple[int, np.ndarray] | None = None,
+    scribbles: tuple[int, np.ndarray] | None = None,
+    silhouettes: np.ndarray | None = None,
+    colour_model: ColourModel | None = None,
+    settings: CalibrationSettings | None = None,
+    progress: ProgressCallback | None = None,
+    fixed_views: Sequence[int] = (),
+    starts: int | None = None,
+    reference_thetas: Sequence[np.ndarray] = (),
+    reference_names: Sequence[str] = (),
+    score_thetas: Sequence[np.ndarray] = (),
+) -> CalibrationResult:
     """Calibrate θ from the views themselves (pure function of arrays).
 
     Args:
@@ -785,7 +1014,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         raise AnalysisError(f"θ0 must hold 3 + {n} finite angles, got shape {theta0.shape}")
     if method not in METHODS:
         raise UserInputError(f"unknown calibration method {method!r}; choose {', '.join(METHODS)}")
-    seed = check_setting(CalibrationConfig, "seed", int(seed) if isinstance(seed, np.integer) else seed, "seed")  # cma needs ≥ 0
+    seed = check_setting(
+        CalibrationConfig, "seed", int(seed) if isinstance(seed, np.integer) else seed, "seed"
+    )  # cma needs ≥ 0
     n_starts = int(settings.starts if starts is None else starts)
     if n_starts < 1:
         raise UserInputError(f"starts: expected at least 1, got {n_starts}")
@@ -808,7 +1039,9 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
         sil_src = np.stack([cv2.resize(s, (pf.shape[2], pf.shape[1]), interpolation=cv2.INTER_AREA) for s in sil_full])
     else:
-        sil_src = (pf > settings.threshold).astype(np.uint8)  # 0/1: resize_stack averages it in float32 one map at a time
+        sil_src = (pf > settings.threshold).astype(
+            np.uint8
+        )  # 0/1: resize_stack averages it in float32 one map at a time
     S_small = np.diag([pf.shape[2] / w_full, pf.shape[1] / images.shape[1], 1.0])
     S_small[:2, 2] = 0.5 * np.diag(S_small)[:2] - 0.5
     K_small = S_small @ np.asarray(K, float)
@@ -832,20 +1065,31 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     X = np.stack([r.x for r in runs])
     start_costs = judge(space.theta(X))
     evals_done += len(X)
-    cands = [space.theta(np.zeros(space.n_free))[0]] + [np.where(space.free_mask, np.asarray(t, float), theta0) for t in reference_thetas]
+    cands = [space.theta(np.zeros(space.n_free))[0]] + [
+        np.where(space.free_mask, np.asarray(t, float), theta0) for t in reference_thetas
+    ]
     ref_costs = judge(np.stack(cands))
     evals_done += len(cands)
     best = int(np.argmin(start_costs))
     x, f = X[best].copy(), float(start_costs[best])
     outliers: dict[str, Any] = {"ran": False}
     if method == "coherence" and settings.roll_scan and np.any(space.free_mask[4:]):
-        x, f, n_out, outliers = _outlier_scan_stage(problem, judge_obj, judge, judge_region, judge_K, x, f, clock, evals_done)
+        x, f, n_out, outliers = _outlier_scan_stage(
+            problem, judge_obj, judge, judge_region, judge_K, x, f, clock, evals_done
+        )
         evals_done += n_out
     polished = {"converged": True, "evaluations": 0}
-    width_obj = judge_obj  # the data cost each roll's width is read from: the polish's, which set the rolls, where it ran
+    width_obj = (
+        judge_obj  # the data cost each roll's width is read from: the polish's, which set the rolls, where it ran
+    )
     if settings.polish and np.any(space.free_mask[4:]):
         # view 0 through the gauge (polish_rolls) where a common rotation leaves the cost unchanged: the roll scan's rule
-        gauge = settings.roll_scan and method == "coherence" and bool(np.all(space.free_mask[4:])) and settings.roll_prior_weight <= 0
+        gauge = (
+            settings.roll_scan
+            and method == "coherence"
+            and bool(np.all(space.free_mask[4:]))
+            and settings.roll_prior_weight <= 0
+        )
         n_rolls = int(np.sum(space.free_mask[4:])) + int(gauge)
         clock.name_phase(1, "per-view polish: region")
         fast, _, _, _ = problem.level_objective(last, x, local_zooms=settings.polish_zooms)
@@ -864,13 +1108,26 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             clock.forecast(done, polish_sweeps_left(n_steps, done))
             clock.update(seen[0], f)
 
-        xp, _, n_pol, conv = polish_rolls(counted, space, x, steps_deg=settings.polish_steps_deg, share=roll_share(fast, n),
-                                          on_sweep=swept, gauge=gauge)
+        xp, _, n_pol, conv = polish_rolls(
+            counted,
+            space,
+            x,
+            steps_deg=settings.polish_steps_deg,
+            share=roll_share(fast, n),
+            on_sweep=swept,
+            gauge=gauge,
+        )
         fp = float(judge(space.theta(xp))[0])
         evals_done += n_pol + 1
         clock.forecast(n_steps, 0.0)
         clock.update(evals_done, min(f, fp))
-        polished = {"converged": bool(conv), "evaluations": n_pol, "judged_before": f, "judged_after": fp, "gauge": gauge}
+        polished = {
+            "converged": bool(conv),
+            "evaluations": n_pol,
+            "judged_before": f,
+            "judged_after": fp,
+            "gauge": gauge,
+        }
         if fp <= f:
             x, f = xp, fp
         else:
@@ -879,22 +1136,49 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     kept = f"start {best} (seed {seed + 10 * best})"
     r_best = int(np.argmin(ref_costs))
     if ref_costs[r_best] < f:  # never store a pose costlier than the commanded angles or a given reference
-        kept = ("the commanded angles (θ0)" if r_best == 0 else reference_names[r_best - 1] if r_best - 1 < len(reference_names)
-                else f"reference θ {r_best - 1}")
-        log.warning("calibration: every start ended costlier (%.6g) than %s (%.6g); keeping the latter", f, kept, ref_costs[r_best])
+        kept = (
+            "the commanded angles (θ0)"
+            if r_best == 0
+            else reference_names[r_best - 1]
+            if r_best - 1 < len(reference_names)
+            else f"reference θ {r_best - 1}"
+        )
+        log.warning(
+            "calibration: every start ended costlier (%.6g) than %s (%.6g); keeping the latter",
+            f,
+            kept,
+            ref_costs[r_best],
+        )
         theta, f = cands[r_best].copy(), float(ref_costs[r_best])
     scored = judge(np.stack([np.asarray(t, float) for t in score_thetas])).tolist() if len(score_thetas) else []
     eval_time += time.monotonic() - t_j
     cma_stops = [rep["stop"] for r in runs for rep in r.reports]
-    level_converged = all(not any(k.rsplit(": ", 1)[-1] in ("maxfevals", "maxiter") for k in st) for st in cma_stops)  # "run k (...): reason" with restarts
+    level_converged = all(
+        not any(k.rsplit(": ", 1)[-1] in ("maxfevals", "maxiter") for k in st) for st in cma_stops
+    )  # "run k (...): reason" with restarts
     converged = bool(polished["converged"])
-    why = ("per-view polish: every roll's minimum lies within ± the smallest step" if converged and settings.polish
-           else "per-view polish: a roll's minimum still lay beyond ± the smallest step" if settings.polish else "no polish; CMA-ES stops " + "; ".join(",".join(s) for s in cma_stops))
+    why = (
+        "per-view polish: every roll's minimum lies within ± the smallest step"
+        if converged and settings.polish
+        else "per-view polish: a roll's minimum still lay beyond ± the smallest step"
+        if settings.polish
+        else "no polish; CMA-ES stops " + "; ".join(",".join(s) for s in cma_stops)
+    )
     reports = [rep for r in runs for rep in r.reports]
-    judge_report: dict[str, Any] = {"judge": "finest level, batch-independent cost + prior", "start_costs": start_costs.tolist(),
-                                    "theta0_cost": float(ref_costs[0]), "reference_costs": ref_costs[1:].tolist(), "kept": kept,
-                                    "final_cost": f, "outlier_scan": outliers, "polish": polished, "converged": converged, "stop_reason": why,
-                                    "cma_levels_converged": level_converged, "scored_costs": scored}
+    judge_report: dict[str, Any] = {
+        "judge": "finest level, batch-independent cost + prior",
+        "start_costs": start_costs.tolist(),
+        "theta0_cost": float(ref_costs[0]),
+        "reference_costs": ref_costs[1:].tolist(),
+        "kept": kept,
+        "final_cost": f,
+        "outlier_scan": outliers,
+        "polish": polished,
+        "converged": converged,
+        "stop_reason": why,
+        "cma_levels_converged": level_converged,
+        "scored_costs": scored,
+    }
     reports.append(judge_report)
     trace = [t for r in runs for t in r.trace] + [(evals_done, f)]
     # The silhouette stage's maps are done with (the judge holds its level's atlas): freed before the photometric yaw
@@ -911,12 +1195,24 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
         voxel_um = finest_voxel_um(K, distance, w_full)  # its finest voxel (a cube of its volume)
         m_est = int(len(judge_region.voxels) * (judge_region.voxel_size / voxel_um) ** 3)
         sub = photometric_views(theta[3:], images.shape[1:], m_est, settings.memory_mb)
-        pf_full = pf[sub] if pf.shape[1:] == images.shape[1:3] else specimen_maps_within(model, images[sub], settings.memory_mb)
+        pf_full = (
+            pf[sub]
+            if pf.shape[1:] == images.shape[1:3]
+            else specimen_maps_within(model, images[sub], settings.memory_mb)
+        )
         th_sub = np.concatenate([theta[:3], theta[3:][sub]])
-        refined = refine_yaw(images[sub], pf_full, K, distance, th_sub, (float(space.lower[0]), float(space.upper[0])),
-                             sirt_iterations=settings.photometric_sirt_iterations, progress=lambda e, fy: clock.update(base + e, fy),
-                             stage=lambda width, n: clock.name_phase(n, f"photometric yaw ({width} px)"),
-                             part=lambda what, n: clock.name_phase(n, f"photometric yaw ({SCHEDULE[-1][0]} px): {what}"))
+        refined = refine_yaw(
+            images[sub],
+            pf_full,
+            K,
+            distance,
+            th_sub,
+            (float(space.lower[0]), float(space.upper[0])),
+            sirt_iterations=settings.photometric_sirt_iterations,
+            progress=lambda e, fy: clock.update(base + e, fy),
+            stage=lambda width, n: clock.name_phase(n, f"photometric yaw ({width} px)"),
+            part=lambda what, n: clock.name_phase(n, f"photometric yaw ({SCHEDULE[-1][0]} px): {what}"),
+        )
         if refined is not None:
             theta[0] = refined.yaw_deg
             evals_done += refined.n_evaluations
@@ -936,20 +1232,34 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
             f_sil, (f, f_cmd) = f, judge_y(np.stack([theta, commanded_y]))
             evals_done += 2
             if f_cmd < f:
-                log.warning("calibration: the silhouette solution at the photometric yaw is costlier (%.6g) than the commanded "
-                            "angles there (%.6g); keeping the latter", f, f_cmd)
+                log.warning(
+                    "calibration: the silhouette solution at the photometric yaw is costlier (%.6g) than the commanded "
+                    "angles there (%.6g); keeping the latter",
+                    f,
+                    f_cmd,
+                )
                 theta, f, kept = commanded_y, f_cmd, "the commanded angles at the photometric yaw"
             f = float(f)
             if len(score_thetas):
                 scored = judge_y(np.stack([np.asarray(t, float) for t in score_thetas])).tolist()
             eval_time += time.monotonic() - t_y
-            judge_report.update({"silhouette_cost": f_sil, "final_cost": f, "final_cost_after": "photometric yaw",
-                                 "final_cost_without": "the yaw prior", "commanded_at_photometric_yaw_cost": float(f_cmd),
-                                 "kept": kept, "scored_costs": scored})
+            judge_report.update(
+                {
+                    "silhouette_cost": f_sil,
+                    "final_cost": f,
+                    "final_cost_after": "photometric yaw",
+                    "final_cost_without": "the yaw prior",
+                    "commanded_at_photometric_yaw_cost": float(f_cmd),
+                    "kept": kept,
+                    "scored_costs": scored,
+                }
+            )
             trace.append((evals_done, f))
     widths = None
     free_rolls = np.flatnonzero(space.free_mask[3:])
-    if free_rolls.size and settings.roll_prior_weight > 0:  # without a prior the cost has no temperature (see .roll_width)
+    if (
+        free_rolls.size and settings.roll_prior_weight > 0
+    ):  # without a prior the cost has no temperature (see .roll_width)
         t_w = time.monotonic()
         clock.name_phase(1, "how well the images pin each roll")
         # One roll moved per candidate: this cost searches the rays once, at θ, and re-reads the moved views' windows only
@@ -961,9 +1271,32 @@ def calibrate_views(images: np.ndarray, K: np.ndarray, distance: float, theta0_d
     P = projection_matrices(K, distance, theta[None])[0]
     wall = time.monotonic() - t0
     start_thetas = space.theta(X)
-    return CalibrationResult(method, theta, theta0, np.asarray(K, float), float(distance), P, model, int(seed), space.free,
-                             space.bounds_dict(), settings, evals_done, wall, eval_time / max(evals_done, 1), len(judge_region.voxels),
-                             peak_resident_mb(), np.array(trace, float).reshape(-1, 2), reports, final_cost=f, converged=converged,
-                             stop_reason=why, start_thetas=start_thetas, start_costs=np.asarray(start_costs, float),
-                             theta0_cost=float(ref_costs[0]), scored_costs=scored, fixed_views=tuple(sorted({int(v) for v in fixed_views})),
-                             roll_widths=widths)
+    return CalibrationResult(
+        method,
+        theta,
+        theta0,
+        np.asarray(K, float),
+        float(distance),
+        P,
+        model,
+        int(seed),
+        space.free,
+        space.bounds_dict(),
+        settings,
+        evals_done,
+        wall,
+        eval_time / max(evals_done, 1),
+        len(judge_region.voxels),
+        peak_resident_mb(),
+        np.array(trace, float).reshape(-1, 2),
+        reports,
+        final_cost=f,
+        converged=converged,
+        stop_reason=why,
+        start_thetas=start_thetas,
+        start_costs=np.asarray(start_costs, float),
+        theta0_cost=float(ref_costs[0]),
+        scored_costs=scored,
+        fixed_views=tuple(sorted({int(v) for v in fixed_views})),
+        roll_widths=widths,
+    )

@@ -75,7 +75,7 @@ class Atlas:
     window: tuple[int, int, int, int] | None = None
 
     @classmethod
-    def from_stack(cls, maps: np.ndarray, window: tuple[int, int, int, int] | None = None) -> "Atlas":
+    def from_stack(cls, maps: np.ndarray, window: tuple[int, int, int, int] | None = None) -> Atlas:
         """Atlas of an (N, H, W) stack (``window``: the stack is that window of the frames, see the class docstring)."""
         n, h, w = maps.shape
         if window is not None:
@@ -94,8 +94,8 @@ class Atlas:
         for j in range(n):
             c, r = divmod(j, per_col)
             x0, y0 = c * (w + 1), r * h
-            image[y0:y0 + h, x0:x0 + w] = maps[j]
-            image[y0:y0 + h, x0 + w] = maps[j][:, -1]
+            image[y0 : y0 + h, x0 : x0 + w] = maps[j]
+            image[y0 : y0 + h, x0 + w] = maps[j][:, -1]
             offsets[j] = (x0, y0)
         return cls(image, n, h, w, offsets)
 
@@ -115,7 +115,11 @@ class Atlas:
 
     def origin(self, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Column and row offsets (float32, shaped like ``views``) of the tiles of map indices ``views``."""
-        off = self.offsets if self.offsets is not None else np.stack([np.zeros(self.n), np.arange(self.n) * self.h], 1).astype(np.float32)
+        off = (
+            self.offsets
+            if self.offsets is not None
+            else np.stack([np.zeros(self.n), np.arange(self.n) * self.h], 1).astype(np.float32)
+        )
         return off[views, 0], off[views, 1]
 
 
@@ -152,10 +156,12 @@ class Projector:
         out = np.empty((b, n, m), np.float32)
         threads = compute_threads()
         chunk = max(1, self.max_samples // max(1, n * m * threads))  # the memory bound holds with every thread busy
-        chunk = min(chunk, -(-b // threads))  # candidates shared among the threads (bit-identical to one after the other)
+        chunk = min(
+            chunk, -(-b // threads)
+        )  # candidates shared among the threads (bit-identical to one after the other)
 
         def candidates(s: int) -> None:
-            out[s:s + chunk] = self._sample_chunk(atlas, th[s:s + chunk])
+            out[s : s + chunk] = self._sample_chunk(atlas, th[s : s + chunk])
 
         run_slices(candidates, range(0, b, chunk))
         return out
@@ -178,5 +184,7 @@ class Projector:
         m = X.shape[1]
         total = u.size
         cols = 4096 if total % 4096 == 0 else (1024 if total % 1024 == 0 else m)
-        vals = cv2.remap(atlas.image, u.reshape(-1, cols), v.reshape(-1, cols), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        vals = cv2.remap(
+            atlas.image, u.reshape(-1, cols), v.reshape(-1, cols), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        )
         return vals.reshape(b, n, m)

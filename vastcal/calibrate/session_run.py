@@ -10,8 +10,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -56,13 +57,23 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
         m = fit.motion
         theta0 = np.concatenate([[m.yaw_deg, m.pitch_deg, m.gamma_deg], angles])
         rolls = np.asarray(m.rolls_deg, float)
-        theta_cameras = np.concatenate([theta0[:3], rolls + (angles[0] - rolls[0])])  # view 0 at its commanded angle, as θ0's
+        theta_cameras = np.concatenate(
+            [theta0[:3], rolls + (angles[0] - rolls[0])]
+        )  # view 0 at its commanded angle, as θ0's
         cams = session.h5["/entry/vastcal/cameras"]
         unit = str(cams.attrs.get("length_unit", "um"))  # sessions imported before units were recorded: µm
-        return np.asarray(m.K, float), float(m.distance), theta0, {"camera_source": "imported cameras (decompose_circular)",
-                                                                      "decomposition_rms_px": fit.rms_px,
-                                                                      "world_from_data": fit.world_from_data.tolist(),
-                                                                      "length_unit": unit, "imported_cameras_theta_deg": theta_cameras.tolist()}
+        return (
+            np.asarray(m.K, float),
+            float(m.distance),
+            theta0,
+            {
+                "camera_source": "imported cameras (decompose_circular)",
+                "decomposition_rms_px": fit.rms_px,
+                "world_from_data": fit.world_from_data.tolist(),
+                "length_unit": unit,
+                "imported_cameras_theta_deg": theta_cameras.tolist(),
+            },
+        )
     cfg = session.rig_config()
     rx, ry = session.roi_offset_px
     h, w = session.frame_shape[:2]
@@ -70,18 +81,33 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
     # An import whose pixel size nobody gave (plan pixel_size_source "unknown", vastcal.importer.UNKNOWN_PIXEL_SIZE) has
     # optics in specimen-plane pixels: its world, and every measurement, is in pixels, not µm.
     unit = "px" if str(session.plan.get("pixel_size_source", "")) == "unknown" else "um"
-    return K, float(cfg.optics.working_distance_um), np.concatenate([[0.0, 0.0, 0.0], angles]), {"camera_source": "rig optics + ROI offset",
-                                                                                                  "length_unit": unit}
+    return (
+        K,
+        float(cfg.optics.working_distance_um),
+        np.concatenate([[0.0, 0.0, 0.0], angles]),
+        {"camera_source": "rig optics + ROI offset", "length_unit": unit},
+    )
 
 
-def calibrate_session(path_or_session: str | Path | Session, *, method: Method | None = None, seed: int | None = None,
-                      free: Sequence[str] | str | None = None, bounds: CalibrationBounds | None = None,
-                      mask: tuple[int, np.ndarray] | None = None, scribbles: tuple[int, np.ndarray] | None = None,
-                      use_masks: bool | None = None, settings: CalibrationSettings | None = None,
-                      offset_scan_deg: float | None = None, progress: ProgressCallback | None = None,
-                      fixed_views: str | Sequence[int] | None = None, starts: int | None = None,
-                      score_thetas: Sequence[np.ndarray] = (), prior_from: str | Path | None = None,
-                      judge_imported_cameras: bool = True) -> CalibrationResult:
+def calibrate_session(
+    path_or_session: str | Path | Session,
+    *,
+    method: Method | None = None,
+    seed: int | None = None,
+    free: Sequence[str] | str | None = None,
+    bounds: CalibrationBounds | None = None,
+    mask: tuple[int, np.ndarray] | None = None,
+    scribbles: tuple[int, np.ndarray] | None = None,
+    use_masks: bool | None = None,
+    settings: CalibrationSettings | None = None,
+    offset_scan_deg: float | None = None,
+    progress: ProgressCallback | None = None,
+    fixed_views: str | Sequence[int] | None = None,
+    starts: int | None = None,
+    score_thetas: Sequence[np.ndarray] = (),
+    prior_from: str | Path | None = None,
+    judge_imported_cameras: bool = True,
+) -> CalibrationResult:
     """Calibrate a session and store the run (see the module docstring).
 
     Args:
@@ -114,16 +140,25 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         session.require_complete(min_views=3)
         cfg = session.rig_config().calibration
         if method is None and cfg.method == "pi":
-            log.warning("%s: its rig file asks for method pi, the paper's objective as published (since 2026-11-25); vastcal's "
-                        "default cost is now called coherence (--method coherence)", session.path)
+            log.warning(
+                "%s: its rig file asks for method pi, the paper's objective as published (since 2026-11-25); vastcal's "
+                "default cost is now called coherence (--method coherence)",
+                session.path,
+            )
         method = method or cfg.method
         seed = cfg.seed if seed is None else int(seed)
         free = cfg.free if free is None else free
         bounds = bounds or cfg.bounds
         if settings is None:
-            settings = CalibrationSettings(roll_offset_scan_deg=cfg.offset_scan_deg, roll_scan=cfg.roll_scan, roll_prior_weight=cfg.prior_weight,
-                                           roll_prior_deg=cfg.roll_prior_deg, yaw_prior_deg=cfg.yaw_prior_deg,
-                                           photometric_yaw=cfg.photometric_yaw, memory_mb=cfg.memory_mb)
+            settings = CalibrationSettings(
+                roll_offset_scan_deg=cfg.offset_scan_deg,
+                roll_scan=cfg.roll_scan,
+                roll_prior_weight=cfg.prior_weight,
+                roll_prior_deg=cfg.roll_prior_deg,
+                yaw_prior_deg=cfg.yaw_prior_deg,
+                photometric_yaw=cfg.photometric_yaw,
+                memory_mb=cfg.memory_mb,
+            )
         if offset_scan_deg is not None:  # the rig file's range applies to the override too
             scan = check_setting(CalibrationConfig, "offset_scan_deg", offset_scan_deg, "offset scan (--offset-scan)")
             settings = dataclasses.replace(settings, roll_offset_scan_deg=float(scan))
@@ -142,12 +177,30 @@ def calibrate_session(path_or_session: str | Path | Session, *, method: Method |
         if own:
             session.close()
     try:
-        result = calibrate_views(images, K, d, theta0, method=method, seed=seed, free=free, bounds=bounds, mask=mask, scribbles=scribbles,
-                                 silhouettes=sil, settings=settings, progress=progress, fixed_views=fixed, starts=starts,
-                                 score_thetas=score_thetas, **(_imported_reference(notes) if judge_imported_cameras else {}))
+        result = calibrate_views(
+            images,
+            K,
+            d,
+            theta0,
+            method=method,
+            seed=seed,
+            free=free,
+            bounds=bounds,
+            mask=mask,
+            scribbles=scribbles,
+            silhouettes=sil,
+            settings=settings,
+            progress=progress,
+            fixed_views=fixed,
+            starts=starts,
+            score_thetas=score_thetas,
+            **(_imported_reference(notes) if judge_imported_cameras else {}),
+        )
     except VastcalError as exc:  # name the session in errors found in its data
         raise exc.about(getattr(path_or_session, "path", path_or_session)) from None
-    if prior_src is not None:  # stored θ0 and delta_angle_deg stay "commanded"; the prior's centre is stored beside them
+    if (
+        prior_src is not None
+    ):  # stored θ0 and delta_angle_deg stay "commanded"; the prior's centre is stored beside them
         result.theta0_deg = commanded0
     target = Session.open(path_or_session, "a") if own else session
     try:
@@ -197,14 +250,21 @@ def apply_rig_prior(theta0: np.ndarray, results_dir: str | Path, notes: dict[str
         out[0] = prior.yaw_deg
     if rig_axis and prior.pitch_deg is not None:
         out[1] = prior.pitch_deg
-    notes.update({"prior_from": str(results_dir), "prior": prior.describe(), "prior_theta_deg": out.tolist(),
-                  "theta0_cost_of": "the prior's centre (prior_theta_deg), not the commanded angles"})
+    notes.update(
+        {
+            "prior_from": str(results_dir),
+            "prior": prior.describe(),
+            "prior_theta_deg": out.tolist(),
+            "theta0_cost_of": "the prior's centre (prior_theta_deg), not the commanded angles",
+        }
+    )
     log.info("calibration prior from %s", prior.describe())
     return out
 
 
 def store_result(group: Any, r: CalibrationResult, notes: dict[str, Any], silhouettes: str) -> None:
     """Write a :class:`CalibrationResult` into an (empty) run group."""
+
     def ds(name: str, data: np.ndarray, units: str, doc: str) -> None:
         d = group.create_dataset(name, data=data)
         d.attrs["units"] = units
@@ -217,21 +277,62 @@ def store_result(group: Any, r: CalibrationResult, notes: dict[str, Any], silhou
     ds("delta_angle_deg", r.delta_angle_deg, "degree", "calibrated minus commanded roll per view")
     ds("cost_trace", r.cost_trace, "", "columns: evaluations so far, best cost (per generation, all levels)")
     if r.start_thetas is not None and r.start_costs is not None:
-        ds("starts/theta", np.asarray(r.start_thetas, float), "degree", "S x (3 + N): theta where each start ended (before the polish)")
-        ds("starts/cost", np.asarray(r.start_costs, float), "", "S: judged cost (finest level, batch-independent, + prior) of each start")
+        ds(
+            "starts/theta",
+            np.asarray(r.start_thetas, float),
+            "degree",
+            "S x (3 + N): theta where each start ended (before the polish)",
+        )
+        ds(
+            "starts/cost",
+            np.asarray(r.start_costs, float),
+            "",
+            "S: judged cost (finest level, batch-independent, + prior) of each start",
+        )
     if r.roll_widths is not None:
         w = r.roll_widths
-        ds("roll_sigma_deg", w.sigma_deg, "degree", "per view: sigma of the roll, the calibration's cost read as a posterior whose prior is "
-           "the roll prior (vastcal.calibrate.roll_width); the prior's width where the roll was not free")
-        ds("roll_data_rise", w.rise, "", f"per view: rise of the data cost over +-{w.prior_deg:g} deg of the roll (NaN: not free); "
-           f"the roll prior rises by roll_prior_rise over the same range")
+        ds(
+            "roll_sigma_deg",
+            w.sigma_deg,
+            "degree",
+            "per view: sigma of the roll, the calibration's cost read as a posterior whose prior is "
+            "the roll prior (vastcal.calibrate.roll_width); the prior's width where the roll was not free",
+        )
+        ds(
+            "roll_data_rise",
+            w.rise,
+            "",
+            f"per view: rise of the data cost over +-{w.prior_deg:g} deg of the roll (NaN: not free); "
+            f"the roll prior rises by roll_prior_rise over the same range",
+        )
         group["roll_data_rise"].attrs["roll_prior_rise"] = w.prior_rise
-    write_attrs(group, {"method": r.method, "seed": r.seed, "free": list(r.free), "bounds": r.bounds, "settings": r.settings.to_json(),
-                        "distance": r.distance, "distance_units": notes.get("length_unit", "um"), "wall_time_s": r.wall_time_s, "n_evaluations": r.n_evaluations,
-                        "time_per_evaluation_s": r.time_per_evaluation_s, "n_voxels": r.n_voxels, "peak_rss_mb": r.peak_rss_mb,
-                        "levels": json.dumps(r.level_reports), "silhouettes": silhouettes, "versions": software_versions(),
-                        "final_cost": r.final_cost, "theta0_cost": r.theta0_cost, "converged": bool(r.converged), "stop_reason": r.stop_reason,
-                        "n_starts": 0 if r.start_costs is None else len(r.start_costs), "fixed_views": list(r.fixed_views), **notes})
+    write_attrs(
+        group,
+        {
+            "method": r.method,
+            "seed": r.seed,
+            "free": list(r.free),
+            "bounds": r.bounds,
+            "settings": r.settings.to_json(),
+            "distance": r.distance,
+            "distance_units": notes.get("length_unit", "um"),
+            "wall_time_s": r.wall_time_s,
+            "n_evaluations": r.n_evaluations,
+            "time_per_evaluation_s": r.time_per_evaluation_s,
+            "n_voxels": r.n_voxels,
+            "peak_rss_mb": r.peak_rss_mb,
+            "levels": json.dumps(r.level_reports),
+            "silhouettes": silhouettes,
+            "versions": software_versions(),
+            "final_cost": r.final_cost,
+            "theta0_cost": r.theta0_cost,
+            "converged": bool(r.converged),
+            "stop_reason": r.stop_reason,
+            "n_starts": 0 if r.start_costs is None else len(r.start_costs),
+            "fixed_views": list(r.fixed_views),
+            **notes,
+        },
+    )
     if r.colour_model is not None:
         r.colour_model.to_group(group.create_group("colour_model"))
 

@@ -61,7 +61,9 @@ STATIC_VIEWS = 0.9
 STATIC_SPAN = 0.85
 
 
-def static_bands(silhouettes: np.ndarray, *, views: float = STATIC_VIEWS, span: float = STATIC_SPAN) -> tuple[np.ndarray, np.ndarray]:
+def static_bands(
+    silhouettes: np.ndarray, *, views: float = STATIC_VIEWS, span: float = STATIC_SPAN
+) -> tuple[np.ndarray, np.ndarray]:
     """Rows (H,) and columns (W,) that are foreground across the frame in almost every view.
 
     Args:
@@ -76,8 +78,15 @@ def static_bands(silhouettes: np.ndarray, *, views: float = STATIC_VIEWS, span: 
     return static.mean(axis=1) >= span, static.mean(axis=0) >= span
 
 
-def specimen_only(pf: np.ndarray, level: float = 0.5, wall_px: int = 15, margin_px: int = 3,
-                  t: np.ndarray | None = None, *, copy: bool = True) -> np.ndarray:
+def specimen_only(
+    pf: np.ndarray,
+    level: float = 0.5,
+    wall_px: int = 15,
+    margin_px: int = 3,
+    t: np.ndarray | None = None,
+    *,
+    copy: bool = True,
+) -> np.ndarray:
     """Posteriors (N, H, W) with static bands and the static blobs cut by the frame's edge set to 0.
 
     Static bands (capillary walls and the strip beside them, :func:`static_bands`) are cleared in
@@ -146,8 +155,9 @@ def wall_lines(static: np.ndarray, *, wall_px: int = 15, span: float = 0.5) -> l
     return lines
 
 
-def clear_wall_lines(pf: np.ndarray, t: np.ndarray, *, level: float = 0.5, wall_px: int = 15,
-                     views: float = STATIC_VIEWS) -> int:
+def clear_wall_lines(
+    pf: np.ndarray, t: np.ndarray, *, level: float = 0.5, wall_px: int = 15, views: float = STATIC_VIEWS
+) -> int:
     """Clear the capillary's walls from ``pf`` (N, H, W, in place) where the static scene explains them.
 
     The capillary is a straight, view-invariant structure: each wall (:func:`wall_lines`) is a line
@@ -215,9 +225,18 @@ def contrast(model: ColourModel, f: np.ndarray) -> np.ndarray:
     return out
 
 
-def half_contrast_edges(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, plateau_px: float = 2.0,
-                        level: float = 0.5, soft: bool = False, forbid: np.ndarray | None = None,
-                        plateau_depth_px: float | None = None, copy: bool = True) -> np.ndarray:
+def half_contrast_edges(
+    pf: np.ndarray,
+    t: np.ndarray,
+    *,
+    band_px: float = 3.0,
+    plateau_px: float = 2.0,
+    level: float = 0.5,
+    soft: bool = False,
+    forbid: np.ndarray | None = None,
+    plateau_depth_px: float | None = None,
+    copy: bool = True,
+) -> np.ndarray:
     """Posteriors with the silhouettes' rims moved in to the local half-contrast point (module docstring).
 
     A blurred edge rises from the background (contrast 0) to the specimen's value just inside it —
@@ -315,4 +334,9 @@ def touches_frame_edge(maps: np.ndarray, level: float = 0.5) -> np.ndarray:
     m = np.asarray(maps)
     m = m[None] if m.ndim == 2 else m
     inside = m > level
-    return inside[:, 0, :].any(axis=1) | inside[:, -1, :].any(axis=1) | inside[:, :, 0].any(axis=1) | inside[:, :, -1].any(axis=1)
+    return (
+        inside[:, 0, :].any(axis=1)
+        | inside[:, -1, :].any(axis=1)
+        | inside[:, :, 0].any(axis=1)
+        | inside[:, :, -1].any(axis=1)
+    )

@@ -35,8 +35,15 @@ def largest_region(inside: np.ndarray) -> tuple[int, np.ndarray, int]:
     return count, labels, 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) if count > 1 else 0
 
 
-def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, min_consistent: float = 0.9,
-                    min_support: float = 0.5, copy: bool = True) -> np.ndarray:
+def single_specimen(
+    pf: np.ndarray,
+    *,
+    level: float = 0.5,
+    tol_px: float = 2.0,
+    min_consistent: float = 0.9,
+    min_support: float = 0.5,
+    copy: bool = True,
+) -> np.ndarray:
     """Posteriors (N, H, W) with the regions no rigid body can explain set to 0 (module docstring).
 
     Args:
@@ -87,4 +94,3 @@ def single_specimen(pf: np.ndarray, *, level: float = 0.5, tol_px: float = 2.0, 
     if dropped:
         log.info("regions no rigid body explains dropped: %d over %d views", dropped, n)
     return out
-

@@ -79,17 +79,25 @@ def between_in_columns(core: np.ndarray) -> np.ndarray:
     n, labels, stats, _ = cv2.connectedComponentsWithStats(c.astype(np.uint8), connectivity=8)
     for k in range(1, n):  # per connected part: a gap between two separate things is not filled
         x, y, w, h = stats[k, :4]
-        part = labels[y:y + h, x:x + w] == k
+        part = labels[y : y + h, x : x + w] == k
         any_ = part.any(axis=0)
         first = np.where(any_, np.argmax(part, axis=0), h)
         last = np.where(any_, h - 1 - np.argmax(part[::-1], axis=0), -1)
         rows = np.arange(h)[:, None]
-        out[y:y + h, x:x + w] |= (rows >= first[None, :]) & (rows <= last[None, :])
+        out[y : y + h, x : x + w] |= (rows >= first[None, :]) & (rows <= last[None, :])
     return out
 
 
-def drop_translucent(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, level: float = 0.5,
-                     fraction: float = CORE_FRACTION, reach_px: float | None = None, copy: bool = True) -> np.ndarray:
+def drop_translucent(
+    pf: np.ndarray,
+    t: np.ndarray,
+    *,
+    band_px: float = 3.0,
+    level: float = 0.5,
+    fraction: float = CORE_FRACTION,
+    reach_px: float | None = None,
+    copy: bool = True,
+) -> np.ndarray:
     """Posteriors (N, H, W) with the specimen's translucent sheets set to 0 (module docstring).
 
     Args:
@@ -106,7 +114,9 @@ def drop_translucent(pf: np.ndarray, t: np.ndarray, *, band_px: float = 3.0, lev
     flat_t = np.asarray(t, np.float32).reshape(flat_p.shape)
     reach = body_reach_px(flat_p > level) if reach_px is None else float(reach_px)
     smooth = band_px / 3.0  # one pixel of the full frame
-    grow = max(1, int(np.ceil(band_px / 3.0)))  # one pixel of the full frame: the core's edge is already at half contrast
+    grow = max(
+        1, int(np.ceil(band_px / 3.0))
+    )  # one pixel of the full frame: the core's edge is already at half contrast
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
     dropped = 0
     for p, tt in zip(flat_p, flat_t):

@@ -29,9 +29,10 @@ import logging
 import os
 import resource
 import sys
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -101,11 +102,15 @@ def photometric_bytes(k: int, frame_shape: tuple[int, ...], voxels: int) -> floa
     map_px = frame_px * min(1.0, ACROSS_WIDTH_PX / max(h, w, 1))  # full resolution along the axis image, coarser across
     group = max(g.size for g in yaw_groups(np.arange(k) * 360.0 / k, GROUP_VIEWS))
     per_group_view = PHOTOMETRIC_BYTES_PER_MAP_PIXEL * map_px + PHOTOMETRIC_BYTES_PER_VOXEL_VIEW * max(int(voxels), 0)
-    return max(k * PHOTOMETRIC_SETUP_BYTES_PER_PIXEL * frame_px, k * PHOTOMETRIC_HELD_BYTES_PER_PIXEL * frame_px + group * per_group_view)
+    return max(
+        k * PHOTOMETRIC_SETUP_BYTES_PER_PIXEL * frame_px,
+        k * PHOTOMETRIC_HELD_BYTES_PER_PIXEL * frame_px + group * per_group_view,
+    )
 
 
-def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxels: int, memory_mb: float,
-                      used_mb: float | None = None) -> np.ndarray:
+def photometric_views(
+    angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxels: int, memory_mb: float, used_mb: float | None = None
+) -> np.ndarray:
     """The views the photometric yaw uses within ``memory_mb``: the most evenly spread views whose
     :func:`photometric_bytes` fit beside what is in use (all when they fit; never fewer than
     :data:`MIN_PHOTOMETRIC_VIEWS`, which may then exceed it).
@@ -122,8 +127,14 @@ def photometric_views(angles_deg: np.ndarray, frame_shape: tuple[int, ...], voxe
     least = min(n, MIN_PHOTOMETRIC_VIEWS)
     k = next((j for j in range(n, least, -1) if photometric_bytes(j, frame_shape, voxels) / 2**20 <= free), least)
     if k < n:
-        log.info("photometric yaw: %d of %d views (evenly spread) fit %.0f MB (%.0f MB for them, %.0f MB in use)", k, n, memory_mb,
-                 photometric_bytes(k, frame_shape, voxels) / 2**20, float(memory_mb) - free)
+        log.info(
+            "photometric yaw: %d of %d views (evenly spread) fit %.0f MB (%.0f MB for them, %.0f MB in use)",
+            k,
+            n,
+            memory_mb,
+            photometric_bytes(k, frame_shape, voxels) / 2**20,
+            float(memory_mb) - free,
+        )
     return evenly_spread_views(angles_deg, k)
 
 
@@ -158,9 +169,16 @@ def sub_revolutions(n_views: int, max_views: int, min_views: int = 1) -> list[np
     return [np.arange(j, n_views, g) for j in range(g)]
 
 
-def grouped_specimen_maps(model: "ColourModel", read: Callable[[np.ndarray], np.ndarray], n_views: int,
-                          frame_shape: tuple[int, ...], memory_mb: float, store: Callable[[np.ndarray, np.ndarray], None], *,
-                          band_px: float = 3.0) -> int:
+def grouped_specimen_maps(
+    model: ColourModel,
+    read: Callable[[np.ndarray], np.ndarray],
+    n_views: int,
+    frame_shape: tuple[int, ...],
+    memory_mb: float,
+    store: Callable[[np.ndarray, np.ndarray], None],
+    *,
+    band_px: float = 3.0,
+) -> int:
     """The specimen maps of ``n_views`` views, made one sub-revolution at a time (module docstring).
 
     Args:
@@ -179,13 +197,21 @@ def grouped_specimen_maps(model: "ColourModel", read: Callable[[np.ndarray], np.
     k = map_group_views(n_views, int(np.prod(frame_shape[:2])), memory_mb)
     groups = sub_revolutions(n_views, k, min(n_views, MIN_MAP_VIEWS))
     if len(groups) > 1:
-        log.info("specimen maps: %d views as %d interleaved revolutions of <= %d views (memory_mb %.0f)", n_views, len(groups), k, memory_mb)
+        log.info(
+            "specimen maps: %d views as %d interleaved revolutions of <= %d views (memory_mb %.0f)",
+            n_views,
+            len(groups),
+            k,
+            memory_mb,
+        )
     for views in groups:
         store(views, specimen_maps(model, read(views), band_px=band_px))
     return len(groups)
 
 
-def specimen_maps_within(model: "ColourModel", images: "np.ndarray | SessionFrames", memory_mb: float, *, band_px: float = 3.0) -> np.ndarray:
+def specimen_maps_within(
+    model: ColourModel, images: np.ndarray | SessionFrames, memory_mb: float, *, band_px: float = 3.0
+) -> np.ndarray:
     """:func:`.silhouettes.specimen_maps` (N, H, W) float32 of a stack in memory, made one sub-revolution at a time
     (:func:`grouped_specimen_maps`): exactly the same maps when the whole stack fits half of ``memory_mb``."""
     if not isinstance(images, SessionFrames):
@@ -195,7 +221,9 @@ def specimen_maps_within(model: "ColourModel", images: "np.ndarray | SessionFram
     def store(views: np.ndarray, maps: np.ndarray) -> None:
         out[views] = maps
 
-    grouped_specimen_maps(model, lambda views: np.asarray(images[views]), len(images), images.shape[1:], memory_mb, store, band_px=band_px)
+    grouped_specimen_maps(
+        model, lambda views: np.asarray(images[views]), len(images), images.shape[1:], memory_mb, store, band_px=band_px
+    )
     return out
 
 
@@ -208,7 +236,7 @@ class SessionFrames:
     :class:`~vastcal.session.Session`, its handle is used. ``np.asarray(frames)`` reads them all: avoid it.
     """
 
-    def __init__(self, session: "Session | str | Path") -> None:
+    def __init__(self, session: Session | str | Path) -> None:
         from vastcal.session import Session
 
         self._session = session if isinstance(session, Session) else None
@@ -219,7 +247,7 @@ class SessionFrames:
             self.dtype = np.dtype(s.dtype)
 
     @contextmanager
-    def _open(self) -> Iterator["Session"]:
+    def _open(self) -> Iterator[Session]:
         from vastcal.session import Session
 
         if self._session is not None:
@@ -256,7 +284,9 @@ class SessionFrames:
         with self._open() as s:
             if views.size == 0:
                 return np.empty((0,) + self.shape[1:], self.dtype)
-            return np.stack([np.asarray(s.frame(int(self._index[v]))) for v in views.ravel()]).reshape(views.shape + self.shape[1:])
+            return np.stack([np.asarray(s.frame(int(self._index[v]))) for v in views.ravel()]).reshape(
+                views.shape + self.shape[1:]
+            )
 
     def __iter__(self) -> Iterator[np.ndarray]:
         with self._open() as s:

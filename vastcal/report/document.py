@@ -35,11 +35,37 @@ log = logging.getLogger(__name__)
 REPORT_SCHEMA = "vastcal.report/1"
 
 CSV_COLUMNS = (
-    "specimen", "session_uid", "session_file", "volume_mm3", "volume_U_mm3", "surface_area_mm2", "surface_area_U_mm2", "coverage_factor_k",
-    "lower_bound", "verdict", "verdict_reasons", "mesh_volume_mm3", "n_views", "voxel_size_um",
-    "iso_level", "camera_source", "silhouette_source", "calibration_method", "calibration_seed", "yaw_deg", "pitch_deg", "gamma_deg",
-    "drift_status", "drift_rms_deg", "drift_max_abs_deg", "final_cost", "n_evaluations", "calibration_wall_time_s", "measurement_run",
-    "report_time", "length_unit",
+    "specimen",
+    "session_uid",
+    "session_file",
+    "volume_mm3",
+    "volume_U_mm3",
+    "surface_area_mm2",
+    "surface_area_U_mm2",
+    "coverage_factor_k",
+    "lower_bound",
+    "verdict",
+    "verdict_reasons",
+    "mesh_volume_mm3",
+    "n_views",
+    "voxel_size_um",
+    "iso_level",
+    "camera_source",
+    "silhouette_source",
+    "calibration_method",
+    "calibration_seed",
+    "yaw_deg",
+    "pitch_deg",
+    "gamma_deg",
+    "drift_status",
+    "drift_rms_deg",
+    "drift_max_abs_deg",
+    "final_cost",
+    "n_evaluations",
+    "calibration_wall_time_s",
+    "measurement_run",
+    "report_time",
+    "length_unit",
 )
 """Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate). ``length_unit``: the world's
 unit — a known one (``um`` on a rig; ``nm`` … ``m`` for imported cameras, converted) when the ``_mm3``/``_mm2``/``_um``
@@ -61,8 +87,14 @@ class ReportData:
 
     def as_json(self) -> dict[str, Any]:
         """The JSON document (schema :data:`REPORT_SCHEMA`); ``simulated_truth`` only when there is one."""
-        doc = {"schema": REPORT_SCHEMA, "session": self.session, "measurement": self.measurement,
-               "calibration": self.calibration, "views": self.views, "provenance": self.provenance}
+        doc = {
+            "schema": REPORT_SCHEMA,
+            "session": self.session,
+            "measurement": self.measurement,
+            "calibration": self.calibration,
+            "views": self.views,
+            "provenance": self.provenance,
+        }
         if self.truth:
             doc["simulated_truth"] = self.truth
         return doc
@@ -71,18 +103,36 @@ class ReportData:
         """The one row of ``report.csv``."""
         m, c, s = self.measurement, self.calibration, self.session
         return {
-            "specimen": s.get("specimen", ""), "session_uid": s.get("uid", ""), "session_file": s.get("file", ""),
-            "volume_mm3": m.get("volume_mm3"), "mesh_volume_mm3": m.get("mesh_volume_mm3"), "surface_area_mm2": m.get("surface_area_mm2"),
-            "volume_U_mm3": m.get("volume_U_mm3"), "surface_area_U_mm2": m.get("surface_area_U_mm2"), "coverage_factor_k": m.get("coverage_factor_k"),
-            "lower_bound": "yes" if m.get("lower_bound") else "no", "verdict": m.get("verdict", ""),
-            "verdict_reasons": " | ".join(m.get("verdict_reasons", []) or []), "drift_status": (c.get("drift") or {}).get("status", ""),
-            "n_views": m.get("n_views"), "voxel_size_um": m.get("voxel_size_um"), "iso_level": m.get("iso_level"),
-            "camera_source": c.get("camera_source", ""), "silhouette_source": m.get("silhouette_source", ""),
-            "calibration_method": c.get("method", ""), "calibration_seed": c.get("seed", ""),
-            "yaw_deg": c.get("yaw_deg"), "pitch_deg": c.get("pitch_deg"), "gamma_deg": c.get("gamma_deg"),
-            "drift_rms_deg": c.get("drift_rms_deg"), "drift_max_abs_deg": c.get("drift_max_abs_deg"),
-            "final_cost": c.get("final_cost"), "n_evaluations": c.get("n_evaluations"), "calibration_wall_time_s": c.get("wall_time_s"),
-            "measurement_run": m.get("run", ""), "report_time": self.provenance.get("report_time", ""),
+            "specimen": s.get("specimen", ""),
+            "session_uid": s.get("uid", ""),
+            "session_file": s.get("file", ""),
+            "volume_mm3": m.get("volume_mm3"),
+            "mesh_volume_mm3": m.get("mesh_volume_mm3"),
+            "surface_area_mm2": m.get("surface_area_mm2"),
+            "volume_U_mm3": m.get("volume_U_mm3"),
+            "surface_area_U_mm2": m.get("surface_area_U_mm2"),
+            "coverage_factor_k": m.get("coverage_factor_k"),
+            "lower_bound": "yes" if m.get("lower_bound") else "no",
+            "verdict": m.get("verdict", ""),
+            "verdict_reasons": " | ".join(m.get("verdict_reasons", []) or []),
+            "drift_status": (c.get("drift") or {}).get("status", ""),
+            "n_views": m.get("n_views"),
+            "voxel_size_um": m.get("voxel_size_um"),
+            "iso_level": m.get("iso_level"),
+            "camera_source": c.get("camera_source", ""),
+            "silhouette_source": m.get("silhouette_source", ""),
+            "calibration_method": c.get("method", ""),
+            "calibration_seed": c.get("seed", ""),
+            "yaw_deg": c.get("yaw_deg"),
+            "pitch_deg": c.get("pitch_deg"),
+            "gamma_deg": c.get("gamma_deg"),
+            "drift_rms_deg": c.get("drift_rms_deg"),
+            "drift_max_abs_deg": c.get("drift_max_abs_deg"),
+            "final_cost": c.get("final_cost"),
+            "n_evaluations": c.get("n_evaluations"),
+            "calibration_wall_time_s": c.get("wall_time_s"),
+            "measurement_run": m.get("run", ""),
+            "report_time": self.provenance.get("report_time", ""),
             "length_unit": m.get("length_unit", "um"),
         }
 
@@ -104,8 +154,9 @@ def _plain(v: Any) -> Any:
     return v
 
 
-def _calibration_summary(s: Any, cal_run: str | None, P: np.ndarray,
-                         commanded: np.ndarray) -> tuple[dict[str, Any], np.ndarray | None, tuple[np.ndarray, np.ndarray] | None]:
+def _calibration_summary(
+    s: Any, cal_run: str | None, P: np.ndarray, commanded: np.ndarray
+) -> tuple[dict[str, Any], np.ndarray | None, tuple[np.ndarray, np.ndarray] | None]:
     """Calibration facts, per-view delta angles (deg) and the cost trace of the run used (or imported cameras)."""
     from vastcal.session import read_attrs
 
@@ -116,16 +167,34 @@ def _calibration_summary(s: Any, cal_run: str | None, P: np.ndarray,
     if cal_run:
         g = s.result("calibration", cal_run)
         if g is None:
-            raise AnalysisError(f"{s.path}: the measurement used calibration/{cal_run}, which is no longer in the session")
+            raise AnalysisError(
+                f"{s.path}: the measurement used calibration/{cal_run}, which is no longer in the session"
+            )
         a = read_attrs(g)
-        out.update({"camera_source": f"calibration/{cal_run}", "run": cal_run, "method": a.get("method", ""), "seed": a.get("seed"),
-                    "n_evaluations": a.get("n_evaluations"), "wall_time_s": a.get("wall_time_s"), "time": a.get("time", "")})
+        out.update(
+            {
+                "camera_source": f"calibration/{cal_run}",
+                "run": cal_run,
+                "method": a.get("method", ""),
+                "seed": a.get("seed"),
+                "n_evaluations": a.get("n_evaluations"),
+                "wall_time_s": a.get("wall_time_s"),
+                "time": a.get("time", ""),
+            }
+        )
         for k in ("free", "converged", "stop_reason", "sigma0"):
             if k in a:
                 out[k] = a[k]
         if "theta_deg" in g:
             th = np.asarray(g["theta_deg"][...], float)
-            out.update({"yaw_deg": float(th[0]), "pitch_deg": float(th[1]), "gamma_deg": float(th[2]), "theta_deg": th.tolist()})
+            out.update(
+                {
+                    "yaw_deg": float(th[0]),
+                    "pitch_deg": float(th[1]),
+                    "gamma_deg": float(th[2]),
+                    "theta_deg": th.tolist(),
+                }
+            )
         if "theta0_deg" in g:
             out["theta0_deg"] = np.asarray(g["theta0_deg"][...], float).tolist()
         if "delta_angle_deg" in g:
@@ -139,11 +208,20 @@ def _calibration_summary(s: Any, cal_run: str | None, P: np.ndarray,
         starts = np.asarray(g["starts"]["theta"][...], float) if "starts" in g and "theta" in g["starts"] else None
         from vastcal.uncertainty import _settings_of
 
-        drift_kw: dict[str, Any] = {"source": "calibration", "free": [free] if isinstance(free, str) else list(free),
-                                    "settings": _settings_of(a), "starts_theta": starts}
+        drift_kw: dict[str, Any] = {
+            "source": "calibration",
+            "free": [free] if isinstance(free, str) else list(free),
+            "settings": _settings_of(a),
+            "starts_theta": starts,
+        }
         if "roll_sigma_deg" in g and "roll_data_rise" in g:
-            drift_kw.update({"roll_sigma": np.asarray(g["roll_sigma_deg"][...], float), "roll_rise": np.asarray(g["roll_data_rise"][...], float),
-                             "prior_rise": float(g["roll_data_rise"].attrs.get("roll_prior_rise", np.nan))})
+            drift_kw.update(
+                {
+                    "roll_sigma": np.asarray(g["roll_sigma_deg"][...], float),
+                    "roll_rise": np.asarray(g["roll_data_rise"][...], float),
+                    "prior_rise": float(g["roll_data_rise"].attrs.get("roll_prior_rise", np.nan)),
+                }
+            )
     else:
         out["camera_source"] = "cameras (imported)"
         out["method"] = "imported"
@@ -152,7 +230,14 @@ def _calibration_summary(s: Any, cal_run: str | None, P: np.ndarray,
 
             fit = decompose_circular(P)
             mo = fit.motion
-            out.update({"yaw_deg": mo.yaw_deg, "pitch_deg": mo.pitch_deg, "gamma_deg": mo.gamma_deg, "circular_fit_rms_px": fit.rms_px})
+            out.update(
+                {
+                    "yaw_deg": mo.yaw_deg,
+                    "pitch_deg": mo.pitch_deg,
+                    "gamma_deg": mo.gamma_deg,
+                    "circular_fit_rms_px": fit.rms_px,
+                }
+            )
             rolls = np.asarray(mo.rolls_deg, float)
             cmd = np.asarray(commanded, float) - float(commanded[0])
             delta = (rolls - cmd + 180.0) % 360.0 - 180.0
@@ -214,7 +299,9 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         if meas is None:
             if measurement_run is not None:
                 runs = s.stages_run().get("measurement", [])
-                raise UserInputError(f"{path}: no measurement run {measurement_run!r} (runs: {', '.join(runs) or 'none'})")
+                raise UserInputError(
+                    f"{path}: no measurement run {measurement_run!r} (runs: {', '.join(runs) or 'none'})"
+                )
             raise MissingStageError(f"{path}: nothing measured yet: run 'vastcal reconstruct {path}' first")
         ma = read_attrs(meas)
         prov = ma.get("provenance", {}) or {}
@@ -222,7 +309,9 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         rec_name = prov.get("reconstruction_run")
         rec = s.result("reconstruction", rec_name) if rec_name else None
         if rec is None:
-            raise MissingStageError(f"{path}: the reconstruction of {mrun} is missing: run 'vastcal reconstruct {path}' again")
+            raise MissingStageError(
+                f"{path}: the reconstruction of {mrun} is missing: run 'vastcal reconstruct {path}' again"
+            )
         hull = load_reconstruction(rec)
         ra = read_attrs(rec)
         cal_run = prov.get("calibration_run") or None
@@ -252,50 +341,86 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
             run_log[stage] = [{"run": n, "time": read_attrs(s.result(stage, n)).get("time", "")} for n in names]
         mesh = load_mesh(meas)
     boundary = hull_boundary(hull.occupancy)
-    points = np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
+    points = (
+        np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
+    )
 
     qc_doc = ma.get("qc") if isinstance(ma.get("qc"), dict) else None
     length_unit = str((ma.get("provenance") or {}).get("length_unit", "um"))
     measurement = {
         "run": mrun,
-        "volume_mm3": ma.get("volume_mm3"), "mesh_volume_mm3": ma.get("mesh_volume_mm3"), "surface_area_mm2": ma.get("surface_area_mm2"),
+        "volume_mm3": ma.get("volume_mm3"),
+        "mesh_volume_mm3": ma.get("mesh_volume_mm3"),
+        "surface_area_mm2": ma.get("surface_area_mm2"),
         "raw_surface_area_mm2": ma.get("raw_surface_area_mm2"),
         "length_unit": length_unit,
         "units": _measurement_units(length_unit),
-        "volume_method": ma.get("volume_method", ""), "surface_method": ma.get("surface_method", ""),
-        "n_views": ma.get("n_views"), "voxel_size_um": ma.get("voxel_size_um"), "n_inside_voxels": ma.get("n_inside_voxels"),
-        "iso_level": ma.get("iso_level"), "n_mesh_vertices": ma.get("n_mesh_vertices"), "n_mesh_faces": ma.get("n_mesh_faces"),
-        "settings": ma.get("settings", {}), "timings_s": ma.get("timings_s", {}),
+        "volume_method": ma.get("volume_method", ""),
+        "surface_method": ma.get("surface_method", ""),
+        "n_views": ma.get("n_views"),
+        "voxel_size_um": ma.get("voxel_size_um"),
+        "n_inside_voxels": ma.get("n_inside_voxels"),
+        "iso_level": ma.get("iso_level"),
+        "n_mesh_vertices": ma.get("n_mesh_vertices"),
+        "n_mesh_faces": ma.get("n_mesh_faces"),
+        "settings": ma.get("settings", {}),
+        "timings_s": ma.get("timings_s", {}),
         "volume_to_cite": "volume_mm3",
-        "volume_note": ("volume_mm3 (voxels whose centres lie inside all silhouettes x voxel volume) is the measurement: it is the "
-                        "visual hull's volume itself and converges to it as the voxels shrink (within 0.1 % on phantoms with exact "
-                        "silhouettes). mesh_volume_mm3 encloses the smoothed iso-surface at N - 1.6 silhouettes, which lies outside the "
-                        "hull by construction (chosen for the area): a diagnostic, not a second measurement."),
-        "uncertainty": ma.get("uncertainty"), "qc": qc_doc,
-        "volume_U_mm3": ma.get("volume_U_mm3"), "surface_area_U_mm2": ma.get("surface_area_U_mm2"),
-        "coverage_factor_k": ma.get("coverage_factor_k"), "verdict": (qc_doc or {}).get("verdict", "not evaluated"),
+        "volume_note": (
+            "volume_mm3 (voxels whose centres lie inside all silhouettes x voxel volume) is the measurement: it is the "
+            "visual hull's volume itself and converges to it as the voxels shrink (within 0.1 % on phantoms with exact "
+            "silhouettes). mesh_volume_mm3 encloses the smoothed iso-surface at N - 1.6 silhouettes, which lies outside the "
+            "hull by construction (chosen for the area): a diagnostic, not a second measurement."
+        ),
+        "uncertainty": ma.get("uncertainty"),
+        "qc": qc_doc,
+        "volume_U_mm3": ma.get("volume_U_mm3"),
+        "surface_area_U_mm2": ma.get("surface_area_U_mm2"),
+        "coverage_factor_k": ma.get("coverage_factor_k"),
+        "verdict": (qc_doc or {}).get("verdict", "not evaluated"),
         "verdict_reasons": [f.get("message", "") for f in (qc_doc or {}).get("flags", [])],
         "lower_bound": bool((qc_doc or {}).get("lower_bound", False)),
-        "reconstruction_run": rec_name, "silhouette_source": prov.get("silhouette_source", ra.get("silhouette_source", "")),
-        "grid": {"shape": ra.get("grid_shape"), "lower_um": ra.get("grid_lower_um"), "upper_um": ra.get("grid_upper_um"),
-                 "n_voxels": ra.get("n_voxels"), "hull_wall_time_s": ra.get("wall_time_s")},
+        "reconstruction_run": rec_name,
+        "silhouette_source": prov.get("silhouette_source", ra.get("silhouette_source", "")),
+        "grid": {
+            "shape": ra.get("grid_shape"),
+            "lower_um": ra.get("grid_lower_um"),
+            "upper_um": ra.get("grid_upper_um"),
+            "n_voxels": ra.get("n_voxels"),
+            "hull_wall_time_s": ra.get("wall_time_s"),
+        },
     }
-    session = {"file": str(path.resolve()), "specimen": title or path.stem, "uid": start.get("uid", ""), "start_time": start.get("time", ""),
-               "n_views": int(len(commanded))}
+    session = {
+        "file": str(path.resolve()),
+        "specimen": title or path.stem,
+        "uid": start.get("uid", ""),
+        "start_time": start.get("time", ""),
+        "n_views": int(len(commanded)),
+    }
     provenance = {
-        "report_time": _dt.datetime.now(_dt.timezone.utc).isoformat(),
+        "report_time": _dt.datetime.now(_dt.UTC).isoformat(),
         "software_versions": software_versions(),
         "session_versions": start.get("versions", {}),
         "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv and sys.argv[0] else "",
         "runs": run_log,
-        "measurement_run": mrun, "reconstruction_run": rec_name, "calibration_run": cal_run,
+        "measurement_run": mrun,
+        "reconstruction_run": rec_name,
+        "calibration_run": cal_run,
     }
     views = {"index": list(range(len(commanded))), "commanded_angle_deg": commanded.tolist()}
     if delta is not None:
         views["delta_angle_deg"] = np.asarray(delta, float).tolist()
     data = ReportData(_plain(session), _plain(measurement), _plain(cal), _plain(provenance), _plain(views))
-    arrays = {"frames": frames, "P": P, "points": points, "voxel_size_um": hull.grid.size, "mesh": mesh, "delta": delta, "cost": cost,
-              "commanded": commanded}
+    arrays = {
+        "frames": frames,
+        "P": P,
+        "points": points,
+        "voxel_size_um": hull.grid.size,
+        "mesh": mesh,
+        "delta": delta,
+        "cost": cost,
+        "commanded": commanded,
+    }
     return data, arrays
 
 
@@ -385,15 +510,23 @@ def truth_rows(truth: dict[str, Any] | None) -> list[dict[str, str]]:
             rows.append({"label": label, "value": f"{_num(truth[key], fmt)} {unit}"})
     for key, value in truth.items():
         if key not in TRUTH_LABELS:
-            rows.append({"label": key.replace("_", " "), "value": _num(value, ".4g") if not isinstance(value, str) else value})
+            rows.append(
+                {"label": key.replace("_", " "), "value": _num(value, ".4g") if not isinstance(value, str) else value}
+            )
     return rows
 
 
 _PRETTY = (
-    (re.compile(r"(\d)\s*um\b"), "\\1 µm"), (re.compile(r"(?<!-)\bum\b"), "µm"),
-    (re.compile(r"\bmm\^3\b"), "mm³"), (re.compile(r"\bmm\^2\b"), "mm²"),
-    (re.compile(r"(\d)\s*deg\b"), "\\1°"), (re.compile(r"\bdeg\b"), "°"),
-    (re.compile(r"\+-\s*"), "±"), (re.compile(r"\bsigma\b"), "σ"), (re.compile(r"\bsigma_"), "σ_"), (re.compile(r" x "), " × "),
+    (re.compile(r"(\d)\s*um\b"), "\\1 µm"),
+    (re.compile(r"(?<!-)\bum\b"), "µm"),
+    (re.compile(r"\bmm\^3\b"), "mm³"),
+    (re.compile(r"\bmm\^2\b"), "mm²"),
+    (re.compile(r"(\d)\s*deg\b"), "\\1°"),
+    (re.compile(r"\bdeg\b"), "°"),
+    (re.compile(r"\+-\s*"), "±"),
+    (re.compile(r"\bsigma\b"), "σ"),
+    (re.compile(r"\bsigma_"), "σ_"),
+    (re.compile(r" x "), " × "),
 )
 """ASCII unit spellings of stored texts (written for consoles and logs) and how the page prints them."""
 
@@ -413,8 +546,12 @@ def _environment() -> Any:
     """The jinja2 environment of the report's templates (package data ``vastcal/report/templates``), autoescaping every value."""
     import jinja2
 
-    env = jinja2.Environment(loader=jinja2.PackageLoader("vastcal.report", "templates"), autoescape=True,
-                             undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("vastcal.report", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        keep_trailing_newline=True,
+    )
     env.filters["pretty"] = pretty
     return env
 
@@ -453,8 +590,11 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
     drift = dict(c.get("drift") or {})
     drift.setdefault("status", "not available")
     drift.setdefault("reason", "")
-    drift_value = (f"{_num(c.get('drift_rms_deg'), '.3f')}° ± {_num(drift.get('u_per_view_deg'), '.3g')}° per view"
-                   if drift.get("u_per_view_deg") is not None else f"{_num(c.get('drift_rms_deg'), '.3f')}°")
+    drift_value = (
+        f"{_num(c.get('drift_rms_deg'), '.3f')}° ± {_num(drift.get('u_per_view_deg'), '.3g')}° per view"
+        if drift.get("u_per_view_deg") is not None
+        else f"{_num(c.get('drift_rms_deg'), '.3f')}°"
+    )
 
     def col(name: str, i: int) -> Any:
         vals = per_view.get(name) or []
@@ -465,52 +605,108 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         ov = figures.view_overlay(frames[i], arrays["P"][i], arrays["points"], arrays["voxel_size_um"])
         d = delta[i] if delta is not None and i < len(delta) else None
         fl = ", ".join(flags_by_view.get(i, []))
-        caption = f"view {i}: commanded {_num(commanded[i], '.2f')}°" + (f", calibrated − commanded {_num(d, '+.2f')}°" if d is not None else "")
+        caption = f"view {i}: commanded {_num(commanded[i], '.2f')}°" + (
+            f", calibrated − commanded {_num(d, '+.2f')}°" if d is not None else ""
+        )
         if col("iou", i) is not None:
             caption += f", IoU {_num(col('iou', i), '.3f')}, boundary {_num(col('boundary_distance_px', i), '.2f')} px"
         if fl:
             caption += f" — FLAGGED: {fl}"
-        views.append({"index": i, "image_uri": ov.image_uri, "outline": ov.outline_path, "width": ov.width, "height": ov.height,
-                      "caption": caption, "flags": fl})
+        views.append(
+            {
+                "index": i,
+                "image_uri": ov.image_uri,
+                "outline": ov.outline_path,
+                "width": ov.width,
+                "height": ov.height,
+                "caption": caption,
+                "flags": fl,
+            }
+        )
         cn, nz = col("contrast", i), col("noise", i)
         cnr = (cn / nz) if isinstance(cn, (int, float)) and isinstance(nz, (int, float)) and nz else None
-        rows.append({"index": i, "commanded": _num(commanded[i], ".3f"), "drift": _num(d, "+.3f"), "iou": _num(col("iou", i), ".3f"),
-                     "distance": _num(col("boundary_distance_px", i), ".2f"), "offset": _num(col("boundary_offset_px", i), "+.2f"),
-                     "cnr": _num(cnr, ".0f"), "flags": fl})
+        rows.append(
+            {
+                "index": i,
+                "commanded": _num(commanded[i], ".3f"),
+                "drift": _num(d, "+.3f"),
+                "iou": _num(col("iou", i), ".3f"),
+                "distance": _num(col("boundary_distance_px", i), ".2f"),
+                "offset": _num(col("boundary_offset_px", i), "+.2f"),
+                "cnr": _num(cnr, ".0f"),
+                "flags": fl,
+            }
+        )
     thresholds = qc.get("thresholds") or {}
     flagged = [bool(flags_by_view.get(i)) for i in range(n)]
-    agreement_uri = (figures.agreement_plot(per_view.get("iou", []), per_view.get("boundary_distance_px", []),
-                                            disagree_px=thresholds.get("disagree_px"), fail_iou=thresholds.get("fail_iou"), flagged=flagged)
-                     if per_view.get("iou") else None)
-    drift_uri = (figures.drift_plot(delta, u_per_view_deg=drift.get("u_per_view_deg") if drift["status"] == "undetermined" else None,
-                                    status=str(drift["status"])) if delta is not None and np.size(delta) else None)
+    agreement_uri = (
+        figures.agreement_plot(
+            per_view.get("iou", []),
+            per_view.get("boundary_distance_px", []),
+            disagree_px=thresholds.get("disagree_px"),
+            fail_iou=thresholds.get("fail_iou"),
+            flagged=flagged,
+        )
+        if per_view.get("iou")
+        else None
+    )
+    drift_uri = (
+        figures.drift_plot(
+            delta,
+            u_per_view_deg=drift.get("u_per_view_deg") if drift["status"] == "undetermined" else None,
+            status=str(drift["status"]),
+        )
+        if delta is not None and np.size(delta)
+        else None
+    )
     cost = arrays["cost"]
-    convergence_uri = (figures.convergence_plot(cost[0], cost[1], title=f"Best cost during calibration ({c.get('method', '')})")
-                       if cost is not None and np.size(cost[1]) else None)
+    convergence_uri = (
+        figures.convergence_plot(cost[0], cost[1], title=f"Best cost during calibration ({c.get('method', '')})")
+        if cost is not None and np.size(cost[1])
+        else None
+    )
     budget = None
     if u.get("components"):
         brows = []
         for comp in u.get("components", []) or []:
             ev = comp.get("u_volume_mm3") is not None and comp.get("u_area_mm2") is not None
-            brows.append({"name": comp.get("name", ""), "u_volume": _num(comp.get("u_volume_mm3"), ".5f") if ev else "not evaluated",
-                          "u_area": _num(comp.get("u_area_mm2"), ".4f") if ev else "not evaluated",
-                          "how": str(comp.get("method", "")) + ((" — " + str(comp["note"])) if comp.get("note") else "")})
-        budget = {"rows": brows, "u_volume": _num(u.get("u_volume_mm3"), ".5f"), "u_area": _num(u.get("u_area_mm2"), ".4f"),
-                  "U_volume": _num(u.get("U_volume_mm3"), ".5f"), "U_area": _num(u.get("U_area_mm2"), ".4f")}
+            brows.append(
+                {
+                    "name": comp.get("name", ""),
+                    "u_volume": _num(comp.get("u_volume_mm3"), ".5f") if ev else "not evaluated",
+                    "u_area": _num(comp.get("u_area_mm2"), ".4f") if ev else "not evaluated",
+                    "how": str(comp.get("method", "")) + ((" — " + str(comp["note"])) if comp.get("note") else ""),
+                }
+            )
+        budget = {
+            "rows": brows,
+            "u_volume": _num(u.get("u_volume_mm3"), ".5f"),
+            "u_area": _num(u.get("u_area_mm2"), ".4f"),
+            "U_volume": _num(u.get("U_volume_mm3"), ".5f"),
+            "U_area": _num(u.get("U_area_mm2"), ".4f"),
+        }
     mesh = arrays["mesh"]
     payload = figures.mesh_payload(mesh.vertices, mesh.faces)
     ext = payload["extent_um"]
-    numbers = [("volume (cite this)", f"{_num(m.get('volume_mm3'), '.5f')}{pm_v} mm³{lower}"),
-               ("surface area", f"{_num(m.get('surface_area_mm2'), '.4f')}{pm_a} mm²{lower}"),
-               ("mesh enclosed volume (diagnostic)", f"{_num(m.get('mesh_volume_mm3'), '.5f')} mm³"),
-               ("unsmoothed surface area", f"{_num(m.get('raw_surface_area_mm2'), '.4f')} mm²"),
-               ("voxel size", f"{_num(m.get('voxel_size_um'), '.2f')} µm"), ("voxels inside", _num(m.get("n_inside_voxels"), "d")),
-               ("iso-level", f"{_num(m.get('iso_level'), '.2f')} of {_num(m.get('n_views'), 'd')} silhouettes"),
-               ("silhouettes", str(m.get("silhouette_source", ""))), ("cameras", str(c.get("camera_source", ""))),
-               ("calibration method", str(c.get("method", ""))), ("seed", str(c.get("seed", "–"))),
-               ("yaw / pitch / γ", f"{_num(c.get('yaw_deg'), '.4f')}° / {_num(c.get('pitch_deg'), '.4f')}° / {_num(c.get('gamma_deg'), '.4f')}°"),
-               ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
-               ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s")]
+    numbers = [
+        ("volume (cite this)", f"{_num(m.get('volume_mm3'), '.5f')}{pm_v} mm³{lower}"),
+        ("surface area", f"{_num(m.get('surface_area_mm2'), '.4f')}{pm_a} mm²{lower}"),
+        ("mesh enclosed volume (diagnostic)", f"{_num(m.get('mesh_volume_mm3'), '.5f')} mm³"),
+        ("unsmoothed surface area", f"{_num(m.get('raw_surface_area_mm2'), '.4f')} mm²"),
+        ("voxel size", f"{_num(m.get('voxel_size_um'), '.2f')} µm"),
+        ("voxels inside", _num(m.get("n_inside_voxels"), "d")),
+        ("iso-level", f"{_num(m.get('iso_level'), '.2f')} of {_num(m.get('n_views'), 'd')} silhouettes"),
+        ("silhouettes", str(m.get("silhouette_source", ""))),
+        ("cameras", str(c.get("camera_source", ""))),
+        ("calibration method", str(c.get("method", ""))),
+        ("seed", str(c.get("seed", "–"))),
+        (
+            "yaw / pitch / γ",
+            f"{_num(c.get('yaw_deg'), '.4f')}° / {_num(c.get('pitch_deg'), '.4f')}° / {_num(c.get('gamma_deg'), '.4f')}°",
+        ),
+        ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
+        ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s"),
+    ]
     units_note = (m.get("units") or {}).get("note", "")
     volume_text = f"{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}"
     area_text = f"{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}"
@@ -519,29 +715,52 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
 
         def _w(key: str, power: int) -> str:
             v = m.get(key)
-            return _num(v * 1e3 ** power if isinstance(v, (int, float)) else v, ".6g")
+            return _num(v * 1e3**power if isinstance(v, (int, float)) else v, ".6g")
 
         exp = {3: "³", 2: "²"}
         volume_text = f"{_w('volume_mm3', 3)}" + (f" ± {_w('volume_U_mm3', 3)}" if pm_v else "") + f" {world}³{lower}"
-        area_text = f"{_w('surface_area_mm2', 2)}" + (f" ± {_w('surface_area_U_mm2', 2)}" if pm_a else "") + f" {world}²{lower}"
-        numbers[:5] = [("volume (cite this)", volume_text), ("surface area", area_text),
-                       ("mesh enclosed volume (diagnostic)", f"{_w('mesh_volume_mm3', 3)} {world}{exp[3]}"),
-                       ("unsmoothed surface area", f"{_w('raw_surface_area_mm2', 2)} {world}{exp[2]}"),
-                       ("voxel size", f"{_num(m.get('voxel_size_um'), '.4g')} {world}")]
+        area_text = (
+            f"{_w('surface_area_mm2', 2)}" + (f" ± {_w('surface_area_U_mm2', 2)}" if pm_a else "") + f" {world}²{lower}"
+        )
+        numbers[:5] = [
+            ("volume (cite this)", volume_text),
+            ("surface area", area_text),
+            ("mesh enclosed volume (diagnostic)", f"{_w('mesh_volume_mm3', 3)} {world}{exp[3]}"),
+            ("unsmoothed surface area", f"{_w('raw_surface_area_mm2', 2)} {world}{exp[2]}"),
+            ("voxel size", f"{_num(m.get('voxel_size_um'), '.4g')} {world}"),
+        ]
     return {
-        "session": s, "measurement": m, "calibration": c, "provenance": data.provenance, "n_views": n,
-        "verdict": str(m.get("verdict", "not evaluated")), "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
-        "lower_bound": bool(m.get("lower_bound")), "k_text": _num(k, "g"),
-        "volume_text": volume_text, "area_text": area_text,
-        "drift": drift, "drift_value": drift_value, "units_note": units_note,
-        "truth": truth_rows(truth), "budget": budget, "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
+        "session": s,
+        "measurement": m,
+        "calibration": c,
+        "provenance": data.provenance,
+        "n_views": n,
+        "verdict": str(m.get("verdict", "not evaluated")),
+        "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
+        "lower_bound": bool(m.get("lower_bound")),
+        "k_text": _num(k, "g"),
+        "volume_text": volume_text,
+        "area_text": area_text,
+        "drift": drift,
+        "drift_value": drift_value,
+        "units_note": units_note,
+        "truth": truth_rows(truth),
+        "budget": budget,
+        "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
         "hull_bias": str(u.get("hull_bias", ""))[:1].upper() + str(u.get("hull_bias", ""))[1:],
-        "views": views, "n_flagged": sum(flagged), "frame_width": views[0]["width"] if views else 0,
-        "frame_height": views[0]["height"] if views else 0, "agreement_uri": agreement_uri,
-        "mesh": payload, "extent_text": " × ".join(f"{_num(x / 1000.0, '.2f')}" for x in ext) + " mm",
-        "drift_uri": drift_uri, "convergence_uri": convergence_uri,
-        "n_evaluations_text": _num(c.get("n_evaluations"), "d"), "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
-        "numbers": numbers, "per_view": rows,
+        "views": views,
+        "n_flagged": sum(flagged),
+        "frame_width": views[0]["width"] if views else 0,
+        "frame_height": views[0]["height"] if views else 0,
+        "agreement_uri": agreement_uri,
+        "mesh": payload,
+        "extent_text": " × ".join(f"{_num(x / 1000.0, '.2f')}" for x in ext) + " mm",
+        "drift_uri": drift_uri,
+        "convergence_uri": convergence_uri,
+        "n_evaluations_text": _num(c.get("n_evaluations"), "d"),
+        "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
+        "numbers": numbers,
+        "per_view": rows,
         "thresholds": ", ".join(f"{k_} {v}" for k_, v in thresholds.items()),
         "provenance_json": json.dumps(data.provenance, indent=1),
     }
@@ -556,8 +775,13 @@ def html_text(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any] | 
     return _environment().get_template("report.html.j2").render(**page_context(data, arrays, truth))
 
 
-def write_report(session_path: str | Path, out_dir: str | Path, *, measurement_run: str | None = None,
-                 truth: dict[str, Any] | None = None) -> Path:
+def write_report(
+    session_path: str | Path,
+    out_dir: str | Path,
+    *,
+    measurement_run: str | None = None,
+    truth: dict[str, Any] | None = None,
+) -> Path:
     """Write ``report.json``, ``report.csv`` and ``report.html`` of a session into ``out_dir``.
 
     ``vastcal report S.h5 -o DIR`` calls this. Uses the latest measurement (or ``measurement_run``).

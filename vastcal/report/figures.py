@@ -19,8 +19,8 @@ import base64
 import io
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -37,9 +37,18 @@ FLAG_COLOUR = "#c62828"
 """Colour of what QC flagged (views, bars)."""
 BAR_COLOUR = "#3b6fb6"
 
-_RC = {"svg.fonttype": "path", "svg.hashsalt": "vastcal-report", "font.size": 9.0, "axes.titlesize": 10.0,
-       "axes.spines.top": False, "axes.spines.right": False, "axes.grid": True, "grid.color": "#e6e6e6", "grid.linewidth": 0.6,
-       "axes.axisbelow": True}
+_RC = {
+    "svg.fonttype": "path",
+    "svg.hashsalt": "vastcal-report",
+    "font.size": 9.0,
+    "axes.titlesize": 10.0,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "axes.grid": True,
+    "grid.color": "#e6e6e6",
+    "grid.linewidth": 0.6,
+    "axes.axisbelow": True,
+}
 """matplotlib settings of every plot (text as paths: the page needs no font; a fixed hash salt: reproducible files)."""
 
 
@@ -121,8 +130,14 @@ def drift_plot(delta_deg: Sequence[float], *, u_per_view_deg: float | None = Non
         x = np.arange(d.size)
         ax.bar(x, d, width=0.7, color=[BAR_COLOUR if v >= 0 else "#c0504d" for v in np.nan_to_num(d)])
         if u_per_view_deg:
-            ax.axhspan(-u_per_view_deg, u_per_view_deg, color="#999999", alpha=0.18, lw=0,
-                       label=f"± {u_per_view_deg:g}° (roll prior: what the images cannot decide)")
+            ax.axhspan(
+                -u_per_view_deg,
+                u_per_view_deg,
+                color="#999999",
+                alpha=0.18,
+                lw=0,
+                label=f"± {u_per_view_deg:g}° (roll prior: what the images cannot decide)",
+            )
             ax.legend(loc="upper right", frameon=False)
         ax.axhline(0.0, color="#444444", lw=0.8)
         ax.set_xlabel("view")
@@ -133,8 +148,14 @@ def drift_plot(delta_deg: Sequence[float], *, u_per_view_deg: float | None = Non
     return svg_data_uri(fig)
 
 
-def agreement_plot(iou: Sequence[float | None], distance_px: Sequence[float | None], *, disagree_px: float | None = None,
-                   fail_iou: float | None = None, flagged: Sequence[bool] = ()) -> str:
+def agreement_plot(
+    iou: Sequence[float | None],
+    distance_px: Sequence[float | None],
+    *,
+    disagree_px: float | None = None,
+    fail_iou: float | None = None,
+    flagged: Sequence[bool] = (),
+) -> str:
     """Per-view agreement of silhouette and reprojected hull: IoU and mean boundary distance (px); SVG data URI.
 
     Flagged views are drawn red; the QC thresholds as dashed lines.
@@ -167,7 +188,9 @@ def agreement_plot(iou: Sequence[float | None], distance_px: Sequence[float | No
     return svg_data_uri(fig)
 
 
-def convergence_plot(evaluations: Sequence[float], cost: Sequence[float], *, title: str = "Best cost during calibration") -> str:
+def convergence_plot(
+    evaluations: Sequence[float], cost: Sequence[float], *, title: str = "Best cost during calibration"
+) -> str:
     """Best cost so far against the number of cost evaluations; SVG data URI.
 
     Log scale when every cost is positive and they span more than a factor 20. The stored trace
@@ -187,8 +210,14 @@ def convergence_plot(evaluations: Sequence[float], cost: Sequence[float], *, tit
             cuts = np.flatnonzero(np.diff(c) > 0) + 1
             segments = np.split(np.arange(c.size), cuts)
             for j, seg in enumerate(segments):
-                ax.step(ev[seg], c[seg], where="post", lw=1.4, color=f"C{j % 10}",
-                        label=f"run {j + 1}" if len(segments) > 1 else None)
+                ax.step(
+                    ev[seg],
+                    c[seg],
+                    where="post",
+                    lw=1.4,
+                    color=f"C{j % 10}",
+                    label=f"run {j + 1}" if len(segments) > 1 else None,
+                )
             ax.plot(ev[-1:], c[-1:], "o", color="#222222", ms=4, label="final (stored pose)")
             ax.legend(loc="upper right", frameon=False, ncols=min(len(segments) + 1, 4))
             if np.all(c > 0) and c.max() / c.min() > 20:
@@ -257,7 +286,9 @@ def outline_path(mask: np.ndarray, *, tolerance_px: float = 0.3) -> str:
     smoothed along the contour (σ = 1 px) and simplified to ``tolerance_px``."""
     contours, _ = cv2.findContours(np.ascontiguousarray(mask), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     parts = []
-    kernel = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # binomial, σ = 1 px along the contour: removes the pixel staircase
+    kernel = (
+        np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
+    )  # binomial, σ = 1 px along the contour: removes the pixel staircase
     for c in contours:
         pts = c.reshape(-1, 2).astype(np.float32)
         if len(pts) >= 8:
@@ -270,7 +301,9 @@ def outline_path(mask: np.ndarray, *, tolerance_px: float = 0.3) -> str:
     return " ".join(parts)
 
 
-def view_overlay(frame: np.ndarray, P: np.ndarray, points: np.ndarray, voxel_size_um: float, *, quality: int = 90) -> ViewOverlay:
+def view_overlay(
+    frame: np.ndarray, P: np.ndarray, points: np.ndarray, voxel_size_um: float, *, quality: int = 90
+) -> ViewOverlay:
     """One view's frame (full resolution, JPEG ``quality``) and the outline of the hull reprojected through ``P``.
 
     Args:
@@ -329,6 +362,12 @@ def mesh_payload(vertices: np.ndarray, faces: np.ndarray, *, max_faces: int = 60
     v32 = np.ascontiguousarray(v, dtype="<f4")
     index_type = "u2" if len(v32) <= 65536 else "u4"  # 16-bit indices halve the faces when they can
     fi = np.ascontiguousarray(f, dtype="<" + index_type)
-    return {"vertices_b64": base64.b64encode(v32.tobytes()).decode("ascii"), "faces_b64": base64.b64encode(fi.tobytes()).decode("ascii"),
-            "index_type": index_type, "n_vertices": int(len(v32)), "n_faces": int(len(fi)), "n_faces_measured": int(len(faces)),
-            "extent_um": [float(x) for x in (np.ptp(v, axis=0) if len(v) else np.zeros(3))]}
+    return {
+        "vertices_b64": base64.b64encode(v32.tobytes()).decode("ascii"),
+        "faces_b64": base64.b64encode(fi.tobytes()).decode("ascii"),
+        "index_type": index_type,
+        "n_vertices": int(len(v32)),
+        "n_faces": int(len(fi)),
+        "n_faces_measured": int(len(faces)),
+        "extent_um": [float(x) for x in (np.ptp(v, axis=0) if len(v) else np.zeros(3))],
+    }
