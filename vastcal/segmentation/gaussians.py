@@ -34,7 +34,7 @@ MIN_VAR = 1e-4
 
 @dataclass(frozen=True)
 class Gaussian:
-    """A full-covariance Gaussian over pixel features in [0, 1] (C channels)."""
+    """A full-covariance Gaussian over pixel features in [0, 1] (C channels): ``mean`` (C,), ``cov`` (C, C)."""
 
     mean: np.ndarray
     cov: np.ndarray
@@ -100,6 +100,12 @@ class GaussianMixture:
     each material its own component. Where one colour of the background is asked for (the contrast of
     an edge, the gate of faint halos, the separation check) its *dominant* component — the largest weight,
     the backdrop — stands for it.
+
+    Attributes:
+        weights: (K,) w_k, summing to 1.
+        parts: the K components.
+        regions: (K, H, W) bool, where each component is present in the pixel grid of the view its marks were
+            drawn on (resized to other frame sizes by :meth:`present`); None: every component everywhere.
     """
 
     weights: np.ndarray
