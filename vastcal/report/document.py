@@ -29,6 +29,16 @@ import numpy as np
 
 from vastcal.errors import AnalysisError, MissingStageError, UserInputError
 from vastcal.report import figures
+from vastcal.report.imported import comparison_rows
+from vastcal.report.words import (
+    converged_text,
+    glossary,
+    optimiser_runs,
+    provenance_rows,
+    readable_time,
+    threshold_rows,
+)
+from vastcal.screen_table import SPECIMEN_FIELDS
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +46,7 @@ REPORT_SCHEMA = "vastcal.report/1"
 
 CSV_COLUMNS = (
     "specimen",
+    *SPECIMEN_FIELDS,
     "session_uid",
     "session_file",
     "volume_mm3",
@@ -67,10 +78,13 @@ CSV_COLUMNS = (
     "report_time",
     "length_unit",
 )
-"""Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate). ``length_unit``: the world's
-unit — a known one (``um`` on a rig; ``nm`` … ``m`` for imported cameras, converted) when the ``_mm3``/``_mm2``/``_um``
-columns are what they say; ``px`` or ``unknown`` (cameras of unknown unit) when they hold 10⁻⁹ px³ / 10⁻⁹ (units of the
-cameras)³ and so on — the measurement in that unit, scaled as if it were µm."""
+"""Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate).
+
+``length_unit``: the world's unit — a known one (``um`` on a rig; ``nm`` … ``m`` for imported cameras, converted)
+when the ``_mm3``/``_mm2``/``_um`` columns are what they say; ``px`` or ``unknown`` (cameras of unknown unit) when
+they hold 10⁻⁹ px³ / 10⁻⁹ (units of the cameras)³ and so on — the measurement in that unit, scaled as if it were µm.
+``specimen_id`` … ``well``: the specimen metadata (:mod:`vastcal.specimen`; empty when not given), as in the batch's
+screen table."""
 
 
 @dataclass
@@ -102,8 +116,10 @@ class ReportData:
     def csv_row(self) -> dict[str, Any]:
         """The one row of ``report.csv``."""
         m, c, s = self.measurement, self.calibration, self.session
+        meta = s.get("metadata") or {}
         return {
             "specimen": s.get("specimen", ""),
+            **{k: meta.get(k) for k in SPECIMEN_FIELDS},
             "session_uid": s.get("uid", ""),
             "session_file": s.get("file", ""),
             "volume_mm3": m.get("volume_mm3"),
@@ -185,6 +201,7 @@ def _calibration_summary(
         for k in ("free", "converged", "stop_reason", "sigma0"):
             if k in a:
                 out[k] = a[k]
+        out["optimiser_runs"] = optimiser_runs(a.get("levels"))
         if "theta_deg" in g:
             th = np.asarray(g["theta_deg"][...], float)
             out.update(
@@ -257,7 +274,8 @@ def _calibration_summary(
 
 def _measurement_units(length_unit: str) -> dict[str, str]:
     """report.json's ``units`` of a measurement in a world of ``length_unit`` (the stored labels,
-    :func:`vastcal.measure.measurement_units`; for a world of unknown unit, :func:`vastcal.measure.world_unit_words`' note)."""
+    :func:`vastcal.measure.measurement_units`; for a world of unknown unit,
+    :func:`vastcal.measure.world_unit_words`' note)."""
     from vastcal.measure import measurement_units, world_unit_words
 
     volume, area = measurement_units(length_unit)
@@ -266,6 +284,46 @@ def _measurement_units(length_unit: str) -> dict[str, str]:
         return {**units, "voxel_size_um": "um", "iso_level": "silhouettes"}
     unit, why = world_unit_words(length_unit)
     return {**units, "voxel_size_um": unit.strip("()"), "iso_level": "silhouettes", "note": why}
+
+
+GENERIC_FOLDER_NAMES = frozenset(
+    {
+        "images",
+        "image",
+        "imgs",
+        "img",
+        "frames",
+        "frame",
+        "data",
+        "raw",
+        "tif",
+        "tiff",
+        "png",
+        "stack",
+        "stacks",
+        "views",
+        "projections",
+        "silhouettes",
+        "masks",
+        "input",
+        "output",
+        "export",
+        "acquisition",
+        "sequence",
+    }
+)
+"""Folder names that say what the files are, not which specimen: never a report's title."""
+
+
+def specimen_title(metadata: dict[str, Any], title: str, path: Path) -> str:
+    """The name a report gives its specimen: the specimen ID of its metadata; else the session's title (the imported
+    folder's or stack's name, ``vastcal import --name``) unless that is a generic folder name such as ``images``;
+    else the session file's stem."""
+    if metadata.get("specimen_id"):
+        return str(metadata["specimen_id"])
+    if title.strip() and title.strip().lower() not in GENERIC_FOLDER_NAMES:
+        return title.strip()
+    return path.stem
 
 
 def cost_trace_columns(trace: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -292,6 +350,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
     from vastcal.measure import load_mesh
     from vastcal.reconstruct import _world_length_unit, cameras_in_um, hull_boundary, load_reconstruction
     from vastcal.session import Session, read_attrs, software_versions
+    from vastcal.specimen import specimen_fields
 
     path = Path(session_path)
     with Session.open(path) as s:
@@ -340,10 +399,18 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         for stage, names in runs.items():
             run_log[stage] = [{"run": n, "time": read_attrs(s.result(stage, n)).get("time", "")} for n in names]
         mesh = load_mesh(meas)
+        imported_masks = s.masks
+        imported_P = s.known_cameras if cal_run else None
+        if imported_P is not None:
+            imported_P = cameras_in_um(np.asarray(imported_P, float), _world_length_unit(s, None))[0]
     boundary = hull_boundary(hull.occupancy)
     points = (
         np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
     )
+    if imported_P is not None:
+        from vastcal.report.imported import compare_cameras
+
+        cal["imported_cameras_comparison"] = compare_cameras(P, imported_P)
 
     qc_doc = ma.get("qc") if isinstance(ma.get("qc"), dict) else None
     length_unit = str((ma.get("provenance") or {}).get("length_unit", "um"))
@@ -369,8 +436,8 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         "volume_note": (
             "volume_mm3 (voxels whose centres lie inside all silhouettes x voxel volume) is the measurement: it is the "
             "visual hull's volume itself and converges to it as the voxels shrink (within 0.1 % on phantoms with exact "
-            "silhouettes). mesh_volume_mm3 encloses the smoothed iso-surface at N - 1.6 silhouettes, which lies outside the "
-            "hull by construction (chosen for the area): a diagnostic, not a second measurement."
+            "silhouettes). mesh_volume_mm3 encloses the smoothed iso-surface at N - 1.6 silhouettes, which lies "
+            "outside the hull by construction (chosen for the area): a diagnostic, not a second measurement."
         ),
         "uncertainty": ma.get("uncertainty"),
         "qc": qc_doc,
@@ -390,12 +457,18 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
             "hull_wall_time_s": ra.get("wall_time_s"),
         },
     }
+    metadata = specimen_fields(path)
+    if imported_masks is not None:
+        from vastcal.report.imported import compare_masks
+
+        measurement["imported_masks_comparison"] = compare_masks(imported_masks, P, mesh.vertices, mesh.faces)
     session = {
         "file": str(path.resolve()),
-        "specimen": title or path.stem,
+        "specimen": specimen_title(metadata, title, path),
         "uid": start.get("uid", ""),
         "start_time": start.get("time", ""),
         "n_views": int(len(commanded)),
+        "metadata": metadata,
     }
     provenance = {
         "report_time": _dt.datetime.now(_dt.UTC).isoformat(),
@@ -501,12 +574,23 @@ TRUTH_LABELS = {
 """How the demo's comparison with the simulated truth (:func:`vastcal.pipeline.score_against_truth`) is labelled."""
 
 
-def truth_rows(truth: dict[str, Any] | None) -> list[dict[str, str]]:
-    """Rows (label, value with unit) of the comparison with a simulated truth, known keys first, in a fixed order."""
+UNDETERMINED_ANGLES_NOTE = (
+    " — the images could not decide the per-view angles (see the stage-angle card), so the calibration kept them "
+    "near the commanded ones: this is the simulated stage's own error, left uncorrected, not a calibration fault"
+)
+"""Added to the truth table's angle error when the drift is ``undetermined``: why it exceeds the card's RMS."""
+
+
+def truth_rows(truth: dict[str, Any] | None, *, drift_status: str = "") -> list[dict[str, str]]:
+    """Rows (label, value with unit) of the comparison with a simulated truth, known keys first, in a fixed order.
+
+    With ``drift_status`` ``undetermined`` the angle error's label says why it exceeds the stage-angle card's value."""
     rows = []
     truth = truth or {}
     for key, (label, unit, fmt) in TRUTH_LABELS.items():
         if key in truth:
+            if key == "angle_rms_error_deg" and drift_status == "undetermined":
+                label += UNDETERMINED_ANGLES_NOTE
             rows.append({"label": label, "value": f"{_num(truth[key], fmt)} {unit}"})
     for key, value in truth.items():
         if key not in TRUTH_LABELS:
@@ -543,7 +627,8 @@ def pretty(text: Any) -> str:
 
 
 def _environment() -> Any:
-    """The jinja2 environment of the report's templates (package data ``vastcal/report/templates``), autoescaping every value."""
+    """The jinja2 environment of the report's templates (package data ``vastcal/report/templates``), autoescaping
+    every value."""
     import jinja2
 
     env = jinja2.Environment(
@@ -554,6 +639,46 @@ def _environment() -> Any:
     )
     env.filters["pretty"] = pretty
     return env
+
+
+SPECIMEN_LABELS = {
+    "specimen_id": "specimen ID",
+    "age_dpf": "age (days post fertilisation)",
+    "strain": "strain",
+    "treatment": "treatment",
+    "plate": "plate",
+    "well": "well",
+}
+"""How the page labels the specimen metadata fields (:data:`vastcal.screen_table.SPECIMEN_FIELDS`)."""
+
+
+def specimen_rows(metadata: dict[str, Any]) -> list[tuple[str, str]]:
+    """(label, value) of every specimen field given, in :data:`SPECIMEN_LABELS` order; an age as a plain number."""
+    rows = []
+    for key, label in SPECIMEN_LABELS.items():
+        v = metadata.get(key)
+        if v not in (None, ""):
+            rows.append((label, _num(v, "g") if key == "age_dpf" else str(v)))
+    return rows
+
+
+def drift_card(rms_deg: Any, drift: dict[str, Any]) -> tuple[str, str]:
+    """(value, label) of the stage-angle card. When the images do not determine the per-view angles the value says so:
+    the calibrated − commanded RMS then only shows how closely the calibration kept to the commanded angles, and the
+    stage's true error may be as large as the prior's width."""
+    u = drift.get("u_per_view_deg")
+    rms = f"{_num(rms_deg, '.3f')}°"
+    if drift.get("status") == "undetermined":
+        return (
+            "not determined",
+            f"stage angle error per view (calibrated − commanded {rms} RMS: the calibration kept to the commanded "
+            "angles)",
+        )
+    value = f"{rms} ± {_num(u, '.3g')}° per view" if u is not None else rms
+    return (
+        value,
+        f"RMS calibrated − commanded angle (views 1…N−1): the stage's error as calibrated, {drift.get('status')}",
+    )
 
 
 def _flags_by_view(qc: dict[str, Any]) -> dict[int, list[str]]:
@@ -590,11 +715,7 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
     drift = dict(c.get("drift") or {})
     drift.setdefault("status", "not available")
     drift.setdefault("reason", "")
-    drift_value = (
-        f"{_num(c.get('drift_rms_deg'), '.3f')}° ± {_num(drift.get('u_per_view_deg'), '.3g')}° per view"
-        if drift.get("u_per_view_deg") is not None
-        else f"{_num(c.get('drift_rms_deg'), '.3f')}°"
-    )
+    drift_value, drift_label = drift_card(c.get("drift_rms_deg"), drift)
 
     def col(name: str, i: int) -> Any:
         vals = per_view.get(name) or []
@@ -661,7 +782,12 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
     )
     cost = arrays["cost"]
     convergence_uri = (
-        figures.convergence_plot(cost[0], cost[1], title=f"Best cost during calibration ({c.get('method', '')})")
+        figures.convergence_plot(
+            cost[0],
+            cost[1],
+            title=f"Best cost during calibration ({c.get('method', '')})",
+            runs=c.get("optimiser_runs") or (),
+        )
         if cost is not None and np.size(cost[1])
         else None
     )
@@ -702,7 +828,7 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         ("seed", str(c.get("seed", "–"))),
         (
             "yaw / pitch / γ",
-            f"{_num(c.get('yaw_deg'), '.4f')}° / {_num(c.get('pitch_deg'), '.4f')}° / {_num(c.get('gamma_deg'), '.4f')}°",
+            " / ".join(f"{_num(c.get(key), '.4f')}°" for key in ("yaw_deg", "pitch_deg", "gamma_deg")),
         ),
         ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
         ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s"),
@@ -731,9 +857,9 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         ]
     return {
         "session": s,
+        "specimen_rows": specimen_rows(s.get("metadata") or {}),
         "measurement": m,
         "calibration": c,
-        "provenance": data.provenance,
         "n_views": n,
         "verdict": str(m.get("verdict", "not evaluated")),
         "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
@@ -743,8 +869,9 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         "area_text": area_text,
         "drift": drift,
         "drift_value": drift_value,
+        "drift_label": drift_label,
         "units_note": units_note,
-        "truth": truth_rows(truth),
+        "truth": truth_rows(truth, drift_status=str(drift["status"])),
         "budget": budget,
         "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
         "hull_bias": str(u.get("hull_bias", ""))[:1].upper() + str(u.get("hull_bias", ""))[1:],
@@ -758,11 +885,22 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         "drift_uri": drift_uri,
         "convergence_uri": convergence_uri,
         "n_evaluations_text": _num(c.get("n_evaluations"), "d"),
+        "converged_text": converged_text(c["converged"], c.get("stop_reason", "")) if "converged" in c else "",
         "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
         "numbers": numbers,
         "per_view": rows,
-        "thresholds": ", ".join(f"{k_} {v}" for k_, v in thresholds.items()),
-        "provenance_json": json.dumps(data.provenance, indent=1),
+        "thresholds": threshold_rows(thresholds),
+        "provenance": provenance_rows(data.provenance),
+        "report_time": readable_time(data.provenance.get("report_time", "")),
+        "imported_rows": comparison_rows(
+            c.get("imported_cameras_comparison") or {},
+            m.get("imported_masks_comparison") or {},
+            masks_carved=str(m.get("silhouette_source", "")).startswith("mask"),
+        ),
+        "glossary": glossary(
+            [str(comp.get("method", "")) + " " + str(comp.get("note", "")) for comp in u.get("components", []) or []]
+            + [str(drift.get("reason", "")), "IoU"]
+        ),
     }
 
 
