@@ -165,7 +165,7 @@ def test_an_undetermined_drift_is_not_shown_as_a_measurement() -> None:
 def test_not_converged_is_explained() -> None:
     assert converged_text(True, "tolerance reached") == "converged (tolerance reached)"
     text = converged_text(False, "maxfevals")
-    assert text.startswith("not converged (maxfevals): ") and "evaluation budget" in text and "--starts" in text
+    assert text.startswith("not converged (maxfevals): ") and "convergence test" in text and "--starts" in text
 
 
 def test_the_stage_angle_bars_have_a_legend() -> None:

@@ -169,6 +169,7 @@ def converged_text(converged: Any, stop_reason: Any = "") -> str:
     if converged:
         return "converged" + why
     return (
-        "not converged" + why + ": the optimiser stopped at its evaluation budget before its tolerance; the pose kept "
+        "not converged" + why + ": the optimiser stopped before its convergence test was met (usually at its "
+        "evaluation budget); the pose kept "
         "is the best found, usable when the verdict is ok; a run with more starts (--starts) shows whether it moves"
     )
