@@ -156,6 +156,7 @@ def test_an_undetermined_drift_is_not_shown_as_a_measurement() -> None:
     assert value == "not determined" and "0.004° RMS" in label and "kept to the commanded angles" in label
     value, _ = drift_card(0.31, {"status": "measured", "u_per_view_deg": 0.05})
     assert value == "0.310° ± 0.05° per view"
+    assert drift_card(1.2, {"status": "not estimated"})[0] == "not estimated"  # rolls held: no number to show
     (row,) = truth_rows({"angle_rms_error_deg": 0.9}, drift_status="undetermined")
     assert row["value"] == "0.900 °" and "could not decide the per-view angles" in row["label"]
     (row,) = truth_rows({"angle_rms_error_deg": 0.9}, drift_status="measured")
@@ -211,3 +212,12 @@ def test_the_words_as_headless_chromium_shows_them(measured_session: Path, tmp_p
     assert "IoU" in info["glossary"]["text"]
     assert not re.search(r"\d\.\d{6,}", info["body"]), "no number printed to more than 5 decimals"
     assert not re.search(r"\brun [1-9]\b", info["body"])
+
+
+def test_hostile_metadata_is_escaped_in_html_and_neutralised_in_csv(measured_session: Path, tmp_path: Path) -> None:
+    annotate(measured_session, {"specimen_id": '=HYPERLINK("http://x","c")', "strain": "<script>alert(1)</script>"})
+    write_report(measured_session, tmp_path / "r")
+    row = next(csv.DictReader((tmp_path / "r" / "report.csv").read_text().splitlines()))
+    assert row["specimen_id"] == "'" + '=HYPERLINK("http://x","c")' and row["specimen"].startswith("'=")
+    page = (tmp_path / "r" / "report.html").read_text()
+    assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page

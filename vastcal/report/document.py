@@ -674,6 +674,8 @@ def drift_card(rms_deg: Any, drift: dict[str, Any]) -> tuple[str, str]:
             f"stage angle error per view (calibrated − commanded {rms} RMS: the calibration kept to the commanded "
             "angles)",
         )
+    if drift.get("status") in ("not estimated", "not available"):
+        return str(drift["status"]), "stage angle error per view (calibrated − commanded, views 1…N−1)"
     value = f"{rms} ± {_num(u, '.3g')}° per view" if u is not None else rms
     return (
         value,
