@@ -339,6 +339,22 @@ def cost_trace_columns(trace: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(1, c.size + 1, dtype=float), c
 
 
+def _compare_imported(s: Any, P: np.ndarray, mesh: Any, *, compare_cameras_too: bool) -> dict[str, Any]:
+    """The session's imported masks (read one view at a time) and, when the measurement used calibrated cameras
+    ``P`` (µm), its imported cameras, compared with what the measurement used (:mod:`vastcal.report.imported`)."""
+    from vastcal.reconstruct import _world_length_unit, cameras_in_um
+    from vastcal.report.imported import compare_cameras, compare_masks
+
+    out: dict[str, Any] = {}
+    group = s.h5["/entry/vastcal"]
+    if compare_cameras_too and "cameras" in group:
+        known = cameras_in_um(np.asarray(s.known_cameras, float), _world_length_unit(s, None))[0]
+        out["cameras"] = compare_cameras(P, known)
+    if "masks" in group:
+        out["masks"] = compare_masks(group["masks"], P, mesh.vertices, mesh.faces)
+    return out
+
+
 def collect(session_path: str | Path, *, measurement_run: str | None = None) -> tuple[ReportData, dict[str, Any]]:
     """Read everything the report needs from a session.
 
@@ -399,18 +415,13 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         for stage, names in runs.items():
             run_log[stage] = [{"run": n, "time": read_attrs(s.result(stage, n)).get("time", "")} for n in names]
         mesh = load_mesh(meas)
-        imported_masks = s.masks
-        imported_P = s.known_cameras if cal_run else None
-        if imported_P is not None:
-            imported_P = cameras_in_um(np.asarray(imported_P, float), _world_length_unit(s, None))[0]
+        imported = _compare_imported(s, P, mesh, compare_cameras_too=bool(cal_run))
     boundary = hull_boundary(hull.occupancy)
     points = (
         np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
     )
-    if imported_P is not None:
-        from vastcal.report.imported import compare_cameras
-
-        cal["imported_cameras_comparison"] = compare_cameras(P, imported_P)
+    if "cameras" in imported:
+        cal["imported_cameras_comparison"] = imported["cameras"]
 
     qc_doc = ma.get("qc") if isinstance(ma.get("qc"), dict) else None
     length_unit = str((ma.get("provenance") or {}).get("length_unit", "um"))
@@ -458,10 +469,8 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         },
     }
     metadata = specimen_fields(path)
-    if imported_masks is not None:
-        from vastcal.report.imported import compare_masks
-
-        measurement["imported_masks_comparison"] = compare_masks(imported_masks, P, mesh.vertices, mesh.faces)
+    if "masks" in imported:
+        measurement["imported_masks_comparison"] = imported["masks"]
     session = {
         "file": str(path.resolve()),
         "specimen": specimen_title(metadata, title, path),
