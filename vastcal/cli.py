@@ -360,11 +360,14 @@ def _marks_args(args: argparse.Namespace) -> tuple[Any, Any]:
 
 def _add_marks_options(s: argparse.ArgumentParser) -> None:
     s.add_argument(
-        "--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)"
+        "--mask",
+        metavar="VIEW:FILE",
+        help="rough mask of one view (0-based) for the colour models, nonzero = specimen (default: automatic)",
     )
     s.add_argument(
         "--scribbles",
-        help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background",
+        metavar="VIEW:FILE",
+        help="label image of one view (0-based) for the colour models: 0 unknown, 1 specimen, 2 background",
     )
 
 
