@@ -688,7 +688,8 @@ SEED_HELP = (
 
 STARTS_WHY = (
     "a single start is quick and enough for a look or for a chosen --seed; 'run' and 'batch' default to 3 "
-    "because one start once kept the worse of two optima on a larva, and each start adds about one calibration's time"
+    "because a single start can settle in the worse of two optima (seen on a larva), and each start adds about one "
+    "calibration's time"
 )
 """Why ``calibrate --starts`` defaults to 1 and ``run``/``batch`` to 3."""
 
