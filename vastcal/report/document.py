@@ -339,6 +339,22 @@ def cost_trace_columns(trace: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(1, c.size + 1, dtype=float), c
 
 
+def _session_facts(path: Path, title: str, start: dict[str, Any], n_views: int) -> dict[str, Any]:
+    """report.json's ``session``: the file, the specimen's name (:func:`specimen_title`) and metadata
+    (:func:`vastcal.specimen.specimen_fields`), the start record's uid and time, the number of views."""
+    from vastcal.specimen import specimen_fields
+
+    metadata = specimen_fields(path)
+    return {
+        "file": str(path.resolve()),
+        "specimen": specimen_title(metadata, title, path),
+        "uid": start.get("uid", ""),
+        "start_time": start.get("time", ""),
+        "n_views": int(n_views),
+        "metadata": metadata,
+    }
+
+
 def _compare_imported(s: Any, P: np.ndarray, mesh: Any, *, compare_cameras_too: bool) -> dict[str, Any]:
     """The session's imported masks (read one view at a time) and, when the measurement used calibrated cameras
     ``P`` (µm), its imported cameras, compared with what the measurement used (:mod:`vastcal.report.imported`)."""
@@ -366,7 +382,6 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
     from vastcal.measure import load_mesh
     from vastcal.reconstruct import _world_length_unit, cameras_in_um, hull_boundary, load_reconstruction
     from vastcal.session import Session, read_attrs, software_versions
-    from vastcal.specimen import specimen_fields
 
     path = Path(session_path)
     with Session.open(path) as s:
@@ -420,8 +435,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
     points = (
         np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
     )
-    if "cameras" in imported:
-        cal["imported_cameras_comparison"] = imported["cameras"]
+    cal.update({"imported_cameras_comparison": imported["cameras"]} if "cameras" in imported else {})
 
     qc_doc = ma.get("qc") if isinstance(ma.get("qc"), dict) else None
     length_unit = str((ma.get("provenance") or {}).get("length_unit", "um"))
@@ -467,18 +481,9 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
             "n_voxels": ra.get("n_voxels"),
             "hull_wall_time_s": ra.get("wall_time_s"),
         },
+        **({"imported_masks_comparison": imported["masks"]} if "masks" in imported else {}),
     }
-    metadata = specimen_fields(path)
-    if "masks" in imported:
-        measurement["imported_masks_comparison"] = imported["masks"]
-    session = {
-        "file": str(path.resolve()),
-        "specimen": specimen_title(metadata, title, path),
-        "uid": start.get("uid", ""),
-        "start_time": start.get("time", ""),
-        "n_views": int(len(commanded)),
-        "metadata": metadata,
-    }
+    session = _session_facts(path, title, start, len(commanded))
     provenance = {
         "report_time": _dt.datetime.now(_dt.UTC).isoformat(),
         "software_versions": software_versions(),
