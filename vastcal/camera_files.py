@@ -362,6 +362,29 @@ def match_cameras_to_images(
 
 ARRAY_SUFFIXES = (".npy", ".npz", ".mat")
 
+CAMERA_NUMBER_RANGE = (1e-100, 1e100)
+"""Range of the largest magnitude in a camera matrix. P and λ·P are the same camera, so any scale would do, but
+beyond this range the arithmetic of a projection (squares, products of three entries) overflows or underflows
+double precision: such a file is refused, with the advice to scale it."""
+
+
+def check_camera_numbers(P: np.ndarray, names: list[str], path: Path) -> None:
+    """Refuse cameras holding NaN or infinity, or numbers outside :data:`CAMERA_NUMBER_RANGE` (naming the view).
+
+    Raises:
+        ImportDataError: naming the file, the view and the offending value.
+    """
+    lo, hi = CAMERA_NUMBER_RANGE
+    for p, name in zip(P, names):
+        if not np.all(np.isfinite(p)):
+            raise ImportDataError(f"{path}: camera {name}: holds NaN or infinity; expected 12 finite numbers")
+        biggest = float(np.max(np.abs(p)))
+        if biggest > hi or 0 < biggest < lo:  # all zeros: "not a projection matrix", said where it is decomposed
+            raise ImportDataError(
+                f"{path}: camera {name}: its largest number is {biggest:.3g}; expected numbers up to {hi:.0e} "
+                f"(and some above {lo:.0e}): divide the matrix by a common factor (P and s·P are the same camera)"
+            )
+
 
 def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
     """Known cameras as given: (N, 3, 4) and one name per view, from any format of the module docstring.
@@ -370,7 +393,8 @@ def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
     :func:`vastcal.geometry.decompose_projection`).
 
     Raises:
-        ImportDataError: wrong format or a count different from ``n``.
+        ImportDataError: wrong format, a count different from ``n``, numbers that are not finite or out of range
+            (:func:`check_camera_numbers`).
         UnicodeDecodeError: a binary file given where text was expected (the caller names it).
     """
     if path.is_dir():
@@ -381,4 +405,5 @@ def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
         raise ImportDataError(f"{path}: no such camera file or folder")
     if len(mats) != n:
         raise ImportDataError(f"{path}: {len(mats)} cameras for {n} images")
+    check_camera_numbers(mats, names, path)
     return mats, names

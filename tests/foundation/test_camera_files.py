@@ -189,7 +189,8 @@ def test_import_says_how_well_circular_motion_describes_the_cameras(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A ring fits to ~0 px; a view with its own focal length (2 % longer) or cameras that turn about no common axis
-    are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot reach them."""
+    are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot
+    reach them."""
     from vastcal.calibrate.session_run import session_camera_model
     from vastcal.geometry import CIRCULAR_FIT_WARN_PX
 
@@ -398,3 +399,23 @@ def test_unpacking_bombs_are_refused_from_their_headers(tmp_path: Path, capsys: 
     with zipfile.ZipFile(bombs[0]) as z:
         np.save(tmp_path / "P.npy", np.load(io.BytesIO(z.read("P.npy"))))
     np.testing.assert_array_equal(read_cameras(tmp_path / "P.npy", N)[0], _cameras())
+
+
+@pytest.mark.parametrize("scale", [1e300, 1e-300])
+def test_cameras_at_the_limits_of_double_precision_are_one_error(
+    scale: float, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """P and s·P are one camera, but 1e300·P overflows a projection (a NaN principal point, a numpy warning and an
+    unrelated --roi-offset hint before): one line naming the file, the view and the number; exit 2."""
+    img = _images(tmp_path / "img", [f"v{i}.png" for i in range(N)])
+    cams = _write("name+P", _cameras() * scale, tmp_path / "cams")
+    assert cli.main(["-q", "import", str(img), "-o", str(tmp_path / "s.h5"), "--cameras", str(cams)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"vastcal: error: {cams}: camera 000: its largest number is "), err
+    assert "--roi-offset" not in err[0] and "Warning" not in err[0] and not (tmp_path / "s.h5").exists()
+    ok = _write("name+P", _cameras() * 1e90, tmp_path / "ok")  # still a usable scale
+    assert cli.main(["-q", "import", str(img), "-o", str(tmp_path / "s.h5"), "--cameras", str(ok)]) == 0
+    P = _cameras()
+    P[1, 2, 3] = np.inf
+    with pytest.raises(ImportDataError, match=r"camera 001: holds NaN or infinity"):
+        read_cameras(_write("name+P", P, tmp_path / "inf"), N)
