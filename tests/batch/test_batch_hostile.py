@@ -19,10 +19,10 @@ import markupsafe
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # headless_browser (--import-mode=importlib)
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # test_batch's session maker
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # phantom_screen
 
 from headless_browser import CHROMIUM, NO_CHROMIUM, chromium, crop_is_a_picture  # noqa: E402
-from test_batch import _screen  # noqa: E402
+from phantom_screen import screen as _screen  # noqa: E402
 
 from vastcal.cli import main  # noqa: E402
 
