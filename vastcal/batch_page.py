@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib import rc_context
+from matplotlib.ticker import MaxNLocator
 
 from vastcal.image_files import natural_key
 from vastcal.report import figures
@@ -110,7 +111,11 @@ def axis_plot(t: AxisTrend) -> str:
             ax.set_ylim(t.mean_deg - 0.05, t.mean_deg + 0.05)
         ax.set_xlabel("session (in order of acquisition)")
         ax.set_ylabel(f"{t.name} (°)")
-        ax.xaxis.get_major_locator().set_params(integer=True)
+        ax.set_xlim(0.5, y.size + 0.5)
+        if y.size <= 12:
+            ax.set_xticks(range(1, y.size + 1))
+        else:
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_title(f"Calibrated axis {t.name} per session")
     return figures.svg_data_uri(fig)
 
