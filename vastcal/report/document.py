@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from vastcal.csv_cells import spreadsheet_safe
 from vastcal.errors import AnalysisError, MissingStageError, UserInputError
 from vastcal.report import figures
 from vastcal.report.imported import comparison_rows
@@ -537,10 +538,6 @@ def _write_text(path: Path, text: str) -> None:
         raise UserInputError(f"{path}: cannot write the report ({exc.strerror or exc})") from None
 
 
-CSV_UNSAFE_START = ("=", "+", "-", "@", "\t", "\r")
-"""A spreadsheet reads a cell beginning with one of these as a formula (CSV injection)."""
-
-
 def csv_cell(v: Any) -> str:
     """One CSV cell: numbers formatted (``.6g``), None empty, text neutralised — a text cell beginning
     with = + - @ tab or CR gets a leading ``'`` so that no spreadsheet evaluates it."""
@@ -552,8 +549,7 @@ def csv_cell(v: Any) -> str:
         return f"{v:.6g}"
     if isinstance(v, (int, np.integer)):
         return str(int(v))
-    text = str(v)
-    return "'" + text if text.startswith(CSV_UNSAFE_START) else text
+    return spreadsheet_safe(str(v))
 
 
 def csv_text(data: ReportData) -> str:
