@@ -1,4 +1,4 @@
-"""Compare the calibration methods side by side on ZF1, ETH David and Middlebury dinoRing (issue 17).
+"""Compare the calibration methods side by side on ZF1, ETH David and Middlebury dinoRing.
 
 Methods: ``coherence`` (vastcal's own silhouette-coherence cost, the default), ``pi`` (the paper's objective
 as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel sampling) and ``vr`` (voxel residual).

@@ -1,4 +1,4 @@
-"""Is a ground-truth set's roll bias in its silhouettes or in the cost? (issue 17)
+"""Is a ground-truth set's roll bias in its silhouettes or in the cost?
 
     python benchmarks/consistent_silhouettes.py [--data david,dino] [--width W] [--edge-lines L] [--calibrate SEEDS]
 

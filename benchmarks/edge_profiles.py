@@ -1,4 +1,4 @@
-"""Where the automatic silhouette's edge lies against the true outline, and why (issue 15).
+"""Where the automatic silhouette's edge lies against the true outline, and why.
 
     python benchmarks/edge_profiles.py [--seeds 0 3 15] [--refractive-index 1.0 1.0] [--dir /tmp/vastcal-edges] [--zf1]
 

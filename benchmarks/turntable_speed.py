@@ -1,6 +1,6 @@
-"""Calibration speed and memory on a 36-view 720 × 576 turntable set (issue: "≤ 30 s wall, peak memory ≤ 600 MB").
+"""Calibration speed and memory on a 36-view 720 × 576 turntable set.
 
-The issue asks for a 36-view 720 × 576 turntable set; no such real set is at hand (ETH David has 18 views of
+No real 36-view 720 × 576 turntable set is at hand (ETH David has 18 views of
 640 × 480, Middlebury dinoRing 48 of 640 × 480), so this script synthesises one on ETH David's geometry:
 projective pinhole cameras in circular motion, centres on a circle of radius 10 (arbitrary world units, imported
 as an unknown length unit like ETH's), ~5° above the object's centre and aimed at the rotation axis, focal
@@ -19,7 +19,7 @@ true rolls, the calibration left them by 0.3° mean, 1.3° max, to a cost 7 % lo
 top where the feet stand, dark grey (albedo 0.22) with paler blotches (up to +0.2) fixed to it, so that they turn
 with the figure — between the background's brightness and the figure's, partly taken for the specimen by the
 automatic colour model, as the real turntable is. The truth is still the cameras; the cost at the truth rises
-twelvefold (0.0245 → 0.29 with stop 31's edges): what a turntable in the silhouettes does to the calibration.
+twelvefold (0.0245 → 0.29): what a turntable in the silhouettes does to the calibration.
 ``--mask`` gives the calibration view 0's figure mask (the pixels that see the figure first), as a user's ``vastcal
 calibrate --mask 0:FILE`` marks the turntable as background (:mod:`vastcal.calibrate.marks`).
 

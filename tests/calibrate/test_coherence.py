@@ -244,7 +244,7 @@ def test_the_parabola_never_extrapolates_past_the_window(
     assert np.all(r[obj.edges.weight > 0] <= 6.0 + 1e-3)
 
 
-# --- Scaling with the number of views (issue 20) ---------------------------------------------------------
+# --- Scaling with the number of views -----------------------------------------------------------------
 
 
 def test_partner_views_are_every_other_view_up_to_the_bound() -> None:

@@ -77,7 +77,7 @@ def test_a_dark_rim_is_cut_at_half_its_own_contrast() -> None:
     assert flat_plateau > r_true + 0.4
 
 
-# -- scenes of a larva in a capillary (issue 15): what the maps keep and drop --------------------------------
+# -- scenes of a larva in a capillary: what the maps keep and drop -----------------------------------------
 
 _BG = 230.0
 
