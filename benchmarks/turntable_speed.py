@@ -33,7 +33,7 @@ duration (the names ``vastcal calibrate`` shows), the judge cost of the result a
 extra judge evaluation: a result costlier than the truth is the search's miss, not the cost's), and the rolls'
 errors against the truth (mean / max; "gauge-free" with the median offset removed).
 ``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on chords
-of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord, as before) or ``verify`` (bounded, each
+of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord) or ``verify`` (bounded, each
 full search checked against the dense pass: rays whose maximum differs, samples read; slower). Each prints its full
 searches per chord length and their mean time.
 ``--profile`` runs the calibration under cProfile and prints the top functions by cumulative and internal time.
