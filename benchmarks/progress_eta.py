@@ -18,7 +18,8 @@ Set-up phases that report no progress (maps, regions, judging) show no ETA and a
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 13 --starts 3
     OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --views 13 --starts 3 --sim-seed 1 4 7
-    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --import-folder ../shared/data/zf_3dpf_s001/images --sim-seed 1
+    OPENBLAS_NUM_THREADS=1 python benchmarks/progress_eta.py --import-folder ../shared/data/zf_3dpf_s001/images
+        --sim-seed 1
 
 ``--import-folder`` also imports a folder of images with the progress `vastcal import` draws and judges its phases.
 The batch's ETA is judged by ``benchmarks/batch_throughput.py`` (from the log lines a batch prints).

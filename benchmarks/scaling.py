@@ -225,8 +225,8 @@ def map_bytes_per_pixel(session: Path, views: int = 21) -> float:
 
 
 def photometric_mb(session: Path, k: int) -> dict[str, float]:
-    """What the photometric yaw holds with ``k`` evenly spread views of a calibrated session (run in a fresh process): the
-    resident memory's rise during ``refine_yaw`` (ru_maxrss, when it is the process's peak) plus the frames and
+    """What the photometric yaw holds with ``k`` evenly spread views of a calibrated session (run in a fresh process):
+    the resident memory's rise during ``refine_yaw`` (ru_maxrss, when it is the process's peak) plus the frames and
     full-frame specimen maps handed to it, MB — what view_budget.photometric_bytes estimates."""
     from vastcal.calibrate.colour_model import ColourModel
     from vastcal.calibrate.photometric_yaw import refine_yaw

@@ -32,8 +32,8 @@ voxels, the process's peak resident memory (``ru_maxrss``) before and after the 
 duration (the names ``vastcal calibrate`` shows), the judge cost of the result against that of the true rolls (one
 extra judge evaluation: a result costlier than the truth is the search's miss, not the cost's), and the rolls'
 errors against the truth (mean / max; "gauge-free" with the median offset removed).
-``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on chords
-of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord) or ``verify`` (bounded, each
+``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on
+chords of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord) or ``verify`` (bounded, each
 full search checked against the dense pass: rays whose maximum differs, samples read; slower). Each prints its full
 searches per chord length and their mean time.
 ``--profile`` runs the calibration under cProfile and prints the top functions by cumulative and internal time.
@@ -41,7 +41,8 @@ cProfile sees only the main thread, so ``--profile`` sets ``VASTCAL_THREADS=1`` 
 thread) unless it is set; profiling also slows the run: take the wall time from a run without it.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/turntable_speed.py [--seed N] [--views 36] [--width 720 --height 576]
-        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable [--mask]] [--chords bounded|dense|verify] [--profile]
+        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable [--mask]] [--chords bounded|dense|verify]
+        [--profile]
 """
 
 from __future__ import annotations
@@ -172,10 +173,10 @@ def disc_texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def cast(
     rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellipsoid], ambient: float, disc: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest intersection,
-    Lambert-shaded from the direction ``light`` (unit, towards the lamp) plus the ``ambient`` share of the light,
-    with a texture fixed to the object. ``disc``: the rays also meet the turntable (:data:`DISC_RADIUS` …), textured by
-    :func:`disc_texture`."""
+    """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest
+    intersection, Lambert-shaded from the direction ``light`` (unit, towards the lamp) plus the ``ambient`` share of the
+    light, with a texture fixed to the object. ``disc``: the rays also meet the turntable (:data:`DISC_RADIUS` …),
+    textured by :func:`disc_texture`."""
     near = np.full(len(rays), np.inf)
     normal = np.zeros_like(rays)
     table = np.zeros(len(rays), bool)

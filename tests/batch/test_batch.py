@@ -1,4 +1,5 @@
-"""vastcal batch on a real 2-process LocalCluster: small phantom sessions, a broken one, a killed worker, a killed batch."""
+"""vastcal batch on a real 2-process LocalCluster: small phantom sessions, a broken one, a killed worker, a killed
+batch."""
 
 from __future__ import annotations
 

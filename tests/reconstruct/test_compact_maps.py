@@ -210,7 +210,7 @@ def test_maps_made_out_of_order_wait_compactly(
 
 
 def test_specimen_maps_hold_what_the_budget_states(spheroid_views: PhantomViews) -> None:
-    """The rules clear one stack of maps in place: the peak stays within view_budget's bytes per frame pixel (it was 36)."""
+    """The rules clear one stack of maps in place: the peak stays within view_budget's bytes per frame pixel."""
     frames = _frames(spheroid_views)
     model = fit_automatic(frames)
     tracemalloc.start()
