@@ -1,4 +1,4 @@
-"""Acquisition overhead per view beyond motion and exposure, on the simulated rig (target <= 20 ms).
+"""Acquisition overhead per view beyond motion and exposure, on the simulated rig (budget <= 20 ms).
 
     python benchmarks/acquisition_overhead.py [--views 21] [--roi full|config] [--dir /tmp]
 

@@ -1,4 +1,4 @@
-"""Throughput of `vastcal batch` on a local Dask cluster against sequential `vastcal run` (issue 19).
+"""Throughput of `vastcal batch` on a local Dask cluster against sequential `vastcal run`.
 
     python benchmarks/batch_throughput.py [N] [--workdir DIR] [--views V] [--starts S] [--workers W] [--sequential K]
 
@@ -16,7 +16,7 @@
 Wall times on a shared machine are noisy (a batch of 2 processes also gets a larger share of a machine
 loaded by others than one sequential process does); the load average is printed beside them.
 
-5. The stage's periodic error (issue 19, item 4): every battery larva's simulated stage has its own seeded
+5. The stage's periodic error: every battery larva's simulated stage has its own seeded
    periodic drift (``simulators/stage/mechanics.py``), known from its truth file. The slope β of the
    calibrated − commanded angle (``report.json``) on the true drift, over all views of all sessions, says what
    averaging n sessions of *one* rig could recover: β·e(θ) ± σ/√n. β ≈ 1 would recover the error; β ≈ 0 means
@@ -211,7 +211,8 @@ def _seconds(text: str) -> float:
 
 def batch_eta(lines: list[tuple[float, str]]) -> None:
     """The batch's ETA as its log lines showed it (one per 10 % of the sessions) against the time its sessions'
-    phase really ended: the issue-18 criterion (every second-half line within 30 %, the last two excused)."""
+    phase really ended: the ETA criterion of ``progress_eta.py`` (every second-half line within 30 %, the last two
+    excused)."""
     done = [(t, ln) for t, ln in lines if ln.startswith("batch: ") and " done in " in ln and "session" in ln]
     shown = [(t, m) for t, ln in lines if (m := _LINE.match(ln)) and "session" in m["phase"]]
     if not done or not shown:

@@ -4,7 +4,9 @@ The true cameras are imported (pixel corners at integers: ``pixel_origin=0.5``, 
 decomposed (circular motion); the commanded angles of 10 views
 are offset by +10°; only the rolls are free, bounds ±15°. Prints mean and max absolute angle error
 (paper: 0.31° mean, 0.71° max), and the same with the median offset removed (see
-benchmarks/david_ground_truth_check.py). Usage: python benchmarks/calibrate_david.py [seed] [coherence|pi|vr] [offset-scan step, deg]
+benchmarks/david_ground_truth_check.py). Usage:
+
+    python benchmarks/calibrate_david.py [seed] [coherence|pi|vr] [offset-scan step, deg]
 """
 
 from __future__ import annotations

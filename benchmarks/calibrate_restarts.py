@@ -1,4 +1,4 @@
-"""IPOP/BIPOP-CMA-ES restarts against the keep-the-best multi-start, at about equal evaluations (issue 17).
+"""IPOP/BIPOP-CMA-ES restarts against the keep-the-best multi-start, at about equal evaluations.
 
 ETH David (true cameras), 10 views offset +10°, rolls free in ±15°, no prior, offset scan 0.5° — the setting of
 ``compare_methods.py``. Variants, per seed:

@@ -1,11 +1,11 @@
-"""Does the photometric yaw's error on the simulated rigs come from the rolls it holds? (issue 17, item 5)
+"""Does the photometric yaw's error on the simulated rigs come from the rolls it holds?
 
 For each simulated rig (index k: simulation seed = config seed + k, as in ``calibrate_simulated.py``) the
 silhouette calibration runs without the photometric yaw; then :func:`refine_yaw` searches the yaw from the
 same start: with the silhouettes' rolls (what ``vastcal calibrate`` does: last stage on maps at full resolution
 along the axis image, ¼ across, iterations doubled until the yaw moves < 0.01°); with the true rolls (the
 simulator's actual angles, in the calibration's gauge: view 0 where the calibration put it); with the last stage
-on isotropic ½-width maps (the module's maps before 2026-11-25) under the same convergence rule; and, with
+on isotropic ½-width maps (an alternative to the default maps) under the same convergence rule; and, with
 ``--long``, on those ½-width maps at a fixed 1600 iterations and on the default maps at a fixed 800 (the yaw a
 converged reconstruction prefers). Same pitch and γ (the silhouettes'). Prints the yaw errors (degrees), the
 last stage's iterations and each search's time.

@@ -1,4 +1,4 @@
-"""Compare the calibration methods side by side on ZF1, ETH David and Middlebury dinoRing (issue 17).
+"""Compare the calibration methods side by side on ZF1, ETH David and Middlebury dinoRing.
 
 Methods: ``coherence`` (vastcal's own silhouette-coherence cost, the default), ``pi`` (the paper's objective
 as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel sampling) and ``vr`` (voxel residual).
@@ -19,14 +19,15 @@ as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel samp
   cost's minimum stays within 0.1° mean unless that minimum is not at the truth (compare the cost columns).
 * ``--fixed-unperturbed``: the paper's protocol — the views that are not offset keep their (true) commanded rolls
   (``fixed_views``), only the offset views' rolls are free; their error against the truth is absolute (the fixed views
-  pin the common roll), over the free views only. With ``--start-at-truth`` the same views are free, started at the truth.
+  pin the common roll), over the free views only. With ``--start-at-truth`` the same views are free, started at the
+  truth.
 
 For the ground-truth sets each run also scores the truth on its own final cost (the judge: the finest
 level's batch-independent cost), printed beside the final cost. Usage (CPU-heavy: a David run takes ~1 min of
 CPU per start, dinoRing several):
 
-    python benchmarks/compare_methods.py [--data zf,david,dino] [--methods coherence,pi,vr] [--seeds 0] [--starts 1] [--start-at-truth]
-                                         [--threshold-masks] [--mask-view V] [--fixed-unperturbed]
+    python benchmarks/compare_methods.py [--data zf,david,dino] [--methods coherence,pi,vr] [--seeds 0] [--starts 1]
+        [--start-at-truth] [--threshold-masks] [--mask-view V] [--fixed-unperturbed]
 """
 
 from __future__ import annotations
@@ -94,7 +95,8 @@ def threshold_mask_images(src: Path, out: Path, pattern: str, keep: str) -> Path
 
 
 def threshold_mask(image: Path) -> np.ndarray:
-    """The silhouette (H, W) uint8 0/1 of one image of a ground-truth set by its own rule (:func:`threshold_mask_images`)."""
+    """The silhouette (H, W) uint8 0/1 of one image of a ground-truth set by its own rule
+    (:func:`threshold_mask_images`)."""
     import cv2
 
     im = cv2.imread(str(image))

@@ -1,4 +1,4 @@
-"""Is a ground-truth set's roll bias in its silhouettes or in the cost? (issue 17)
+"""Is a ground-truth set's roll bias in its silhouettes or in the cost?
 
     python benchmarks/consistent_silhouettes.py [--data david,dino] [--width W] [--edge-lines L] [--calibrate SEEDS]
 
@@ -41,7 +41,8 @@ from vastcal.config import CalibrationBounds  # noqa: E402
 from vastcal.importer import read_cameras  # noqa: E402
 from vastcal.session import Session  # noqa: E402
 
-SETS = {  # name: (folder, camera file or folder, views, pixel origin of the cameras, length unit, image glob, camera glob)
+# name: (folder, camera file or folder, views, pixel origin of the cameras, length unit, image glob, camera glob)
+SETS = {
     "david": ("eth_david", ".", 18, 0.5, None, "david_*.jpg", "david_*.pa"),
     "dino": ("middlebury_dinoRing", "dinoR_par.txt", 48, 0.0, "m", "dinoR0*.png", "dinoR_*.txt"),
 }

@@ -1,6 +1,6 @@
-"""ETH David: do the ground-truth cameras agree with their own images? (evidence for the ETH target)
+"""ETH David: do the ground-truth cameras agree with their own images?
 
-The ETH acceptance figure compares calibrated rolls with ``david_NN.pa``, relative to view 0. This
+The ETH accuracy figure compares calibrated rolls with ``david_NN.pa``, relative to view 0. This
 script asks the images which rolls they prefer *starting from* those cameras, with no +10° offsets
 and nothing else free, on silhouettes made as carefully as a person would by hand:
 

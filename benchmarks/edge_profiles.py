@@ -1,4 +1,4 @@
-"""Where the automatic silhouette's edge lies against the true outline, and why (issue 15).
+"""Where the automatic silhouette's edge lies against the true outline, and why.
 
     python benchmarks/edge_profiles.py [--seeds 0 3 15] [--refractive-index 1.0 1.0] [--dir /tmp/vastcal-edges] [--zf1]
 
@@ -65,7 +65,8 @@ def coverage_stack(
 
 
 def signed_distance(mask: np.ndarray, coverage: np.ndarray | None = None) -> np.ndarray:
-    """Signed distance of pixel centres to a mask's outline, px (+ inside); exact in the anti-aliased band of ``coverage``."""
+    """Signed distance of pixel centres to a mask's outline, px (+ inside); exact in the anti-aliased band of
+    ``coverage``."""
     b = mask.astype(np.uint8)
     s = np.where(
         b > 0, cv2.distanceTransform(b, cv2.DIST_L2, 5) - 0.5, 0.5 - cv2.distanceTransform(1 - b, cv2.DIST_L2, 5)

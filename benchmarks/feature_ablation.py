@@ -9,9 +9,8 @@ visual hull (%).
 
     python benchmarks/feature_ablation.py SEED [key=value ...] [--run] [--views V] [--keep DIR]
 
-Measured (the tree of 2026-11-25 ~11:10, others' work in progress included; the rig file's method
-``coherence``), larva 24 (4.7 dpf, against the wall, tail out of frame): as drawn — roll RMS error
-1.21°, yaw error +0.003°, pitch +0.000° (195 s); with ``illumination_gradient=0 vignetting=0`` —
+Measured (the rig file's method ``coherence``), larva 24 (4.7 dpf, against the wall, tail out of frame): as drawn —
+roll RMS error 1.21°, yaw error +0.003°, pitch +0.000° (195 s); with ``illumination_gradient=0 vignetting=0`` —
 1.24°, +0.005°, +0.003° (173 s): the lamp field does not move the yaw here; the rolls are not
 recovered in either (the report says they follow the prior).
 """

@@ -1,6 +1,6 @@
 """Run today's fuzz suite (tests/fuzz) against the library code of an earlier commit.
 
-Shows what the fuzz suite finds in code written before the hostile-input checks (issue 16): the
+Shows what the fuzz suite finds in code written before the hostile-input checks: the
 tree of COMMIT is extracted to a temporary folder, today's ``tests/fuzz`` is copied into it, and
 pytest runs there with that tree first on ``PYTHONPATH`` (so ``import vastcal`` is the old code).
 Prints, per fuzz module, the cases run, the cases failed and the most common failure messages

@@ -1,4 +1,4 @@
-"""Write a battery of N varied simulated larvae: sessions + hidden truth files (issue 15).
+"""Write a battery of N varied simulated larvae: sessions + hidden truth files.
 
 Each larva k = S, S+1, … S+N−1 is acquired from the simulated rig of
 ``simulators.camera.battery.battery_config(k)`` — ``config/simulated.yaml`` with every realism

@@ -1,4 +1,4 @@
-"""The measurement battery: varied simulated larvae end to end, volume and area against the exact body hull (issue 15).
+"""The measurement battery: varied simulated larvae end to end, volume and area against the exact body hull.
 
     python benchmarks/measure_battery.py [--n 30] [--first-seed 0] [--jobs 1] [--dir /tmp/vastcal-battery]
                                          [--views V] [--reuse] [--true-cameras]
@@ -23,8 +23,8 @@ adds new runs and reports the latest). Each finished larva is appended to
 ``DIR/results-end-to-end.jsonl`` (or ``results-true-cameras.jsonl``); ``--summary`` prints the table
 and summary of what is there without running anything (e.g. of a run stopped early).
 
-Targets (issue 15): volume within 1 % and area within 2 % of the body hull on ≥ 28 of 30, none beyond
-3 %; the hull inside the k = 2 interval on ≥ 27 of 30.
+The summary compares with these bounds: volume within 1 % and area within 2 % of the body hull on ≥ 28 of 30,
+none beyond 3 %; the hull inside the k = 2 interval on ≥ 27 of 30.
 """
 
 from __future__ import annotations

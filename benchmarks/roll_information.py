@@ -1,6 +1,6 @@
 """How precisely do the simulated rig's images fix the per-view angles? Two measured bounds.
 
-Issue 4 asks for per-view angles within 0.05° RMS on the simulated rig. Silhouettes cannot see them
+Per-view angles within 0.05° RMS on the simulated rig would need more than silhouettes, which cannot see them
 (tests/calibrate/test_roll_identifiability.py); this script measures what the grey levels hold.
 
 1. **Known-object Cramér–Rao bound.** With the specimen known exactly (the simulator's own noise-free

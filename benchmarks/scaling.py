@@ -1,4 +1,4 @@
-"""How calibration and reconstruction grow with the number of views and the frame size (issue 20).
+"""How calibration and reconstruction grow with the number of views and the frame size.
 
 Acquires simulated sessions (the rig file config/simulated.yaml, rig seed ``--seed``) of 21, 41, 81, 161
 and 360 views on the rig's 1024 × 320 ROI, and one full 1024 × 1024 frame case, then calibrates them
@@ -7,9 +7,9 @@ reconstructs them (``reconstruct_session``), each step in a fresh process so tha
 its own. Prints wall time, evaluations, time per evaluation, peak memory (ru_maxrss of the process) and
 yaw / pitch errors against the simulator's truth (S.truth.json; each case's JSON line also holds the photometric
 yaw's sub-revolutions, ``yaw_views``, and each one's yaw error, ``yaw_group_errs``), then the growth exponent b of
-time ≈ a·N^b (and of peak memory) fitted over the ROI cases (b = 1: linear), and issue 20's acceptance
-figures: time(81) / time(21) of calibration (≤ 4.5), the 360-view calibration's wall time (≤ 5 min) and
-peak memory (≤ 2 GB, calibration and reconstruction), yaw / pitch errors at 81 and 360 views against 21.
+time ≈ a·N^b (and of peak memory) fitted over the ROI cases (b = 1: linear), and the
+figures that bound it: time(81) / time(21) of calibration (≤ 4.5), the 360-view calibration's wall time (≤ 5 min)
+and peak memory (≤ 2 GB, calibration and reconstruction), yaw / pitch errors at 81 and 360 views against 21.
 The memory budgets are the rig file's ``calibration.memory_mb`` and ``reconstruction.memory_mb``.
 CPU is shared on the development machine: ``uptime`` is printed before and after; compare ratios within
 one run, and run with OPENBLAS_NUM_THREADS=1.
@@ -18,7 +18,7 @@ Sessions are cached in ``--workdir`` (default /tmp/vastcal_scaling) and reused, 
 written next to its session (``*.calibrate.log``); the full run is long
 (360 views: acquisition a few minutes, calibration a few minutes), so run subsets:
 
-    python benchmarks/scaling.py --views 21 81            # the acceptance ratio time(81) / time(21)
+    python benchmarks/scaling.py --views 21 81            # the ratio time(81) / time(21)
     python benchmarks/scaling.py --views 21 41 81 161 360 --full-frame 21
     python benchmarks/scaling.py --views --full-frame 360    # the 360-view full-frame session
     python benchmarks/scaling.py --views 360 --no-reconstruct
@@ -224,8 +224,8 @@ def map_bytes_per_pixel(session: Path, views: int = 21) -> float:
 
 
 def photometric_mb(session: Path, k: int) -> dict[str, float]:
-    """What the photometric yaw holds with ``k`` evenly spread views of a calibrated session (run in a fresh process): the
-    resident memory's rise during ``refine_yaw`` (ru_maxrss, when it is the process's peak) plus the frames and
+    """What the photometric yaw holds with ``k`` evenly spread views of a calibrated session (run in a fresh process):
+    the resident memory's rise during ``refine_yaw`` (ru_maxrss, when it is the process's peak) plus the frames and
     full-frame specimen maps handed to it, MB — what view_budget.photometric_bytes estimates."""
     from vastcal.calibrate.photometric_yaw import refine_yaw
     from vastcal.calibrate.session_run import session_camera_model

@@ -1,4 +1,4 @@
-"""Rate of appending 1024 x 1024 Mono12 frames to a session (target >= 100 frames/s).
+"""Rate of appending 1024 x 1024 Mono12 frames to a session (acquisition needs >= 100 frames/s).
 
 Each append is the call acquisition makes: grow every dataset by one view, write the frame (one
 chunk) and its CRC-32, flush (SWMR), fsync, then commit the view. Prints frames/s and MB/s with

@@ -1,19 +1,21 @@
 """The measurement on simulated turntables, end to end as a user runs it: the stated interval against the true hull.
 
-    python benchmarks/turntable_battery.py [--seeds 0,1,2,3] [--views 18] [--dir /tmp/vastcal-turntables] [--jobs 2] [--aim-offset 0.5]
+    python benchmarks/turntable_battery.py [--seeds 0,1,2,3] [--views 18] [--dir /tmp/vastcal-turntables] [--jobs 2]
+        [--aim-offset 0.5]
 
 Every case renders ``benchmarks/turntable_speed.py``'s figure (seven ellipsoids, 1.25 units off the axis, Lambert-shaded
-from a lamp up left of the camera; head and arms joined to the torso, one solid) at 720 × 576 for one scene seed (the stage's step irregularity and the noise) and an
-ambient share of the light drawn from it (0.35–0.7: the shadow sides from ~45 to ~90 grey against an 18–28 backdrop),
-in three settings: the figure alone; standing on the textured grey turntable (``--turntable``); and on the turntable with
-view 0's figure mask given to the calibration, as a user's ``vastcal calibrate --mask 0:FILE``. Each is imported with its
-cameras (``name K R t``, unit unknown) and ``config/eth-david.yaml`` and run through the command line: ``vastcal run``
-(3 starts), with ``--mask 0:FILE`` in the third setting. The reference is the visual hull of the figure's exact pixel masks
-(the pixels whose centre sees the figure first) through the true cameras (``reconstruct --masks --cameras imported`` on a
-copy of the session): what the calibrated silhouettes' hull should be, quantised to whole pixels.
+from a lamp up left of the camera; head and arms joined to the torso, one solid) at 720 × 576 for one scene seed (the
+stage's step irregularity and the noise) and an ambient share of the light drawn from it (0.35–0.7: the shadow sides
+from ~45 to ~90 grey against an 18–28 backdrop), in three settings: the figure alone; standing on the textured grey
+turntable (``--turntable``); and on the turntable with view 0's figure mask given to the calibration, as a user's
+``vastcal calibrate --mask 0:FILE``. Each is imported with its cameras (``name K R t``, unit unknown) and
+``config/eth-david.yaml`` and run through the command line: ``vastcal run`` (3 starts), with ``--mask 0:FILE`` in the
+third setting. The reference is the visual hull of the figure's exact pixel masks (the pixels whose centre sees the
+figure first) through the true cameras (``reconstruct --masks --cameras imported`` on a copy of the session): what the
+calibrated silhouettes' hull should be, quantised to whole pixels.
 
-Prints per case the volume and area with their k = 2 half-widths (units of the cameras), the deviation from the reference,
-whether the interval covers it, the verdict and its reasons; then the coverage per setting.
+Prints per case the volume and area with their k = 2 half-widths (units of the cameras), the deviation from the
+reference, whether the interval covers it, the verdict and its reasons; then the coverage per setting.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
-"""Calibration speed and memory on a 36-view 720 × 576 turntable set (issue: "≤ 30 s wall, peak memory ≤ 600 MB").
+"""Calibration speed and memory on a 36-view 720 × 576 turntable set.
 
-The issue asks for a 36-view 720 × 576 turntable set; no such real set is at hand (ETH David has 18 views of
+No real 36-view 720 × 576 turntable set is at hand (ETH David has 18 views of
 640 × 480, Middlebury dinoRing 48 of 640 × 480), so this script synthesises one on ETH David's geometry:
 projective pinhole cameras in circular motion, centres on a circle of radius 10 (arbitrary world units, imported
 as an unknown length unit like ETH's), ~5° above the object's centre and aimed at the rotation axis, focal
@@ -19,7 +19,7 @@ true rolls, the calibration left them by 0.3° mean, 1.3° max, to a cost 7 % lo
 top where the feet stand, dark grey (albedo 0.22) with paler blotches (up to +0.2) fixed to it, so that they turn
 with the figure — between the background's brightness and the figure's, partly taken for the specimen by the
 automatic colour model, as the real turntable is. The truth is still the cameras; the cost at the truth rises
-twelvefold (0.0245 → 0.29 with stop 31's edges): what a turntable in the silhouettes does to the calibration.
+twelvefold (0.0245 → 0.29): what a turntable in the silhouettes does to the calibration.
 ``--mask`` gives the calibration view 0's figure mask (the pixels that see the figure first), as a user's ``vastcal
 calibrate --mask 0:FILE`` marks the turntable as background (:mod:`vastcal.segmentation.marks`).
 
@@ -32,8 +32,8 @@ voxels, the process's peak resident memory (``ru_maxrss``) before and after the 
 duration (the names ``vastcal calibrate`` shows), the judge cost of the result against that of the true rolls (one
 extra judge evaluation: a result costlier than the truth is the search's miss, not the cost's), and the rolls'
 errors against the truth (mean / max; "gauge-free" with the median offset removed).
-``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on chords
-of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord, as before) or ``verify`` (bounded, each
+``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on
+chords of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord) or ``verify`` (bounded, each
 full search checked against the dense pass: rays whose maximum differs, samples read; slower). Each prints its full
 searches per chord length and their mean time.
 ``--profile`` runs the calibration under cProfile and prints the top functions by cumulative and internal time.
@@ -41,7 +41,8 @@ cProfile sees only the main thread, so ``--profile`` sets ``VASTCAL_THREADS=1`` 
 thread) unless it is set; profiling also slows the run: take the wall time from a run without it.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/turntable_speed.py [--seed N] [--views 36] [--width 720 --height 576]
-        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable [--mask]] [--chords bounded|dense|verify] [--profile]
+        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable [--mask]] [--chords bounded|dense|verify]
+        [--profile]
 """
 
 from __future__ import annotations
@@ -172,10 +173,10 @@ def disc_texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def cast(
     rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellipsoid], ambient: float, disc: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest intersection,
-    Lambert-shaded from the direction ``light`` (unit, towards the lamp) plus the ``ambient`` share of the light,
-    with a texture fixed to the object. ``disc``: the rays also meet the turntable (:data:`DISC_RADIUS` …), textured by
-    :func:`disc_texture`."""
+    """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest
+    intersection, Lambert-shaded from the direction ``light`` (unit, towards the lamp) plus the ``ambient`` share of the
+    light, with a texture fixed to the object. ``disc``: the rays also meet the turntable (:data:`DISC_RADIUS` …),
+    textured by :func:`disc_texture`."""
     near = np.full(len(rays), np.inf)
     normal = np.zeros_like(rays)
     table = np.zeros(len(rays), bool)

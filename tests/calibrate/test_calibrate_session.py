@@ -191,7 +191,8 @@ def test_run_takes_a_mask_for_every_start_and_refuses_it_with_imported_cameras(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     """`vastcal run --mask VIEW:FILE` (a turntable scene: the user marks it as background) reaches the calibration's
-    colour model, as `vastcal calibrate --mask` does; with `--cameras imported` nothing is calibrated: one line, exit 2."""
+    colour model, as `vastcal calibrate --mask` does; with `--cameras imported` nothing is calibrated: one line,
+    exit 2."""
     import cv2
 
     import vastcal.calibrate as cal

@@ -244,7 +244,7 @@ def test_the_parabola_never_extrapolates_past_the_window(
     assert np.all(r[obj.edges.weight > 0] <= 6.0 + 1e-3)
 
 
-# --- Scaling with the number of views (issue 20) ---------------------------------------------------------
+# --- Scaling with the number of views -----------------------------------------------------------------
 
 
 def test_partner_views_are_every_other_view_up_to_the_bound() -> None:
@@ -420,7 +420,8 @@ def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(
 def test_threads_give_the_same_costs_bit_for_bit(
     scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], per_candidate: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The views' slices of an evaluation run side by side (vastcal.calibrate.threads): the same numbers as one after the other."""
+    """The views' slices of an evaluation run side by side (vastcal.calibrate.threads): the same numbers as one after
+    the other."""
     theta, pf, obj = scene
     batch = theta[None] + np.random.default_rng(4).normal(0.0, 0.05, (6, theta.size)) * (np.arange(theta.size) != 3)
     costs = {}
@@ -451,8 +452,8 @@ def test_long_chords_are_searched_by_bounds_with_every_sample_s_maximum(
     scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A chord of ≥ CHORD_BOUND_MIN_SAMPLES samples is read every CHORD_STRIDE-th sample and between them only where the
-    profile's Lipschitz bound reaches the best: each ray's maximum — its sample and value — must be that of the dense pass,
-    for candidates off the truth too, while far fewer samples are read."""
+    profile's Lipschitz bound reaches the best: each ray's maximum — its sample and value — must be that of the dense
+    pass, for candidates off the truth too, while far fewer samples are read."""
     import vastcal.calibrate.objective_coherence as oc
 
     theta, pf, obj = scene

@@ -140,7 +140,7 @@ def test_recovers_pitch_and_gamma_with_true_rolls(views: np.ndarray, truth: np.n
 
 
 @pytest.mark.xfail(
-    reason="issue 4 (blocked): per-view rolls and yaw are nearly unobservable from silhouettes of convex "
+    reason="per-view rolls and yaw are nearly unobservable from silhouettes of convex "
     "cross-sections; the coherence cost recovers pitch and gamma, not these",
     strict=False,
 )

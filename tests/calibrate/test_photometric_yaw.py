@@ -1,9 +1,9 @@
 """The photometric yaw search (projection matching of absorption images).
 
 On the simulated rig (simulation seed 1: true yaw −0.717°) the silhouette calibration leaves the
-yaw at its prior (≈ 0°, 0.73° off); the grey levels bring it within 0.05° (0.027° before the last stage ran to
-convergence on maps fine along the axis; +0.011° since, ``benchmarks/calibrate_simulated.py 8``), and the last stage records that its iterations converged.
-Its building blocks are tested on exact synthetic images.
+yaw at its prior (≈ 0°, 0.73° off); the grey levels bring it within 0.05° (+0.011° with the last stage run to
+convergence on maps fine along the axis, ``benchmarks/calibrate_simulated.py 8``), and the last stage
+records that its iterations converged. Its building blocks are tested on exact synthetic images.
 """
 
 from __future__ import annotations
@@ -113,7 +113,8 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(
         abs(split.yaw_deg - truth["yaw_deg"]) < 0.1
         and split.report()["group_yaws_deg"] == split.group_yaws_deg.tolist()
     )
-    # a sub-revolution larger than the group size (21 views against 15): reconstructed at three lattice phases, their median
+    # a sub-revolution larger than the group size (21 views against 15): reconstructed at three lattice phases, their
+    # median
     named: list[str] = []
     phased = refine_yaw(
         images,
@@ -135,7 +136,8 @@ def test_grey_levels_find_the_yaw_the_silhouettes_leave_to_the_prior(
         and len(set(phased.group_yaws_deg.tolist())) == 3
     )
     assert abs(phased.yaw_deg - truth["yaw_deg"]) < 0.05 and phased.yaw_sigma_deg is not None
-    # seven sub-revolutions of three views: after five (not three), their median's standard error is within a loose tolerance
+    # seven sub-revolutions of three views: after five (not three), their median's standard error is within a loose
+    # tolerance
     parts: list[str] = []
     stages: list[tuple[int, int]] = []
     stopped = refine_yaw(
@@ -344,9 +346,9 @@ def test_the_cost_does_not_depend_on_how_many_threads_blas_is_given() -> None:
 
 
 def test_splats_off_the_frame_stay_within_their_own_view() -> None:
-    """A specimen cut by the frame in every view (simulated larvae 24 and 28 of the battery) has voxels whose splats fall
-    off the frame; their pixel index was 0 — view 0's — so a later view's row sums (bincount of its indices less its
-    offset) met negative indices and the calibration stopped with an internal error."""
+    """A specimen cut by the frame in every view (simulated larvae 24 and 28 of the battery) has voxels whose splats
+    fall off the frame; their pixel index was 0 — view 0's — so a later view's row sums (bincount of its indices less
+    its offset) met negative indices and the calibration stopped with an internal error."""
     from types import SimpleNamespace
 
     h, w = 8, 10

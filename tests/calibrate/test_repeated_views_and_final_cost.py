@@ -1,4 +1,4 @@
-"""Issue 17: a view at the position of another a turn later is imported (Middlebury dinoRing's 48th view is its
+"""A view at the position of another a turn later is imported (Middlebury dinoRing's 48th view is its
 2nd camera again), and ``final_cost`` is the cost of the pose that is stored — after the photometric yaw."""
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Why silhouettes cannot fix the per-view rolls of a microscope (README, "What it does and does not recover").
+"""Why silhouettes cannot fix the per-view rolls of a microscope (docs/method.md, "What silhouettes can and cannot
+see").
 
 Under orthographic projection perpendicular to the rotation axis, image column u of every view images
 the same slice of the specimen, and each view gives that slice's two tangent lines with normals

@@ -10,9 +10,9 @@ PLAN.json holds ``{"argv": [...], "work": "DIR", "input": "S.h5" | null, "first"
 (every ``step``-th: drivers started with first = 1, 2, … and the same step share the Ns between them) the driver
 forks a child that stops itself; ``strace -p CHILD -e inject=pwrite64:signal=SIGKILL:when=N`` attaches; the
 child continues and runs ``vastcal.cli.main(argv)`` (with ``{out}`` in argv replaced by ``DIR/N/S.h5``, a fresh
-copy of ``input`` when given), and is killed by the kernel at its N-th ``pwrite64``. ``then`` (optional) is a second command run, unkilled, on a copy of the result kept at
-``DIR/N/S.h5`` (e.g. ``--resume``); the killed state is kept as ``DIR/N/killed.h5``. One JSON line per N
-goes to stdout: ``{"n": N, "killed": bool, "exit": code, "then_exit": code}``.
+copy of ``input`` when given), and is killed by the kernel at its N-th ``pwrite64``. ``then`` (optional) is a second
+command run, unkilled, on a copy of the result kept at ``DIR/N/S.h5`` (e.g. ``--resume``); the killed state is kept as
+``DIR/N/killed.h5``. One JSON line per N goes to stdout: ``{"n": N, "killed": bool, "exit": code, "then_exit": code}``.
 
 Forking after one import of vastcal makes each kill cost a fraction of a second instead of the
 interpreter's start-up; the child is still a separate process killed by a real SIGKILL.

@@ -189,8 +189,8 @@ def test_import_says_how_well_circular_motion_describes_the_cameras(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A ring fits to ~0 px; a view with its own focal length (2 % longer) or cameras that turn about no common axis
-    are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot
-    reach them."""
+    are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot reach
+    them."""
     from vastcal.calibrate.session_run import session_camera_model
     from vastcal.geometry import CIRCULAR_FIT_WARN_PX
 

@@ -1,4 +1,5 @@
-"""Progress with named phases: the ETA of each phase from its own recent rate, plain lines for logs, rich on a terminal."""
+"""Progress with named phases: the ETA of each phase from its own recent rate, plain lines for logs, rich on a
+terminal."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Fixtures of the QC and uncertainty tests: a small simulated revolution (exact silhouettes, noisy frames) and its hull."""
+"""Fixtures of the QC and uncertainty tests: a small simulated revolution (exact silhouettes, noisy frames) and its
+hull."""
 
 from __future__ import annotations
 

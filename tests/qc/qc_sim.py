@@ -10,7 +10,8 @@ from phantom_views import PhantomViews  # noqa: F401 (tests/reconstruct on sys.p
 
 @dataclass(frozen=True)
 class Measured:
-    """Frames (uint8, specimen dark on bright, noise σ 2 grey levels), silhouettes, cameras, the measured hull and mesh."""
+    """Frames (uint8, specimen dark on bright, noise σ 2 grey levels), silhouettes, cameras, the measured hull and
+    mesh."""
 
     views: PhantomViews
     frames: np.ndarray

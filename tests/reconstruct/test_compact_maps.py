@@ -1,4 +1,4 @@
-"""Bounded memory with many views (issue 20): compact silhouettes, specimen maps a sub-revolution at a time,
+"""Bounded memory with many views: compact silhouettes, specimen maps a sub-revolution at a time,
 the colour model from a bounded sample of views."""
 
 from __future__ import annotations
@@ -210,7 +210,7 @@ def test_maps_made_out_of_order_wait_compactly(
 
 
 def test_specimen_maps_hold_what_the_budget_states(spheroid_views: PhantomViews) -> None:
-    """The rules clear one stack of maps in place: the peak stays within probability_maps' bytes per frame pixel (it was 36)."""
+    """The rules clear one stack of maps in place: the peak stays within probability_maps' bytes per frame pixel."""
     frames = _frames(spheroid_views)
     model = fit_automatic(frames)
     tracemalloc.start()

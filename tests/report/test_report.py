@@ -70,7 +70,8 @@ def test_csv_is_one_row_under_a_fixed_header(report_dir: Path) -> None:
 
 
 def _blobs_removed(page: str) -> str:
-    """The page without its base64 payloads (data URIs) and script bodies (code, the embedded mesh): what a reader sees."""
+    """The page without its base64 payloads (data URIs) and script bodies (code, the embedded mesh): what a reader
+    sees."""
     page = re.sub(r"data:[a-z/+]+;base64,[A-Za-z0-9+/=]+", "data:", page)
     return re.sub(r"(<script[^>]*>).*?(</script>)", r"\1\2", page, flags=re.S)
 
@@ -227,7 +228,8 @@ def test_simulated_truth_comparison_is_in_the_report(measured_session: Path, tmp
 def test_a_run_with_a_truth_file_puts_the_comparison_in_its_report(
     measured_session: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """What the demo does (pipeline.run_session with the simulator's truth file), calibration stubbed: the fixture's run stays."""
+    """What the demo does (pipeline.run_session with the simulator's truth file), calibration stubbed: the fixture's run
+    stays."""
     import vastcal.calibrate
     from vastcal.pipeline import run_session
 
@@ -336,7 +338,8 @@ document.body.dataset.probe=JSON.stringify(out);},300);});</script>"""
 def test_report_in_headless_chromium_with_screenshot(
     measured_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """The page as a reader gets it: every image loads, the 3D view draws, the zoom box opens; then a screenshot is checked."""
+    """The page as a reader gets it: every image loads, the 3D view draws, the zoom box opens; then a screenshot is
+    checked."""
     import html as _html
 
     _flag_view(measured_session, 2)

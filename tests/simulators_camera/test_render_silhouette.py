@@ -31,7 +31,8 @@ def reference_P(angle: float) -> np.ndarray:
 
 
 def ray_gap(P: np.ndarray, ph: Phantom, u: float, v: float, offset: tuple[float, float] = (0.0, 0.0)) -> float:
-    """min over the ray of (elliptic distance √(y² + (z/s)²) to the body's axis − r(x)), µm: < 0 iff the ray meets the body.
+    """min over the ray of (elliptic distance √(y² + (z/s)²) to the body's axis − r(x)), µm: < 0 iff the ray meets the
+    body.
 
     ``offset``: (y, z) of the body's axis off the rotation axis, µm.
     """
