@@ -45,7 +45,7 @@ from vastcal.errors import (
 )
 from vastcal.outputs import check_output_file
 from vastcal.session import Session, SessionWriter
-from vastcal.session_files import PathLock
+from vastcal.session import PathLock
 
 log = logging.getLogger(__name__)
 

@@ -196,7 +196,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         from vastcal.specimen import specimen_for_session
 
         specimen = specimen_for_session(args.specimen, out)
-    from vastcal.session_files import PathLock
+    from vastcal.session import PathLock
 
     probe = PathLock(Path(out))
     if probe.lock_path.exists():  # a writer holds (or held) this path: refuse before connect_rig homes the stage

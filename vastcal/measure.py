@@ -429,10 +429,10 @@ def store_measurement(group: h5py.Group, m: Measurement) -> None:
     Attributes ``volume_mm3``, ``mesh_volume_mm3``, ``surface_area_mm2`` (plain floats, their
     units in ``<name>_units`` attributes and in the names), settings, timings and provenance;
     datasets ``volume_mm3`` and ``surface_area_mm2`` (scalars with a ``units`` attribute) and
-    the smoothed mesh ``mesh`` as an NXoff_geometry (:mod:`vastcal.nexus`): ``vertices`` (µm, float32),
+    the smoothed mesh ``mesh`` as an NXoff_geometry (:mod:`vastcal.session.nexus`): ``vertices`` (µm, float32),
     ``winding_order`` (the triangles' vertex indices, int32) and ``faces`` (where each triangle starts in it).
     """
-    from vastcal.nexus import write_off_geometry
+    from vastcal.session.nexus import write_off_geometry
     from vastcal.session import write_attrs
 
     d = m.as_dict()
@@ -479,7 +479,7 @@ def store_measurement(group: h5py.Group, m: Measurement) -> None:
 
 def load_mesh(group: h5py.Group) -> Mesh:
     """The mesh stored by :func:`store_measurement`."""
-    from vastcal.nexus import read_triangles
+    from vastcal.session.nexus import read_triangles
 
     return Mesh(group["mesh"]["vertices"][...].astype(np.float64), read_triangles(group["mesh"]))
 

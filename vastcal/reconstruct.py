@@ -879,7 +879,7 @@ def store_reconstruction(
     Stores the grid (origin µm, voxel size µm, shape), the counts volume (uint8 or uint16, gzip; see
     :class:`HullResult`), a summary and the settings; images are not touched.
     """
-    from vastcal.nexus import describe_hull
+    from vastcal.session.nexus import describe_hull
     from vastcal.session import write_attrs
 
     g = hull.grid

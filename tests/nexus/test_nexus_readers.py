@@ -187,7 +187,7 @@ def test_hull_is_nxdata_in_um_and_mesh_is_nxoff_geometry(tmp_path: Path) -> None
 
 
 def test_a_mesh_stored_before_nxoff_geometry_still_loads(tmp_path: Path) -> None:
-    from vastcal.nexus import read_triangles, write_off_geometry
+    from vastcal.session.nexus import read_triangles, write_off_geometry
 
     tri = np.array([[0, 1, 2], [0, 2, 3]])
     with h5py.File(tmp_path / "m.h5", "w") as f:
