@@ -88,9 +88,9 @@ def profile(t: np.ndarray, s: np.ndarray, lo: float = -2.0, hi: float = 6.0) -> 
 def one_larva(seed: int, outdir: Path, refractive_index: tuple[float, float]) -> None:
     from vastcal.calibrate.colour_model import fit_automatic
     from vastcal.calibrate.silhouettes import contrast, specimen_maps
+    from vastcal.hull import choose_grid, visual_hull_in_grid
     from vastcal.measure import MeasureSettings, measure_hull
     from vastcal.pipeline import acquire_simulated
-    from vastcal.reconstruct import choose_grid, visual_hull_in_grid
     from vastcal.simulators.camera.battery import battery_config
 
     session = outdir / f"larva_{seed:03d}.h5"
@@ -132,8 +132,8 @@ def zf1() -> None:
 
     from vastcal.calibrate.colour_model import fit_automatic
     from vastcal.calibrate.silhouettes import contrast, specimen_maps
+    from vastcal.hull import visual_hull
     from vastcal.measure import measure_hull
-    from vastcal.reconstruct import visual_hull
     from vastcal.voxels import VoxelGrid
 
     d = REPO.parent / "shared" / "data" / "zf_3dpf_s001"

@@ -113,8 +113,8 @@ def run_true_cameras(session: Path) -> dict[str, Any]:
 
     from vastcal.calibrate.colour_model import fit_automatic
     from vastcal.calibrate.silhouettes import specimen_maps, touches_frame_edge
+    from vastcal.hull import choose_grid, visual_hull_in_grid
     from vastcal.measure import MeasureSettings, measure_hull
-    from vastcal.reconstruct import choose_grid, visual_hull_in_grid
 
     t = time.monotonic()
     P = true_cameras(truth_of(session))

@@ -11,7 +11,7 @@ What is measured
 * **Surface area** = area of the smoothed marching-cubes mesh (``surface_area_mm2``). A voxel
   staircase over-estimates area (by up to ~50 % for a sphere), so the mesh is an iso-surface of
   the **silhouette-count volume** (how many silhouettes contain each voxel,
-  :class:`vastcal.reconstruct.HullResult`) rather than of the 0/1 hull, then smoothed.
+  :class:`vastcal.hull.HullResult`) rather than of the 0/1 hull, then smoothed.
 
 Iso-level
 ---------
@@ -55,16 +55,13 @@ import logging
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
-
-if TYPE_CHECKING:  # pragma: no cover
-    import h5py
-
-    from vastcal.reconstruct import HullResult
+from vastcal.hull import HullResult
+from vastcal.qc import QCResult
 
 log = logging.getLogger(__name__)
 
@@ -268,7 +265,7 @@ class MeasureSettings:
         return float(n_views) - self.iso_offset
 
     def min_count(self, n_views: int) -> int:
-        """Lowest count the hull must track exactly for this level (see :func:`vastcal.reconstruct.visual_hull`)."""
+        """Lowest count the hull must track exactly for this level (see :func:`vastcal.hull.visual_hull`)."""
         return int(max(1, min(n_views, np.ceil(self.level(n_views) - 1e-9))))
 
 
@@ -363,8 +360,6 @@ class Measurement:
         if u.get("not_evaluated"):
             lines.append(f"uncertainty   not evaluated: {', '.join(u['not_evaluated'])} (the interval leaves them out)")
         if self.qc:
-            from vastcal.qc import QCResult
-
             lines.append(f"verdict       {QCResult.from_dict(self.qc).verdict_line()}")
         return "\n".join(lines)
 
@@ -421,67 +416,6 @@ def measure_hull(hull: HullResult, settings: MeasureSettings | None = None) -> M
         t2 - t1,
     )
     return m
-
-
-def store_measurement(group: h5py.Group, m: Measurement) -> None:
-    """Write a measurement into ``/entry/vastcal/measurement/run_NNN``.
-
-    Attributes ``volume_mm3``, ``mesh_volume_mm3``, ``surface_area_mm2`` (plain floats, their
-    units in ``<name>_units`` attributes and in the names), settings, timings and provenance;
-    datasets ``volume_mm3`` and ``surface_area_mm2`` (scalars with a ``units`` attribute) and
-    the smoothed mesh ``mesh`` as an NXoff_geometry (:mod:`vastcal.session.nexus`): ``vertices`` (µm, float32),
-    ``winding_order`` (the triangles' vertex indices, int32) and ``faces`` (where each triangle starts in it).
-    """
-    from vastcal.session.nexus import write_off_geometry
-    from vastcal.session import write_attrs
-
-    d = m.as_dict()
-    write_attrs(group, {k: v for k, v in d.items()})
-    if m.uncertainty:
-        write_attrs(
-            group,
-            {
-                "volume_U_mm3": float(m.uncertainty["U_volume_mm3"]),
-                "surface_area_U_mm2": float(m.uncertainty["U_area_mm2"]),
-                "coverage_factor_k": float(m.uncertainty.get("k", 2.0)),
-            },
-        )
-    if m.qc:
-        write_attrs(
-            group, {"verdict": str(m.qc.get("verdict", "")), "lower_bound": bool(m.qc.get("lower_bound", False))}
-        )
-    vol_units, area_units = measurement_units(str((m.provenance or {}).get("length_unit", "um")))
-    write_attrs(
-        group,
-        {
-            "volume_mm3_units": vol_units,
-            "mesh_volume_mm3_units": vol_units,
-            "surface_area_mm2_units": area_units,
-            "volume_method": "voxels inside all silhouettes x voxel volume (the value to cite; mesh_volume_mm3 is a diagnostic)",
-            "surface_method": f"marching cubes of silhouette counts at level {m.iso_level:g}, "
-            f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), volume preserved",
-        },
-    )
-    for name, value, units in (
-        ("volume_mm3", m.volume_mm3, vol_units),
-        ("mesh_volume_mm3", m.mesh_volume_mm3, vol_units),
-        ("surface_area_mm2", m.surface_area_mm2, area_units),
-    ):
-        ds = group.create_dataset(name, data=float(value))
-        ds.attrs["units"] = units
-    write_off_geometry(
-        group.create_group("mesh"),
-        m.mesh.vertices,
-        m.mesh.faces,
-        orientation="counter-clockwise seen from outside (outward normals)",
-    )
-
-
-def load_mesh(group: h5py.Group) -> Mesh:
-    """The mesh stored by :func:`store_measurement`."""
-    from vastcal.session.nexus import read_triangles
-
-    return Mesh(group["mesh"]["vertices"][...].astype(np.float64), read_triangles(group["mesh"]))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -41,17 +41,24 @@ volume and area lower bounds (:mod:`vastcal.qc`).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+import cv2
 import numpy as np
 
-if TYPE_CHECKING:  # pragma: no cover
-    from vastcal.measure import Mesh
-    from vastcal.qc import FrameStats
+from vastcal import qc
+from vastcal.errors import VastcalError
+from vastcal.geometry import projection_matrices
+from vastcal.hull import visual_hull
+from vastcal.measure import Mesh, measure_hull
+from vastcal.qc import FrameStats
+from vastcal.voxels import VoxelGrid
 
 log = logging.getLogger(__name__)
 
@@ -239,8 +246,6 @@ def normal_shift_sensitivity(mesh: Mesh, step_um: float = 1.0) -> tuple[float, f
 
     Central differences of the mesh moved ±``step_um`` along its vertex normals.
     """
-    from vastcal.measure import Mesh
-
     vn = vertex_normals(mesh)
     plus = Mesh(mesh.vertices + step_um * vn, mesh.faces)
     minus = Mesh(mesh.vertices - step_um * vn, mesh.faces)
@@ -320,8 +325,6 @@ def edge_sigma_px(
 
 def is_hard(silhouettes: np.ndarray) -> bool:
     """Whether silhouettes are hard masks: binary, or maps with < 20 % of their boundary band graded (0.05 < p < 0.95)."""
-    import cv2
-
     n = len(silhouettes)  # a stack or a lazy one (reconstruct.SilhouetteMaps): five views are read, one at a time
     graded = band = 0
     for i in range(0, n, max(1, n // 5)):
@@ -394,15 +397,11 @@ class CalibrationSpread:
 
     def cameras(self, theta_deg: np.ndarray) -> np.ndarray:
         """P (N, 3, 4) of a θ."""
-        from vastcal.geometry import projection_matrices
-
         return projection_matrices(self.K, self.distance_um, np.asarray(theta_deg, float)[None])[0]
 
 
 def _json_attr(attrs: dict[str, Any], key: str) -> Any:
     """A stored attribute that holds JSON (a run's ``settings``, ``levels``), decoded; None when absent or not JSON."""
-    import json
-
     v = attrs.get(key)
     if isinstance(v, (str, bytes)):
         try:
@@ -412,12 +411,12 @@ def _json_attr(attrs: dict[str, Any], key: str) -> Any:
     return v
 
 
-def _settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
+def settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
     s = _json_attr(attrs, "settings")
     return s if isinstance(s, dict) else {}
 
 
-def _photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
+def photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
     """Whether a stored calibration run's photometric yaw ran (a level report of that stage), None when the run keeps
     no level reports. It may be on in the settings and yet not run: no absorption contrast, too few directions."""
     levels = _json_attr(attrs, "levels")
@@ -477,30 +476,6 @@ def open_directions_sigma(
     )
     src = f"{rolls_src}; yaw: sigma {yaw:g} deg ({yaw_why}); pitch, gamma: determined, not sampled"
     return sig, src
-
-
-def calibration_spread_from_group(group: Any) -> CalibrationSpread | None:
-    """A :class:`CalibrationSpread` from a stored calibration run group (None when it lacks θ, K or the distance)."""
-    from vastcal.session import read_attrs
-
-    if group is None or "theta_deg" not in group or "K" not in group:
-        return None
-    a = read_attrs(group)
-    if "distance" not in a:
-        return None
-    theta = np.asarray(group["theta_deg"][...], float)
-    free = a.get("free", []) or []
-    if isinstance(free, str):
-        free = [free]
-    roll_sigma = np.asarray(group["roll_sigma_deg"][...], float) if "roll_sigma_deg" in group else None
-    sig, src = open_directions_sigma(theta.size, list(free), _settings_of(a), _photometric_yaw_ran(a), roll_sigma)
-    st = sc = None
-    if "starts" in group and "theta" in group["starts"] and "cost" in group["starts"]:
-        st = np.asarray(group["starts"]["theta"][...], float)
-        sc = np.asarray(group["starts"]["cost"][...], float)
-        if st.ndim != 2 or st.shape[1] != theta.size or sc.shape != (st.shape[0],):
-            st = sc = None
-    return CalibrationSpread(theta, np.asarray(group["K"][...], float), float(a["distance"]), sig, src, st, sc)
 
 
 MeasureFn = Callable[[np.ndarray], "tuple[float, float] | None"]
@@ -682,6 +657,7 @@ def drift_status(
     rise = np.asarray(roll_rise if roll_rise is not None else [], float)
     free_views = np.isfinite(rise)
     if roll_sigma is not None and prior_rise is not None and np.size(roll_sigma) == rise.size and free_views.any():
+        # imported here: vastcal.calibrate (whose package imports its pipeline) uses this module
         from vastcal.calibrate.roll_width import rolls_determined
 
         determined, n_free, most = rolls_determined(rise, float(prior_rise))
@@ -770,11 +746,6 @@ def comparison_measurer(
 
     Returns the function and the comparison grid.
     """
-    from vastcal.errors import VastcalError
-    from vastcal.measure import measure_hull
-    from vastcal.reconstruct import visual_hull
-    from vastcal.voxels import VoxelGrid
-
     coarse = VoxelGrid.from_bounds(
         np.asarray(grid.lower, float), np.asarray(grid.upper, float), float(grid.size) * GRID_FACTOR
     )
@@ -810,9 +781,9 @@ def assess(
         frames: (N, H, W[, 3]) stored frames, an array or a lazy stack read one view at a time
             (:class:`vastcal.calibrate.view_budget.SessionFrames`).
         silhouettes: (N, H, W) the silhouettes the hull was carved from (bool or soft maps; an array
-            or :class:`vastcal.reconstruct.SilhouetteMaps`).
+            or :class:`vastcal.hull.SilhouetteMaps`).
         P: (N, 3, 4) the cameras used.
-        hull: the :class:`~vastcal.reconstruct.HullResult` measured.
+        hull: the :class:`~vastcal.hull.HullResult` measured.
         measurement: its :class:`~vastcal.measure.Measurement`.
         spread: the calibration's :class:`CalibrationSpread` (None for imported cameras).
         extra_flags: QC findings made elsewhere (:class:`vastcal.qc.Flag`).
@@ -821,10 +792,6 @@ def assess(
     Returns:
         (:class:`Budget`, :class:`vastcal.qc.QCResult`).
     """
-    import time
-
-    from vastcal import qc
-
     t0 = time.perf_counter()
     mesh = measurement.mesh
     measures = qc.view_measures(frames, silhouettes, P, mesh.vertices, mesh.faces)
@@ -878,59 +845,3 @@ def assess(
         raster_px=raster,
     )
     return budget, result
-
-
-def assess_session_measurement(
-    session: Any, inputs: Any, hull: Any, measurement: Any, *, samples: int = CAL_SAMPLES
-) -> Any:
-    """:func:`assess` for a measurement of an open session; returns the measurement carrying both results.
-
-    Reads the frames and the calibration run the cameras came from (θ, K, distance, bounds,
-    settings, kept starts). A failure of the assessment never loses the measurement: it is logged
-    and the budget is marked not evaluated.
-
-    Args:
-        session: an open :class:`~vastcal.session.Session`.
-        inputs: the :class:`~vastcal.reconstruct.ReconstructionInputs` used.
-        hull: the :class:`~vastcal.reconstruct.HullResult` measured.
-        measurement: its :class:`~vastcal.measure.Measurement`.
-    """
-    import cv2
-
-    from vastcal import qc
-    from vastcal.calibrate.view_budget import SessionFrames
-    from vastcal.errors import VastcalError
-    from vastcal.session import read_attrs
-
-    cal = session.result("calibration", inputs.calibration_run) if inputs.calibration_run else None
-    spread = calibration_spread_from_group(cal) if cal is not None else None
-    note = (
-        "cameras imported as given: their uncertainty is not known to vastcal"
-        if cal is None
-        else f"calibration/{inputs.calibration_run} stores no theta_deg, K and distance to re-pose its cameras"
-    )
-    flags: list[Any] = []
-    if cal is not None and "theta_deg" in cal:
-        a = read_attrs(cal)
-        flags += qc.calibration_bound_flags(np.asarray(cal["theta_deg"][...], float), a.get("bounds"))
-    try:
-        budget, result = assess(
-            SessionFrames(session),
-            inputs.silhouettes,
-            inputs.P,
-            hull,
-            measurement,
-            spread,
-            extra_flags=flags,
-            samples=samples,
-            missing_note=note,
-        )
-    except (VastcalError, ValueError, np.linalg.LinAlgError, cv2.error) as exc:
-        log.warning("%s: uncertainty and QC not evaluated (%s)", session.path, exc)
-        b = combine(
-            measurement.volume_mm3,
-            measurement.surface_area_mm2,
-            [Component("all", None, None, "not evaluated", f"the assessment failed: {exc}")],
-        )
-        return measurement.with_assessment(b.as_dict(), None)
-    return measurement.with_assessment(budget.as_dict(), result.as_dict())

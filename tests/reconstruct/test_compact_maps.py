@@ -14,7 +14,8 @@ import vastcal.calibrate.view_budget as view_budget
 from vastcal.calibrate.colour_model import ColourModel, fit_automatic, fit_views
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.calibrate.view_budget import grouped_specimen_maps, map_group_views, sub_revolutions
-from vastcal.reconstruct import SilhouetteMaps, session_specimen_maps, visual_hull
+from vastcal.hull import SilhouetteMaps, visual_hull
+from vastcal.reconstruct import session_specimen_maps
 from vastcal.session import Session
 from vastcal.voxels import VoxelGrid
 

@@ -10,6 +10,7 @@ import h5py
 import numpy as np
 import pytest
 
+from vastcal import reconstruct
 from vastcal.cli import main
 from vastcal.errors import MissingStageError, UserInputError
 from vastcal.measure import read_ply
@@ -90,6 +91,7 @@ def test_silhouettes_from_the_calibration_colour_model(
     monkeypatch.setitem(sys.modules, "vastcal.calibrate", pkg)
     monkeypatch.setitem(sys.modules, "vastcal.calibrate.colour_model", mod)
     monkeypatch.setitem(sys.modules, "vastcal.calibrate.silhouettes", sil)
+    monkeypatch.setattr(reconstruct, "ColourModel", FakeModel)  # the colour model the session's reconstruction reads
     m = reconstruct_session(path, target_voxels=300_000)
     assert m.provenance["silhouette_source"].startswith("colour_model of calibration/run_000")
     assert m.volume_mm3 == pytest.approx(small_views.hull_volume_mm3, rel=0.03)  # type: ignore[attr-defined]

@@ -206,12 +206,12 @@ def _calibration_summary(
                 out["initial_cost"] = float(cost[1][0])
         free = a.get("free", []) or []
         starts = np.asarray(g["starts"]["theta"][...], float) if "starts" in g and "theta" in g["starts"] else None
-        from vastcal.uncertainty import _settings_of
+        from vastcal.uncertainty import settings_of
 
         drift_kw: dict[str, Any] = {
             "source": "calibration",
             "free": [free] if isinstance(free, str) else list(free),
-            "settings": _settings_of(a),
+            "settings": settings_of(a),
             "starts_theta": starts,
         }
         if "roll_sigma_deg" in g and "roll_data_rise" in g:
@@ -289,8 +289,9 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
     Raises:
         MissingStageError: no measurement (run ``vastcal reconstruct S.h5`` first).
     """
-    from vastcal.measure import load_mesh
-    from vastcal.reconstruct import _world_length_unit, cameras_in_um, hull_boundary, load_reconstruction
+    from vastcal.hull import cameras_in_um, hull_boundary
+    from vastcal.reconstruct import world_length_unit
+    from vastcal.result_groups import load_mesh, load_reconstruction
     from vastcal.session import Session, read_attrs, software_versions
 
     path = Path(session_path)
@@ -324,7 +325,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         if P is None:
             raise MissingStageError(f"{path}: the cameras of {mrun} are missing: run 'vastcal calibrate {path}' first")
         # the world of the hull is µm: the cameras re-expressed the way the reconstruction did (nm, mm, m … → µm)
-        P = cameras_in_um(P, _world_length_unit(s, s.result("calibration", cal_run) if cal_run else None))[0]
+        P = cameras_in_um(P, world_length_unit(s, s.result("calibration", cal_run) if cal_run else None))[0]
         commanded = np.asarray(s.angles_deg, float)
         cal, delta, cost = _calibration_summary(s, cal_run, P, commanded)
         frames = s.projections()
