@@ -245,6 +245,7 @@ def test_drivers_and_simulators_count_as_vastcal_modules(tmp_path: Path) -> None
         ("def f(a, b, c, d, e, f, g, h, i, *j, k):\n    pass\n", ["f: 1 statements, 11 parameters"]),
         ("def f():\n    def g():\n" + "        x = 1\n" * 60, ["f: 61 statements, 0 parameters"]),
     ],
+    ids=["60 statements", "61 statements", "self and 10 parameters", "11 parameters", "a nested function counts"],
 )
 def test_function_size_counts_statements_and_parameters(tmp_path: Path, source: str, expected: list[str]) -> None:
     repo = _tree(tmp_path, {"vastcal/__init__.py": "", "vastcal/m.py": source})

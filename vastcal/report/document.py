@@ -28,7 +28,14 @@ from typing import Any
 import numpy as np
 
 from vastcal.errors import AnalysisError, MissingStageError, UserInputError
+from vastcal.geometry import decompose_circular
+from vastcal.hull import cameras_in_um, hull_boundary
+from vastcal.measure import measurement_units, world_unit_words
+from vastcal.reconstruct import world_length_unit
 from vastcal.report import figures
+from vastcal.result_groups import load_mesh, load_reconstruction
+from vastcal.session import Session, read_attrs, software_versions
+from vastcal.uncertainty import drift_rms_deg, drift_status, settings_of
 
 log = logging.getLogger(__name__)
 
@@ -158,7 +165,6 @@ def _calibration_summary(
     s: Any, cal_run: str | None, P: np.ndarray, commanded: np.ndarray
 ) -> tuple[dict[str, Any], np.ndarray | None, tuple[np.ndarray, np.ndarray] | None]:
     """Calibration facts, per-view delta angles (deg) and the cost trace of the run used (or imported cameras)."""
-    from vastcal.session import read_attrs
 
     out: dict[str, Any] = {}
     delta = None
@@ -206,7 +212,6 @@ def _calibration_summary(
                 out["initial_cost"] = float(cost[1][0])
         free = a.get("free", []) or []
         starts = np.asarray(g["starts"]["theta"][...], float) if "starts" in g and "theta" in g["starts"] else None
-        from vastcal.uncertainty import settings_of
 
         drift_kw: dict[str, Any] = {
             "source": "calibration",
@@ -226,8 +231,6 @@ def _calibration_summary(
         out["camera_source"] = "cameras (imported)"
         out["method"] = "imported"
         try:
-            from vastcal.geometry import decompose_circular
-
             fit = decompose_circular(P)
             mo = fit.motion
             out.update(
@@ -245,8 +248,6 @@ def _calibration_summary(
         except AnalysisError as exc:
             log.info("imported cameras do not fit circular motion: %s", exc)
     if delta is not None and delta.size:
-        from vastcal.uncertainty import drift_rms_deg, drift_status
-
         out["delta_angle_deg"] = delta.tolist()
         out["drift_rms_deg"], out["drift_max_abs_deg"] = drift_rms_deg(delta)  # views 1..N-1: view 0 defines 0 deg
         out["drift"] = drift_status(delta, **drift_kw)
@@ -258,7 +259,6 @@ def _calibration_summary(
 def _measurement_units(length_unit: str) -> dict[str, str]:
     """report.json's ``units`` of a measurement in a world of ``length_unit`` (the stored labels,
     :func:`vastcal.measure.measurement_units`; for a world of unknown unit, :func:`vastcal.measure.world_unit_words`' note)."""
-    from vastcal.measure import measurement_units, world_unit_words
 
     volume, area = measurement_units(length_unit)
     units = {"volume_mm3": volume, "mesh_volume_mm3": volume, "surface_area_mm2": area, "raw_surface_area_mm2": area}
@@ -289,10 +289,6 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
     Raises:
         MissingStageError: no measurement (run ``vastcal reconstruct S.h5`` first).
     """
-    from vastcal.hull import cameras_in_um, hull_boundary
-    from vastcal.reconstruct import world_length_unit
-    from vastcal.result_groups import load_mesh, load_reconstruction
-    from vastcal.session import Session, read_attrs, software_versions
 
     path = Path(session_path)
     with Session.open(path) as s:

@@ -88,12 +88,20 @@ def write_atomically(path: str | Path, data: bytes) -> None:
 
     The file is created with :data:`FILE_MODE` less the umask (as ``open`` would), not the 0600 of a
     private temporary file. Copies left by killed writers are removed first (:func:`remove_stale_copies`).
+
+    Raises:
+        UserInputError: the folder is read-only (permissions or a read-only mount).
     """
     path = Path(path)
     remove_stale_copies(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, FILE_MODE)
+    except OSError as exc:
+        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+            raise UserInputError(f"{path}: cannot write it: {os.strerror(exc.errno).lower()} ({tmp.parent})") from None
+        raise
+    try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
