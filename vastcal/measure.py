@@ -58,6 +58,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import cg
+from skimage.measure import marching_cubes
 
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
 from vastcal.hull import HullResult
@@ -165,8 +168,6 @@ def marching_cubes_mesh(counts: np.ndarray, level: float, origin: np.ndarray, vo
         EmptyHullError: no voxel reaches ``level``.
         AnalysisError: the surface is degenerate.
     """
-    from skimage.measure import marching_cubes
-
     above = np.argwhere(counts >= level)
     if above.size == 0:
         raise EmptyHullError(f"no voxel reaches the iso-level {level:g}: the hull is empty")
@@ -186,8 +187,6 @@ def marching_cubes_mesh(counts: np.ndarray, level: float, origin: np.ndarray, vo
 
 def _adjacency(n_vertices: int, faces: np.ndarray) -> Any:
     """Symmetric 0/1 vertex adjacency (CSR) of a triangle mesh."""
-    import scipy.sparse as sp
-
     i = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2], faces[:, 1], faces[:, 2], faces[:, 0]])
     j = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0], faces[:, 0], faces[:, 1], faces[:, 2]])
     A = sp.coo_matrix((np.ones(i.size), (i, j)), shape=(n_vertices, n_vertices)).tocsr()
@@ -209,9 +208,6 @@ def smooth_mesh(mesh: Mesh, steps: int = 5, lam: float = 1.0, preserve_volume: b
     """
     if steps <= 0:
         return mesh
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import cg
-
     check_mesh(mesh)
     A = _adjacency(mesh.n_vertices, mesh.faces)
     deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
