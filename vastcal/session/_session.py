@@ -46,16 +46,16 @@ class Session(SessionReader):
     def open(cls, path: str | Path, mode: str = "r") -> Self:
         """Open and validate a session (``mode`` ``"r"`` or ``"a"`` to add results).
 
-        With ``mode="a"`` the file and its folder must be writable and no other process may be
-        writing the session: both are checked before the file is opened.
+        With ``mode="a"`` the file and its folder must be writable (checked before the file is
+        opened); a run is stored once another process storing one has finished (waiting up to
+        :data:`RESULTS_LOCK_TIMEOUT_S`).
 
         Raises:
             NotASessionError: missing file, not HDF5, truncated, damaged, or not written by vastcal.
             UserInputError: ``mode="a"`` and the session or its folder cannot be written.
-            SessionBusyError: ``mode="a"`` and another process is writing the session.
         """
         if mode == "a" and Path(path).is_file():
-            require_writable(path)
+            require_writable(path, writer_free=False)
         return super().open(path, mode)
 
     def close(self) -> None:
@@ -159,15 +159,19 @@ class Session(SessionReader):
         log.debug("stored results in %s", self.path)
 
 
-def require_writable(path: str | Path) -> None:
+def require_writable(path: str | Path, *, writer_free: bool = True) -> None:
     """Check, before any work, that runs can be stored in the session ``path``.
+
+    Args:
+        writer_free: also refuse a session whose writer lock a live process holds.
 
     Raises:
         UserInputError: the session file or its folder is read-only (permissions or a read-only mount).
-        SessionBusyError: another process holds the session's writer lock (acquiring, or storing a run).
+        SessionBusyError: ``writer_free`` and another process holds the session's writer lock (acquiring,
+            or storing a run).
     """
     p = check_output_file(path, force=True, option="SESSION", existing=True)
-    pid = writer_pid(p)
+    pid = writer_pid(p) if writer_free else None
     if pid is not None:
         raise SessionBusyError(
             f"{p}: the session is being written by another vastcal process (pid {pid or '?'}); wait for it to finish"
