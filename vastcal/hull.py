@@ -73,9 +73,9 @@ class HullResult:
 
     Attributes:
         grid: the voxel grid (world µm).
-        counts: (nx, ny, nz) uint8 (uint16 beyond 255 views, :func:`count_dtype`), number of silhouettes containing each voxel; exact for the
-            hull (= ``n_views``), for every voxel with count ≥ ``min_count`` connected to it and
-            for their 6-neighbours; 0 elsewhere (module docstring).
+        counts: (nx, ny, nz) uint8 (uint16 beyond 255 views, :func:`count_dtype`), number of silhouettes
+            containing each voxel; exact for the hull (= ``n_views``), for every voxel with count ≥
+            ``min_count`` connected to it and for their 6-neighbours; 0 elsewhere (module docstring).
         n_views: N, the number of silhouettes.
         min_count: the lowest count tracked exactly (see ``counts``).
         wall_time_s: time spent carving and counting, s.
@@ -354,7 +354,10 @@ class SilhouetteMaps:
 
 
 class _MaskStack:
-    """The binary masks (p ≥ ½) of a :class:`SilhouetteMaps`, one view at a time, as :func:`vastcal.voxels.inside_all` reads them."""
+    """The binary masks (p ≥ ½) of a :class:`SilhouetteMaps`, one view at a time.
+
+    As :func:`vastcal.voxels.inside_all` reads them.
+    """
 
     def __init__(self, maps: SilhouetteMaps) -> None:
         self.maps = maps
@@ -415,9 +418,10 @@ def _classify_blocks(
 ) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
     """Per block: kept (not certainly outside any view) and per-view 'mixed' flags.
 
-    The binary pixel masks of ``maps`` (:meth:`SilhouetteMaps.mask`, one view at a time) are tested. A voxel's test reads the pixel nearest to its
-    projection (within √2/2 px of it) or, for soft maps, the 4 pixels around it (within √2 px;
-    bilinear ≥ 0.5 needs one of them ≥ 0.5 and holds when all four are), hence the slack.
+    The binary pixel masks of ``maps`` (:meth:`SilhouetteMaps.mask`, one view at a time) are tested.
+    A voxel's test reads the pixel nearest to its projection (within √2/2 px of it) or, for soft maps,
+    the 4 pixels around it (within √2 px; bilinear ≥ 0.5 needs one of them ≥ 0.5 and holds when all
+    four are), hence the slack.
     Returns ``keep`` (nb,) bool, ``mixed`` (N, nb) bool and the block-grid shape.
     """
     slack = (_SQRT2 / 2 + _SQRT2 if maps.soft else _SQRT2) + _SAFETY_PX

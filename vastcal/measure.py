@@ -73,8 +73,11 @@ UM2_PER_MM2 = 1e6
 
 
 def measurement_units(length_unit: str) -> tuple[str, str]:
-    """(volume, area) units of the stored ``volume_mm3``/``surface_area_mm2`` for a world of ``length_unit``: mm^3 and mm^2
-    for a known unit; for ``px`` or ``unknown`` what the numbers then are (10⁻⁹ px³, 10⁻⁹ (units of the cameras)³ …)."""
+    """(volume, area) units of the stored ``volume_mm3``/``surface_area_mm2`` for a world of ``length_unit``.
+
+    mm^3 and mm^2 for a known unit; for ``px`` or ``unknown`` what the numbers then are (10⁻⁹ px³,
+    10⁻⁹ (units of the cameras)³ …).
+    """
     if length_unit not in ("px", "unknown"):
         return "mm^3", "mm^2"
     unit = world_unit_words(length_unit)[0]
@@ -82,16 +85,22 @@ def measurement_units(length_unit: str) -> tuple[str, str]:
 
 
 def world_unit_words(length_unit: str) -> tuple[str, str]:
-    """(unit, why) for printing a measurement whose world unit is not known (``length_unit`` ``"px"`` or ``"unknown"``):
-    the values (stored as mm³/mm² of a world taken as µm) times :data:`UM3_PER_MM3` / :data:`UM2_PER_MM2` are in that unit."""
+    """(unit, why) for printing a measurement whose world unit is not known (``length_unit`` ``"px"`` or ``"unknown"``).
+
+    The values (stored as mm³/mm² of a world taken as µm) times :data:`UM3_PER_MM3` / :data:`UM2_PER_MM2`
+    are in that unit.
+    """
     if length_unit == "px":
         return "px", "pixel size unknown - measurements in pixels: import with --pixel-size-um or --config"
     return "(units of the cameras)", "the cameras' length unit is unknown: give it with 'vastcal import --length-unit'"
 
 
 def quantity_text(value_mm: float, u_mm: float | None, power: int, length_unit: str) -> str:
-    """``value ± U unit^power`` of a stored volume (``power`` 3, mm³) or area (2, mm²): mm with 4 or 3 decimals for a
-    known world unit; for ``px``/``unknown`` the stored value × 10⁹ or 10⁶ in :func:`world_unit_words`' unit, 6 digits."""
+    """``value ± U unit^power`` of a stored volume (``power`` 3, mm³) or area (2, mm²).
+
+    mm with 4 or 3 decimals for a known world unit; for ``px``/``unknown`` the stored value × 10⁹ or
+    10⁶ in :func:`world_unit_words`' unit, 6 digits.
+    """
     if length_unit not in ("px", "unknown"):
         fmt, scale, unit = (".4f" if power == 3 else ".3f"), 1.0, "mm"
     else:
@@ -423,7 +432,8 @@ def write_ply(mesh: Mesh, path: str | Path) -> Path:
     """Binary little-endian PLY: float32 x, y, z (µm); faces as uchar count + 3 int32."""
     p = Path(path)
     header = (
-        "ply\nformat binary_little_endian 1.0\ncomment vastcal mesh, units: micrometre (world frame, x = rotation axis)\n"
+        "ply\nformat binary_little_endian 1.0\ncomment vastcal mesh, units: micrometre (world frame, x = rotation "
+        "axis)\n"
         f"element vertex {mesh.n_vertices}\nproperty float x\nproperty float y\nproperty float z\n"
         f"element face {mesh.n_faces}\nproperty list uchar int vertex_indices\nend_header\n"
     )

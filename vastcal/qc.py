@@ -28,8 +28,8 @@ What is checked, per view, and why each threshold is what it is
   mean boundary distance (px). For consistent silhouettes and cameras the visual hull reprojects
   onto every silhouette exactly; the distance expected from measurement error alone is the edge
   localisation σ_edge the images explain (:mod:`vastcal.uncertainty`, without its own term for this
-  disagreement) plus what the comparison resolves, r = half a pixel of rasterisation + half a voxel's image. A view is flagged when its distance exceeds
-  3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
+  disagreement) plus what the comparison resolves, r = half a pixel of rasterisation + half a voxel's
+  image. A view is flagged when its distance exceeds 3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
   silhouette and the hull overlap less than they differ → *fail*).
 * **Calibration at its bounds** — a free parameter within 1 % of the box width of a bound of the
   search box: the optimum may lie outside it. → *check*.
@@ -51,13 +51,15 @@ log = logging.getLogger(__name__)
 BLANK_RANGE_SIGMAS = 8.0
 """A frame whose 0.1–99.9 % grey range is below this many noise σ (+1 grey level) is blank."""
 SATURATED_FRACTION = 0.05
-"""Fraction of the pixels just outside the outline at the top code (or 0) above which a view is flagged saturated/clipped."""
+"""Fraction of the pixels just outside the outline at the top code (or 0) above which a view is flagged
+saturated/clipped."""
 LOW_CONTRAST_PX = 0.5
 """Single-pixel edge noise (px) above which a view is flagged low contrast."""
 CUT_MIN_PX = 3
 """Silhouette pixels on the frame border (per view) from which the specimen counts as cut."""
 DISAGREE_SIGMAS = 3.0
-"""A view disagrees with the hull when its mean boundary distance exceeds this × (σ_edge + r), r the comparison's resolution."""
+"""A view disagrees with the hull when its mean boundary distance exceeds this × (σ_edge + r), r the
+comparison's resolution."""
 FAIL_IOU = 0.5
 """IoU below which a view's silhouette and the hull are not the same object."""
 BOUND_FRACTION = 0.01
@@ -639,8 +641,9 @@ def edge_offsets_px(
     Their spread over the boundary is the per-point scatter of the silhouette's edge (for a hard
     mask at least the quantisation 1/√12 px); their mean is biased where the specimen's own
     shading continues inside the window (absorption grows with depth), so the budget takes the
-    mean offset from :func:`frame_stats` (half-level band) and only the spread from here. The silhouette puts ``half_window`` px of specimen there, so its boundary
-    lies ``half_window`` − s px outward of the true edge (negative: the silhouette is too small).
+    mean offset from :func:`frame_stats` (half-level band) and only the spread from here. The silhouette
+    puts ``half_window`` px of specimen there, so its boundary lies ``half_window`` − s px outward of the
+    true edge (negative: the silhouette is too small).
     The window (3 px) spans ±3.75 σ of an edge blur up to σ_b = 0.8 px; transitions whose step is
     below ``min_cnr`` noise σ are skipped. Profiles along a row or column cross an oblique edge
     obliquely, which stretches the silhouette's and the true length alike: the offset along the

@@ -44,7 +44,8 @@ class ReconstructionInputs:
 
     Attributes:
         P: (N, 3, 4) cameras, 0-based pixels of the stored frames.
-        silhouettes: (N, H, W) bool masks, or the colour model's probability maps in [0, 1] held compactly (:class:`SilhouetteMaps`).
+        silhouettes: (N, H, W) bool masks, or the colour model's probability maps in [0, 1] held compactly
+            (:class:`~vastcal.hull.SilhouetteMaps`).
         camera_source: ``"calibration/run_NNN"`` or ``"cameras (imported)"``.
         silhouette_source: ``"masks"`` or ``"colour_model of calibration/run_NNN (p >= 0.5)"``.
         calibration_run: name of the calibration run used, or None.
@@ -107,10 +108,11 @@ def session_inputs(
 
     Cameras: the calibration run ``calibration_run`` (default: the latest), else the imported
     known cameras; ``calibration_run="imported"``: the imported cameras, even when runs exist.
-    Silhouettes: the imported masks when ``use_masks``; otherwise the colour
-    model's foreground probability maps of the calibration run (with imported cameras: of the latest run; float32, soft: a voxel is inside
-    when the bilinearly sampled p ≥ 0.5, :data:`FOREGROUND_THRESHOLD`; made within ``memory_mb`` and held
-    compactly, :func:`session_specimen_maps`), falling back to imported masks when there is no colour model.
+    Silhouettes: the imported masks when ``use_masks``; otherwise the colour model's foreground
+    probability maps of the calibration run (with imported cameras: of the latest run; float32, soft:
+    a voxel is inside when the bilinearly sampled p ≥ 0.5, :data:`~vastcal.hull.FOREGROUND_THRESHOLD`;
+    made within ``memory_mb`` and held compactly, :func:`session_specimen_maps`), falling back to
+    imported masks when there is no colour model.
 
     Raises:
         MissingStageError: no cameras, or no silhouettes, with the command that makes them.

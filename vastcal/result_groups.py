@@ -120,9 +120,11 @@ def store_measurement(group: h5py.Group, m: Measurement) -> None:
             "volume_mm3_units": vol_units,
             "mesh_volume_mm3_units": vol_units,
             "surface_area_mm2_units": area_units,
-            "volume_method": "voxels inside all silhouettes x voxel volume (the value to cite; mesh_volume_mm3 is a diagnostic)",
+            "volume_method": "voxels inside all silhouettes x voxel volume "
+            "(the value to cite; mesh_volume_mm3 is a diagnostic)",
             "surface_method": f"marching cubes of silhouette counts at level {m.iso_level:g}, "
-            f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), volume preserved",
+            f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), "
+            "volume preserved",
         },
     )
     for name, value, units in (

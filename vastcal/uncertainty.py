@@ -14,8 +14,8 @@ The budget (standard uncertainties u, combined in quadrature, expanded U = k·u 
    sits from the half-level of the grey-level step (its common part, and its view-to-view part
    over √N: each view carves about 1/N of the surface), half its per-point scatter (the
    quantisation 1/√12 px of a hard mask: the hull is the intersection of the silhouettes and
-   follows the innermost where several views bound it), the noise of that position averaged along the contour, and the mean disagreement
-   between silhouettes and the reprojected hull beyond what the rasteriser explains
+   follows the innermost where several views bound it), the noise of that position averaged along the
+   contour, and the mean disagreement between silhouettes and the reprojected hull beyond what the rasteriser explains
    (:mod:`vastcal.qc`). A common shift is fully correlated over views, so it is not divided by √N.
 2. **Calibration** — what the data cannot pin down. (a) When the calibration run kept several
    starts (datasets ``starts/theta`` (S × P, degrees) and ``starts/cost`` (S,)), the hulls of the
@@ -69,7 +69,8 @@ CAL_SAMPLES = 6
 START_COST_TOLERANCE = 0.01
 """Relative cost above the best start within which a start counts as 'of equal cost'."""
 PHOTOMETRIC_YAW_SIGMA_DEG = 0.05
-"""σ of the photometric yaw: its measured error over 8 simulated rigs, mean |error| 0.037°, max 0.074° (docs/calibration.md)."""
+"""σ of the photometric yaw: its measured error over 8 simulated rigs, mean |error| 0.037°, max 0.074°
+(docs/calibration.md)."""
 GRID_FACTOR = 2.0
 """The second grid's voxel edge, in voxel edges of the measurement grid."""
 UM3_PER_MM3 = 1e9
@@ -324,7 +325,8 @@ def edge_sigma_px(
 
 
 def is_hard(silhouettes: np.ndarray) -> bool:
-    """Whether silhouettes are hard masks: binary, or maps with < 20 % of their boundary band graded (0.05 < p < 0.95)."""
+    """Whether silhouettes are hard masks: binary, or maps with < 20 % of their boundary band graded
+    (0.05 < p < 0.95)."""
     n = len(silhouettes)  # a stack or a lazy one (reconstruct.SilhouetteMaps): five views are read, one at a time
     graded = band = 0
     for i in range(0, n, max(1, n // 5)):
@@ -360,9 +362,11 @@ def edge_component(mesh: Mesh, P: np.ndarray, sigma_px: float) -> tuple[Componen
         "edge",
         abs(dv) * shift,
         abs(da) * shift,
-        f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
+        f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its "
+        "normals, "
         "volume and area re-measured",
-        "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the per-point edge scatter, edge noise along the contour, "
+        "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the "
+        "per-point edge scatter, edge noise along the contour, "
         "disagreement with the reprojected hull",
     )
     return comp, {"um_per_px": scale, "dV_dn_mm3_per_um": dv, "dA_dn_mm2_per_um": da, "edge_shift_um": shift}
@@ -439,9 +443,9 @@ def open_directions_sigma(
     they pin it); for runs that did not measure it, the roll prior's width ``roll_prior_deg`` (default 1°) —
     the rig file's statement of how far the stage may drift, which decides them on near-orthographic optics
     (docs/calibration.md); when the rolls were fixed the same width (they sit at the commanded angles, the
-    stage's drift unknown). Yaw: the photometric yaw's measured error when it ran (``photometric_ran``; None: when the settings
-    turn it on and the yaw was free), else ``yaw_prior_deg`` (default 0.5°). Pitch and γ are pinned by the
-    silhouettes (a few hundredths of a degree) and are not sampled.
+    stage's drift unknown). Yaw: the photometric yaw's measured error when it ran (``photometric_ran``;
+    None: when the settings turn it on and the yaw was free), else ``yaw_prior_deg`` (default 0.5°). Pitch
+    and γ are pinned by the silhouettes (a few hundredths of a degree) and are not sampled.
     """
     sig = np.zeros(n_params)
     roll = float(settings.get("roll_prior_deg", 1.0) or 1.0)
@@ -450,7 +454,10 @@ def open_directions_sigma(
     if not ({"rolls", "all"} & free):
         why = "the rolls were held at the commanded angles; the rig file's roll_prior_deg bounds the stage's drift"
     elif float(settings.get("roll_prior_weight", 1.0)) <= 0:
-        why = "no roll prior, so how well the images pin each roll was not measured; the rig file's roll_prior_deg bounds it"
+        why = (
+            "no roll prior, so how well the images pin each roll was not measured; "
+            "the rig file's roll_prior_deg bounds it"
+        )
     else:
         why = "the roll prior: the images do not determine them"
     rolls_src = f"rolls of views 1..N-1: sigma {roll:g} deg ({why})"
@@ -458,7 +465,8 @@ def open_directions_sigma(
         measured = np.asarray(roll_sigma, float)[1:]
         sig[4:] = np.where(np.isfinite(measured) & (measured >= 0), measured, roll)
         rolls_src = (
-            f"rolls of views 1..N-1: sigma per view as measured by the calibration (median {float(np.median(sig[4:])):.3g} deg; "
+            "rolls of views 1..N-1: sigma per view as measured by the calibration (median "
+            f"{float(np.median(sig[4:])):.3g} deg; "
             f"the roll prior's {roll:g} deg where the images leave a roll to it)"
         )
     yaw_free = bool({"yaw", "all"} & free)
@@ -534,7 +542,8 @@ def calibration_components(
                     0.0,
                     0.0,
                     "one start within the cost tolerance",
-                    f"{len(spread.starts_cost)} starts kept; only the best lies within {100 * START_COST_TOLERANCE:g} % of its cost",
+                    f"{len(spread.starts_cost)} starts kept; only the best lies within "
+                    f"{100 * START_COST_TOLERANCE:g} % of its cost",
                 )
             )
     if np.any(spread.sigma_deg > 0):
@@ -558,7 +567,8 @@ def calibration_components(
                     "calibration (open directions)",
                     float(np.sqrt(np.mean(np.square(dv)))),
                     float(np.sqrt(np.mean(np.square(da)))),
-                    f"RMS change over {len(dv)} poses drawn around the calibrated one in the directions the images leave "
+                    f"RMS change over {len(dv)} poses drawn around the calibrated one in the directions the images "
+                    "leave "
                     "open, each hull re-measured on the comparison grid",
                     spread.sigma_source + (f"; {empty} sampled pose(s) gave an empty hull" if empty else ""),
                 )
@@ -638,7 +648,8 @@ def drift_status(
             out.update(
                 {
                     "status": "measured",
-                    "reason": "the rolls were free with no roll prior: the images alone decide them (no sigma estimated)",
+                    "reason": "the rolls were free with no roll prior: "
+                    "the images alone decide them (no sigma estimated)",
                 }
             )
         else:  # the cost has no temperature without a prior: the starts' disagreement is the one dispersion measured
@@ -646,8 +657,9 @@ def drift_status(
                 {
                     "status": "measured",
                     "u_per_view_deg": spread,
-                    "reason": f"the rolls were free with no roll prior: the images alone decide them; the starts end {spread:.3g} deg "
-                    f"apart per view (RMS over views of the standard deviation across {len(starts_theta)} starts; a repeatability, "
+                    "reason": "the rolls were free with no roll prior: the images alone decide them; "
+                    f"the starts end {spread:.3g} deg apart per view (RMS over views of the standard deviation "
+                    f"across {len(starts_theta)} starts; a repeatability, "
                     "not an accuracy)",
                 }
             )
@@ -668,13 +680,15 @@ def drift_status(
                 {
                     "status": "measured",
                     "u_per_view_deg": u,
-                    "reason": f"the images determine {determined} of {n_free} free rolls (their cost rises over +-{prior:g} deg more "
+                    "reason": f"the images determine {determined} of {n_free} free rolls "
+                    f"(their cost rises over +-{prior:g} deg more "
                     f"than the roll prior's); median sigma {u:.3g} deg per view",
                 }
             )
         else:
             why = (
-                f"the images determine {determined} of {n_free} free rolls; the others follow the roll prior (sigma {prior:g} deg about "
+                f"the images determine {determined} of {n_free} free rolls; "
+                f"the others follow the roll prior (sigma {prior:g} deg about "
                 f"the commanded angles)"
             )
     if "status" not in out:
@@ -682,7 +696,8 @@ def drift_status(
             {
                 "status": "undetermined",
                 "u_per_view_deg": u,
-                "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: {why}; the true drift "
+                "reason": "the silhouettes of nearly orthographic views do not determine the per-view rolls: "
+                f"{why}; the true drift "
                 f"may be anywhere within about +-{u:.3g} deg per view",
             }
         )
@@ -690,7 +705,10 @@ def drift_status(
 
 
 def starts_spread_deg(starts_theta: np.ndarray | None) -> float | None:
-    """RMS over views 1 … N−1 of the rolls' standard deviation across the starts (S, 3 + N), degrees; None for fewer than 2."""
+    """RMS over views 1 … N−1 of the rolls' standard deviation across the starts (S, 3 + N), degrees.
+
+    None for fewer than 2 starts.
+    """
     if starts_theta is None or np.ndim(starts_theta) != 2 or len(starts_theta) < 2:
         return None
     sd = np.std(np.asarray(starts_theta, float)[:, 4:], axis=0)
@@ -716,7 +734,8 @@ def grid_component(nominal: tuple[float, float], coarse: tuple[float, float] | N
         "grid",
         abs(nominal[0] - coarse[0]),
         abs(nominal[1] - coarse[1]) / (GRID_FACTOR**2 - 1.0),
-        f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): volume |V(h) - V(2h)| "
+        f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): volume |V(h) - "
+        "V(2h)| "
         f"(error ~ h^p, p >= 1), area |A(h) - A(2h)| / {GRID_FACTOR**2 - 1:g} (chord error of the mesh ~ h^2)",
     )
 

@@ -201,7 +201,8 @@ class BrightfieldRenderer:
         self._r_max = phantom.profile.max_radius_um()
         if self._r_max >= self.capillary.inner_radius_um:
             raise CameraError(
-                f"phantom radius {self._r_max:.0f} µm does not fit in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
+                f"phantom radius {self._r_max:.0f} µm does not fit in the capillary "
+                f"(inner radius {self.capillary.inner_radius_um:.0f} µm)"
             )
 
     # -- geometry ----------------------------------------------------------------------------
@@ -256,7 +257,8 @@ class BrightfieldRenderer:
         )
         if support + off >= self.capillary.inner_radius_um:
             raise CameraError(
-                f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis does not fit "
+                f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis "
+                "does not fit "
                 f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
             )
 
