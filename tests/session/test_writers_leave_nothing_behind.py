@@ -300,3 +300,41 @@ def test_files_vastcal_creates_follow_the_umask(tmp_path: Path, umask: int) -> N
         os.umask(old)
     expected = 0o666 & ~umask
     assert modes == {name: expected for name in modes}, {k: oct(v) for k, v in modes.items()}
+
+
+def _read_only_mount_runner(folder: Path) -> list[str] | None:
+    """A command prefix that runs its command with ``folder`` remounted read-only (a private mount
+    namespace: nothing outside sees it), or None where mounting is not allowed."""
+    if shutil.which("unshare") is None or shutil.which("mount") is None:
+        return None
+    script = 'mount --bind "$0" "$0" && mount -o remount,ro,bind "$0" && exec "$@"'
+    prefix = ["unshare", "-m", "sh", "-c", script, str(folder)]
+    probe = subprocess.run([*prefix, "sh", "-c", 'touch "$0/probe"', str(folder)], capture_output=True, timeout=30)
+    if probe.returncode == 0 or b"Read-only file system" not in probe.stderr:
+        (folder / "probe").unlink(missing_ok=True)
+        return None
+    return prefix
+
+
+@pytest.mark.parametrize("command", ["calibrate", "run", "annotate"])
+def test_a_session_on_a_read_only_mount_is_refused_in_one_line_before_any_work(tmp_path: Path, command: str) -> None:
+    folder = tmp_path / "sessions"
+    folder.mkdir()
+    path = small_session(folder / "S.h5")
+    prefix = _read_only_mount_runner(folder)
+    if prefix is None:
+        pytest.skip("no read-only bind mount here (needs unshare and mount with CAP_SYS_ADMIN)")
+    extra = {"calibrate": [], "run": ["-o", str(tmp_path / "report")], "annotate": ["--id", "fish-1"]}[command]
+    out = subprocess.run(
+        [*prefix, sys.executable, "-m", "vastcal", command, str(path), "-q", *extra],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    err = out.stderr.strip()
+    assert out.returncode == 2, err
+    assert len(err.splitlines()) == 1 and "read-only file system" in err and str(folder) in err, err
+    assert "damaged" not in err and "internal error" not in err, err
+    assert not (tmp_path / "report").exists()  # refused before the report folder was made

@@ -11,7 +11,7 @@ from typing import Any, Self
 
 import h5py
 
-from vastcal.errors import SessionBusyError
+from vastcal.errors import SessionBusyError, UserInputError
 from vastcal.outputs import check_output_file
 from vastcal.session._files import PathLock, abandon, place_atomically, remove_stale_copies, writer_pid
 from vastcal.session._reader import SessionReader
@@ -170,7 +170,21 @@ def require_writable(path: str | Path, *, writer_free: bool = True) -> None:
         SessionBusyError: ``writer_free`` and another process holds the session's writer lock (acquiring,
             or storing a run).
     """
-    p = check_output_file(path, force=True, option="SESSION", existing=True)
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    why = ""
+    try:
+        if os.statvfs(folder).f_flag & os.ST_RDONLY:
+            why = f"{folder} is on a read-only file system"
+    except (OSError, AttributeError):  # no statvfs here: access() below tells
+        pass
+    if not why and not os.access(folder, os.W_OK | os.X_OK):
+        why = f"no write permission on {folder}"
+    if not why and p.exists() and not os.access(p, os.W_OK):
+        why = "the file is read-only"
+    if why:
+        raise UserInputError(f"{p}: cannot store results in this session: {why}; copy it to a folder you can write to")
+    check_output_file(p, force=True, option="SESSION", existing=True)  # a link, a device, a missing file
     pid = writer_pid(p) if writer_free else None
     if pid is not None:
         raise SessionBusyError(
