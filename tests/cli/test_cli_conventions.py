@@ -1,4 +1,4 @@
-"""CLI conventions (issue 18, item 4): one exit-code table, subcommand usage and "did you mean", options
+"""CLI conventions: one exit-code table, subcommand usage and "did you mean", options
 checked before any work, --force for every output, quiet third-party libraries, a closed stdout pipe,
 the cameras and runs a stage uses, and pruning old runs crash-safely."""
 

@@ -1,4 +1,4 @@
-"""Bounded memory with many views (issue 20): compact silhouettes, specimen maps a sub-revolution at a time,
+"""Bounded memory with many views: compact silhouettes, specimen maps a sub-revolution at a time,
 the colour model from a bounded sample of views."""
 
 from __future__ import annotations
