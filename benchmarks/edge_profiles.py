@@ -87,9 +87,9 @@ def profile(t: np.ndarray, s: np.ndarray, lo: float = -2.0, hi: float = 6.0) -> 
 
 
 def one_larva(seed: int, outdir: Path, refractive_index: tuple[float, float]) -> None:
+    from vastcal.hull import choose_grid, visual_hull_in_grid
     from vastcal.measure import MeasureSettings, measure_hull
     from vastcal.pipeline import acquire_simulated
-    from vastcal.reconstruct import choose_grid, visual_hull_in_grid
     from vastcal.segmentation import contrast, fit_automatic, specimen_maps
     from vastcal.simulators.camera.battery import battery_config
 
@@ -130,8 +130,8 @@ def zf1() -> None:
     sys.path.insert(0, str(REPO / "tests" / "reconstruct"))
     from phantom_views import read_authors_cameras
 
+    from vastcal.hull import visual_hull
     from vastcal.measure import measure_hull
-    from vastcal.reconstruct import visual_hull
     from vastcal.segmentation import contrast, fit_automatic, specimen_maps
     from vastcal.voxels import VoxelGrid
 

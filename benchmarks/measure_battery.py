@@ -111,8 +111,8 @@ def run_true_cameras(session: Path) -> dict[str, Any]:
     """Automatic silhouettes carved with the simulator's true cameras (no calibration), in this process."""
     import h5py
 
+    from vastcal.hull import choose_grid, visual_hull_in_grid
     from vastcal.measure import MeasureSettings, measure_hull
-    from vastcal.reconstruct import choose_grid, visual_hull_in_grid
     from vastcal.segmentation import fit_automatic, specimen_maps, touches_frame_edge
 
     t = time.monotonic()

@@ -20,8 +20,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "reconstruct"))
 from phantom_views import render_views  # noqa: E402
 
+from vastcal.hull import choose_grid, visual_hull  # noqa: E402
 from vastcal.measure import MeasureSettings, measure_hull  # noqa: E402
-from vastcal.reconstruct import choose_grid, visual_hull  # noqa: E402
 from vastcal.simulators.camera.phantom import PHANTOMS  # noqa: E402
 
 

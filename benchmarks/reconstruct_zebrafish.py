@@ -22,8 +22,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "reconstruct"))
 from phantom_views import read_authors_cameras  # noqa: E402
 
+from vastcal.hull import visual_hull  # noqa: E402
 from vastcal.measure import measure_hull  # noqa: E402
-from vastcal.reconstruct import visual_hull  # noqa: E402
 from vastcal.voxels import VoxelGrid  # noqa: E402
 
 PUBLISHED = {"pi": (0.249, 3.24), "vr": (0.251, 3.25)}

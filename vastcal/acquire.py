@@ -28,7 +28,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
@@ -44,8 +44,7 @@ from vastcal.errors import (
     VastcalError,
 )
 from vastcal.outputs import check_output_file
-from vastcal.session import Session, SessionWriter
-from vastcal.session_files import PathLock
+from vastcal.session import PathLock, Session, SessionWriter
 
 log = logging.getLogger(__name__)
 
@@ -136,6 +135,30 @@ def _sleep(seconds: float, cancel: threading.Event) -> None:
         raise AcquisitionAborted("cancelled while settling")
 
 
+class AcquisitionHooks(TypedDict, total=False):
+    """Callbacks of :func:`acquire` (keyword arguments), each optional."""
+
+    progress: ProgressFn | None
+    """Called after each view with (done, planned, elapsed s)."""
+    on_view: Callable[[int], None] | None
+    """Called with the view index after it is written (used by simulators' truth)."""
+    phase: Callable[[str], None] | None
+    """Called with the name of each step as it begins (a progress display's phases)."""
+
+
+@dataclass
+class _Run:
+    """One acquisition in progress: where it writes, what it plans, and its writer once the first frame came."""
+
+    out: Path
+    plan: RevolutionPlan
+    writer: SessionWriter | None
+    lock: PathLock | None
+    start_info: dict[str, Any]
+    force: bool
+    first_index: int
+
+
 def acquire(
     stage: RotationStage,
     camera: Camera,
@@ -146,10 +169,8 @@ def acquire(
     resume: bool = False,
     force: bool = False,
     cancel: threading.Event | None = None,
-    progress: ProgressFn | None = None,
     start_info: dict[str, Any] | None = None,
-    on_view: Callable[[int], None] | None = None,
-    phase: Callable[[str], None] | None = None,
+    **hooks: Unpack[AcquisitionHooks],
 ) -> AcquisitionResult:
     """Acquire one revolution into ``output`` (or continue it with ``resume=True``).
 
@@ -161,22 +182,71 @@ def acquire(
         resume: append to an incomplete session at ``output`` instead of creating one.
         force: overwrite an existing ``output`` (not with ``resume``).
         cancel: set it (e.g. from a SIGINT handler) to stop the motor and end with ``abort``.
-        progress: called after each view with (done, planned, elapsed s).
         start_info: extra attributes for the start record.
-        on_view: called with the view index after it is written (used by simulators' truth).
-        phase: called with the name of each step as it begins (a progress display's phases): ``preparing the
-            camera and stage`` (settings, homing when the stage has no reference, the stream's start), ``acquiring N
-            views`` (then ``progress`` after each) and ``finishing the session`` (the stream's stop, the stop record).
+        hooks: ``progress`` — called after each view with (done, planned, elapsed s); ``on_view`` — called
+            with the view index after it is written (used by simulators' truth); ``phase`` — called with the
+            name of each step as it begins (a progress display's phases): ``preparing the camera and stage``
+            (settings, homing when the stage has no reference, the stream's start), ``acquiring N views`` (then
+            ``progress`` after each) and ``finishing the session`` (the stream's stop, the stop record).
 
     Raises:
         OutputExistsError: ``output`` exists, without ``force`` or ``resume``.
         NotASessionError / SessionIncompleteError: ``resume`` of something that cannot be resumed.
     """
     cancel = cancel or threading.Event()
-    out = Path(output)
-    state = RunState.PREPARING
+    phase = hooks.get("phase")
     if phase:
         phase("preparing the camera and stage")
+    run = _open_run(stage, camera, cfg, Path(output), views, resume, force, start_info or {})
+    plan = run.plan
+    result = AcquisitionResult(run.out, "fail", "", run.first_index)
+    t0 = time.monotonic()
+    try:
+        _home_if_needed(stage, cancel)
+        camera.start()
+        if phase:
+            phase(
+                f"acquiring {plan.views - run.first_index} views"
+                + (f" (resuming at view {run.first_index + 1} of {plan.views})" if run.first_index else "")
+            )
+        for k in range(run.first_index, plan.views):
+            _acquire_view(k, stage, camera, cfg, run, cancel, result, hooks, t0)
+        result.exit_status, result.reason = "success", ""
+    except (AcquisitionAborted, KeyboardInterrupt) as exc:
+        result.exit_status = "abort"
+        result.reason = str(exc) or "interrupted by the operator"
+        _safe(stage.stop, "stopping the stage")
+    except (DeviceError, SessionError) as exc:
+        result.exit_status, result.reason = "fail", f"{type(exc).__name__}: {exc}"
+        _safe(stage.stop, "stopping the stage")
+    finally:
+        if phase:
+            phase("finishing the session")
+        _safe(camera.stop_stream, "stopping the camera stream")
+        _finish(run, result, t0)
+        result.state = RunState.DONE
+    log.info(
+        "acquisition %s: %d of %d views in %s%s",
+        result.exit_status,
+        result.views_written,
+        plan.views,
+        run.out,
+        f" ({result.reason})" if result.reason else "",
+    )
+    return result
+
+
+def _open_run(
+    stage: RotationStage,
+    camera: Camera,
+    cfg: RigConfig,
+    out: Path,
+    views: int | None,
+    resume: bool,
+    force: bool,
+    start_info: dict[str, Any],
+) -> _Run:
+    """Reopen the session to resume (its stored plan), or take the path's lock for a new one; configure the camera."""
     cycle = stage.usteps_per_revolution
     if resume:
         with Session.open(out) as s:
@@ -188,136 +258,113 @@ def acquire(
             )
         plan = RevolutionPlan(int(plan_attrs["views"]), cycle, tuple(int(t) for t in plan_attrs["targets_usteps"]))
         writer = SessionWriter.resume(out, durable=cfg.acquisition.sync_each_view)  # takes the path's writer lock
-        lock = None
-    else:
-        check_output_file(out, force=force)
-        lock = PathLock(out).acquire()  # one writer per path, taken before the stage moves
-        plan = RevolutionPlan.uniform(views or cfg.acquisition.views, cycle)
-        try:
-            read_back = camera.configure(camera_settings(cfg))
-        except BaseException:
-            lock.release()
-            raise
-        info = {
-            "stage": stage.describe(),
-            "camera": camera.describe(),
-            "camera_settings": read_back,
-            **(start_info or {}),
-        }
-        writer = None  # created after the first frame tells us the shape and type
-    first_index = writer.n_views if writer is not None else 0
-    if resume:
         camera.configure(camera_settings(cfg))
-    result = AcquisitionResult(out, "fail", "", first_index)
-    t0 = time.monotonic()
+        return _Run(out, plan, writer, None, {}, force, writer.n_views)
+    check_output_file(out, force=force)
+    lock = PathLock(out).acquire()  # one writer per path, taken before the stage moves
+    plan = RevolutionPlan.uniform(views or cfg.acquisition.views, cycle)
     try:
-        flags = stage.warnings()
-        if "WR" in flags or "WH" in flags:  # no reference position: absolute targets would be meaningless
-            log.info(
-                "the stage reports %s: homing before the first view", "/".join(f for f in flags if f in ("WR", "WH"))
-            )
-            stage.home(cancel)
-        camera.start()
-        state = RunState.ACQUIRING
-        if phase:
-            phase(
-                f"acquiring {plan.views - first_index} views"
-                + (f" (resuming at view {first_index + 1} of {plan.views})" if first_index else "")
-            )
-        for k in range(first_index, plan.views):
-            if cancel.is_set():
-                raise AcquisitionAborted("cancelled by the operator")
-            t_view = time.monotonic()
-            move = stage.move_absolute(plan.targets_usteps[k], cancel)
-            _sleep(cfg.stage.settle_s, cancel)
-            frame = _snap(camera, cfg.camera.fetch_timeout_s + cfg.camera.exposure_us * 1e-6, cancel, k)
-            if frame.pixels.size == 0:
-                raise DeviceError(f"view {k}: the camera delivered an empty frame")
-            if writer is None:
-                writer = SessionWriter.create(
-                    out,
-                    frame_shape=frame.pixels.shape,
-                    dtype=frame.pixels.dtype,
-                    rig_yaml=dump_config(cfg),
-                    plan=plan.as_attrs(),
-                    pixel_size_um=_pixel_um(cfg),
-                    roi_offset_px=(cfg.camera.roi.x, cfg.camera.roi.y),
-                    title=f"{cfg.name} revolution",
-                    start_info=info,
-                    force=force,
-                    lock=lock,
-                    durable=cfg.acquisition.sync_each_view,
-                    sensor_pixel_um=(cfg.optics.pixel_size_um, cfg.optics.pixel_size_um),
-                )
-            writer.append_view(
-                frame.pixels,
-                plan.angle_deg(k),
-                commanded_usteps=plan.targets_usteps[k],
-                readback_usteps=move.readback_usteps,
-                host_time_s=frame.host_time_s,
-                device_time_s=np.nan if frame.device_time_s is None else frame.device_time_s,
-                frame_id=frame.frame_id,
-                exposure_us=frame.exposure_us,
-                gain_db=frame.gain_db,
-                move_s=move.duration_s,
-                stage_warnings=" ".join(move.warnings),
-            )
-            if on_view:
-                on_view(k)
-            elapsed_view = time.monotonic() - t_view
-            exposure = frame.exposure_us * 1e-6 if np.isfinite(frame.exposure_us) else 0.0
-            result.overhead_s.append(elapsed_view - move.duration_s - exposure - cfg.stage.settle_s)
-            if progress:
-                progress(k + 1, plan.views, time.monotonic() - t0)
-        result.exit_status, result.reason = "success", ""
-    except (AcquisitionAborted, KeyboardInterrupt) as exc:
-        result.exit_status = "abort"
-        result.reason = str(exc) or "interrupted by the operator"
-        _safe(stage.stop, "stopping the stage")
-    except (DeviceError, SessionError) as exc:
-        result.exit_status, result.reason = "fail", f"{type(exc).__name__}: {exc}"
-        _safe(stage.stop, "stopping the stage")
-    finally:
-        state = RunState.FINISHING
-        if phase:
-            phase("finishing the session")
-        _safe(camera.stop_stream, "stopping the camera stream")
-        if writer is not None:
-            result.views_written = writer.n_views
-            if result.exit_status == "success" and writer.n_views < plan.views:
-                result.exit_status, result.reason = "fail", f"only {writer.n_views} of {plan.views} views"
-            try:
-                writer.finish(
-                    result.exit_status, result.reason, views_planned=plan.views, elapsed_s=time.monotonic() - t0
-                )
-            except (
-                OSError
-            ) as exc:  # e.g. a full disk: the committed views stay readable, the session reads "incomplete"
-                log.info(
-                    "%s: the stop record could not be written (%s); the %d committed views are kept",
-                    out,
-                    exc.strerror,
-                    writer.n_views,
-                )
-                if result.exit_status == "success":
-                    result.exit_status, result.reason = "fail", f"stop record not written: {exc}"
-            finally:
-                writer.close()
-        else:
-            if lock is not None:
-                lock.release()
-            if result.exit_status != "success":
-                log.warning("no view was acquired; no session file written (%s)", result.reason)
-        result.state = RunState.DONE
-    log.info(
-        "acquisition %s: %d of %d views in %s%s",
-        result.exit_status,
-        result.views_written,
-        plan.views,
-        out,
-        f" ({result.reason})" if result.reason else "",
+        read_back = camera.configure(camera_settings(cfg))
+    except BaseException:
+        lock.release()
+        raise
+    info = {"stage": stage.describe(), "camera": camera.describe(), "camera_settings": read_back, **start_info}
+    return _Run(out, plan, None, lock, info, force, 0)  # the writer is created when the first frame tells the shape
+
+
+def _home_if_needed(stage: RotationStage, cancel: threading.Event) -> None:
+    """Home a stage that has no reference position (absolute targets would be meaningless)."""
+    flags = stage.warnings()
+    if "WR" in flags or "WH" in flags:
+        log.info("the stage reports %s: homing before the first view", "/".join(f for f in flags if f in ("WR", "WH")))
+        stage.home(cancel)
+
+
+def _acquire_view(
+    k: int,
+    stage: RotationStage,
+    camera: Camera,
+    cfg: RigConfig,
+    run: _Run,
+    cancel: threading.Event,
+    result: AcquisitionResult,
+    hooks: AcquisitionHooks,
+    t0: float,
+) -> None:
+    """Move to view ``k``, settle, take its frame and commit it to the session (created at the first frame)."""
+    if cancel.is_set():
+        raise AcquisitionAborted("cancelled by the operator")
+    plan = run.plan
+    t_view = time.monotonic()
+    move = stage.move_absolute(plan.targets_usteps[k], cancel)
+    _sleep(cfg.stage.settle_s, cancel)
+    frame = _snap(camera, cfg.camera.fetch_timeout_s + cfg.camera.exposure_us * 1e-6, cancel, k)
+    if frame.pixels.size == 0:
+        raise DeviceError(f"view {k}: the camera delivered an empty frame")
+    if run.writer is None:
+        run.writer = SessionWriter.create(
+            run.out,
+            frame_shape=frame.pixels.shape,
+            dtype=frame.pixels.dtype,
+            rig_yaml=dump_config(cfg),
+            plan=plan.as_attrs(),
+            pixel_size_um=_pixel_um(cfg),
+            roi_offset_px=(cfg.camera.roi.x, cfg.camera.roi.y),
+            title=f"{cfg.name} revolution",
+            start_info=run.start_info,
+            force=run.force,
+            lock=run.lock,
+            durable=cfg.acquisition.sync_each_view,
+            sensor_pixel_um=(cfg.optics.pixel_size_um, cfg.optics.pixel_size_um),
+        )
+    run.writer.append_view(
+        frame.pixels,
+        plan.angle_deg(k),
+        commanded_usteps=plan.targets_usteps[k],
+        readback_usteps=move.readback_usteps,
+        host_time_s=frame.host_time_s,
+        device_time_s=np.nan if frame.device_time_s is None else frame.device_time_s,
+        frame_id=frame.frame_id,
+        exposure_us=frame.exposure_us,
+        gain_db=frame.gain_db,
+        move_s=move.duration_s,
+        stage_warnings=" ".join(move.warnings),
     )
-    return result
+    on_view, progress = hooks.get("on_view"), hooks.get("progress")
+    if on_view:
+        on_view(k)
+    elapsed_view = time.monotonic() - t_view
+    exposure = frame.exposure_us * 1e-6 if np.isfinite(frame.exposure_us) else 0.0
+    result.overhead_s.append(elapsed_view - move.duration_s - exposure - cfg.stage.settle_s)
+    if progress:
+        progress(k + 1, plan.views, time.monotonic() - t0)
+
+
+def _finish(run: _Run, result: AcquisitionResult, t0: float) -> None:
+    """Write the stop record and close the session (or, with no view written, release the path)."""
+    writer, plan = run.writer, run.plan
+    if writer is None:
+        if run.lock is not None:
+            run.lock.release()
+        if result.exit_status != "success":
+            log.warning("no view was acquired; no session file written (%s)", result.reason)
+        return
+    result.views_written = writer.n_views
+    if result.exit_status == "success" and writer.n_views < plan.views:
+        result.exit_status, result.reason = "fail", f"only {writer.n_views} of {plan.views} views"
+    try:
+        writer.finish(result.exit_status, result.reason, views_planned=plan.views, elapsed_s=time.monotonic() - t0)
+    except OSError as exc:  # e.g. a full disk: the committed views stay readable, the session reads "incomplete"
+        log.info(
+            "%s: the stop record could not be written (%s); the %d committed views are kept",
+            run.out,
+            exc.strerror,
+            writer.n_views,
+        )
+        if result.exit_status == "success":
+            result.exit_status, result.reason = "fail", f"stop record not written: {exc}"
+    finally:
+        writer.close()
 
 
 def _snap(camera: Camera, timeout_s: float, cancel: threading.Event, k: int) -> Frame:

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 from vastcal.errors import OutputExistsError, SessionBusyError, UserInputError, VastcalError
 from vastcal.progress import CountProgress, format_duration
 from vastcal.screen_table import atomic_write_bytes, write_table
-from vastcal.session_files import PathLock
+from vastcal.session import PathLock
 from vastcal.specimen import read_specimen, session_specimen
 
 if TYPE_CHECKING:

@@ -197,7 +197,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         from vastcal.specimen import specimen_for_session
 
         specimen = specimen_for_session(args.specimen, out)
-    from vastcal.session_files import PathLock
+    from vastcal.session import PathLock
 
     probe = PathLock(Path(out))
     if probe.lock_path.exists():  # a writer holds (or held) this path: refuse before connect_rig homes the stage
@@ -315,6 +315,18 @@ def _check_session_opens(path: str) -> None:
         pass
 
 
+def _check_session_writable(path: str) -> None:
+    """The runs a command stores can be written: the session and its folder are writable, no writer is at work.
+
+    Raises:
+        UserInputError: read-only (permissions or a read-only mount).
+        SessionBusyError: another vastcal process is writing the session.
+    """
+    from vastcal.session import require_writable
+
+    require_writable(path)
+
+
 def _truth_path(session: Path) -> Path:
     """Where a simulated run keeps its hidden truth: beside the session, never inside it."""
     return session.with_name(session.stem + ".truth.json")
@@ -323,6 +335,7 @@ def _truth_path(session: Path) -> Path:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method coherence|pi|vr] [--seed N] [--free …] [--fixed-views 10-35] [--starts S]"""
     _check_session_arg(args.session)
+    _check_session_writable(args.session)  # before the work: a read-only folder or a writer at work
     from vastcal.calibrate import calibrate_session
 
     mask, scribbles = _marks_args(args)
@@ -475,6 +488,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = Path(args.output) if args.output else default_report_dir(args.session)
     check_report_folder(out, force=args.force, option="-o" if args.output else "the default report folder")
     _check_session_opens(args.session)
+    _check_session_writable(args.session)  # before the work: a read-only folder or a writer at work
     if args.cameras == "imported" and (args.mask or args.scribbles):
         raise UserInputError(
             "--mask/--scribbles guide the calibration's colour model; with --cameras imported nothing is calibrated"
@@ -1169,7 +1183,7 @@ def _unexpected(exc: BaseException, args: argparse.Namespace) -> int:
     first = (str(exc).strip().splitlines() or [""])[0][:200]
     session = getattr(args, "session", None) or getattr(args, "resume", None)
     frames = traceback.extract_tb(exc.__traceback__)
-    if session and any("/h5py/" in f.filename or f.filename.endswith("session.py") for f in frames):
+    if session and any("/h5py/" in f.filename or "/vastcal/session/" in f.filename for f in frames):
         _say(
             f"vastcal: error: {session}: damaged session: cannot read what vastcal expects there ({type(exc).__name__}: {first})"
         )

@@ -11,7 +11,7 @@ What is measured
 * **Surface area** = area of the smoothed marching-cubes mesh (``surface_area_mm2``). A voxel
   staircase over-estimates area (by up to ~50 % for a sphere), so the mesh is an iso-surface of
   the **silhouette-count volume** (how many silhouettes contain each voxel,
-  :class:`vastcal.reconstruct.HullResult`) rather than of the 0/1 hull, then smoothed.
+  :class:`vastcal.hull.HullResult`) rather than of the 0/1 hull, then smoothed.
 
 Iso-level
 ---------
@@ -55,16 +55,16 @@ import logging
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import cg
+from skimage.measure import marching_cubes
 
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
-
-if TYPE_CHECKING:  # pragma: no cover
-    import h5py
-
-    from vastcal.reconstruct import HullResult
+from vastcal.hull import HullResult
+from vastcal.qc import QCResult
 
 log = logging.getLogger(__name__)
 
@@ -73,8 +73,11 @@ UM2_PER_MM2 = 1e6
 
 
 def measurement_units(length_unit: str) -> tuple[str, str]:
-    """(volume, area) units of the stored ``volume_mm3``/``surface_area_mm2`` for a world of ``length_unit``: mm^3 and mm^2
-    for a known unit; for ``px`` or ``unknown`` what the numbers then are (10⁻⁹ px³, 10⁻⁹ (units of the cameras)³ …)."""
+    """(volume, area) units of the stored ``volume_mm3``/``surface_area_mm2`` for a world of ``length_unit``.
+
+    mm^3 and mm^2 for a known unit; for ``px`` or ``unknown`` what the numbers then are (10⁻⁹ px³,
+    10⁻⁹ (units of the cameras)³ …).
+    """
     if length_unit not in ("px", "unknown"):
         return "mm^3", "mm^2"
     unit = world_unit_words(length_unit)[0]
@@ -82,16 +85,22 @@ def measurement_units(length_unit: str) -> tuple[str, str]:
 
 
 def world_unit_words(length_unit: str) -> tuple[str, str]:
-    """(unit, why) for printing a measurement whose world unit is not known (``length_unit`` ``"px"`` or ``"unknown"``):
-    the values (stored as mm³/mm² of a world taken as µm) times :data:`UM3_PER_MM3` / :data:`UM2_PER_MM2` are in that unit."""
+    """(unit, why) for printing a measurement whose world unit is not known (``length_unit`` ``"px"`` or ``"unknown"``).
+
+    The values (stored as mm³/mm² of a world taken as µm) times :data:`UM3_PER_MM3` / :data:`UM2_PER_MM2`
+    are in that unit.
+    """
     if length_unit == "px":
         return "px", "pixel size unknown - measurements in pixels: import with --pixel-size-um or --config"
     return "(units of the cameras)", "the cameras' length unit is unknown: give it with 'vastcal import --length-unit'"
 
 
 def quantity_text(value_mm: float, u_mm: float | None, power: int, length_unit: str) -> str:
-    """``value ± U unit^power`` of a stored volume (``power`` 3, mm³) or area (2, mm²): mm with 4 or 3 decimals for a
-    known world unit; for ``px``/``unknown`` the stored value × 10⁹ or 10⁶ in :func:`world_unit_words`' unit, 6 digits."""
+    """``value ± U unit^power`` of a stored volume (``power`` 3, mm³) or area (2, mm²).
+
+    mm with 4 or 3 decimals for a known world unit; for ``px``/``unknown`` the stored value × 10⁹ or
+    10⁶ in :func:`world_unit_words`' unit, 6 digits.
+    """
     if length_unit not in ("px", "unknown"):
         fmt, scale, unit = (".4f" if power == 3 else ".3f"), 1.0, "mm"
     else:
@@ -168,8 +177,6 @@ def marching_cubes_mesh(counts: np.ndarray, level: float, origin: np.ndarray, vo
         EmptyHullError: no voxel reaches ``level``.
         AnalysisError: the surface is degenerate.
     """
-    from skimage.measure import marching_cubes
-
     above = np.argwhere(counts >= level)
     if above.size == 0:
         raise EmptyHullError(f"no voxel reaches the iso-level {level:g}: the hull is empty")
@@ -189,8 +196,6 @@ def marching_cubes_mesh(counts: np.ndarray, level: float, origin: np.ndarray, vo
 
 def _adjacency(n_vertices: int, faces: np.ndarray) -> Any:
     """Symmetric 0/1 vertex adjacency (CSR) of a triangle mesh."""
-    import scipy.sparse as sp
-
     i = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2], faces[:, 1], faces[:, 2], faces[:, 0]])
     j = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0], faces[:, 0], faces[:, 1], faces[:, 2]])
     A = sp.coo_matrix((np.ones(i.size), (i, j)), shape=(n_vertices, n_vertices)).tocsr()
@@ -212,9 +217,6 @@ def smooth_mesh(mesh: Mesh, steps: int = 5, lam: float = 1.0, preserve_volume: b
     """
     if steps <= 0:
         return mesh
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import cg
-
     check_mesh(mesh)
     A = _adjacency(mesh.n_vertices, mesh.faces)
     deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
@@ -268,7 +270,7 @@ class MeasureSettings:
         return float(n_views) - self.iso_offset
 
     def min_count(self, n_views: int) -> int:
-        """Lowest count the hull must track exactly for this level (see :func:`vastcal.reconstruct.visual_hull`)."""
+        """Lowest count the hull must track exactly for this level (see :func:`vastcal.hull.visual_hull`)."""
         return int(max(1, min(n_views, np.ceil(self.level(n_views) - 1e-9))))
 
 
@@ -363,8 +365,6 @@ class Measurement:
         if u.get("not_evaluated"):
             lines.append(f"uncertainty   not evaluated: {', '.join(u['not_evaluated'])} (the interval leaves them out)")
         if self.qc:
-            from vastcal.qc import QCResult
-
             lines.append(f"verdict       {QCResult.from_dict(self.qc).verdict_line()}")
         return "\n".join(lines)
 
@@ -423,67 +423,6 @@ def measure_hull(hull: HullResult, settings: MeasureSettings | None = None) -> M
     return m
 
 
-def store_measurement(group: h5py.Group, m: Measurement) -> None:
-    """Write a measurement into ``/entry/vastcal/measurement/run_NNN``.
-
-    Attributes ``volume_mm3``, ``mesh_volume_mm3``, ``surface_area_mm2`` (plain floats, their
-    units in ``<name>_units`` attributes and in the names), settings, timings and provenance;
-    datasets ``volume_mm3`` and ``surface_area_mm2`` (scalars with a ``units`` attribute) and
-    the smoothed mesh ``mesh`` as an NXoff_geometry (:mod:`vastcal.nexus`): ``vertices`` (µm, float32),
-    ``winding_order`` (the triangles' vertex indices, int32) and ``faces`` (where each triangle starts in it).
-    """
-    from vastcal.nexus import write_off_geometry
-    from vastcal.session import write_attrs
-
-    d = m.as_dict()
-    write_attrs(group, {k: v for k, v in d.items()})
-    if m.uncertainty:
-        write_attrs(
-            group,
-            {
-                "volume_U_mm3": float(m.uncertainty["U_volume_mm3"]),
-                "surface_area_U_mm2": float(m.uncertainty["U_area_mm2"]),
-                "coverage_factor_k": float(m.uncertainty.get("k", 2.0)),
-            },
-        )
-    if m.qc:
-        write_attrs(
-            group, {"verdict": str(m.qc.get("verdict", "")), "lower_bound": bool(m.qc.get("lower_bound", False))}
-        )
-    vol_units, area_units = measurement_units(str((m.provenance or {}).get("length_unit", "um")))
-    write_attrs(
-        group,
-        {
-            "volume_mm3_units": vol_units,
-            "mesh_volume_mm3_units": vol_units,
-            "surface_area_mm2_units": area_units,
-            "volume_method": "voxels inside all silhouettes x voxel volume (the value to cite; mesh_volume_mm3 is a diagnostic)",
-            "surface_method": f"marching cubes of silhouette counts at level {m.iso_level:g}, "
-            f"{m.settings.smoothing_steps} implicit Laplacian steps (lambda {m.settings.smoothing_lambda:g}), volume preserved",
-        },
-    )
-    for name, value, units in (
-        ("volume_mm3", m.volume_mm3, vol_units),
-        ("mesh_volume_mm3", m.mesh_volume_mm3, vol_units),
-        ("surface_area_mm2", m.surface_area_mm2, area_units),
-    ):
-        ds = group.create_dataset(name, data=float(value))
-        ds.attrs["units"] = units
-    write_off_geometry(
-        group.create_group("mesh"),
-        m.mesh.vertices,
-        m.mesh.faces,
-        orientation="counter-clockwise seen from outside (outward normals)",
-    )
-
-
-def load_mesh(group: h5py.Group) -> Mesh:
-    """The mesh stored by :func:`store_measurement`."""
-    from vastcal.nexus import read_triangles
-
-    return Mesh(group["mesh"]["vertices"][...].astype(np.float64), read_triangles(group["mesh"]))
-
-
 # ---------------------------------------------------------------------------------------------
 # Files
 # ---------------------------------------------------------------------------------------------
@@ -493,7 +432,8 @@ def write_ply(mesh: Mesh, path: str | Path) -> Path:
     """Binary little-endian PLY: float32 x, y, z (µm); faces as uchar count + 3 int32."""
     p = Path(path)
     header = (
-        "ply\nformat binary_little_endian 1.0\ncomment vastcal mesh, units: micrometre (world frame, x = rotation axis)\n"
+        "ply\nformat binary_little_endian 1.0\ncomment vastcal mesh, units: micrometre (world frame, x = rotation "
+        "axis)\n"
         f"element vertex {mesh.n_vertices}\nproperty float x\nproperty float y\nproperty float z\n"
         f"element face {mesh.n_faces}\nproperty list uchar int vertex_indices\nend_header\n"
     )

@@ -28,8 +28,8 @@ What is checked, per view, and why each threshold is what it is
   mean boundary distance (px). For consistent silhouettes and cameras the visual hull reprojects
   onto every silhouette exactly; the distance expected from measurement error alone is the edge
   localisation σ_edge the images explain (:mod:`vastcal.uncertainty`, without its own term for this
-  disagreement) plus what the comparison resolves, r = half a pixel of rasterisation + half a voxel's image. A view is flagged when its distance exceeds
-  3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
+  disagreement) plus what the comparison resolves, r = half a pixel of rasterisation + half a voxel's
+  image. A view is flagged when its distance exceeds 3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
   silhouette and the hull overlap less than they differ → *fail*).
 * **Calibration at its bounds** — a free parameter within 1 % of the box width of a bound of the
   search box: the optimum may lie outside it. → *check*.
@@ -51,13 +51,15 @@ log = logging.getLogger(__name__)
 BLANK_RANGE_SIGMAS = 8.0
 """A frame whose 0.1–99.9 % grey range is below this many noise σ (+1 grey level) is blank."""
 SATURATED_FRACTION = 0.05
-"""Fraction of the pixels just outside the outline at the top code (or 0) above which a view is flagged saturated/clipped."""
+"""Fraction of the pixels just outside the outline at the top code (or 0) above which a view is flagged
+saturated/clipped."""
 LOW_CONTRAST_PX = 0.5
 """Single-pixel edge noise (px) above which a view is flagged low contrast."""
 CUT_MIN_PX = 3
 """Silhouette pixels on the frame border (per view) from which the specimen counts as cut."""
 DISAGREE_SIGMAS = 3.0
-"""A view disagrees with the hull when its mean boundary distance exceeds this × (σ_edge + r), r the comparison's resolution."""
+"""A view disagrees with the hull when its mean boundary distance exceeds this × (σ_edge + r), r the
+comparison's resolution."""
 FAIL_IOU = 0.5
 """IoU below which a view's silhouette and the hull are not the same object."""
 BOUND_FRACTION = 0.01
@@ -160,8 +162,35 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
     g = gray(frame)
     sil = np.asarray(silhouette)
     sil = sil >= 0.5 if np.issubdtype(sil.dtype, np.floating) else sil != 0
-    h, w = g.shape
     lo_hi = np.percentile(g, [0.1, 99.9]) if g.size else np.zeros(2)
+    sat = _clipped_fraction(frame, sil)
+    border = int(sil[0].sum() + sil[-1].sum() + sil[1:-1, 0].sum() + sil[1:-1, -1].sum())
+    noise = _background_noise(g, sil)
+    n_sil = int(sil.sum())
+    span = float(lo_hi[1] - lo_hi[0])
+    if n_sil == 0 or n_sil == sil.size:
+        median = float(np.median(g))
+        return FrameStats(
+            median, median, 0.0, noise, 0.0, math.inf, math.nan, math.nan, math.nan, 0, span, sat, border, n_sil
+        )
+    outside = _ring(sil, 3.0, 6.0)
+    inside = _ring(~sil, 3.0, 6.0)
+    bg = float(np.median(g[outside])) if outside.any() else float(np.median(g[~sil]))
+    fg = float(np.median(g[inside])) if inside.any() else float(np.median(g[sil]))
+    contrast = abs(bg - fg)
+    edge, slope = _edge_slope(g, sil)
+    contour = int(edge.sum())
+    blur, edge_noise = _blur_and_edge_noise(contrast, slope, noise)
+    level = _edge_level(g, sil, edge, bg, fg) if contrast > 0 else math.nan
+    offset = _edge_offset(g, sil, bg, fg, contour) if contrast > 0 and contour else math.nan
+    scatter = _edge_scatter(frame, sil, noise, contrast)
+    return FrameStats(
+        bg, fg, contrast, noise, blur, edge_noise, level, offset, scatter, contour, span, sat, border, n_sil
+    )
+
+
+def _clipped_fraction(frame: np.ndarray, sil: np.ndarray) -> float:
+    """Fraction of clipped pixels (at the top code or 0): of the ring just outside the outline, else of the frame."""
     top = top_code(frame)
     f = np.asarray(frame)
     clipped = ((f >= top) | (f <= 0)).any(axis=2) if f.ndim == 3 else (f >= top) | (f <= 0)
@@ -170,37 +199,24 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
         # what matters is the edge: the pixels just outside the outline hold the transition's outer part
         ring = cv2.dilate(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~sil
         sat = float(np.mean(clipped[ring]))
-    border = int(sil[0].sum() + sil[-1].sum() + sil[1:-1, 0].sum() + sil[1:-1, -1].sum())
-    # noise: neighbour differences away from the specimen (a difference has variance 2 σ_n²)
+    return sat
+
+
+def _background_noise(g: np.ndarray, sil: np.ndarray) -> float:
+    """σ_n, grey levels: neighbour differences away from the specimen (a difference has variance 2 σ_n²)."""
     far = _ring(sil, 8.0, 1e9) if sil.any() else np.ones_like(sil)
     dx = np.abs(np.diff(g, axis=1))[far[:, 1:] & far[:, :-1]]
     noise = float(1.4826 * np.median(dx) / math.sqrt(2.0)) if dx.size else 0.0
     if noise == 0.0 and dx.size:  # quantised, nearly noise-free frames: use the RMS difference instead
         noise = float(np.sqrt(np.mean(dx.astype(np.float64) ** 2) / 2.0))
-    n_sil = int(sil.sum())
-    if n_sil == 0 or n_sil == sil.size:
-        return FrameStats(
-            float(np.median(g)),
-            float(np.median(g)),
-            0.0,
-            noise,
-            0.0,
-            math.inf,
-            math.nan,
-            math.nan,
-            math.nan,
-            0,
-            float(lo_hi[1] - lo_hi[0]),
-            sat,
-            border,
-            n_sil,
-        )
-    outside = _ring(sil, 3.0, 6.0)
-    inside = _ring(~sil, 3.0, 6.0)
-    bg = float(np.median(g[outside])) if outside.any() else float(np.median(g[~sil]))
-    fg = float(np.median(g[inside])) if inside.any() else float(np.median(g[sil]))
-    contrast = abs(bg - fg)
-    # steepest slope at the boundary: Gaussian derivative (σ 0.7 px) magnitude, max within ±1 px
+    return noise
+
+
+def _edge_slope(g: np.ndarray, sil: np.ndarray) -> tuple[np.ndarray, float]:
+    """The silhouette's inner boundary pixels (not on the frame's border) and the median steepest slope there.
+
+    Slope: Gaussian derivative (σ 0.7 px) magnitude, the maximum within ±1 px, grey levels per px.
+    """
     sm = cv2.GaussianBlur(g, (0, 0), 0.7)
     gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3) / 8.0
@@ -208,54 +224,50 @@ def frame_stats(frame: np.ndarray, silhouette: np.ndarray) -> FrameStats:
     edge = sil & ~cv2.erode(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     edge[0, :] = edge[-1, :] = False
     edge[:, 0] = edge[:, -1] = False  # the frame's border is not the specimen's edge
-    contour = int(edge.sum())
-    slope = float(np.median(mag[edge])) if contour else 0.0
-    if contrast > 0 and slope > 0:
-        blur_meas = contrast / (math.sqrt(2.0 * math.pi) * slope)
-        blur = math.sqrt(max(blur_meas**2 - 0.7**2, 0.25**2))  # the 0.7 px derivative filter removed; ≥ a quarter pixel
-        # one pixel's edge position: σ_n / slope for a blurred edge, σ_n / C (its partial coverage) for a sharp one
-        edge_noise = noise / contrast * max(1.0, math.sqrt(2.0 * math.pi) * blur)
-    else:
-        blur, edge_noise = math.nan, math.inf
-    # grey level at the boundary: mean of the pixels on both sides of it
+    slope = float(np.median(mag[edge])) if edge.any() else 0.0
+    return edge, slope
+
+
+def _blur_and_edge_noise(contrast: float, slope: float, noise: float) -> tuple[float, float]:
+    """The edge's blur σ (px) from contrast and slope, and one pixel's edge-position noise (px)."""
+    if not (contrast > 0 and slope > 0):
+        return math.nan, math.inf
+    blur_meas = contrast / (math.sqrt(2.0 * math.pi) * slope)
+    blur = math.sqrt(max(blur_meas**2 - 0.7**2, 0.25**2))  # the 0.7 px derivative filter removed; ≥ a quarter pixel
+    # one pixel's edge position: σ_n / slope for a blurred edge, σ_n / C (its partial coverage) for a sharp one
+    return blur, noise / contrast * max(1.0, math.sqrt(2.0 * math.pi) * blur)
+
+
+def _edge_level(g: np.ndarray, sil: np.ndarray, edge: np.ndarray, bg: float, fg: float) -> float:
+    """Grey level at the boundary (mean of the pixels on both sides of it) as a fraction of the step bg → fg."""
     outer = cv2.dilate(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~sil
     both = edge | outer
     both[0, :] = both[-1, :] = False
     both[:, 0] = both[:, -1] = False
-    level = math.nan
-    if contrast > 0 and both.any():
-        level = float((np.median(g[both]) - bg) / (fg - bg))
-    offset = math.nan
-    if contrast > 0 and contour:
-        # the half-level of the edge step (the true edge for a symmetric blur) against the silhouette, in a
-        # band of ±3 px around its boundary: thin and faint parts (a tail tip, fins) count too
-        k = np.ones((7, 7), np.uint8)
-        s8 = sil.astype(np.uint8)
-        band = cv2.dilate(s8, k).astype(bool) & ~cv2.erode(s8, k, borderType=cv2.BORDER_REPLICATE).astype(bool)
-        half = ((g - bg) / (fg - bg)) >= 0.5
-        offset = float((np.count_nonzero(sil & band) - np.count_nonzero(half & band)) / contour)
-    scatter = math.nan
+    return float((np.median(g[both]) - bg) / (fg - bg)) if both.any() else math.nan
+
+
+def _edge_offset(g: np.ndarray, sil: np.ndarray, bg: float, fg: float, contour: int) -> float:
+    """Mean offset (px) of the silhouette's outline from the edge step's half level, outward positive.
+
+    The half level is the true edge for a symmetric blur; counted in a band of ±3 px around the
+    outline, so thin and faint parts (a tail tip, fins) count too.
+    """
+    k = np.ones((7, 7), np.uint8)
+    s8 = sil.astype(np.uint8)
+    band = cv2.dilate(s8, k).astype(bool) & ~cv2.erode(s8, k, borderType=cv2.BORDER_REPLICATE).astype(bool)
+    half = ((g - bg) / (fg - bg)) >= 0.5
+    return float((np.count_nonzero(sil & band) - np.count_nonzero(half & band)) / contour)
+
+
+def _edge_scatter(frame: np.ndarray, sil: np.ndarray, noise: float, contrast: float) -> float:
+    """Scatter (σ, px) of the per-pixel edge offsets beyond the area method's own noise; NaN for < 20 offsets."""
     offs = edge_offsets_px(frame, sil)
-    if offs.size >= 20 and contrast > 0:
-        q25, q75 = np.quantile(offs, [0.25, 0.75])
-        est = math.sqrt(2 * 3) * noise / contrast  # the area method's own noise: 6 pixels of σ_n / C
-        scatter = math.sqrt(max(((q75 - q25) / 1.349) ** 2 - est**2, 0.0))
-    return FrameStats(
-        bg,
-        fg,
-        contrast,
-        noise,
-        blur,
-        edge_noise,
-        level,
-        offset,
-        scatter,
-        contour,
-        float(lo_hi[1] - lo_hi[0]),
-        sat,
-        border,
-        n_sil,
-    )
+    if offs.size < 20 or not contrast > 0:
+        return math.nan
+    q25, q75 = np.quantile(offs, [0.25, 0.75])
+    est = math.sqrt(2 * 3) * noise / contrast  # the area method's own noise: 6 pixels of σ_n / C
+    return math.sqrt(max(((q75 - q25) / 1.349) ** 2 - est**2, 0.0))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -629,8 +641,9 @@ def edge_offsets_px(
     Their spread over the boundary is the per-point scatter of the silhouette's edge (for a hard
     mask at least the quantisation 1/√12 px); their mean is biased where the specimen's own
     shading continues inside the window (absorption grows with depth), so the budget takes the
-    mean offset from :func:`frame_stats` (half-level band) and only the spread from here. The silhouette puts ``half_window`` px of specimen there, so its boundary
-    lies ``half_window`` − s px outward of the true edge (negative: the silhouette is too small).
+    mean offset from :func:`frame_stats` (half-level band) and only the spread from here. The silhouette
+    puts ``half_window`` px of specimen there, so its boundary lies ``half_window`` − s px outward of the
+    true edge (negative: the silhouette is too small).
     The window (3 px) spans ±3.75 σ of an edge blur up to σ_b = 0.8 px; transitions whose step is
     below ``min_cnr`` noise σ are skipped. Profiles along a row or column cross an oblique edge
     obliquely, which stretches the silhouette's and the true length alike: the offset along the

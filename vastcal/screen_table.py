@@ -17,13 +17,12 @@ import csv
 import io
 import logging
 import math
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from vastcal.csv_cells import spreadsheet_safe
+from vastcal.session import write_atomically
 
 log = logging.getLogger(__name__)
 
@@ -92,21 +91,8 @@ NUMERIC: frozenset[str] = frozenset(
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and one rename."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    """Write ``data`` to ``path`` through a temporary file in the same folder and one rename (mode per umask)."""
+    write_atomically(path, data)
 
 
 def _text(value: Any) -> str:

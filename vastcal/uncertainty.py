@@ -14,8 +14,8 @@ The budget (standard uncertainties u, combined in quadrature, expanded U = k·u 
    sits from the half-level of the grey-level step (its common part, and its view-to-view part
    over √N: each view carves about 1/N of the surface), half its per-point scatter (the
    quantisation 1/√12 px of a hard mask: the hull is the intersection of the silhouettes and
-   follows the innermost where several views bound it), the noise of that position averaged along the contour, and the mean disagreement
-   between silhouettes and the reprojected hull beyond what the rasteriser explains
+   follows the innermost where several views bound it), the noise of that position averaged along the
+   contour, and the mean disagreement between silhouettes and the reprojected hull beyond what the rasteriser explains
    (:mod:`vastcal.qc`). A common shift is fully correlated over views, so it is not divided by √N.
 2. **Calibration** — what the data cannot pin down. (a) When the calibration run kept several
    starts (datasets ``starts/theta`` (S × P, degrees) and ``starts/cost`` (S,)), the hulls of the
@@ -41,17 +41,24 @@ volume and area lower bounds (:mod:`vastcal.qc`).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+import cv2
 import numpy as np
 
-if TYPE_CHECKING:  # pragma: no cover
-    from vastcal.measure import Mesh
-    from vastcal.qc import FrameStats
+from vastcal import qc
+from vastcal.errors import VastcalError
+from vastcal.geometry import projection_matrices
+from vastcal.hull import visual_hull
+from vastcal.measure import Mesh, measure_hull
+from vastcal.qc import FrameStats
+from vastcal.voxels import VoxelGrid
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +69,8 @@ CAL_SAMPLES = 6
 START_COST_TOLERANCE = 0.01
 """Relative cost above the best start within which a start counts as 'of equal cost'."""
 PHOTOMETRIC_YAW_SIGMA_DEG = 0.05
-"""σ of the photometric yaw: its measured error over 8 simulated rigs, mean |error| 0.037°, max 0.074° (docs/calibration.md)."""
+"""σ of the photometric yaw: its measured error over 8 simulated rigs, mean |error| 0.037°, max 0.074°
+(docs/calibration.md)."""
 GRID_FACTOR = 2.0
 """The second grid's voxel edge, in voxel edges of the measurement grid."""
 UM3_PER_MM3 = 1e9
@@ -239,8 +247,6 @@ def normal_shift_sensitivity(mesh: Mesh, step_um: float = 1.0) -> tuple[float, f
 
     Central differences of the mesh moved ±``step_um`` along its vertex normals.
     """
-    from vastcal.measure import Mesh
-
     vn = vertex_normals(mesh)
     plus = Mesh(mesh.vertices + step_um * vn, mesh.faces)
     minus = Mesh(mesh.vertices - step_um * vn, mesh.faces)
@@ -319,9 +325,8 @@ def edge_sigma_px(
 
 
 def is_hard(silhouettes: np.ndarray) -> bool:
-    """Whether silhouettes are hard masks: binary, or maps with < 20 % of their boundary band graded (0.05 < p < 0.95)."""
-    import cv2
-
+    """Whether silhouettes are hard masks: binary, or maps with < 20 % of their boundary band graded
+    (0.05 < p < 0.95)."""
     n = len(silhouettes)  # a stack or a lazy one (reconstruct.SilhouetteMaps): five views are read, one at a time
     graded = band = 0
     for i in range(0, n, max(1, n // 5)):
@@ -357,9 +362,11 @@ def edge_component(mesh: Mesh, P: np.ndarray, sigma_px: float) -> tuple[Componen
         "edge",
         abs(dv) * shift,
         abs(da) * shift,
-        f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its normals, "
+        f"every silhouette boundary shifted by sigma_edge = {sigma_px:.3f} px ({shift:.2f} um): mesh moved along its "
+        "normals, "
         "volume and area re-measured",
-        "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the per-point edge scatter, edge noise along the contour, "
+        "sigma_edge from the images: offset of the silhouette from the half-level of the edge step, half the "
+        "per-point edge scatter, edge noise along the contour, "
         "disagreement with the reprojected hull",
     )
     return comp, {"um_per_px": scale, "dV_dn_mm3_per_um": dv, "dA_dn_mm2_per_um": da, "edge_shift_um": shift}
@@ -394,15 +401,11 @@ class CalibrationSpread:
 
     def cameras(self, theta_deg: np.ndarray) -> np.ndarray:
         """P (N, 3, 4) of a θ."""
-        from vastcal.geometry import projection_matrices
-
         return projection_matrices(self.K, self.distance_um, np.asarray(theta_deg, float)[None])[0]
 
 
 def _json_attr(attrs: dict[str, Any], key: str) -> Any:
     """A stored attribute that holds JSON (a run's ``settings``, ``levels``), decoded; None when absent or not JSON."""
-    import json
-
     v = attrs.get(key)
     if isinstance(v, (str, bytes)):
         try:
@@ -412,12 +415,12 @@ def _json_attr(attrs: dict[str, Any], key: str) -> Any:
     return v
 
 
-def _settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
+def settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
     s = _json_attr(attrs, "settings")
     return s if isinstance(s, dict) else {}
 
 
-def _photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
+def photometric_yaw_ran(attrs: dict[str, Any]) -> bool | None:
     """Whether a stored calibration run's photometric yaw ran (a level report of that stage), None when the run keeps
     no level reports. It may be on in the settings and yet not run: no absorption contrast, too few directions."""
     levels = _json_attr(attrs, "levels")
@@ -440,9 +443,9 @@ def open_directions_sigma(
     they pin it); for runs that did not measure it, the roll prior's width ``roll_prior_deg`` (default 1°) —
     the rig file's statement of how far the stage may drift, which decides them on near-orthographic optics
     (docs/calibration.md); when the rolls were fixed the same width (they sit at the commanded angles, the
-    stage's drift unknown). Yaw: the photometric yaw's measured error when it ran (``photometric_ran``; None: when the settings
-    turn it on and the yaw was free), else ``yaw_prior_deg`` (default 0.5°). Pitch and γ are pinned by the
-    silhouettes (a few hundredths of a degree) and are not sampled.
+    stage's drift unknown). Yaw: the photometric yaw's measured error when it ran (``photometric_ran``;
+    None: when the settings turn it on and the yaw was free), else ``yaw_prior_deg`` (default 0.5°). Pitch
+    and γ are pinned by the silhouettes (a few hundredths of a degree) and are not sampled.
     """
     sig = np.zeros(n_params)
     roll = float(settings.get("roll_prior_deg", 1.0) or 1.0)
@@ -451,7 +454,10 @@ def open_directions_sigma(
     if not ({"rolls", "all"} & free):
         why = "the rolls were held at the commanded angles; the rig file's roll_prior_deg bounds the stage's drift"
     elif float(settings.get("roll_prior_weight", 1.0)) <= 0:
-        why = "no roll prior, so how well the images pin each roll was not measured; the rig file's roll_prior_deg bounds it"
+        why = (
+            "no roll prior, so how well the images pin each roll was not measured; "
+            "the rig file's roll_prior_deg bounds it"
+        )
     else:
         why = "the roll prior: the images do not determine them"
     rolls_src = f"rolls of views 1..N-1: sigma {roll:g} deg ({why})"
@@ -459,7 +465,8 @@ def open_directions_sigma(
         measured = np.asarray(roll_sigma, float)[1:]
         sig[4:] = np.where(np.isfinite(measured) & (measured >= 0), measured, roll)
         rolls_src = (
-            f"rolls of views 1..N-1: sigma per view as measured by the calibration (median {float(np.median(sig[4:])):.3g} deg; "
+            "rolls of views 1..N-1: sigma per view as measured by the calibration (median "
+            f"{float(np.median(sig[4:])):.3g} deg; "
             f"the roll prior's {roll:g} deg where the images leave a roll to it)"
         )
     yaw_free = bool({"yaw", "all"} & free)
@@ -477,30 +484,6 @@ def open_directions_sigma(
     )
     src = f"{rolls_src}; yaw: sigma {yaw:g} deg ({yaw_why}); pitch, gamma: determined, not sampled"
     return sig, src
-
-
-def calibration_spread_from_group(group: Any) -> CalibrationSpread | None:
-    """A :class:`CalibrationSpread` from a stored calibration run group (None when it lacks θ, K or the distance)."""
-    from vastcal.session import read_attrs
-
-    if group is None or "theta_deg" not in group or "K" not in group:
-        return None
-    a = read_attrs(group)
-    if "distance" not in a:
-        return None
-    theta = np.asarray(group["theta_deg"][...], float)
-    free = a.get("free", []) or []
-    if isinstance(free, str):
-        free = [free]
-    roll_sigma = np.asarray(group["roll_sigma_deg"][...], float) if "roll_sigma_deg" in group else None
-    sig, src = open_directions_sigma(theta.size, list(free), _settings_of(a), _photometric_yaw_ran(a), roll_sigma)
-    st = sc = None
-    if "starts" in group and "theta" in group["starts"] and "cost" in group["starts"]:
-        st = np.asarray(group["starts"]["theta"][...], float)
-        sc = np.asarray(group["starts"]["cost"][...], float)
-        if st.ndim != 2 or st.shape[1] != theta.size or sc.shape != (st.shape[0],):
-            st = sc = None
-    return CalibrationSpread(theta, np.asarray(group["K"][...], float), float(a["distance"]), sig, src, st, sc)
 
 
 MeasureFn = Callable[[np.ndarray], "tuple[float, float] | None"]
@@ -559,7 +542,8 @@ def calibration_components(
                     0.0,
                     0.0,
                     "one start within the cost tolerance",
-                    f"{len(spread.starts_cost)} starts kept; only the best lies within {100 * START_COST_TOLERANCE:g} % of its cost",
+                    f"{len(spread.starts_cost)} starts kept; only the best lies within "
+                    f"{100 * START_COST_TOLERANCE:g} % of its cost",
                 )
             )
     if np.any(spread.sigma_deg > 0):
@@ -583,7 +567,8 @@ def calibration_components(
                     "calibration (open directions)",
                     float(np.sqrt(np.mean(np.square(dv)))),
                     float(np.sqrt(np.mean(np.square(da)))),
-                    f"RMS change over {len(dv)} poses drawn around the calibrated one in the directions the images leave "
+                    f"RMS change over {len(dv)} poses drawn around the calibrated one in the directions the images "
+                    "leave "
                     "open, each hull re-measured on the comparison grid",
                     spread.sigma_source + (f"; {empty} sampled pose(s) gave an empty hull" if empty else ""),
                 )
@@ -663,7 +648,8 @@ def drift_status(
             out.update(
                 {
                     "status": "measured",
-                    "reason": "the rolls were free with no roll prior: the images alone decide them (no sigma estimated)",
+                    "reason": "the rolls were free with no roll prior: "
+                    "the images alone decide them (no sigma estimated)",
                 }
             )
         else:  # the cost has no temperature without a prior: the starts' disagreement is the one dispersion measured
@@ -671,8 +657,9 @@ def drift_status(
                 {
                     "status": "measured",
                     "u_per_view_deg": spread,
-                    "reason": f"the rolls were free with no roll prior: the images alone decide them; the starts end {spread:.3g} deg "
-                    f"apart per view (RMS over views of the standard deviation across {len(starts_theta)} starts; a repeatability, "
+                    "reason": "the rolls were free with no roll prior: the images alone decide them; "
+                    f"the starts end {spread:.3g} deg apart per view (RMS over views of the standard deviation "
+                    f"across {len(starts_theta)} starts; a repeatability, "
                     "not an accuracy)",
                 }
             )
@@ -682,6 +669,7 @@ def drift_status(
     rise = np.asarray(roll_rise if roll_rise is not None else [], float)
     free_views = np.isfinite(rise)
     if roll_sigma is not None and prior_rise is not None and np.size(roll_sigma) == rise.size and free_views.any():
+        # imported here: vastcal.calibrate (whose package imports its pipeline) uses this module
         from vastcal.calibrate.roll_width import rolls_determined
 
         determined, n_free, most = rolls_determined(rise, float(prior_rise))
@@ -692,13 +680,15 @@ def drift_status(
                 {
                     "status": "measured",
                     "u_per_view_deg": u,
-                    "reason": f"the images determine {determined} of {n_free} free rolls (their cost rises over +-{prior:g} deg more "
+                    "reason": f"the images determine {determined} of {n_free} free rolls "
+                    f"(their cost rises over +-{prior:g} deg more "
                     f"than the roll prior's); median sigma {u:.3g} deg per view",
                 }
             )
         else:
             why = (
-                f"the images determine {determined} of {n_free} free rolls; the others follow the roll prior (sigma {prior:g} deg about "
+                f"the images determine {determined} of {n_free} free rolls; "
+                f"the others follow the roll prior (sigma {prior:g} deg about "
                 f"the commanded angles)"
             )
     if "status" not in out:
@@ -706,7 +696,8 @@ def drift_status(
             {
                 "status": "undetermined",
                 "u_per_view_deg": u,
-                "reason": f"the silhouettes of nearly orthographic views do not determine the per-view rolls: {why}; the true drift "
+                "reason": "the silhouettes of nearly orthographic views do not determine the per-view rolls: "
+                f"{why}; the true drift "
                 f"may be anywhere within about +-{u:.3g} deg per view",
             }
         )
@@ -714,7 +705,10 @@ def drift_status(
 
 
 def starts_spread_deg(starts_theta: np.ndarray | None) -> float | None:
-    """RMS over views 1 … N−1 of the rolls' standard deviation across the starts (S, 3 + N), degrees; None for fewer than 2."""
+    """RMS over views 1 … N−1 of the rolls' standard deviation across the starts (S, 3 + N), degrees.
+
+    None for fewer than 2 starts.
+    """
     if starts_theta is None or np.ndim(starts_theta) != 2 or len(starts_theta) < 2:
         return None
     sd = np.std(np.asarray(starts_theta, float)[:, 4:], axis=0)
@@ -740,7 +734,8 @@ def grid_component(nominal: tuple[float, float], coarse: tuple[float, float] | N
         "grid",
         abs(nominal[0] - coarse[0]),
         abs(nominal[1] - coarse[1]) / (GRID_FACTOR**2 - 1.0),
-        f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): volume |V(h) - V(2h)| "
+        f"re-measured with {GRID_FACTOR:g} x the voxel edge ({GRID_FACTOR * voxel_size_um:.2f} um): volume |V(h) - "
+        "V(2h)| "
         f"(error ~ h^p, p >= 1), area |A(h) - A(2h)| / {GRID_FACTOR**2 - 1:g} (chord error of the mesh ~ h^2)",
     )
 
@@ -770,11 +765,6 @@ def comparison_measurer(
 
     Returns the function and the comparison grid.
     """
-    from vastcal.errors import VastcalError
-    from vastcal.measure import measure_hull
-    from vastcal.reconstruct import visual_hull
-    from vastcal.voxels import VoxelGrid
-
     coarse = VoxelGrid.from_bounds(
         np.asarray(grid.lower, float), np.asarray(grid.upper, float), float(grid.size) * GRID_FACTOR
     )
@@ -808,11 +798,11 @@ def assess(
 
     Args:
         frames: (N, H, W[, 3]) stored frames, an array or a lazy stack read one view at a time
-            (:class:`vastcal.calibrate.view_budget.SessionFrames`).
+            (:class:`vastcal.session_frames.SessionFrames`).
         silhouettes: (N, H, W) the silhouettes the hull was carved from (bool or soft maps; an array
-            or :class:`vastcal.reconstruct.SilhouetteMaps`).
+            or :class:`vastcal.hull.SilhouetteMaps`).
         P: (N, 3, 4) the cameras used.
-        hull: the :class:`~vastcal.reconstruct.HullResult` measured.
+        hull: the :class:`~vastcal.hull.HullResult` measured.
         measurement: its :class:`~vastcal.measure.Measurement`.
         spread: the calibration's :class:`CalibrationSpread` (None for imported cameras).
         extra_flags: QC findings made elsewhere (:class:`vastcal.qc.Flag`).
@@ -821,10 +811,6 @@ def assess(
     Returns:
         (:class:`Budget`, :class:`vastcal.qc.QCResult`).
     """
-    import time
-
-    from vastcal import qc
-
     t0 = time.perf_counter()
     mesh = measurement.mesh
     measures = qc.view_measures(frames, silhouettes, P, mesh.vertices, mesh.faces)
@@ -878,59 +864,3 @@ def assess(
         raster_px=raster,
     )
     return budget, result
-
-
-def assess_session_measurement(
-    session: Any, inputs: Any, hull: Any, measurement: Any, *, samples: int = CAL_SAMPLES
-) -> Any:
-    """:func:`assess` for a measurement of an open session; returns the measurement carrying both results.
-
-    Reads the frames and the calibration run the cameras came from (θ, K, distance, bounds,
-    settings, kept starts). A failure of the assessment never loses the measurement: it is logged
-    and the budget is marked not evaluated.
-
-    Args:
-        session: an open :class:`~vastcal.session.Session`.
-        inputs: the :class:`~vastcal.reconstruct.ReconstructionInputs` used.
-        hull: the :class:`~vastcal.reconstruct.HullResult` measured.
-        measurement: its :class:`~vastcal.measure.Measurement`.
-    """
-    import cv2
-
-    from vastcal import qc
-    from vastcal.errors import VastcalError
-    from vastcal.session import read_attrs
-    from vastcal.session_frames import SessionFrames
-
-    cal = session.result("calibration", inputs.calibration_run) if inputs.calibration_run else None
-    spread = calibration_spread_from_group(cal) if cal is not None else None
-    note = (
-        "cameras imported as given: their uncertainty is not known to vastcal"
-        if cal is None
-        else f"calibration/{inputs.calibration_run} stores no theta_deg, K and distance to re-pose its cameras"
-    )
-    flags: list[Any] = []
-    if cal is not None and "theta_deg" in cal:
-        a = read_attrs(cal)
-        flags += qc.calibration_bound_flags(np.asarray(cal["theta_deg"][...], float), a.get("bounds"))
-    try:
-        budget, result = assess(
-            SessionFrames(session),
-            inputs.silhouettes,
-            inputs.P,
-            hull,
-            measurement,
-            spread,
-            extra_flags=flags,
-            samples=samples,
-            missing_note=note,
-        )
-    except (VastcalError, ValueError, np.linalg.LinAlgError, cv2.error) as exc:
-        log.warning("%s: uncertainty and QC not evaluated (%s)", session.path, exc)
-        b = combine(
-            measurement.volume_mm3,
-            measurement.surface_area_mm2,
-            [Component("all", None, None, "not evaluated", f"the assessment failed: {exc}")],
-        )
-        return measurement.with_assessment(b.as_dict(), None)
-    return measurement.with_assessment(budget.as_dict(), result.as_dict())

@@ -3,7 +3,7 @@
 :meth:`simulators.camera.phantom.Phantom.hull_volume_mm3` is exact for orthographic views
 perpendicular to the axis. The simulated rig has pinhole cameras 65 mm away whose axis is tilted by
 up to a degree; this module measures what that changes, so that the truth file's closed form can be
-trusted to a stated accuracy (``tests/simulators_camera/test_hull_truth.py``).
+trusted to a stated accuracy (``tests/simulators/camera/test_hull_truth.py``).
 
 Membership is exact: a point X is in view i's silhouette cone iff the ray from the camera centre
 C_i through X meets the body, i.e. min_s [ρ(s)² − q(x(s))] < 0 along it (in coordinates with z

@@ -132,6 +132,43 @@ class RayGeometry:
     without refraction."""
 
 
+@dataclass(frozen=True)
+class _Rays:
+    """The rays of one view's pixels: world directions d = R[0]·du + R[1]·dv + R[2] (separable in u and v)."""
+
+    R: np.ndarray
+    f: float
+    """Focal length, px."""
+    C_phantom: np.ndarray
+    """Camera centre in the phantom frame, µm."""
+    du: np.ndarray
+    dv: np.ndarray
+    dy_w: np.ndarray
+    dz_w: np.ndarray
+    footprint_um: float
+    """One pixel at the axis, µm."""
+
+
+@dataclass(frozen=True)
+class FrameConditions:
+    """What a frame is taken under besides the camera's pose and pixel format.
+
+    Attributes:
+        exposure_scale: exposure relative to the reference (brightness ∝ exposure).
+        gain_db: analogue gain, dB (amplifies signal and noise).
+        body_offset_um: (y, z) of the phantom's axis off the rotation axis, µm (see
+            :meth:`BrightfieldRenderer.ray_geometry`).
+        particles: debris and bubbles at this view (world frame), :mod:`vastcal.simulators.camera.scene`.
+        illumination: lamp field and defocus blur, or ``None`` (flat, sharp).
+    """
+
+    exposure_scale: float = 1.0
+    gain_db: float = 0.0
+    body_offset_um: tuple[float, float] = (0.0, 0.0)
+    particles: list[Particle] | None = None
+    illumination: Illumination | None = None
+
+
 class BrightfieldRenderer:
     """Renders a :class:`Phantom` in a :class:`Capillary` for a camera (K, R, t).
 
@@ -164,7 +201,8 @@ class BrightfieldRenderer:
         self._r_max = phantom.profile.max_radius_um()
         if self._r_max >= self.capillary.inner_radius_um:
             raise CameraError(
-                f"phantom radius {self._r_max:.0f} µm does not fit in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
+                f"phantom radius {self._r_max:.0f} µm does not fit in the capillary "
+                f"(inner radius {self.capillary.inner_radius_um:.0f} µm)"
             )
 
     # -- geometry ----------------------------------------------------------------------------
@@ -191,15 +229,7 @@ class BrightfieldRenderer:
         f, cx, cy = float(K[0, 0]), float(K[0, 2]), float(K[1, 2])
         if abs(K[0, 1]) > 0 or abs(K[1, 1] - f) > 1e-9 * f:
             raise CameraError("the renderer supports square pixels without skew")
-        off = math.hypot(*body_offset_um)
-        support = self._r_max * (
-            math.hypot(body_offset_um[0], self.phantom.lateral_scale * body_offset_um[1]) / off if off > 0 else 1.0
-        )
-        if support + off >= self.capillary.inner_radius_um:
-            raise CameraError(
-                f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis does not fit "
-                f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
-            )
+        self._check_fits(body_offset_um)
         C_world = -R.T @ t
         C_phantom = C_world - np.array(
             [0.0, float(body_offset_um[0]), float(body_offset_um[1])]
@@ -210,14 +240,42 @@ class BrightfieldRenderer:
         dy_w = (R[0, 1] * du)[None, :] + (R[1, 1] * dv + R[2, 1])[:, None]
         dz_w = (R[0, 2] * du)[None, :] + (R[1, 2] * dv + R[2, 2])[:, None]
         rho0_capillary = np.abs(C_world[1] * dz_w - C_world[2] * dy_w) / np.sqrt(dy_w * dy_w + dz_w * dz_w)
-        # Elliptic cross-sections y² + (z/s)² ≤ r²: in coordinates with z divided by s the body is one
-        # of revolution and rays stay lines with the same parameter s, so everything below runs there
-        # (R_s = R·diag(1, 1, 1/s) maps pixels to scaled directions); chord lengths and the features
-        # use the unscaled directions.
+        footprint_um = float(np.linalg.norm(t)) / f  # one pixel at the axis, µm
+        coverage, tau_body, tau_feat, collected = self._body_rays(
+            _Rays(R, f, C_phantom, du, dv, dy_w, dz_w, footprint_um)
+        )
+        tau_extra = None
+        if self.fin_fold is not None or self.fins:
+            tau_extra = self._extra_depth(C_phantom, R, du, dv, dy_w, dz_w, body_offset_um, footprint_um)
+        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra, collected)
+
+    def _check_fits(self, body_offset_um: tuple[float, float]) -> None:
+        """Refuse a phantom that, this far off the axis, would cross the capillary's wall."""
+        off = math.hypot(*body_offset_um)
+        support = self._r_max * (
+            math.hypot(body_offset_um[0], self.phantom.lateral_scale * body_offset_um[1]) / off if off > 0 else 1.0
+        )
+        if support + off >= self.capillary.inner_radius_um:
+            raise CameraError(
+                f"phantom radius {self._r_max:.0f} µm at {math.hypot(*body_offset_um):.0f} µm off the axis "
+                "does not fit "
+                f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
+            )
+
+    def _body_rays(self, rays: _Rays) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Coverage, body and feature optical depths and the refraction's collected fraction of every pixel.
+
+        Elliptic cross-sections y² + (z/s)² ≤ r²: in coordinates with z divided by s the body is one
+        of revolution and rays stay lines with the same parameter s, so everything here runs there
+        (R_s = R·diag(1, 1, 1/s) maps pixels to scaled directions); chord lengths and the features
+        use the unscaled directions.
+        """
+        R, f, du, dv = rays.R, rays.f, rays.du, rays.dv
+        height, width = rays.dy_w.shape
         lat = 1.0 / self.phantom.lateral_scale
         Rs = R * np.array([1.0, 1.0, lat])
-        C = C_phantom * np.array([1.0, 1.0, lat])
-        dy, dz = dy_w, dz_w * np.float64(lat)
+        C = rays.C_phantom * np.array([1.0, 1.0, lat])
+        dy, dz = rays.dy_w, rays.dz_w * np.float64(lat)
         a2 = dy * dy + dz * dz
         rho0 = np.abs(C[1] * dz - C[2] * dy) / np.sqrt(a2)  # closest approach to the phantom's (scaled) axis
 
@@ -226,73 +284,82 @@ class BrightfieldRenderer:
         tau_feat = np.zeros((height, width), np.float32)
         collected: np.ndarray | None = None
 
-        footprint_um = float(np.linalg.norm(t)) / f  # one pixel at the axis, µm
         lo, hi = self.phantom.profile.x_range
-        margin = 3.0 * footprint_um
+        margin = 3.0 * rays.footprint_um
         cand_rows, cand_cols = np.nonzero(rho0 < self._r_max + margin)
-        if cand_rows.size:
-            dxf = (R[0, 0] * du)[None, :] + (R[1, 0] * dv + R[2, 0])[:, None]
-            iy, ix = cand_rows, cand_cols
-            dx_, dy_, dz_ = dxf[iy, ix], dy[iy, ix], dz[iy, ix]
-            a2c = a2[iy, ix]
-            s0 = -(C[1] * dy_ + C[2] * dz_) / a2c
-            x0 = C[0] + s0 * dx_
-            keep = (x0 > lo - margin) & (x0 < hi + margin)
-            iy, ix, dx_, dy_, dz_, a2c, s0 = iy[keep], ix[keep], dx_[keep], dy_[keep], dz_[keep], a2c[keep], s0[keep]
-            rho0sq = rho0[iy, ix] ** 2
-            s = s0.copy()
-            for _ in range(NEWTON_STEPS):
-                q, dq, d2q = self.phantom.profile.q(C[0] + s * dx_)
-                g1 = 2.0 * a2c * (s - s0) - dx_ * dq
-                g2 = np.maximum(2.0 * a2c - dx_ * dx_ * d2q, a2c)
-                s = s - g1 / g2
-            x = C[0] + s * dx_
-            q, dq, _ = self.phantom.profile.q(x)
-            m = rho0sq + a2c * (s - s0) ** 2 - q
-            # ∂h/∂d at the minimiser, then ∂m/∂(u, v) through ∂d/∂u = R[0,:]/f, ∂d/∂v = R[1,:]/f
-            hx = -s * dq
-            hy = 2.0 * s * (C[1] + s * dy_)
-            hz = 2.0 * s * (C[2] + s * dz_)
-            mu = (hx * Rs[0, 0] + hy * Rs[0, 1] + hz * Rs[0, 2]) / f
-            mv = (hx * Rs[1, 0] + hy * Rs[1, 1] + hz * Rs[1, 2]) / f
-            grad_m = np.sqrt(mu * mu + mv * mv)  # |∇m| per px
-            delta = m / np.maximum(grad_m, 1e-30)
-            cov = np.clip(0.5 - delta, 0.0, 1.0)
-            coverage[iy, ix] = cov
-            inside = cov > 0
-            dz_ = dz_ / lat  # back to the phantom frame: chord lengths and the features
-            dnorm = np.sqrt(dx_ * dx_ + dy_ * dy_ + dz_ * dz_)
-            chord = 2.0 * np.sqrt(np.maximum(-m, 0.0) / a2c) * dnorm
-            tau_body[iy, ix] = self.phantom.body_attenuation_per_um * chord
-            tf = np.zeros_like(chord)
-            sel = np.nonzero(inside)[0]
-            for feat in self.phantom.features:
-                ax = np.asarray(feat.semi_axes_um, float)
-                c = np.asarray(feat.centre_um, float)
-                # only rays passing the feature's x slab can meet it (rays are within a few degrees
-                # of perpendicular to x: a generous margin), then the exact ray–ellipsoid chord
-                s_f = (
-                    (c[0] - C_phantom[0]) * dx_[sel]
-                    + (c[1] - C_phantom[1]) * dy_[sel]
-                    + (c[2] - C_phantom[2]) * dz_[sel]
-                ) / (dnorm[sel] ** 2)
-                near = sel[np.abs(C_phantom[0] + s_f * dx_[sel] - c[0]) < ax[0] + 0.2 * ax.max() + 2.0 * footprint_um]
-                if not near.size:
-                    continue
-                p = (C_phantom - c) / ax
-                qx, qy, qz = dx_[near] / ax[0], dy_[near] / ax[1], dz_[near] / ax[2]
-                A = qx * qx + qy * qy + qz * qz
-                B = 2.0 * (p[0] * qx + p[1] * qy + p[2] * qz)
-                disc = B * B - 4.0 * A * (p @ p - 1.0)
-                tf[near] += feat.attenuation_per_um * np.sqrt(np.maximum(disc, 0.0)) / A * dnorm[near]
-            tau_feat[iy, ix] = tf
-            if self.phantom.refractive_index != 1.0:
-                collected = np.ones((height, width), np.float32)
-                collected[iy, ix] = self._collected_over_pixel(m, q, delta, grad_m)
-        tau_extra = None
-        if self.fin_fold is not None or self.fins:
-            tau_extra = self._extra_depth(C_phantom, R, du, dv, dy_w, dz_w, body_offset_um, footprint_um)
-        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra, collected)
+        if not cand_rows.size:
+            return coverage, tau_body, tau_feat, collected
+        dxf = (R[0, 0] * du)[None, :] + (R[1, 0] * dv + R[2, 0])[:, None]
+        iy, ix = cand_rows, cand_cols
+        dx_, dy_, dz_ = dxf[iy, ix], dy[iy, ix], dz[iy, ix]
+        a2c = a2[iy, ix]
+        s0 = -(C[1] * dy_ + C[2] * dz_) / a2c
+        x0 = C[0] + s0 * dx_
+        keep = (x0 > lo - margin) & (x0 < hi + margin)
+        iy, ix, dx_, dy_, dz_, a2c, s0 = iy[keep], ix[keep], dx_[keep], dy_[keep], dz_[keep], a2c[keep], s0[keep]
+        rho0sq = rho0[iy, ix] ** 2
+        s = s0.copy()
+        for _ in range(NEWTON_STEPS):
+            q, dq, d2q = self.phantom.profile.q(C[0] + s * dx_)
+            g1 = 2.0 * a2c * (s - s0) - dx_ * dq
+            g2 = np.maximum(2.0 * a2c - dx_ * dx_ * d2q, a2c)
+            s = s - g1 / g2
+        x = C[0] + s * dx_
+        q, dq, _ = self.phantom.profile.q(x)
+        m = rho0sq + a2c * (s - s0) ** 2 - q
+        # ∂h/∂d at the minimiser, then ∂m/∂(u, v) through ∂d/∂u = R[0,:]/f, ∂d/∂v = R[1,:]/f
+        hx = -s * dq
+        hy = 2.0 * s * (C[1] + s * dy_)
+        hz = 2.0 * s * (C[2] + s * dz_)
+        mu = (hx * Rs[0, 0] + hy * Rs[0, 1] + hz * Rs[0, 2]) / f
+        mv = (hx * Rs[1, 0] + hy * Rs[1, 1] + hz * Rs[1, 2]) / f
+        grad_m = np.sqrt(mu * mu + mv * mv)  # |∇m| per px
+        delta = m / np.maximum(grad_m, 1e-30)
+        cov = np.clip(0.5 - delta, 0.0, 1.0)
+        coverage[iy, ix] = cov
+        inside = cov > 0
+        dz_ = dz_ / lat  # back to the phantom frame: chord lengths and the features
+        dnorm = np.sqrt(dx_ * dx_ + dy_ * dy_ + dz_ * dz_)
+        chord = 2.0 * np.sqrt(np.maximum(-m, 0.0) / a2c) * dnorm
+        tau_body[iy, ix] = self.phantom.body_attenuation_per_um * chord
+        tau_feat[iy, ix] = self._feature_depth(rays, (dx_, dy_, dz_), dnorm, np.nonzero(inside)[0])
+        if self.phantom.refractive_index != 1.0:
+            collected = np.ones((height, width), np.float32)
+            collected[iy, ix] = self._collected_over_pixel(m, q, delta, grad_m)
+        return coverage, tau_body, tau_feat, collected
+
+    def _feature_depth(
+        self,
+        rays: _Rays,
+        d: tuple[np.ndarray, np.ndarray, np.ndarray],
+        dnorm: np.ndarray,
+        sel: np.ndarray,
+    ) -> np.ndarray:
+        """Optical depth of the phantom's ellipsoidal features along each ray ``d`` (phantom frame, unscaled).
+
+        Only the rays ``sel`` (those meeting the body) are traced.
+        """
+        dx_, dy_, dz_ = d
+        C_phantom = rays.C_phantom
+        tf = np.zeros_like(dnorm)
+        for feat in self.phantom.features:
+            ax = np.asarray(feat.semi_axes_um, float)
+            c = np.asarray(feat.centre_um, float)
+            # only rays passing the feature's x slab can meet it (rays are within a few degrees
+            # of perpendicular to x: a generous margin), then the exact ray–ellipsoid chord
+            s_f = (
+                (c[0] - C_phantom[0]) * dx_[sel] + (c[1] - C_phantom[1]) * dy_[sel] + (c[2] - C_phantom[2]) * dz_[sel]
+            ) / (dnorm[sel] ** 2)
+            near = sel[np.abs(C_phantom[0] + s_f * dx_[sel] - c[0]) < ax[0] + 0.2 * ax.max() + 2.0 * rays.footprint_um]
+            if not near.size:
+                continue
+            p = (C_phantom - c) / ax
+            qx, qy, qz = dx_[near] / ax[0], dy_[near] / ax[1], dz_[near] / ax[2]
+            A = qx * qx + qy * qy + qz * qz
+            B = 2.0 * (p[0] * qx + p[1] * qy + p[2] * qz)
+            disc = B * B - 4.0 * A * (p @ p - 1.0)
+            tf[near] += feat.attenuation_per_um * np.sqrt(np.maximum(disc, 0.0)) / A * dnorm[near]
+        return tf
 
     def _collected_over_pixel(
         self, m: np.ndarray, q: np.ndarray, delta: np.ndarray, grad_m: np.ndarray, samples: int = 8
@@ -410,11 +477,7 @@ class BrightfieldRenderer:
         pixel_format: str = "Mono12",
         noise: float = 1.0,
         rng: np.random.Generator | None = None,
-        exposure_scale: float = 1.0,
-        gain_db: float = 0.0,
-        body_offset_um: tuple[float, float] = (0.0, 0.0),
-        particles: list[Particle] | None = None,
-        illumination: Illumination | None = None,
+        conditions: FrameConditions | None = None,
     ) -> np.ndarray:
         """One frame.
 
@@ -424,20 +487,19 @@ class BrightfieldRenderer:
                 ``RGB8`` (H×W×3 uint8).
             noise: shot and read noise scale (0 = noise-free, 1 = physical).
             rng: random generator for the noise.
-            exposure_scale: exposure relative to the reference (brightness ∝ exposure).
-            gain_db: analogue gain, dB (amplifies signal and noise).
-            body_offset_um: (y, z) of the phantom's axis off the rotation axis, µm (see :meth:`ray_geometry`).
-            particles: debris and bubbles at this view (world frame), :mod:`vastcal.simulators.camera.scene`.
-            illumination: lamp field and defocus blur, or ``None`` (flat, sharp).
+            conditions: exposure, gain, the specimen's offset, particles and the lamp of this frame
+                (default :class:`FrameConditions`: reference exposure, no gain, on the axis, clean, flat and sharp).
         """
+        c = conditions if conditions is not None else FrameConditions()
+        exposure_scale, gain_db, illumination = c.exposure_scale, c.gain_db, c.illumination
         if pixel_format not in OUTPUT_FORMATS:
             raise CameraError(
                 f"simulated camera cannot deliver {pixel_format!r}; use one of {', '.join(OUTPUT_FORMATS)}"
             )
         rng = rng if rng is not None else np.random.default_rng()
-        geom = self.ray_geometry(K, R, t, width, height, body_offset_um)
+        geom = self.ray_geometry(K, R, t, width, height, c.body_offset_um)
         self.last_geometry = geom
-        parts = list(particles or [])
+        parts = list(c.particles or [])
         if pixel_format == "RGB8":
             chans = [
                 self._to_dn(

@@ -23,7 +23,7 @@ from vastcal.devices import Camera, CameraSettings, Frame
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError
 from vastcal.simulators.camera.larva import Specimen, draw_specimen
 from vastcal.simulators.camera.phantom import Phantom
-from vastcal.simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, Sensor
+from vastcal.simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, FrameConditions, Sensor
 from vastcal.simulators.camera.scene import draw_illumination, draw_particles
 from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose, truth_projection_matrix
 
@@ -218,11 +218,13 @@ class SimulatedCamera(Camera):
                 s.pixel_format,
                 noise=self._sim.noise,
                 rng=rng,
-                exposure_scale=s.exposure_us / self._reference_exposure_us,
-                gain_db=s.gain_db,
-                body_offset_um=self._truth.specimen_offset_um,
-                particles=self._particles.at_view(self._frame_id - 1) if len(self._particles) else None,
-                illumination=self._illumination,
+                conditions=FrameConditions(
+                    exposure_scale=s.exposure_us / self._reference_exposure_us,
+                    gain_db=s.gain_db,
+                    body_offset_um=self._truth.specimen_offset_um,
+                    particles=self._particles.at_view(self._frame_id - 1) if len(self._particles) else None,
+                    illumination=self._illumination,
+                ),
             )
             geom = self._renderer.last_geometry
             assert geom is not None

@@ -315,8 +315,8 @@ def test_cli_import_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
 
 
 def test_a_world_in_pixels_is_measured_and_labelled_in_pixels() -> None:
+    from vastcal.hull import cameras_in_um
     from vastcal.measure import Measurement, MeasureSettings, Mesh
-    from vastcal.reconstruct import cameras_in_um
 
     P = np.arange(24, dtype=float).reshape(2, 3, 4)
     same, unit = cameras_in_um(P, "px")

@@ -26,8 +26,8 @@ def qc_views() -> PhantomViews:
 @pytest.fixture(scope="session")
 def measured(qc_views: PhantomViews) -> Measured:
     """The views' hull measured on ~300 k voxels."""
+    from vastcal.hull import choose_grid, visual_hull_in_grid
     from vastcal.measure import MeasureSettings, measure_hull
-    from vastcal.reconstruct import choose_grid, visual_hull_in_grid
 
     s = MeasureSettings()
     grid = choose_grid(qc_views.P, qc_views.silhouettes, target_voxels=300_000)

@@ -152,8 +152,8 @@ def test_views_off_the_hull_are_flagged_even_when_many_disagree(measured: Measur
     """The assessment judges the disagreement against the edge σ the images explain, not one that includes the
     disagreement itself (which would raise the bar with it and flag none of many disagreeing views)."""
     from vastcal import uncertainty
+    from vastcal.hull import visual_hull_in_grid
     from vastcal.measure import MeasureSettings, measure_hull
-    from vastcal.reconstruct import visual_hull_in_grid
 
     sil = measured.silhouettes.copy()
     frames = measured.frames.copy()

@@ -231,13 +231,14 @@ def test_vastcal_info_shows_the_verdict(assessed: tuple[Path, object]) -> None:
 def test_a_failing_assessment_never_loses_the_measurement(
     tmp_path: Path, qc_views: PhantomViews, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from vastcal import reconstruct
     from vastcal.errors import AnalysisError
     from vastcal.reconstruct import reconstruct_session
 
     def boom(*a: object, **k: object) -> None:
         raise AnalysisError("synthetic failure")
 
-    monkeypatch.setattr(U, "assess", boom)
+    monkeypatch.setattr(reconstruct, "assess", boom)  # the assessment as the session's reconstruction calls it
     path = make_session(tmp_path / "f.h5", qc_views, masks=True, cameras=True)
     m = reconstruct_session(path, target_voxels=100_000, use_masks=True)
     assert m.volume_mm3 > 0 and m.qc is None and m.uncertainty["not_evaluated"] == ["all"]
@@ -249,7 +250,7 @@ def test_the_yaw_sigma_is_the_prior_s_when_the_photometric_yaw_did_not_run() -> 
     it: its yaw is then the prior's, and so is its σ in the budget — not the photometric yaw's measured error."""
     import json
 
-    from vastcal.uncertainty import PHOTOMETRIC_YAW_SIGMA_DEG, _photometric_yaw_ran, open_directions_sigma
+    from vastcal.uncertainty import PHOTOMETRIC_YAW_SIGMA_DEG, open_directions_sigma, photometric_yaw_ran
 
     settings = {"photometric_yaw": True, "yaw_prior_deg": 0.5, "roll_prior_deg": 1.0}
     ran = {
@@ -257,9 +258,7 @@ def test_the_yaw_sigma_is_the_prior_s_when_the_photometric_yaw_did_not_run() -> 
     }
     skipped = {"levels": json.dumps([{"seed": 0, "level": 0}, {"judge": "..."}])}
     assert (
-        _photometric_yaw_ran(ran) is True
-        and _photometric_yaw_ran(skipped) is False
-        and _photometric_yaw_ran({}) is None
+        photometric_yaw_ran(ran) is True and photometric_yaw_ran(skipped) is False and photometric_yaw_ran({}) is None
     )
     for attrs, sigma, says in (
         (ran, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw"),
@@ -267,7 +266,7 @@ def test_the_yaw_sigma_is_the_prior_s_when_the_photometric_yaw_did_not_run() -> 
         ({}, PHOTOMETRIC_YAW_SIGMA_DEG, "photometric yaw"),
     ):
         sig, src = open_directions_sigma(
-            3 + 6, ["yaw", "pitch", "gamma", "rolls"], settings, _photometric_yaw_ran(attrs)
+            3 + 6, ["yaw", "pitch", "gamma", "rolls"], settings, photometric_yaw_ran(attrs)
         )
         assert sig[0] == sigma and says in src
 

@@ -10,6 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # phantom_views (tests run with --import-mode=importlib)
 
 from phantom_views import PhantomViews, render_views  # noqa: E402
+from session_fixtures import _measured_template, measured_session, session_factory, small_views  # noqa: E402, F401
 
 from vastcal.simulators.camera.phantom import spheroid_phantom  # noqa: E402
 

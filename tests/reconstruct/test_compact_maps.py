@@ -11,7 +11,8 @@ import pytest
 from phantom_views import PhantomViews, make_session
 
 import vastcal.segmentation.probability_maps as probability_maps
-from vastcal.reconstruct import SilhouetteMaps, session_specimen_maps, visual_hull
+from vastcal.hull import SilhouetteMaps, visual_hull
+from vastcal.reconstruct import session_specimen_maps
 from vastcal.segmentation import ColourModel, fit_automatic, grouped_specimen_maps, specimen_maps
 from vastcal.segmentation.colour_models import fit_views
 from vastcal.segmentation.probability_maps import map_group_views, sub_revolutions

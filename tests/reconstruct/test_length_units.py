@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from vastcal.geometry import LENGTH_UNITS_UM
+from vastcal.hull import cameras_in_um
 from vastcal.measure import Measurement
-from vastcal.reconstruct import cameras_in_um
 
 
 @pytest.mark.parametrize("unit", sorted(LENGTH_UNITS_UM))

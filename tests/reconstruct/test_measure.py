@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
+from vastcal.hull import HullResult
 from vastcal.measure import (
     Mesh,
     check_mesh,
@@ -20,7 +21,6 @@ from vastcal.measure import (
     write_ply,
     write_stl,
 )
-from vastcal.reconstruct import HullResult
 from vastcal.voxels import VoxelGrid
 
 R_UM = 300.0
@@ -136,7 +136,7 @@ def test_a_stored_measurement_labels_its_numbers_in_the_world_s_unit(
 
     import h5py
 
-    from vastcal.measure import store_measurement
+    from vastcal.result_groups import store_measurement
 
     m = dataclasses.replace(measure_hull(sphere_hull()), provenance={"length_unit": unit})
     with h5py.File(tmp_path / "m.h5", "w") as f:

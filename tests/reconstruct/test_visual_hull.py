@@ -10,8 +10,8 @@ import tifffile
 from phantom_views import PhantomViews, read_authors_cameras, render_views
 
 from vastcal.errors import AnalysisError, EmptyHullError
+from vastcal.hull import choose_grid, hull_boundary, silhouette_counts, visual_hull, visual_hull_in_grid
 from vastcal.measure import MeasureSettings, measure_hull
-from vastcal.reconstruct import choose_grid, hull_boundary, silhouette_counts, visual_hull, visual_hull_in_grid
 from vastcal.simulators.camera.phantom import capsule_phantom, zebrafish_phantom
 from vastcal.voxels import VoxelGrid, inside_all
 

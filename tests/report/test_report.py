@@ -106,7 +106,7 @@ def test_html_is_self_contained(report_dir: Path) -> None:
 
 
 def test_mesh_is_embedded_for_the_3d_viewer(report_dir: Path, measured_session: Path) -> None:
-    from vastcal.measure import load_mesh
+    from vastcal.result_groups import load_mesh
     from vastcal.session import Session
 
     page = (report_dir / "report.html").read_text()

@@ -29,6 +29,10 @@ import numpy as np
 
 from vastcal.csv_cells import spreadsheet_safe
 from vastcal.errors import AnalysisError, MissingStageError, UserInputError
+from vastcal.geometry import decompose_circular
+from vastcal.hull import cameras_in_um, hull_boundary
+from vastcal.measure import measurement_units, world_unit_words
+from vastcal.reconstruct import world_length_unit
 from vastcal.report import figures
 from vastcal.report.imported import comparison_rows
 from vastcal.report.words import (
@@ -39,7 +43,10 @@ from vastcal.report.words import (
     readable_time,
     threshold_rows,
 )
+from vastcal.result_groups import load_mesh, load_reconstruction
 from vastcal.screen_table import SPECIMEN_FIELDS
+from vastcal.session import Session, read_attrs, software_versions
+from vastcal.uncertainty import drift_rms_deg, drift_status, settings_of
 
 log = logging.getLogger(__name__)
 
@@ -175,7 +182,6 @@ def _calibration_summary(
     s: Any, cal_run: str | None, P: np.ndarray, commanded: np.ndarray
 ) -> tuple[dict[str, Any], np.ndarray | None, tuple[np.ndarray, np.ndarray] | None]:
     """Calibration facts, per-view delta angles (deg) and the cost trace of the run used (or imported cameras)."""
-    from vastcal.session import read_attrs
 
     out: dict[str, Any] = {}
     delta = None
@@ -224,12 +230,11 @@ def _calibration_summary(
                 out["initial_cost"] = float(cost[1][0])
         free = a.get("free", []) or []
         starts = np.asarray(g["starts"]["theta"][...], float) if "starts" in g and "theta" in g["starts"] else None
-        from vastcal.uncertainty import _settings_of
 
         drift_kw: dict[str, Any] = {
             "source": "calibration",
             "free": [free] if isinstance(free, str) else list(free),
-            "settings": _settings_of(a),
+            "settings": settings_of(a),
             "starts_theta": starts,
         }
         if "roll_sigma_deg" in g and "roll_data_rise" in g:
@@ -244,8 +249,6 @@ def _calibration_summary(
         out["camera_source"] = "cameras (imported)"
         out["method"] = "imported"
         try:
-            from vastcal.geometry import decompose_circular
-
             fit = decompose_circular(P)
             mo = fit.motion
             out.update(
@@ -263,8 +266,6 @@ def _calibration_summary(
         except AnalysisError as exc:
             log.info("imported cameras do not fit circular motion: %s", exc)
     if delta is not None and delta.size:
-        from vastcal.uncertainty import drift_rms_deg, drift_status
-
         out["delta_angle_deg"] = delta.tolist()
         out["drift_rms_deg"], out["drift_max_abs_deg"] = drift_rms_deg(delta)  # views 1..N-1: view 0 defines 0 deg
         out["drift"] = drift_status(delta, **drift_kw)
@@ -277,7 +278,6 @@ def _measurement_units(length_unit: str) -> dict[str, str]:
     """report.json's ``units`` of a measurement in a world of ``length_unit`` (the stored labels,
     :func:`vastcal.measure.measurement_units`; for a world of unknown unit,
     :func:`vastcal.measure.world_unit_words`' note)."""
-    from vastcal.measure import measurement_units, world_unit_words
 
     volume, area = measurement_units(length_unit)
     units = {"volume_mm3": volume, "mesh_volume_mm3": volume, "surface_area_mm2": area, "raw_surface_area_mm2": area}
@@ -359,13 +359,12 @@ def _session_facts(path: Path, title: str, start: dict[str, Any], n_views: int) 
 def _compare_imported(s: Any, P: np.ndarray, mesh: Any, *, compare_cameras_too: bool) -> dict[str, Any]:
     """The session's imported masks (read one view at a time) and, when the measurement used calibrated cameras
     ``P`` (µm), its imported cameras, compared with what the measurement used (:mod:`vastcal.report.imported`)."""
-    from vastcal.reconstruct import _world_length_unit, cameras_in_um
     from vastcal.report.imported import compare_cameras, compare_masks
 
     out: dict[str, Any] = {}
     group = s.h5["/entry/vastcal"]
     if compare_cameras_too and "cameras" in group:
-        known = cameras_in_um(np.asarray(s.known_cameras, float), _world_length_unit(s, None))[0]
+        known = cameras_in_um(np.asarray(s.known_cameras, float), world_length_unit(s, None))[0]
         out["cameras"] = compare_cameras(P, known)
     if "masks" in group:
         out["masks"] = compare_masks(group["masks"], P, mesh.vertices, mesh.faces)
@@ -380,9 +379,6 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
     Raises:
         MissingStageError: no measurement (run ``vastcal reconstruct S.h5`` first).
     """
-    from vastcal.measure import load_mesh
-    from vastcal.reconstruct import _world_length_unit, cameras_in_um, hull_boundary, load_reconstruction
-    from vastcal.session import Session, read_attrs, software_versions
 
     path = Path(session_path)
     with Session.open(path) as s:
@@ -415,7 +411,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         if P is None:
             raise MissingStageError(f"{path}: the cameras of {mrun} are missing: run 'vastcal calibrate {path}' first")
         # the world of the hull is µm: the cameras re-expressed the way the reconstruction did (nm, mm, m … → µm)
-        P = cameras_in_um(P, _world_length_unit(s, s.result("calibration", cal_run) if cal_run else None))[0]
+        P = cameras_in_um(P, world_length_unit(s, s.result("calibration", cal_run) if cal_run else None))[0]
         commanded = np.asarray(s.angles_deg, float)
         cal, delta, cost = _calibration_summary(s, cal_run, P, commanded)
         frames = s.projections()
@@ -707,34 +703,90 @@ def _flags_by_view(qc: dict[str, Any]) -> dict[int, list[str]]:
 
 def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any] | None = None) -> dict[str, Any]:
     """Everything the template shows: numbers already formatted (strings), figures as data URIs."""
-    m, c, s = data.measurement, data.calibration, data.session
-    frames = arrays["frames"]
-    n = len(frames)
+    m, c = data.measurement, data.calibration
+    n = len(arrays["frames"])
     qc = m.get("qc") or {}
     per_view = qc.get("per_view", {}) or {}
     flags_by_view = _flags_by_view(qc)
-    disagrees = [bool(x) for x in per_view.get("disagrees", [])]
-    for i, bad in enumerate(disagrees):
+    for i, bad in enumerate(bool(x) for x in per_view.get("disagrees", [])):
         if bad and not flags_by_view.get(i):
             flags_by_view[i] = ["disagrees with the hull"]
-    delta = arrays["delta"]
-    commanded = arrays["commanded"]
     u = m.get("uncertainty") or {}
-    k = u.get("k", m.get("coverage_factor_k") or 2)
-    lower = " (lower bound)" if m.get("lower_bound") else ""
-    pm_v = f" ± {_num(m.get('volume_U_mm3'), '.4f')}" if m.get("volume_U_mm3") is not None else ""
-    pm_a = f" ± {_num(m.get('surface_area_U_mm2'), '.3f')}" if m.get("surface_area_U_mm2") is not None else ""
+    drift, drift_value, drift_label = _drift_context(c)
+    views, rows = _view_context(arrays, per_view, flags_by_view)
+    thresholds = qc.get("thresholds") or {}
+    flagged = [bool(flags_by_view.get(i)) for i in range(n)]
+    volume_text, area_text, numbers = _numbers_context(m, c)
+    payload = figures.mesh_payload(arrays["mesh"].vertices, arrays["mesh"].faces)
+    return {
+        "session": data.session,
+        "specimen_rows": specimen_rows(data.session.get("metadata") or {}),
+        "measurement": m,
+        "calibration": c,
+        "n_views": n,
+        "verdict": str(m.get("verdict", "not evaluated")),
+        "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
+        "lower_bound": bool(m.get("lower_bound")),
+        "k_text": _num(u.get("k", m.get("coverage_factor_k") or 2), "g"),
+        "volume_text": volume_text,
+        "area_text": area_text,
+        "drift": drift,
+        "drift_value": drift_value,
+        "drift_label": drift_label,
+        "units_note": (m.get("units") or {}).get("note", ""),
+        "truth": truth_rows(truth, drift_status=str(drift["status"])),
+        "budget": _budget_context(u),
+        "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
+        "hull_bias": str(u.get("hull_bias", ""))[:1].upper() + str(u.get("hull_bias", ""))[1:],
+        "views": views,
+        "n_flagged": sum(flagged),
+        "frame_width": views[0]["width"] if views else 0,
+        "frame_height": views[0]["height"] if views else 0,
+        "mesh": payload,
+        "extent_text": " × ".join(f"{_num(x / 1000.0, '.2f')}" for x in payload["extent_um"]) + " mm",
+        **_figure_uris(arrays, c, per_view, thresholds, flagged, drift),
+        "n_evaluations_text": _num(c.get("n_evaluations"), "d"),
+        "converged_text": converged_text(c["converged"], c.get("stop_reason", "")) if "converged" in c else "",
+        "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
+        "numbers": numbers,
+        "per_view": rows,
+        "thresholds": threshold_rows(thresholds),
+        "provenance": provenance_rows(data.provenance),
+        "report_time": readable_time(data.provenance.get("report_time", "")),
+        "imported_rows": comparison_rows(
+            c.get("imported_cameras_comparison") or {},
+            m.get("imported_masks_comparison") or {},
+            masks_carved=str(m.get("silhouette_source", "")).startswith("mask"),
+        ),
+        "glossary": glossary(
+            [str(comp.get("method", "")) + " " + str(comp.get("note", "")) for comp in u.get("components", []) or []]
+            + [str(drift.get("reason", "")), "IoU"]
+        ),
+    }
+
+
+def _drift_context(c: dict[str, Any]) -> tuple[dict[str, Any], str, str]:
+    """The drift card: its status and reason (defaults filled in), the value shown (degrees) and its label
+    (:func:`drift_card`)."""
     drift = dict(c.get("drift") or {})
     drift.setdefault("status", "not available")
     drift.setdefault("reason", "")
     drift_value, drift_label = drift_card(c.get("drift_rms_deg"), drift)
+    return drift, drift_value, drift_label
+
+
+def _view_context(
+    arrays: dict[str, Any], per_view: dict[str, Any], flags_by_view: dict[int, list[str]]
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Per view: the overlay card (image, outline, caption, flags) and the table row, numbers formatted."""
+    frames, delta, commanded = arrays["frames"], arrays["delta"], arrays["commanded"]
 
     def col(name: str, i: int) -> Any:
         vals = per_view.get(name) or []
         return vals[i] if i < len(vals) else None
 
     views, rows = [], []
-    for i in range(n):
+    for i in range(len(frames)):
         ov = figures.view_overlay(frames[i], arrays["P"][i], arrays["points"], arrays["voxel_size_um"])
         d = delta[i] if delta is not None and i < len(delta) else None
         fl = ", ".join(flags_by_view.get(i, []))
@@ -770,8 +822,19 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
                 "flags": fl,
             }
         )
-    thresholds = qc.get("thresholds") or {}
-    flagged = [bool(flags_by_view.get(i)) for i in range(n)]
+    return views, rows
+
+
+def _figure_uris(
+    arrays: dict[str, Any],
+    c: dict[str, Any],
+    per_view: dict[str, Any],
+    thresholds: dict[str, Any],
+    flagged: list[bool],
+    drift: dict[str, Any],
+) -> dict[str, str | None]:
+    """The agreement, drift and convergence plots as data URIs (None where there is nothing to plot)."""
+    delta, cost = arrays["delta"], arrays["cost"]
     agreement_uri = (
         figures.agreement_plot(
             per_view.get("iou", []),
@@ -792,7 +855,6 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         if delta is not None and np.size(delta)
         else None
     )
-    cost = arrays["cost"]
     convergence_uri = (
         figures.convergence_plot(
             cost[0],
@@ -803,29 +865,42 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         if cost is not None and np.size(cost[1])
         else None
     )
-    budget = None
-    if u.get("components"):
-        brows = []
-        for comp in u.get("components", []) or []:
-            ev = comp.get("u_volume_mm3") is not None and comp.get("u_area_mm2") is not None
-            brows.append(
-                {
-                    "name": comp.get("name", ""),
-                    "u_volume": _num(comp.get("u_volume_mm3"), ".5f") if ev else "not evaluated",
-                    "u_area": _num(comp.get("u_area_mm2"), ".4f") if ev else "not evaluated",
-                    "how": str(comp.get("method", "")) + ((" — " + str(comp["note"])) if comp.get("note") else ""),
-                }
-            )
-        budget = {
-            "rows": brows,
-            "u_volume": _num(u.get("u_volume_mm3"), ".5f"),
-            "u_area": _num(u.get("u_area_mm2"), ".4f"),
-            "U_volume": _num(u.get("U_volume_mm3"), ".5f"),
-            "U_area": _num(u.get("U_area_mm2"), ".4f"),
-        }
-    mesh = arrays["mesh"]
-    payload = figures.mesh_payload(mesh.vertices, mesh.faces)
-    ext = payload["extent_um"]
+    return {"agreement_uri": agreement_uri, "drift_uri": drift_uri, "convergence_uri": convergence_uri}
+
+
+def _budget_context(u: dict[str, Any]) -> dict[str, Any] | None:
+    """The uncertainty budget table (one row per component, standard and expanded totals), or None."""
+    if not u.get("components"):
+        return None
+    brows = []
+    for comp in u.get("components", []) or []:
+        ev = comp.get("u_volume_mm3") is not None and comp.get("u_area_mm2") is not None
+        brows.append(
+            {
+                "name": comp.get("name", ""),
+                "u_volume": _num(comp.get("u_volume_mm3"), ".5f") if ev else "not evaluated",
+                "u_area": _num(comp.get("u_area_mm2"), ".4f") if ev else "not evaluated",
+                "how": str(comp.get("method", "")) + ((" — " + str(comp["note"])) if comp.get("note") else ""),
+            }
+        )
+    return {
+        "rows": brows,
+        "u_volume": _num(u.get("u_volume_mm3"), ".5f"),
+        "u_area": _num(u.get("u_area_mm2"), ".4f"),
+        "U_volume": _num(u.get("U_volume_mm3"), ".5f"),
+        "U_area": _num(u.get("U_area_mm2"), ".4f"),
+    }
+
+
+def _numbers_context(m: dict[str, Any], c: dict[str, Any]) -> tuple[str, str, list[tuple[str, str]]]:
+    """The volume and area texts (with their ± and units) and the table of numbers.
+
+    A world of another unit than µm (pixels, or imported cameras of unknown unit) is shown in that unit,
+    never in mm.
+    """
+    lower = " (lower bound)" if m.get("lower_bound") else ""
+    pm_v = f" ± {_num(m.get('volume_U_mm3'), '.4f')}" if m.get("volume_U_mm3") is not None else ""
+    pm_a = f" ± {_num(m.get('surface_area_U_mm2'), '.3f')}" if m.get("surface_area_U_mm2") is not None else ""
     numbers = [
         ("volume (cite this)", f"{_num(m.get('volume_mm3'), '.5f')}{pm_v} mm³{lower}"),
         ("surface area", f"{_num(m.get('surface_area_mm2'), '.4f')}{pm_a} mm²{lower}"),
@@ -845,75 +920,29 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
         ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s"),
     ]
-    units_note = (m.get("units") or {}).get("note", "")
     volume_text = f"{_num(m.get('volume_mm3'), '.4f')}{pm_v} mm³{lower}"
     area_text = f"{_num(m.get('surface_area_mm2'), '.3f')}{pm_a} mm²{lower}"
     world = str((m.get("units") or {}).get("voxel_size_um", "um"))
-    if world != "um":  # pixels (pixel size unknown) or imported cameras of unknown unit: values in that unit, never mm
+    if world == "um":
+        return volume_text, area_text, numbers
 
-        def _w(key: str, power: int) -> str:
-            v = m.get(key)
-            return _num(v * 1e3**power if isinstance(v, (int, float)) else v, ".6g")
+    def _w(key: str, power: int) -> str:
+        v = m.get(key)
+        return _num(v * 1e3**power if isinstance(v, (int, float)) else v, ".6g")
 
-        exp = {3: "³", 2: "²"}
-        volume_text = f"{_w('volume_mm3', 3)}" + (f" ± {_w('volume_U_mm3', 3)}" if pm_v else "") + f" {world}³{lower}"
-        area_text = (
-            f"{_w('surface_area_mm2', 2)}" + (f" ± {_w('surface_area_U_mm2', 2)}" if pm_a else "") + f" {world}²{lower}"
-        )
-        numbers[:5] = [
-            ("volume (cite this)", volume_text),
-            ("surface area", area_text),
-            ("mesh enclosed volume (diagnostic)", f"{_w('mesh_volume_mm3', 3)} {world}{exp[3]}"),
-            ("unsmoothed surface area", f"{_w('raw_surface_area_mm2', 2)} {world}{exp[2]}"),
-            ("voxel size", f"{_num(m.get('voxel_size_um'), '.4g')} {world}"),
-        ]
-    return {
-        "session": s,
-        "specimen_rows": specimen_rows(s.get("metadata") or {}),
-        "measurement": m,
-        "calibration": c,
-        "n_views": n,
-        "verdict": str(m.get("verdict", "not evaluated")),
-        "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
-        "lower_bound": bool(m.get("lower_bound")),
-        "k_text": _num(k, "g"),
-        "volume_text": volume_text,
-        "area_text": area_text,
-        "drift": drift,
-        "drift_value": drift_value,
-        "drift_label": drift_label,
-        "units_note": units_note,
-        "truth": truth_rows(truth, drift_status=str(drift["status"])),
-        "budget": budget,
-        "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
-        "hull_bias": str(u.get("hull_bias", ""))[:1].upper() + str(u.get("hull_bias", ""))[1:],
-        "views": views,
-        "n_flagged": sum(flagged),
-        "frame_width": views[0]["width"] if views else 0,
-        "frame_height": views[0]["height"] if views else 0,
-        "agreement_uri": agreement_uri,
-        "mesh": payload,
-        "extent_text": " × ".join(f"{_num(x / 1000.0, '.2f')}" for x in ext) + " mm",
-        "drift_uri": drift_uri,
-        "convergence_uri": convergence_uri,
-        "n_evaluations_text": _num(c.get("n_evaluations"), "d"),
-        "converged_text": converged_text(c["converged"], c.get("stop_reason", "")) if "converged" in c else "",
-        "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
-        "numbers": numbers,
-        "per_view": rows,
-        "thresholds": threshold_rows(thresholds),
-        "provenance": provenance_rows(data.provenance),
-        "report_time": readable_time(data.provenance.get("report_time", "")),
-        "imported_rows": comparison_rows(
-            c.get("imported_cameras_comparison") or {},
-            m.get("imported_masks_comparison") or {},
-            masks_carved=str(m.get("silhouette_source", "")).startswith("mask"),
-        ),
-        "glossary": glossary(
-            [str(comp.get("method", "")) + " " + str(comp.get("note", "")) for comp in u.get("components", []) or []]
-            + [str(drift.get("reason", "")), "IoU"]
-        ),
-    }
+    exp = {3: "³", 2: "²"}
+    volume_text = f"{_w('volume_mm3', 3)}" + (f" ± {_w('volume_U_mm3', 3)}" if pm_v else "") + f" {world}³{lower}"
+    area_text = (
+        f"{_w('surface_area_mm2', 2)}" + (f" ± {_w('surface_area_U_mm2', 2)}" if pm_a else "") + f" {world}²{lower}"
+    )
+    numbers[:5] = [
+        ("volume (cite this)", volume_text),
+        ("surface area", area_text),
+        ("mesh enclosed volume (diagnostic)", f"{_w('mesh_volume_mm3', 3)} {world}{exp[3]}"),
+        ("unsmoothed surface area", f"{_w('raw_surface_area_mm2', 2)} {world}{exp[2]}"),
+        ("voxel size", f"{_num(m.get('voxel_size_um'), '.4g')} {world}"),
+    ]
+    return volume_text, area_text, numbers
 
 
 def html_text(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any] | None = None) -> str:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-import types
 from pathlib import Path
 
 import h5py
@@ -79,11 +77,10 @@ def test_silhouettes_from_the_calibration_colour_model(
         def foreground_probability(self, images: np.ndarray) -> np.ndarray:
             return np.clip((230.0 - images.astype(np.float32)) / 150.0, 0, 1)  # inverts the session's frames
 
-    mod = types.ModuleType("vastcal.segmentation.colour_models")
-    mod.ColourModel = FakeModel  # type: ignore[attr-defined]
+    import vastcal.reconstruct as reconstruct
     import vastcal.segmentation.probability_maps as probability_maps  # the real grouping: how many views at once
 
-    monkeypatch.setitem(sys.modules, "vastcal.segmentation.colour_models", mod)
+    monkeypatch.setattr(reconstruct, "ColourModel", FakeModel)  # the colour model the session's reconstruction reads
     monkeypatch.setattr(  # no static blobs here
         probability_maps, "specimen_maps", lambda model, images, **kw: model.foreground_probability(images)
     )

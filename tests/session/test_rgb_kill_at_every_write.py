@@ -1,7 +1,7 @@
 """RGB views are written as three planes (red, green = the NXtomo detector data, blue) before their
 commit record: a real ``acquire`` of an RGB8 rig killed at *every* file write keeps every committed
 view bit-identical to an unkilled run, and ``--resume`` completes it (the mono twin of this test is
-tests/foundation/test_kill_at_every_write.py, whose fork-server driver this one uses)."""
+tests/session/test_kill_at_every_write.py, whose fork-server driver this one uses)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,7 @@ import pytest
 
 from vastcal.session import Session
 
-FOUNDATION = Path(__file__).resolve().parents[1] / "foundation"
-sys.path.insert(0, str(FOUNDATION))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 import test_kill_at_every_write as kill_tests  # noqa: E402  (the driver and its strace check)
 
 pytestmark = pytest.mark.slow

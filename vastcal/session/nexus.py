@@ -27,7 +27,7 @@ AXES = ("x", "y", "z")
 def voxel_axes_um(
     origin_um: Any, voxel_size_um: float, shape: tuple[int, int, int]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """World coordinates (µm) of the voxel centres along x, y and z of a grid whose voxel (0, 0, 0) is at ``origin_um``."""
+    """World coordinates (µm) of the voxel centres along x, y and z; voxel (0, 0, 0) is at ``origin_um``."""
     o = np.asarray(origin_um, float)
     return tuple(o[a] + np.arange(int(shape[a])) * float(voxel_size_um) for a in range(3))  # type: ignore[return-value]
 
@@ -59,7 +59,10 @@ def describe_hull(group: h5py.Group, signal: str, origin_um: Any, voxel_size_um:
 def write_off_geometry(
     group: h5py.Group, vertices_um: np.ndarray, triangles: np.ndarray, *, orientation: str = ""
 ) -> None:
-    """Store a triangle mesh as an NXoff_geometry in ``group`` (vertices µm float32; winding order and face starts int32)."""
+    """Store a triangle mesh as an NXoff_geometry in ``group``.
+
+    Vertices in µm (float32); winding order and face starts int32.
+    """
     tri = np.asarray(triangles)
     if tri.ndim != 2 or (tri.size and tri.shape[1] != 3):
         raise ValueError(f"triangles must be (F, 3) vertex indices, got shape {tri.shape}")

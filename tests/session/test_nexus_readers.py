@@ -157,8 +157,8 @@ def test_schema2_sessions_still_read_and_resume_rewrites_them_in_the_current_lay
 def test_hull_is_nxdata_in_um_and_mesh_is_nxoff_geometry(tmp_path: Path) -> None:
     from phantom_views import make_session, render_views
 
-    from vastcal.measure import load_mesh
-    from vastcal.reconstruct import load_reconstruction, reconstruct_session
+    from vastcal.reconstruct import reconstruct_session
+    from vastcal.result_groups import load_mesh, load_reconstruction
     from vastcal.simulators.camera.phantom import zebrafish_phantom
 
     views = render_views(zebrafish_phantom(), 6, width=256, height=96, pixel_um=22.0, seed=3)
@@ -187,7 +187,7 @@ def test_hull_is_nxdata_in_um_and_mesh_is_nxoff_geometry(tmp_path: Path) -> None
 
 
 def test_a_mesh_stored_before_nxoff_geometry_still_loads(tmp_path: Path) -> None:
-    from vastcal.nexus import read_triangles, write_off_geometry
+    from vastcal.session.nexus import read_triangles, write_off_geometry
 
     tri = np.array([[0, 1, 2], [0, 2, 3]])
     with h5py.File(tmp_path / "m.h5", "w") as f:
