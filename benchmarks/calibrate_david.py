@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import decompose_circular
 from vastcal.importer import import_folder, read_cameras
@@ -45,9 +44,8 @@ def main() -> None:
             seed=seed,
             free=["rolls"],
             bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-            settings=CalibrationSettings(
-                roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0, roll_prior_weight=0.0
-            ),
+            roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0,
+            roll_prior_weight=0.0,
             judge_imported_cameras=False,
         )
         wall = time.perf_counter() - t

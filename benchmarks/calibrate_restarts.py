@@ -1,4 +1,4 @@
-"""IPOP/BIPOP-CMA-ES restarts against the keep-the-best multi-start, at about equal evaluations (issue 17).
+"""IPOP/BIPOP-CMA-ES restarts against the keep-the-best multi-start, at about equal evaluations .
 
 ETH David (true cameras), 10 views offset +10°, rolls free in ±15°, no prior, offset scan 0.5° — the setting of
 ``compare_methods.py``. Variants, per seed:
@@ -24,9 +24,8 @@ import numpy as np
 from compare_methods import DATA, _angle_errors, _truth_session
 
 from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.calibrate.session_run import session_camera_model
-from vastcal.config import CalibrationBounds
+from vastcal.config import CalibrationBounds, CalibrationSettings
 from vastcal.session import Session
 
 
@@ -67,7 +66,10 @@ def main() -> None:
                     seed=seed,
                     free=["rolls"],
                     bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                    settings=settings,
+                    levels=settings.levels,
+                    restarts=settings.restarts,
+                    roll_offset_scan_deg=settings.roll_offset_scan_deg,
+                    roll_prior_weight=settings.roll_prior_weight,
                     starts=starts,
                     score_thetas=[truth],
                     judge_imported_cameras=False,

@@ -1,4 +1,4 @@
-"""Does the photometric yaw's error on the simulated rigs come from the rolls it holds? (issue 17, item 5)
+"""Does the photometric yaw's error on the simulated rigs come from the rolls it holds?
 
 For each simulated rig (index k: simulation seed = config seed + k, as in ``calibrate_simulated.py``) the
 silhouette calibration runs without the photometric yaw; then :func:`refine_yaw` searches the yaw from the
@@ -26,7 +26,6 @@ import numpy as np
 
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.photometric_yaw import SCHEDULE, refine_yaw
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.config import load_config
 from vastcal.pipeline import acquire_simulated
@@ -47,15 +46,7 @@ def main() -> None:
             session = Path(d) / f"sim{k}.h5"
             truth = json.loads(acquire_simulated(cfg, session).read_text())
             c = cfg.calibration
-            settings = CalibrationSettings(
-                roll_offset_scan_deg=c.offset_scan_deg,
-                roll_prior_weight=c.prior_weight,
-                roll_prior_deg=c.roll_prior_deg,
-                yaw_prior_deg=c.yaw_prior_deg,
-                photometric_yaw=False,
-                memory_mb=c.memory_mb,
-            )
-            cal = calibrate_session(session, settings=settings)
+            cal = calibrate_session(session, photometric_yaw=False)
             with Session.open(session) as s:
                 images = s.projections()
             assert cal.colour_model is not None

@@ -1,4 +1,4 @@
-"""Compare the calibration methods side by side on ZF1, ETH David and Middlebury dinoRing (issue 17).
+"""Compare the calibration methods side by side on ZF1, ETH David and Middlebury dinoRing .
 
 Methods: ``coherence`` (vastcal's own silhouette-coherence cost, the default), ``pi`` (the paper's objective
 as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel sampling) and ``vr`` (voxel residual).
@@ -39,7 +39,6 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.config import CalibrationBounds, load_config
 from vastcal.geometry import decompose_circular, shift_pixels
 from vastcal.importer import import_folder, read_cameras
@@ -243,7 +242,6 @@ def run_truth_set(
     )
     for method in methods:
         for seed in seeds:
-            settings = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
             t = time.perf_counter()
             scan = _view_scans(truth) if at_truth else []
             r = calibrate_session(
@@ -252,7 +250,8 @@ def run_truth_set(
                 seed=seed,
                 free=["rolls"],
                 bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                settings=settings,
+                roll_offset_scan_deg=0.5,
+                roll_prior_weight=0.0,
                 starts=starts,
                 score_thetas=[truth] + scan,
                 fixed_views=fixed,

@@ -35,9 +35,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import compare_methods as cm  # noqa: E402  (benchmarks/ is not a package)
 
-from vastcal.calibrate.run import CalibrationSettings, Level  # noqa: E402
 from vastcal.calibrate.session_run import calibrate_session, session_camera_model  # noqa: E402
-from vastcal.config import CalibrationBounds  # noqa: E402
+from vastcal.config import (  # noqa: E402
+    CalibrationBounds,  # noqa: E402
+    CalibrationSettings,
+    Level,
+)
 from vastcal.importer import read_cameras  # noqa: E402
 from vastcal.session import Session  # noqa: E402
 
@@ -130,16 +133,18 @@ def score(session: Path, true_rolls: np.ndarray, width: int, edge_lines: int) ->
         _, _, theta0, _ = session_camera_model(ss)
     truth = theta0.copy()
     truth[3:] = true_rolls
-    settings = CalibrationSettings(
-        roll_prior_weight=0.0, polish=False, levels=(Level(width, 16000, 0.05, 12, edge_lines, scaled_steps=True),)
-    )
+    settings = {
+        "roll_prior_weight": 0.0,
+        "polish": False,
+        "levels": (Level(width, 16000, 0.05, 12, edge_lines, scaled_steps=True),),
+    }
     r = calibrate_session(
         session,
         seed=0,
         free=["rolls"],
         bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-        settings=settings,
         starts=1,
+        **settings,
         score_thetas=[truth] + cm._view_scans(truth),
         judge_imported_cameras=False,
     )
@@ -167,7 +172,8 @@ def calibrate_consistent(
             seed=seed,
             free=["rolls"],
             bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-            settings=CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0),
+            roll_offset_scan_deg=0.5,
+            roll_prior_weight=0.0,
             score_thetas=[truth],
             judge_imported_cameras=False,
         )

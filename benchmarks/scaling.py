@@ -160,11 +160,11 @@ def _step(
         from vastcal.pipeline import score_against_truth
 
         if step == "calibrate_whole_frames":  # the path before the window: every objective's atlas over whole frames
-            import vastcal.calibrate.run as run
+            import vastcal.calibrate.objective_coherence as oc
             from vastcal.calibrate.objective_coherence import signed_distance_maps
             from vastcal.calibrate.sampling import Atlas
 
-            run.coherence_atlas = lambda pf: Atlas.from_stack(signed_distance_maps(pf))  # type: ignore[assignment]
+            oc.coherence_atlas = lambda pf: Atlas.from_stack(signed_distance_maps(pf))  # type: ignore[assignment]
         t, c = time.perf_counter(), _cpu_s()
         cal = calibrate_session(session)
         wall, cpu = time.perf_counter() - t, _cpu_s() - c

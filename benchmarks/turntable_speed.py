@@ -19,7 +19,7 @@ true rolls, the calibration left them by 0.3° mean, 1.3° max, to a cost 7 % lo
 top where the feet stand, dark grey (albedo 0.22) with paler blotches (up to +0.2) fixed to it, so that they turn
 with the figure — between the background's brightness and the figure's, partly taken for the specimen by the
 automatic colour model, as the real turntable is. The truth is still the cameras; the cost at the truth rises
-twelvefold (0.0245 → 0.29 with stop 31's edges): what a turntable in the silhouettes does to the calibration.
+twelvefold (0.0245 → 0.29 with the edge rule of docs/silhouette-edges.md): what a turntable in the silhouettes does to the calibration.
 ``--mask`` gives the calibration view 0's figure mask (the pixels that see the figure first), as a user's ``vastcal
 calibrate --mask 0:FILE`` marks the turntable as background (:mod:`vastcal.calibrate.marks`).
 
@@ -62,7 +62,7 @@ import numpy as np
 
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate import objective_coherence as oc
-from vastcal.calibrate.run import CalibrationResult, CalibrationSettings
+from vastcal.calibrate.run import CalibrationResult
 from vastcal.calibrate.threads import ENV as THREADS_ENV
 from vastcal.calibrate.threads import compute_threads
 from vastcal.config import CalibrationBounds
@@ -478,7 +478,7 @@ def main() -> None:
         chords = instrument_chords(a.chords)
         bar = PhaseProgress("calibrate", enabled=False)
         profiler = cProfile.Profile() if a.profile else None
-        settings = CalibrationSettings(roll_offset_scan_deg=a.offset_scan, roll_prior_weight=0.0)
+        settings = {"roll_offset_scan_deg": a.offset_scan, "roll_prior_weight": 0.0}
         t0, mono0 = time.perf_counter(), time.monotonic()  # the phases are timed on the monotonic clock
         if profiler is not None:
             profiler.enable()
@@ -489,11 +489,11 @@ def main() -> None:
                 seed=a.seed,
                 free=["rolls"],
                 bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                settings=settings,
                 progress=CalibrationProgress(bar),
                 score_thetas=[truth],
                 judge_imported_cameras=False,
                 mask=(0, cv2.imread(str(tmp / "mask_00.png"), cv2.IMREAD_GRAYSCALE)) if a.mask else None,
+                **settings,
             )
         if profiler is not None:
             profiler.disable()

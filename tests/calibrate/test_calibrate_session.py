@@ -28,7 +28,7 @@ def _digest(p: Path) -> str:
 
 
 def test_run_is_stored_with_every_field(session_path: Path, views: np.ndarray) -> None:
-    r = calibrate_session(session_path, method="pi", seed=1, free=["pitch", "gamma", "rolls"], settings=FAST)
+    r = calibrate_session(session_path, method="pi", seed=1, free=["pitch", "gamma", "rolls"], levels=FAST.levels)
     with Session.open(session_path) as s:
         g = s.latest_result("calibration")
         n = len(views)
@@ -61,8 +61,8 @@ def test_run_is_stored_with_every_field(session_path: Path, views: np.ndarray) -
 
 
 def test_several_runs_coexist_latest_is_default(session_path: Path) -> None:
-    calibrate_session(session_path, seed=0, free="pitch", settings=FAST)
-    r2 = calibrate_session(session_path, method="vr", seed=0, free="pitch", settings=FAST)
+    calibrate_session(session_path, seed=0, free="pitch", levels=FAST.levels)
+    r2 = calibrate_session(session_path, method="vr", seed=0, free="pitch", levels=FAST.levels)
     with Session.open(session_path) as s:
         assert s.stages_run()["calibration"] == ["run_000", "run_001"]
         assert read_attrs(s.latest_result("calibration"))["method"] == "vr"
@@ -71,7 +71,7 @@ def test_several_runs_coexist_latest_is_default(session_path: Path) -> None:
 
 def test_vr_uses_imported_masks(tmp_path: Path, views: np.ndarray, truth: np.ndarray) -> None:
     p = write_session(tmp_path / "m.h5", views, np.arange(len(views)) * 30.0, masks=sy.silhouettes(truth))
-    calibrate_session(p, method="vr", free="pitch", settings=FAST)
+    calibrate_session(p, method="vr", free="pitch", levels=FAST.levels)
     with Session.open(p) as s:
         assert read_attrs(s.latest_result("calibration"))["silhouettes"] == "imported masks"
 
@@ -80,7 +80,7 @@ def test_vr_uses_imported_masks(tmp_path: Path, views: np.ndarray, truth: np.nda
 def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(
     tmp_path: Path, views: np.ndarray, case: str
 ) -> None:
-    kwargs: dict = {"settings": FAST}
+    kwargs: dict = {"levels": FAST.levels}
     if case == "two-views":
         p, err = write_session(tmp_path / "s.h5", views[:2], np.array([0.0, 180.0])), SessionIncompleteError
     elif case == "blank":

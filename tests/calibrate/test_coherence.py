@@ -11,7 +11,6 @@ import pytest
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
     axis_crossings,
-    dark_feature_probability,
     signed_distance_maps,
     silhouette_edges,
 )
@@ -103,17 +102,6 @@ def test_no_specimen_is_a_clear_error() -> None:
     P = projection_matrices(K, d, np.r_[0, 0, 0, 0, 90, 180, 270][None])[0]
     with pytest.raises(AnalysisError, match="no silhouette edge"):
         silhouette_edges(pf, axis_crossings(P, (40, 60)))
-
-
-def test_dark_features_are_found_inside_the_specimen() -> None:
-    rng = np.random.default_rng(0)
-    images = np.full((2, 40, 60), 220.0)
-    images[:, 10:30, 10:50] = 150
-    images[:, 15:20, 15:20] = 30
-    images = np.clip(images + rng.normal(0, 4, images.shape), 0, 255).astype(np.uint8)
-    pf = (images < 200).astype(np.float32)
-    dark = dark_feature_probability(images, pf)
-    assert dark is not None and dark[0, 17, 17] > 0.9 and dark[0, 25, 40] < 0.1 and dark[0, 2, 2] == 0
 
 
 def _david_masks(david_dir: Path) -> np.ndarray:

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from vastcal.calibrate import calibrate_views
-from vastcal.calibrate import run as run_module
+from vastcal.calibrate import References, calibrate_views
+from vastcal.calibrate import stage_photometric_yaw as yaw_stage
 from vastcal.errors import ImportDataError
 from vastcal.geometry import decompose_circular, shift_pixels
 from vastcal.importer import import_folder, read_cameras
@@ -74,24 +74,22 @@ def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(
     K, d = sy.camera()
     theta0 = truth.copy()
     theta0[3:] = np.arange(len(views)) * 360.0 / len(views)
-    settings = dataclasses.replace(FAST, polish=False)
+    settings = dataclasses.replace(FAST, polish=False, seed=0, free=("yaw", "pitch", "gamma"))
 
     def moved_yaw(images, pf, K, d, theta, box, **_):  # noqa: ANN001, ANN003, ANN202 - refine_yaw's signature
         return SimpleNamespace(
             yaw_deg=float(theta[0]) + 0.4, n_evaluations=1, time_s=0.0, report=lambda: {"stage": "photometric yaw"}
         )
 
-    monkeypatch.setattr(run_module, "refine_yaw", moved_yaw)
+    monkeypatch.setattr(yaw_stage, "refine_yaw", moved_yaw)
     monkeypatch.setattr(
-        run_module, "enough_directions", lambda angles: True
+        yaw_stage, "enough_directions", lambda angles: True
     )  # 12 views: 6 directions, but the search is faked
     r = calibrate_views(
         views,
         K,
         d,
         theta0,
-        seed=0,
-        free=["yaw", "pitch", "gamma"],
         settings=dataclasses.replace(settings, photometric_yaw=True),
     )
     judge = next(rep for rep in r.level_reports if "judge" in rep)
@@ -103,10 +101,8 @@ def test_final_cost_is_the_stored_pose_after_the_photometric_yaw(
         K,
         d,
         theta0,
-        seed=0,
-        free=["yaw", "pitch", "gamma"],
         settings=settings,
-        score_thetas=[r.theta_deg, silhouette_pose],
+        references=References(score_thetas=[r.theta_deg, silhouette_pose]),
     )
     assert check.final_cost == pytest.approx(judge["silhouette_cost"], rel=1e-6)
     yaw_prior = settings.roll_prior_weight * ((r.theta_deg[0] - theta0[0]) / settings.yaw_prior_deg) ** 2
@@ -124,13 +120,16 @@ def _rastrigin(X: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("restarts", ["ipop", "bipop"])
 def test_restarts_spend_the_budget_and_keep_the_best_run(restarts: str) -> None:
-    from vastcal.calibrate.optimise import minimise
+    from vastcal.calibrate.optimise import SearchOptions, minimise
 
-    kw = dict(sigma0=0.3, stds=np.ones(4), max_evaluations=6000, tolx=1e-6, tolfun=1e-9)
+    kw = dict(sigma0=0.3, stds=np.ones(4))
+    options = SearchOptions(6000, 1e-6, 1e-9)
     wins = 0
     for seed in range(4):
-        one = minimise(_rastrigin, np.full(4, -0.8), seed=seed, **kw)  # type: ignore[arg-type]
-        r = minimise(_rastrigin, np.full(4, -0.8), seed=seed, restarts=restarts, **kw)  # type: ignore[arg-type]
+        one = minimise(_rastrigin, np.full(4, -0.8), seed=seed, options=options, **kw)  # type: ignore[arg-type]
+        r = minimise(
+            _rastrigin, np.full(4, -0.8), seed=seed, options=dataclasses.replace(options, restarts=restarts), **kw
+        )  # type: ignore[arg-type]
         runs = {k.split(":")[0] for k in r.stop}
         assert len(runs) >= 2 and 6000 <= r.n_evaluations <= 6000 + 64 + 2 * len(
             runs
