@@ -34,6 +34,7 @@ import numpy as np
 
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
+    Penalty,
     axis_crossings,
     signed_distance_maps,
     silhouette_edges,
@@ -78,7 +79,9 @@ def main() -> None:
     pf = hand_masks(n)
     P_true = projection_matrices(K, m.distance, theta[None])[0]
     edges = silhouette_edges(pf, axis_crossings(P_true, pf.shape[1:]), max_lines=48)
-    obj = CoherenceObjective(signed_distance_maps(pf), edges, K, m.distance, radius_um=3.0, sigma_px=0.1, trim=0)
+    obj = CoherenceObjective(
+        signed_distance_maps(pf), edges, K, m.distance, radius_um=3.0, penalty=Penalty(sigma_px=0.1, trim=0)
+    )
 
     steps = np.diff(m.rolls_deg)
     print("1. ground-truth steps (deg):", np.round(steps, 4).tolist())

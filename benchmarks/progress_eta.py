@@ -6,7 +6,7 @@ the CLI draws (vastcal.progress.CountProgress), calibrates it with the progress 
 acquisition's, each CMA-ES level of each start, the per-view polish, the photometric yaw) prints its duration
 and the ETA's error.
 
-The criterion (issue 18: "an ETA that is right within 30 % over the second half of every phase"): at every
+The criterion ("an ETA that is right within 30 % over the second half of every phase"): at every
 progress update in the second half of the phase's wall time, the relative error |ETA − true remaining| /
 true remaining, where the true remaining time runs to the phase's end as the same run measured it. An
 update with no ETA yet counts as 100 %; updates with less than 1 % of the phase left are skipped (the

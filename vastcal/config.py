@@ -20,6 +20,7 @@ import dataclasses
 import difflib
 import importlib.resources
 import json
+import logging
 import math
 import reprlib
 import types
@@ -31,6 +32,8 @@ from typing import Any, Literal
 import yaml
 
 from vastcal.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 
 def _shipped_config_dir() -> Path:
@@ -230,6 +233,9 @@ RENAMED_KEYS = {
 }
 """Rig-file keys read under their current name (sessions store the rig file they were made with)."""
 
+REMOVED_KEYS = frozenset({"calibration.photometric_yaw", "calibration.photometric_sirt_iterations"})
+"""Rig-file keys of settings that no longer exist: read and ignored (docs/decisions/0001-photometric-yaw.md)."""
+
 
 @dataclass(frozen=True)
 class CalibrationSettings:
@@ -295,13 +301,8 @@ class CalibrationSettings:
     """The polish's steps, largest first."""
     polish_zooms: int = field(default=2, metadata=_range(0, 10))
     """Zoom stages of the polish's cost along every edge ray, so that its trials are read as finely as θ."""
-    photometric_yaw: bool = False
-    """After the silhouettes, search the axis yaw by projection matching of absorption images (coherence with the yaw
-    free; brightfield only): :mod:`vastcal.calibrate.photometric_yaw`."""
-    photometric_sirt_iterations: int = field(default=100, metadata=_range(1, 100_000))
-    """SIRT iterations of each reconstruction of the photometric yaw's coarse stages."""
     memory_mb: float = field(default=1536.0, metadata=_range(256.0, 1e7))
-    """Memory budget, MB: the specimen maps and the photometric yaw use as many views at once as fit in it."""
+    """Memory budget, MB: the specimen maps are made for as many views at once as fit in it."""
     prior_from: str | None = None
     """Results folder of an earlier ``vastcal batch`` on this rig: its ``rig_health.json`` becomes the start and the
     prior's centre (:func:`vastcal.rig_health.load_rig_prior`); null = none."""
@@ -341,7 +342,7 @@ class SimulationConfig:
     noise: float = field(default=1.0, metadata=_range(0.0, 100.0))
     """Shot-noise scale (1 = physical Poisson noise at the configured full well)."""
 
-    # -- specimen and scene realism (issue 15; simulators/camera/larva.py, scene.py). Each is drawn
+    # -- specimen and scene realism (simulators/camera/larva.py, scene.py). Each is drawn
     # from ``seed``; false / 0 switches it off (the defaults: the fixed 3 mm phantom, a clean scene).
     larva_varies: bool = False
     """Draw the larva's age in ``age_dpf``, and from it length, height, flattening, yolk and contrast;
@@ -478,6 +479,10 @@ def _build(cls: Any, data: Any, where: str, fail: typing.Callable[[str, str], Co
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         path = f"{where}.{key}" if where else str(key)
+        if path in REMOVED_KEYS:
+            if value:
+                log.warning("%s is no longer a setting (docs/decisions/0001-photometric-yaw.md); ignored", path)
+            continue
         if path in RENAMED_KEYS:
             former, key = path, RENAMED_KEYS[path]
             path = f"{where}.{key}"

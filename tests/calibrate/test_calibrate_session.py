@@ -237,3 +237,21 @@ def test_a_negative_seed_is_one_line_not_a_traceback(session_path: Path) -> None
     with pytest.raises(ValueError, match="seed"):
         calibrate_session(session_path, seed=-3)
     assert _digest(session_path) == before
+
+
+def test_the_rig_file_calibration_section_is_the_settings_key_for_key() -> None:
+    """Every setting is a rig-file key of the same name; former names are read under the new ones, a setting given
+    under both is one error line, and keys of removed settings are ignored."""
+    import dataclasses
+
+    from vastcal.config import CalibrationSettings, ConfigError, parse_config
+
+    names = {f.name for f in dataclasses.fields(CalibrationSettings)}
+    levels = [{"width_px": 100, "voxels": 1000, "sigma0": 0.3, "max_evaluations": 50}]
+    cfg = parse_config({"calibration": {"roll_prior_weight": 0.0, "levels": levels, "polish": False}}).calibration
+    assert cfg.roll_prior_weight == 0.0 and cfg.levels[0].width_px == 100 and cfg.polish is False
+    old = parse_config({"calibration": {"prior_weight": 0.2, "offset_scan_deg": 0.5, "photometric_yaw": False}})
+    assert (old.calibration.roll_prior_weight, old.calibration.roll_offset_scan_deg) == (0.2, 0.5)
+    assert {"prior_weight", "offset_scan_deg", "photometric_yaw"}.isdisjoint(names)
+    with pytest.raises(ConfigError, match="roll_prior_weight: given twice"):
+        parse_config({"calibration": {"prior_weight": 0.2, "roll_prior_weight": 0.1}})

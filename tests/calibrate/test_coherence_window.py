@@ -1,4 +1,4 @@
-"""The coherence cost's signed distances held over the specimen's window only (issue 20: 360 full frames in 2 GB)."""
+"""The coherence cost's signed distances held over the specimen's window only (360 full frames in 2 GB)."""
 
 from __future__ import annotations
 

@@ -117,7 +117,7 @@ def test_eta_is_measured_after_the_first_generation(monkeypatch: pytest.MonkeyPa
     now[0] += 1.0
     clock.update(110, 0.5)  # then 100 evaluations per second
     assert math.isnan(seen[0][3]) and seen[1][3] == pytest.approx(8.9) and seen[1][2] == pytest.approx(6.0)
-    # a slower phase (the photometric yaw's reconstructions, ~1 s each) gets an ETA from its own rate
+    # a slower phase (e.g. one of reconstructions, ~1 s each) gets an ETA from its own rate
     clock.start_phase(20)
     now[0] += 2.0
     clock.update(111, 9.0)

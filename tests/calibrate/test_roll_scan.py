@@ -18,6 +18,7 @@ from vastcal.calibrate.objective_coherence import (
 from vastcal.calibrate.parameters import ParameterSpace
 from vastcal.calibrate.roll_scan import (
     MAX_OUTLIER_VIEWS,
+    ScanRule,
     basin_half_widths_deg,
     outlier_views,
     plan_grid,
@@ -84,10 +85,7 @@ def _scan(scene: tuple, commanded: np.ndarray) -> tuple[ParameterSpace, np.ndarr
         space,
         x,
         f0,
-        half_width_deg=widths,
-        gauge=True,
-        reach_deg=REACH,
-        share=roll_share(fast, len(commanded) - 3),
+        ScanRule(widths, True, REACH, roll_share(fast, len(commanded) - 3)),
     )
     assert evals == report["evaluations"] > 0
     return space, x, f0, f, report
@@ -161,10 +159,7 @@ def test_the_scan_never_raises_the_judged_cost() -> None:
         space,
         np.zeros(n - 1),
         1.0,
-        half_width_deg=lambda th: np.full(n, 2.0),
-        gauge=False,
-        reach_deg=REACH,
-        share=1.0,
+        ScanRule(lambda th: np.full(n, 2.0), False, REACH, 1.0),
     )
     assert f <= 1.0 and f == pytest.approx(float(cost(space.theta(x))[0]))
     assert np.sum(np.abs(space.theta(x)[0][4:] - dip) < 0.5) <= 1  # one view moved, not the joint move that costs more
@@ -237,7 +232,7 @@ def test_views_moved_by_the_scan_double_the_next_level_s_budget(monkeypatch: pyt
     from vastcal.calibrate import CalibrationSettings, Level, calibrate_views, stage_roll_scan
     from vastcal.calibrate.stage_roll_scan import MOVED_BUDGET_SCALE
 
-    def moved_one(obj, prior, judge, space, x, f, **_):  # noqa: ANN001, ANN003, ANN202 - roll_scan's signature
+    def moved_one(obj, prior, judge, space, x, f, rule, **_):  # noqa: ANN001, ANN003, ANN202 - roll_scan's signature
         return x, f, 0, {"rounds": [], "evaluations": 0, "judged_before": f, "judged_after": f, "moved": [8]}
 
     monkeypatch.setattr(stage_roll_scan, "roll_scan", moved_one)

@@ -1,4 +1,4 @@
-"""Issue 17: keep-the-best starts and the per-view polish, fixed views, method names, camera files of any
+"""Keep-the-best starts and the per-view polish, fixed views, method names, camera files of any
 handedness and format, the cameras' length unit."""
 
 from __future__ import annotations

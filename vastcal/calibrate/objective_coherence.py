@@ -312,6 +312,46 @@ def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
     return np.ascontiguousarray(order[:, pos])
 
 
+@dataclass(frozen=True)
+class RaySearch:
+    """How the coherence cost searches each edge ray for the others' hull.
+
+    Attributes:
+        stages: samples of each zoom stage after the first (each spans ±1 step of the previous stage around its best
+            sample). The first stage samples the ray's chord through the cylinder of the specimen's radius about the
+            axis at about one pixel of the level per step (as seen from the other views), so that no thin part of the
+            specimen falls between samples; at most ``max_first_stage`` samples.
+        window, window_px: samples and half-width of the per-candidate window around the peaks; the half-width is
+            ``window_px`` pixels of the level at the axis distance.
+        max_slides: how often a ray's window may slide to bracket its maximum
+        (:meth:`CoherenceObjective._follow_rising_ends`).
+        research_deg: repeat the full search along the rays when the population mean has moved more than this
+            (degrees, any entry) since the last one.
+        max_points: bound of the ray samples × partner views held at once (memory ~40 bytes each).
+        max_partners: each edge ray is checked against at most this many other views (:func:`partner_views`); time
+            and memory then grow linearly with the number of views.
+    """
+
+    stages: tuple[int, ...] = (7, 7, 7)
+    window: int = 7
+    window_px: float = 1.5
+    max_slides: int = 3
+    max_first_stage: int = 256
+    research_deg: float = 0.1
+    max_points: int = 1_000_000
+    max_partners: int = 20
+
+
+@dataclass(frozen=True)
+class Penalty:
+    """The one-sided penalty of an edge ray's residual r (pixels): softplus(−r/σ)·σ, capped (redescending) at
+    ``cap_px``; r is the (``trim`` + 1)-th smallest signed distance over the other views."""
+
+    sigma_px: float = 0.33
+    trim: int = 1
+    cap_px: float = 1.5
+
+
 class CoherenceObjective:
     """C(θ) for a population of θ (see the module docstring); lower is better.
 
@@ -322,24 +362,12 @@ class CoherenceObjective:
         K: intrinsics of the level's pixels.
         distance: axis distance d, µm.
         radius_um: the specimen lies within this distance of the axis (sets the depth range of the rays).
-        stages: samples of each zoom stage after the first (each spans ±1 step of the previous
-            stage around its best sample). The first stage samples the ray's chord through the
-            cylinder of ``radius_um`` about the axis at about one pixel of the level per step (as
-            seen from the other views), so that no thin part of the specimen falls between samples;
-            at most ``max_first_stage`` samples.
-        window, window_px: samples and half-width of the per-candidate window around the peaks; the
-            half-width is ``window_px`` pixels of the level at the axis distance (converted to µm).
-        max_slides: how often a ray's window may slide to bracket its maximum (:meth:`_follow_rising_ends`).
-        sigma_px: softness σ of the one-sided penalty, pixels.
-        research_deg: repeat the full search along the rays when the population mean has moved more
-            than this (degrees, any entry) since the last one.
-        max_points: bound of the ray samples × partner views held at once (memory ~40 bytes each).
-        max_partners: each edge ray is checked against at most this many other views
-            (:func:`partner_views`); time and memory then grow linearly with the number of views.
+        per_candidate: every candidate searches its own rays in full (its cost does not depend on its batch).
         angles_deg: (N,) roll angles that choose the partners (default: the first θ evaluated).
         local_zooms: zoom stages (``window`` samples over ± one step of the last, around the best) that refine
             every ray's maximum, so that a candidate's maximum is read as finely as the batch mean's own, found by
             the full search (:meth:`_local_max`).
+        penalty, search: :class:`Penalty` and :class:`RaySearch`.
     """
 
     name = "pi-coherence"
@@ -351,21 +379,16 @@ class CoherenceObjective:
         K: np.ndarray,
         distance: float,
         radius_um: float,
-        stages: tuple[int, ...] = (7, 7, 7),
-        window: int = 7,
-        window_px: float = 1.5,
-        max_slides: int = 3,
-        sigma_px: float = 0.33,
-        trim: int = 1,
-        cap_px: float = 1.5,
-        max_first_stage: int = 256,
-        research_deg: float = 0.1,
+        *,
         per_candidate: bool = False,
-        max_points: int = 1_000_000,
-        max_partners: int = 20,
         angles_deg: np.ndarray | None = None,
         local_zooms: int = 0,
+        penalty: Penalty = Penalty(),
+        search: RaySearch = RaySearch(),
     ) -> None:
+        stages, window, window_px, max_slides = search.stages, search.window, search.window_px, search.max_slides
+        max_first_stage, research_deg, max_points = search.max_first_stage, search.research_deg, search.max_points
+        sigma_px, trim, cap_px, max_partners = penalty.sigma_px, penalty.trim, penalty.cap_px, search.max_partners
         self.atlas = sd if isinstance(sd, Atlas) else Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
@@ -921,8 +944,7 @@ def coherence_objective(
         level.K,
         level.distance,
         radius,
-        sigma_px=settings.coherence_sigma_px,
-        trim=settings.coherence_trim,
         per_candidate=exact,
         local_zooms=local_zooms,
+        penalty=Penalty(sigma_px=settings.coherence_sigma_px, trim=settings.coherence_trim),
     )

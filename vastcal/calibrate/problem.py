@@ -85,9 +85,8 @@ class Problem:
         distance: float,
         space: ParameterSpace,
         settings: CalibrationSettings,
-        frame_shape: tuple[int, int],
     ) -> None:
-        self.pf, self.sil_src, self.K_small, self.frame_shape = pf, sil_src, K_small, frame_shape
+        self.pf, self.sil_src, self.K_small = pf, sil_src, K_small
         self.distance, self.space, self.settings = distance, space, settings
         self.factory = objective_factory(settings.method)
         self.prior = Prior.of(space.theta0, settings)
@@ -121,17 +120,7 @@ class Problem:
             sil_src = (pf > settings.threshold).astype(np.uint8)
         S_small = np.diag([pf.shape[2] / w_full, pf.shape[1] / images.shape[1], 1.0])
         S_small[:2, 2] = 0.5 * np.diag(S_small)[:2] - 0.5
-        frame_shape = (int(images.shape[1]), int(images.shape[2]))
-        return cls(pf, sil_src, S_small @ np.asarray(K, float), float(distance), space, settings, frame_shape)
-
-    def release_maps(self) -> np.ndarray | None:
-        """Drop the maps the levels are made from: once the last level's objectives are made nothing needs them
-        (each objective holds what it reads). :meth:`level` cannot be called afterwards (AttributeError). Returns
-        the posteriors when they are at the frames' own size (nothing was resized), else None."""
-        frame_maps = self.pf if tuple(self.pf.shape[1:]) == self.frame_shape else None
-        del self.pf, self.sil_src
-        self._region0 = None
-        return frame_maps
+        return cls(pf, sil_src, S_small @ np.asarray(K, float), float(distance), space, settings)
 
     def _first_region(self) -> tuple[Region, np.ndarray, np.ndarray]:
         """The region carved from the coarsest rough silhouettes under θ0 with the box's displacement bound."""

@@ -27,7 +27,6 @@ from vastcal.calibrate.problem import Problem, colour_model_for
 from vastcal.calibrate.roll_width import RollWidths
 from vastcal.calibrate.stage import LevelRun, Pose, Stage, StageContext
 from vastcal.calibrate.stage_outlier_scan import OutlierScan
-from vastcal.calibrate.stage_photometric_yaw import PhotometricYaw
 from vastcal.calibrate.stage_polish import Polish
 from vastcal.calibrate.stage_references import KeepReferences
 from vastcal.calibrate.stage_roll_widths import RollWidths as RollWidthsStage
@@ -38,7 +37,7 @@ from vastcal.geometry import projection_matrices
 
 log = logging.getLogger(__name__)
 
-FINAL_STAGES: tuple[Stage, ...] = (OutlierScan(), Polish(), KeepReferences(), PhotometricYaw(), RollWidthsStage())
+FINAL_STAGES: tuple[Stage, ...] = (OutlierScan(), Polish(), KeepReferences(), RollWidthsStage())
 """The stages after the starts, in order, from the best start as the judge rates it."""
 
 
@@ -103,8 +102,8 @@ class CalibrationResult:
     run_name: str | None = None
     session_path: Path | None = None
     final_cost: float = float("nan")
-    """Cost (data + prior) of ``theta_deg`` — the stored pose, after the photometric yaw when it ran — on the
-    judge: the finest level's batch-independent cost."""
+    """Cost (data + prior) of ``theta_deg``, the stored pose, on the judge: the finest level's batch-independent
+    cost."""
     converged: bool = False
     stop_reason: str = ""
     start_thetas: np.ndarray | None = field(default=None, repr=False)
@@ -294,7 +293,7 @@ def _result(
     space, theta = ctx.problem.space, pose.theta
     converged, why = _stop(settings, runs, ctx.report)
     ctx.report.update({"converged": converged, "stop_reason": why})
-    reports = [rep for r in runs for rep in r.reports] + [ctx.report] + ctx.extra.get("reports", [])
+    reports = [rep for r in runs for rep in r.reports] + [ctx.report]
     trace = [t for r in runs for t in r.trace] + ctx.extra.get("trace", [])
     K, distance = np.asarray(ctx.K, float), ctx.distance
     return CalibrationResult(

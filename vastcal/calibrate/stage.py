@@ -1,4 +1,4 @@
-"""The :class:`Stage` interface: a step that moves a pose after a search (roll scans, polish, photometric yaw, …).
+"""The :class:`Stage` interface: a step that moves a pose after a search (roll scans, polish, …).
 
 A stage is told the :class:`StageContext` (the problem, the level it works at, the judge, the progress clock) and
 the current :class:`Pose`; when it :meth:`~Stage.applies`, it returns the new pose and a report (stored with the

@@ -16,7 +16,7 @@ import numpy as np
 from vastcal.calibrate.objective import Objective
 from vastcal.calibrate.objective_coherence import CoherenceObjective
 from vastcal.calibrate.region import Region
-from vastcal.calibrate.roll_scan import basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan
+from vastcal.calibrate.roll_scan import ScanRule, basin_half_widths_deg, plan_grid, roll_motion_px_per_deg, roll_scan
 from vastcal.calibrate.stage import Pose, StageContext
 
 #: The next level's evaluation budget, as a multiple of its own, after the roll scan has moved views to other basins
@@ -87,10 +87,7 @@ class RollScan:
             space,
             x,
             f,
-            half_width_deg=widths,
-            gauge=gauge,
-            reach_deg=reach,
-            share=roll_share(level.data, space.theta0.size - 3),
+            ScanRule(widths, gauge, reach, roll_share(level.data, space.theta0.size - 3)),
             on_round=round_started,
             on_batch=progressed,
         )
