@@ -18,9 +18,9 @@ _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's 
 FAST = _helpers.FAST
 write_session = _helpers.write_session
 
-from vastcal.calibrate import ColourModel, calibrate_session
-from vastcal.errors import ColourModelError, SessionIncompleteError, UserInputError
-from vastcal.session import Session, read_attrs
+from vastcal.calibrate import ColourModel, calibrate_session  # noqa: E402
+from vastcal.errors import ColourModelError, SessionIncompleteError, UserInputError  # noqa: E402
+from vastcal.session import Session, read_attrs  # noqa: E402
 
 
 def _digest(p: Path) -> str:
@@ -191,7 +191,8 @@ def test_run_takes_a_mask_for_every_start_and_refuses_it_with_imported_cameras(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     """`vastcal run --mask VIEW:FILE` (a turntable scene: the user marks it as background) reaches the calibration's
-    colour model, as `vastcal calibrate --mask` does; with `--cameras imported` nothing is calibrated: one line, exit 2."""
+    colour model, as `vastcal calibrate --mask` does; with `--cameras imported` nothing is calibrated: one line, exit
+    2."""
     import cv2
 
     import vastcal.calibrate as cal

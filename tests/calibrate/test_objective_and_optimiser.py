@@ -16,12 +16,12 @@ _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
 FAST = _helpers.FAST
 
-from vastcal.calibrate import calibrate_views, fit_automatic
-from vastcal.calibrate.objective_pi import PIObjective
-from vastcal.calibrate.objective_vr import VRObjective
-from vastcal.calibrate.region import specimen_region
-from vastcal.calibrate.sampling import Projector
-from vastcal.config import CalibrationBounds
+from vastcal.calibrate import calibrate_views, fit_automatic  # noqa: E402
+from vastcal.calibrate.objective_pi import PIObjective  # noqa: E402
+from vastcal.calibrate.objective_vr import VRObjective  # noqa: E402
+from vastcal.calibrate.region import specimen_region  # noqa: E402
+from vastcal.calibrate.sampling import Projector  # noqa: E402
+from vastcal.config import CalibrationBounds  # noqa: E402
 
 
 def _objectives(views: np.ndarray, truth: np.ndarray):
@@ -252,7 +252,8 @@ def test_cma_is_imported_without_its_plotting_and_surrogate_imports_which_stay_i
         "assert 'matplotlib' not in sys.modules and 'scipy.stats' not in sys.modules, sorted(sys.modules); "
         "r = minimise(lambda X: np.sum(np.asarray(X) ** 2, axis=1), np.full(3, 0.5), 0.3, np.ones(3), seed=1, "
         "options=SearchOptions(400, 1e-6, 1e-12)); assert r.f_best < 1e-3, r.f_best; "
-        "import scipy.stats, matplotlib.pyplot; assert scipy.stats.kendalltau([1, 2, 3], [1, 2, 3])[0] == 1.0; print('ok')"
+        "import scipy.stats, matplotlib.pyplot; "
+        "assert scipy.stats.kendalltau([1, 2, 3], [1, 2, 3])[0] == 1.0; print('ok')"
     )
     out = subprocess.run([sys.executable, "-W", "error", "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

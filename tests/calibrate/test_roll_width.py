@@ -18,7 +18,8 @@ FAST = _helpers.FAST
 
 
 def test_sigma_of_a_quadratic_data_cost_is_the_posterior_of_prior_and_data() -> None:
-    """D = Σ a_i (ω_i − ω*_i)²: over ±σ_p it rises by a_i σ_p², the prior w/(N − 1) · 1, so σ_i = σ_p / √(1 + a_i σ_p² (N − 1) / w);
+    """D = Σ a_i (ω_i − ω*_i)²: over ±σ_p it rises by a_i σ_p², the prior w/(N − 1) · 1, so σ_i = σ_p / √(1 + a_i σ_p²
+    (N − 1) / w);
     a roll the data do not see (a_i = 0) keeps σ_p, and a fixed one is neither measured nor counted."""
     n, w, sp = 6, 0.05, 1.0
     a = np.array([0.0, 0.0, 0.2, 0.01, 0.0, 5.0])  # view 0 is the gauge

@@ -15,14 +15,14 @@ _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
 FAST = _helpers.FAST
 
-from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.parameters import ParameterSpace, parse_views
-from vastcal.calibrate.stage_polish import polish_rolls
-from vastcal.config import CalibrationBounds
-from vastcal.errors import ImportDataError, UserInputError
-from vastcal.geometry import CircularMotion, decompose_circular, project
-from vastcal.importer import camera_length_unit, read_cameras
-from vastcal.session import Session, read_attrs
+from vastcal.calibrate import calibrate_session  # noqa: E402
+from vastcal.calibrate.parameters import ParameterSpace, parse_views  # noqa: E402
+from vastcal.calibrate.stage_polish import polish_rolls  # noqa: E402
+from vastcal.config import CalibrationBounds  # noqa: E402
+from vastcal.errors import ImportDataError, UserInputError  # noqa: E402
+from vastcal.geometry import CircularMotion, decompose_circular, project  # noqa: E402
+from vastcal.importer import camera_length_unit, read_cameras  # noqa: E402
+from vastcal.session import Session, read_attrs  # noqa: E402
 
 
 def test_parse_views_and_fixed_views() -> None:

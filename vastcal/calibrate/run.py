@@ -34,6 +34,7 @@ from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb
 from vastcal.config import CalibrationSettings, check_setting
 from vastcal.errors import AnalysisError, UserInputError
 from vastcal.geometry import projection_matrices
+from vastcal.uncertainty import drift_rms_deg
 
 log = logging.getLogger(__name__)
 
@@ -125,8 +126,6 @@ class CalibrationResult:
 
     def summary(self) -> str:
         """A few human lines."""
-        from vastcal.uncertainty import drift_rms_deg  # lazy: vastcal.uncertainty reads calibration runs
-
         d = self.delta_angle_deg
         where = f" → {self.session_path}:{self.run_name}" if self.run_name else ""
         return (

@@ -24,6 +24,7 @@ from vastcal.calibrate.view_budget import SessionFrames
 from vastcal.config import RENAMED_KEYS, CalibrationSettings, RoiConfig, check_setting
 from vastcal.errors import ConfigError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import circular_fit_shortfall, decompose_circular, intrinsics_from_optics
+from vastcal.rig_health import load_rig_prior
 from vastcal.session import Session, software_versions, write_attrs
 
 log = logging.getLogger(__name__)
@@ -230,8 +231,6 @@ def apply_rig_prior(theta0: np.ndarray, results_dir: str | Path, notes: dict[str
     Raises:
         ConfigError: ``calibration.prior_from`` names no usable results folder (one line).
     """
-    from vastcal.rig_health import load_rig_prior
-
     prior = load_rig_prior(results_dir)
     out = np.asarray(theta0, float).copy()
     shift = prior.roll_shift_deg(out[3:])
