@@ -4,7 +4,8 @@ The true cameras are imported (pixel corners at integers: ``pixel_origin=0.5``, 
 decomposed (circular motion); the commanded angles of 10 views
 are offset by +10°; only the rolls are free, bounds ±15°. Prints mean and max absolute angle error
 (paper: 0.31° mean, 0.71° max), and the same with the median offset removed (see
-benchmarks/david_ground_truth_check.py). Usage: python benchmarks/calibrate_david.py [seed] [coherence|pi|vr] [offset-scan step, deg]
+benchmarks/david_ground_truth_check.py). Usage: python benchmarks/calibrate_david.py [seed] [coherence|pi|vr]
+[offset-scan step, deg]
 """
 
 from __future__ import annotations
@@ -61,7 +62,8 @@ def main() -> None:
     # also print the error with the median offset removed, over all views and over views 2-17.
     d = err - np.median(err)
     print(
-        f"median offset {np.median(err):+.3f}° removed: mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°; "
+        f"median offset {np.median(err):+.3f}° removed: mean |e| {np.mean(np.abs(d)):.3f}°, max "
+        f"{np.max(np.abs(d)):.3f}°; "
         f"views 2-17: mean |e| {np.mean(np.abs(d[2:])):.3f}°, max {np.max(np.abs(d[2:])):.3f}°"
     )
 

@@ -48,7 +48,8 @@ def main() -> None:
         base = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
         print(f"ETH David, +10° on 10 views; equal budget: {S} starts vs one run with {S}× each level's evaluations")
         print(
-            f"{'variant':12s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'evals':>6s} {'time s':>7s}"
+            f"{'variant':12s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'evals':>6s} "
+            f"{'time s':>7s}"
         )
         for seed in [int(x) for x in a.seeds.split(",")]:
             for v in a.variants.split(","):
@@ -78,7 +79,8 @@ def main() -> None:
                 mean, mx = _angle_errors(r.theta_deg, true_rolls)
                 name = f"starts {S}" if v == "starts" else v
                 print(
-                    f"{name:12s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.n_evaluations:6d} {wall:7.1f}",
+                    f"{name:12s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} "
+                    f"{r.n_evaluations:6d} {wall:7.1f}",
                     flush=True,
                 )
 

@@ -19,13 +19,15 @@ as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel samp
   cost's minimum stays within 0.1° mean unless that minimum is not at the truth (compare the cost columns).
 * ``--fixed-unperturbed``: the paper's protocol — the views that are not offset keep their (true) commanded rolls
   (``fixed_views``), only the offset views' rolls are free; their error against the truth is absolute (the fixed views
-  pin the common roll), over the free views only. With ``--start-at-truth`` the same views are free, started at the truth.
+  pin the common roll), over the free views only. With ``--start-at-truth`` the same views are free, started at the
+  truth.
 
 For the ground-truth sets each run also scores the truth on its own final cost (the judge: the finest
 level's batch-independent cost), printed beside the final cost. Usage (CPU-heavy: a David run takes ~1 min of
 CPU per start, dinoRing several):
 
-    python benchmarks/compare_methods.py [--data zf,david,dino] [--methods coherence,pi,vr] [--seeds 0] [--starts 1] [--start-at-truth]
+    python benchmarks/compare_methods.py [--data zf,david,dino] [--methods coherence,pi,vr] [--seeds 0] [--starts 1]
+    [--start-at-truth]
                                          [--threshold-masks] [--mask-view V] [--fixed-unperturbed]
 """
 
@@ -93,7 +95,8 @@ def threshold_mask_images(src: Path, out: Path, pattern: str, keep: str) -> Path
 
 
 def threshold_mask(image: Path) -> np.ndarray:
-    """The silhouette (H, W) uint8 0/1 of one image of a ground-truth set by its own rule (:func:`threshold_mask_images`)."""
+    """The silhouette (H, W) uint8 0/1 of one image of a ground-truth set by its own rule
+    (:func:`threshold_mask_images`)."""
     import cv2
 
     im = cv2.imread(str(image))
@@ -234,10 +237,12 @@ def run_truth_set(
     masks += f", colour model from view {mask_view}'s threshold mask" if mask is not None else ""
     protocol = f", views {offset} free, the others fixed (errors over the free views, absolute)" if fixed else ""
     print(
-        f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)"
+        f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean "
+        f"{start_mean:.3f}°, max {start_max:.3f}° (gauge-free)"
     )
     print(
-        f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+        f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} "
+        f"{'conv':>5s} {'evals':>6s} {'time s':>7s} "
         f"{'volume':>9s} {'area':>9s}"
     )
     for method in methods:
@@ -270,13 +275,15 @@ def run_truth_set(
                 mean, mx = _angle_errors(r.theta_deg, true_rolls)
             vol, area = _measure(s, r)
             print(
-                f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
+                f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} "
+                f"{r.theta0_cost:9.5g} "
                 f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}",
                 flush=True,
             )
             worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
             print(
-                f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}"
+                f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they "
+                f"started: {worse.tolist()}"
             )
             if at_truth:
                 _print_view_minima(
@@ -297,7 +304,8 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
     )
     print("\n== ZF1 (no truth): all of θ free as in config/guo2019-zebrafish.yaml")
     print(
-        f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+        f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} "
+        f"{'evals':>6s} {'time s':>7s} "
         f"{'mm³':>9s} {'mm²':>9s}"
     )
     for method in methods:
@@ -312,7 +320,8 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
             rolls.append(th[3:])
             vol, area = _measure(s, r)
             print(
-                f"{method:10s} {seed:4d} {th[0]:+8.4f} {th[1]:+8.4f} {th[2]:+8.4f} {r.final_cost:9.5g} {r.theta0_cost:9.5g} "
+                f"{method:10s} {seed:4d} {th[0]:+8.4f} {th[1]:+8.4f} {th[2]:+8.4f} {r.final_cost:9.5g} "
+                f"{r.theta0_cost:9.5g} "
                 f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}",
                 flush=True,
             )
@@ -320,7 +329,8 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
             R = np.array(rolls)
             spread = np.sqrt(np.mean((R - R.mean(axis=0)) ** 2, axis=0))
             print(
-                f"{method:10s} roll spread over {len(rolls)} seeds: RMS per view {np.sqrt(np.mean(spread**2)):.3f}°, max {spread.max():.3f}°"
+                f"{method:10s} roll spread over {len(rolls)} seeds: RMS per view "
+                f"{np.sqrt(np.mean(spread**2)):.3f}°, max {spread.max():.3f}°"
             )
 
 

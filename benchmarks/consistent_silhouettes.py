@@ -44,7 +44,8 @@ from vastcal.config import (  # noqa: E402
 from vastcal.importer import read_cameras  # noqa: E402
 from vastcal.session import Session  # noqa: E402
 
-SETS = {  # name: (folder, camera file or folder, views, pixel origin of the cameras, length unit, image glob, camera glob)
+# name: (folder, camera file or folder, views, pixel origin of the cameras, length unit, image glob, camera glob)
+SETS = {
     "david": ("eth_david", ".", 18, 0.5, None, "david_*.jpg", "david_*.pa"),
     "dino": ("middlebury_dinoRing", "dinoR_par.txt", 48, 0.0, "m", "dinoR0*.png", "dinoR_*.txt"),
 }
@@ -179,7 +180,8 @@ def calibrate_consistent(
         )
         mean, mx = cm._angle_errors(r.theta_deg, true_rolls)
         print(
-            f"{name:6s} consistent, calibrated from views {cm.OFFSET_VIEWS[name]} +10°, seed {seed}: gauge-free {mean:.3f}/{mx:.3f}°, "
+            f"{name:6s} consistent, calibrated from views {cm.OFFSET_VIEWS[name]} +10°, seed {seed}: gauge-free "
+            f"{mean:.3f}/{mx:.3f}°, "
             f"cost {r.final_cost:.5f} (truth {r.scored_costs[0]:.5f})  ({time.perf_counter() - t:.0f} s)",
             flush=True,
         )
@@ -209,7 +211,8 @@ def main() -> None:
     )
     a = ap.parse_args()
     print(
-        f"{'set':6s} {'images':28s} {'cost at truth':>13s} {'mean |min|°':>11s} {'max':>6s} {'at ±0.4°':>8s} {'harmonic°':>9s}  per-view minima (°)"
+        f"{'set':6s} {'images':28s} {'cost at truth':>13s} {'mean |min|°':>11s} {'max':>6s} {'at ±0.4°':>8s} "
+        f"{'harmonic°':>9s}  per-view minima (°)"
     )
     for name in a.data.split(","):
         folder, cams, n, origin, unit, pattern, keep = SETS[name]
@@ -237,7 +240,8 @@ def main() -> None:
                 kind_s = kind if kind == "masks" else f"{kind} (ellipsoids × {scale:.2f})"
                 print(
                     f"{name:6s} {kind_s:28s} {cost:13.5f} {m.mean():11.3f} {m.max():6.2f} {int(np.sum(m >= 0.399)):8d} "
-                    f"{first_harmonic(true_rolls[1:], mins):9.3f}  {np.round(mins, 2).tolist()}  ({time.perf_counter() - t:.0f} s)",
+                    f"{first_harmonic(true_rolls[1:], mins):9.3f}  {np.round(mins, 2).tolist()}  "
+                    f"({time.perf_counter() - t:.0f} s)",
                     flush=True,
                 )
             if a.calibrate:

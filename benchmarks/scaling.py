@@ -296,7 +296,8 @@ def main() -> None:
         for views, full in cases or [(21, False)]:
             _run_step("acquire", views, full, a.seed, a.workdir)
             print(
-                f"{views} views, {'full frame' if full else 'ROI'}: specimen maps hold {map_bytes_per_pixel(_session(a.workdir, views, full, a.seed)[0]):.1f} "
+                f"{views} views, {'full frame' if full else 'ROI'}: specimen maps hold "
+                f"{map_bytes_per_pixel(_session(a.workdir, views, full, a.seed)[0]):.1f} "
                 "bytes per frame pixel at their peak (21 views)"
             )
         return
@@ -307,7 +308,8 @@ def main() -> None:
         flush=True,
     )
     hdr = (
-        f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} "
+        f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} "
+        f"{'yaw err':>8} "
         f"{'pitch err':>9} {'roll rms':>8} | {'rec s':>6} {'rec cpu':>7} {'rec MB':>6} {'vol %':>6}"
     )
     rows = []
@@ -320,8 +322,10 @@ def main() -> None:
                 w = _run_step("calibrate_whole_frames", views, full, a.seed, a.workdir)
                 d = np.abs(np.subtract(r["theta"], w["theta"]))
                 print(
-                    f"{views} views ({'full' if full else 'ROI'}): window vs whole-frame maps: yaw err {r['yaw_err']:+.4f} / {w['yaw_err']:+.4f}°, "
-                    f"pitch err {r['pitch_err']:+.4f} / {w['pitch_err']:+.4f}°, roll RMS err {r['roll_rms']:.4f} / {w['roll_rms']:.4f}°, "
+                    f"{views} views ({'full' if full else 'ROI'}): window vs whole-frame maps: yaw err "
+                    f"{r['yaw_err']:+.4f} / {w['yaw_err']:+.4f}°, "
+                    f"pitch err {r['pitch_err']:+.4f} / {w['pitch_err']:+.4f}°, roll RMS err {r['roll_rms']:.4f} / "
+                    f"{w['roll_rms']:.4f}°, "
                     f"max |Δθ| {d.max():.4f}° (axis {d[:3].max():.4f}°), {r['evals']} / {w['evals']} evaluations, "
                     f"{r['cal_cpu_s']:.1f} / {w['cal_cpu_s']:.1f} CPU s, {r['cal_mb']:.0f} / {w['cal_mb']:.0f} MB",
                     flush=True,
@@ -334,7 +338,8 @@ def main() -> None:
     for r in rows:
         frame = "1024x1024" if r["full"] else "1024x320"
         cal = (
-            f"{r['cal_s']:7.1f} {r['cal_cpu_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} {r['yaw_err']:+8.3f} "
+            f"{r['cal_s']:7.1f} {r['cal_cpu_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} "
+            f"{r['yaw_err']:+8.3f} "
             f"{r['pitch_err']:+9.3f} {r['roll_rms']:8.3f}"
             if "cal_s" in r
             else " ".join(f"{'-':>{k}}" for k in (7, 7, 5, 7, 6, 8, 9, 8))
@@ -378,7 +383,8 @@ def main() -> None:
         frame = "full frame" if r["full"] else "ROI"
         if "cal_s" in r:
             print(
-                f"360 views ({frame}): calibration {r['cal_s']:.0f} s wall (<= 300), {r['cal_mb']:.0f} MB peak (<= 2048)"
+                f"360 views ({frame}): calibration {r['cal_s']:.0f} s wall (<= 300), {r['cal_mb']:.0f} MB peak (<= "
+                "2048)"
             )
         if "rec_s" in r:
             print(f"360 views ({frame}): reconstruction {r['rec_s']:.0f} s wall, {r['rec_mb']:.0f} MB peak (<= 2048)")
@@ -389,8 +395,10 @@ def main() -> None:
                     by_n[21]["pitch_err"]
                 )
                 print(
-                    f"|yaw|, |pitch| error at {v} views: {abs(by_n[v]['yaw_err']):.3f}°, {abs(by_n[v]['pitch_err']):.3f}° against "
-                    f"{abs(by_n[21]['yaw_err']):.3f}°, {abs(by_n[21]['pitch_err']):.3f}° at 21 ({'not larger' if ok else 'LARGER'})"
+                    f"|yaw|, |pitch| error at {v} views: {abs(by_n[v]['yaw_err']):.3f}°, "
+                    f"{abs(by_n[v]['pitch_err']):.3f}° against "
+                    f"{abs(by_n[21]['yaw_err']):.3f}°, {abs(by_n[21]['pitch_err']):.3f}° at 21 "
+                    f"({'not larger' if ok else 'LARGER'})"
                 )
     print(f"uptime at end: {_uptime()}")
 

@@ -19,7 +19,8 @@ true rolls, the calibration left them by 0.3° mean, 1.3° max, to a cost 7 % lo
 top where the feet stand, dark grey (albedo 0.22) with paler blotches (up to +0.2) fixed to it, so that they turn
 with the figure — between the background's brightness and the figure's, partly taken for the specimen by the
 automatic colour model, as the real turntable is. The truth is still the cameras; the cost at the truth rises
-twelvefold (0.0245 → 0.29 with the edge rule of docs/silhouette-edges.md): what a turntable in the silhouettes does to the calibration.
+twelvefold (0.0245 → 0.29 with the edge rule of docs/silhouette-edges.md): what a turntable in the silhouettes does to
+the calibration.
 ``--mask`` gives the calibration view 0's figure mask (the pixels that see the figure first), as a user's ``vastcal
 calibrate --mask 0:FILE`` marks the turntable as background (:mod:`vastcal.calibrate.marks`).
 
@@ -32,7 +33,8 @@ voxels, the process's peak resident memory (``ru_maxrss``) before and after the 
 duration (the names ``vastcal calibrate`` shows), the judge cost of the result against that of the true rolls (one
 extra judge evaluation: a result costlier than the truth is the search's miss, not the cost's), and the rolls'
 errors against the truth (mean / max; "gauge-free" with the median offset removed).
-``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on chords
+``--chords`` sets the coherence cost's search along the rays' chords: ``bounded`` (as shipped: branch and bound on
+chords
 of ``CHORD_BOUND_MIN_SAMPLES`` or more), ``dense`` (every sample of every chord, as before) or ``verify`` (bounded, each
 full search checked against the dense pass: rays whose maximum differs, samples read; slower). Each prints its full
 searches per chord length and their mean time.
@@ -41,7 +43,8 @@ cProfile sees only the main thread, so ``--profile`` sets ``VASTCAL_THREADS=1`` 
 thread) unless it is set; profiling also slows the run: take the wall time from a run without it.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/turntable_speed.py [--seed N] [--views 36] [--width 720 --height 576]
-        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable [--mask]] [--chords bounded|dense|verify] [--profile]
+        [--offset-scan DEG] [--scene-seed N] [--ambient A] [--turntable [--mask]] [--chords bounded|dense|verify]
+        [--profile]
 """
 
 from __future__ import annotations
@@ -172,7 +175,8 @@ def disc_texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def cast(
     rays: np.ndarray, eye: np.ndarray, light: np.ndarray, body: list[Ellipsoid], ambient: float, disc: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest intersection,
+    """(hit, radiance 0..1, figure hit) of world rays (M, 3) from ``eye`` on the union of ``body``: the nearest
+    intersection,
     Lambert-shaded from the direction ``light`` (unit, towards the lamp) plus the ``ambient`` share of the light,
     with a texture fixed to the object. ``disc``: the rays also meet the turntable (:data:`DISC_RADIUS` …), textured by
     :func:`disc_texture`."""
@@ -503,7 +507,8 @@ def main() -> None:
     d = err - np.median(err)
     print(
         f"coherence seed {a.seed}{' (under cProfile)' if profiler is not None else ''}: calibration {wall:.2f} s wall, "
-        f"{r.n_evaluations} evaluations, {1000 * wall / max(r.n_evaluations, 1):.2f} ms per evaluation, {r.n_voxels} voxels; "
+        f"{r.n_evaluations} evaluations, {1000 * wall / max(r.n_evaluations, 1):.2f} ms per evaluation, "
+        f"{r.n_voxels} voxels; "
         f"{compute_threads()} evaluation thread(s), load average {os.getloadavg()[0]:.2f}"
     )
     print(
@@ -512,29 +517,35 @@ def main() -> None:
     )
     if bar.records:
         print(
-            f"phases (before the first: {bar.records[0].t0 - mono0:.2f} s of set-up; after the last: {mono1 - bar.records[-1].t1:.2f} s):"
+            f"phases (before the first: {bar.records[0].t0 - mono0:.2f} s of set-up; after the last: "
+            f"{mono1 - bar.records[-1].t1:.2f} s):"
         )
     for p in bar.records:
         print(f"  {p.name:<48} {p.t1 - p.t0:6.2f} s")
     print(
-        f"judge cost: result {r.final_cost:.5f}, true rolls {r.scored_costs[0]:.5f}, commanded angles {r.theta0_cost:.5f}"
+        f"judge cost: result {r.final_cost:.5f}, true rolls {r.scored_costs[0]:.5f}, commanded angles "
+        f"{r.theta0_cost:.5f}"
     )
     print(
         f"angle error (views 1-{n - 1}): mean |e| {np.mean(np.abs(err[1:])):.3f}°, max {np.max(np.abs(err[1:])):.3f}° "
         f"(start: mean {np.mean(np.abs(commanded - true_rolls)[1:]):.2f}°)"
     )
     print(
-        f"gauge-free (median offset {np.median(err):+.3f}° removed): mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°"
+        f"gauge-free (median offset {np.median(err):+.3f}° removed): mean |e| {np.mean(np.abs(d)):.3f}°, max "
+        f"{np.max(np.abs(d)):.3f}°"
     )
     print("per view:", np.round(err, 2).tolist())
     for samples, times in sorted(chords.calls.items()):
         print(
-            f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, {1000 * np.mean(times):.1f} ms each"
+            f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, "
+            f"{1000 * np.mean(times):.1f} ms each"
         )
     if a.chords == "verify":
         print(
-            f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of {chords.rays} rays "
-            f"with another maximum, {chords.values_differ} samples read with another value; {chords.read / max(chords.total, 1):.1%} "
+            f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of "
+            f"{chords.rays} rays "
+            f"with another maximum, {chords.values_differ} samples read with another value; "
+            f"{chords.read / max(chords.total, 1):.1%} "
             "of their samples read"
         )
     if profiler is not None:
