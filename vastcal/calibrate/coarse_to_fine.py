@@ -3,10 +3,10 @@
 Each level (:class:`vastcal.config.Level`) resizes the specimen maps to its width, fills the region where the
 specimen can be with about ``voxels`` voxels, and builds the method's objective there (:meth:`.problem.Problem.level`,
 the objective factory); :func:`search_level` runs CMA-ES on it from the previous level's best θ with a smaller step;
-then the :data:`LEVEL_STAGES` that apply move the result. By default the first level (¼ width) moves only the axis
-(yaw, pitch, γ) with the rolls at their commanded angles, and the last moves everything on sharper maps. Measured on
-ZF1 (3 seeds): letting the first level's wide search move the rolls too left them 2° RMS apart between seeds and at a
-*higher* final cost than the commanded angles have; axis first, with the weak prior, 0.28° apart.
+then the level stages that apply (:data:`.run.LEVEL_STAGES`) move it. By default the first level (¼ width) moves only
+the axis (yaw, pitch, γ) with the rolls at their commanded angles, and the last moves everything on sharper maps.
+Measured on ZF1 (3 seeds): letting the first level's wide search move the rolls too left them 2° RMS apart between
+seeds and at a *higher* final cost than the commanded angles have; axis first, with the weak prior, 0.28° apart.
 
 Conditioning: in box units one step of γ moves the specimen's image ~50 px, one of a roll ~0.4 px (RMS over the
 views). The last level therefore starts with per-coordinate steps inversely proportional to each coordinate's image
@@ -28,14 +28,9 @@ from vastcal.calibrate.observer import LevelObserver, ProgressClock
 from vastcal.calibrate.optimise import CMAResult, SearchOptions, minimise, preload
 from vastcal.calibrate.problem import Problem
 from vastcal.calibrate.stage import LevelRun, Pose, Stage, StageContext
-from vastcal.calibrate.stage_offset_scan import CommonRollOffsetScan
-from vastcal.calibrate.stage_roll_scan import RollScan
 from vastcal.config import Level
 
 log = logging.getLogger(__name__)
-
-LEVEL_STAGES: tuple[Stage, ...] = (CommonRollOffsetScan(), RollScan())
-"""The stages after every level's search, in order (each decides whether it applies to the level)."""
 
 
 @dataclass
@@ -131,8 +126,8 @@ def coarse_to_fine(
     seed: int,
     clock: ProgressClock,
     evals_before: int,
+    stages: Sequence[Stage],
     level_factory: Callable[[Problem, int, np.ndarray, str], LevelRun] = make_level,
-    stages: Sequence[Stage] = LEVEL_STAGES,
 ) -> Start:
     """One start from θ0 with ``seed``: every level's objective from ``level_factory``, searched by
     :func:`search_level` (seed + level), then moved by the ``stages`` that apply."""

@@ -1,9 +1,9 @@
 """Calibration of a whole revolution: from images and a camera model to calibrated θ (:func:`calibrate_views`).
 
 The images enter once (colour model, specimen maps: :class:`.problem.Problem`); every start is a coarse-to-fine
-search (:func:`.coarse_to_fine.coarse_to_fine`, with the stages after each level); the judge — the finest level's
-batch-independent cost plus the prior — picks the best start and the :data:`FINAL_STAGES` move it. Angles in degrees,
-pixels 0-based in the stored frames, world units of the distance (µm on a rig; axis = x).
+search (:func:`.coarse_to_fine.coarse_to_fine`) with the :data:`LEVEL_STAGES` after each level; the judge — the
+finest level's batch-independent cost plus the prior — picks the best start and the :data:`FINAL_STAGES` move it.
+Angles in degrees, pixels 0-based in the stored frames, world units of the distance (µm on a rig; axis = x).
 """
 
 from __future__ import annotations
@@ -26,9 +26,11 @@ from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.problem import Problem, colour_model_for
 from vastcal.calibrate.roll_width import RollWidths
 from vastcal.calibrate.stage import LevelRun, Pose, Stage, StageContext
+from vastcal.calibrate.stage_offset_scan import CommonRollOffsetScan
 from vastcal.calibrate.stage_outlier_scan import OutlierScan
 from vastcal.calibrate.stage_polish import Polish
 from vastcal.calibrate.stage_references import KeepReferences
+from vastcal.calibrate.stage_roll_scan import RollScan
 from vastcal.calibrate.stage_roll_widths import RollWidths as RollWidthsStage
 from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb
 from vastcal.config import CalibrationSettings, check_setting
@@ -38,6 +40,8 @@ from vastcal.uncertainty import drift_rms_deg
 
 log = logging.getLogger(__name__)
 
+LEVEL_STAGES: tuple[Stage, ...] = (CommonRollOffsetScan(), RollScan())
+"""The stages after every level's search, in order (each decides whether it applies to the level)."""
 FINAL_STAGES: tuple[Stage, ...] = (OutlierScan(), Polish(), KeepReferences(), RollWidthsStage())
 """The stages after the starts, in order, from the best start as the judge rates it."""
 
@@ -266,7 +270,8 @@ def calibrate_views(
     clock = ProgressClock(progress, settings.starts * sum(lv.max_evaluations for lv in settings.levels))
     runs: list[Start] = []
     for s in range(settings.starts):
-        runs.append(coarse_to_fine(problem, settings.seed + 10 * s, clock, sum(r.evaluations for r in runs)))
+        before = sum(r.evaluations for r in runs)
+        runs.append(coarse_to_fine(problem, settings.seed + 10 * s, clock, before, LEVEL_STAGES))
     t_judge = time.monotonic()
     ctx, pose = _judge_starts(problem, clock, runs, refs)
     ctx.images, ctx.K, ctx.distance, ctx.model = images, np.asarray(K, float), float(distance), model

@@ -2,8 +2,8 @@
 
 A stage is told the :class:`StageContext` (the problem, the level it works at, the judge, the progress clock) and
 the current :class:`Pose`; when it :meth:`~Stage.applies`, it returns the new pose and a report (stored with the
-run under the stage's ``name``). The stages run after every level are listed in :data:`.coarse_to_fine.LEVEL_STAGES`,
-those after the starts in :data:`.run.FINAL_STAGES`.
+run under the stage's ``name``). The stages run after every level and after the starts are listed in one place:
+:data:`.run.LEVEL_STAGES` and :data:`.run.FINAL_STAGES`.
 """
 
 from __future__ import annotations
