@@ -197,11 +197,10 @@ def _step(
 
 def map_bytes_per_pixel(session: Path, views: int = 21) -> float:
     """Peak bytes (tracemalloc: NumPy's and OpenCV's arrays) per frame pixel of one ``specimen_maps`` call on the
-    first ``views`` frames of a session, frames included: what view_budget.SPECIMEN_MAP_BYTES_PER_PIXEL states."""
+    first ``views`` frames of a session, frames included: what probability_maps.SPECIMEN_MAP_BYTES_PER_PIXEL states."""
     import tracemalloc
 
-    from vastcal.calibrate.colour_model import fit_automatic
-    from vastcal.calibrate.silhouettes import specimen_maps
+    from vastcal.segmentation import fit_automatic, specimen_maps
     from vastcal.session import Session
 
     with Session.open(session, "r") as s:

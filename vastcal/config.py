@@ -320,7 +320,7 @@ class ReconstructionConfig:
     target_voxels: int = field(default=5_000_000, metadata=_range(1000, 500_000_000))
     memory_mb: float = field(default=1536.0, metadata=_range(256.0, 1e7))
     """Memory budget of a reconstruction, MB: the specimen maps are made for as many views at once as half of it
-    holds (interleaved sub-revolutions, :func:`vastcal.calibrate.view_budget.grouped_specimen_maps`)."""
+    holds (interleaved sub-revolutions, :func:`vastcal.segmentation.grouped_specimen_maps`)."""
 
 
 @dataclass(frozen=True)

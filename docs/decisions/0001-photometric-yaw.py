@@ -2,7 +2,7 @@
 
 Runs at the commit before the search was removed. Prints one JSON line per (session, on/off).
 
-    python docs/decisions/0001-photometric-yaw.py OUTDIR [all|sim|zf] [ZF1.h5 ZF2.h5]
+    PYTHONPATH=. python docs/decisions/0001-photometric-yaw.py OUTDIR [all|sim|zf] [ZF1.h5 ZF2.h5]
 """
 
 import dataclasses
@@ -49,7 +49,7 @@ def main() -> None:
             src = out / f"larva{k}.h5"
             one(out, f"larva{k}", src, acquire_simulated(battery_config(k), src, force=True))
     if which in ("all", "zf"):
-        zf = sys.argv[3:] or ["/work/baseline/before/zf1.h5", "/work/baseline/before/zf2.h5"]
+        zf = sys.argv[3:]  # sessions imported with config/guo2019-zebrafish.yaml and the authors' PI cameras
         for k, path in enumerate(zf):
             one(out, f"zf{k + 1}", Path(path), None)
 

@@ -12,10 +12,10 @@ progress display's side (:mod:`.observer`). The default method is ``coherence`` 
 paper's objective as published, ``vr`` the voxel-residual baseline.
 """
 
-from vastcal.calibrate.colour_model import ColourModel, Gaussian, fit_automatic, fit_from_mask, fit_from_scribbles
 from vastcal.calibrate.run import CalibrationResult, Marks, References, calibrate_views
 from vastcal.calibrate.session_run import calibrate_session, load_colour_model
 from vastcal.config import CalibrationSettings, Level
+from vastcal.segmentation import ColourModel, Gaussian, fit_automatic, fit_from_mask, fit_from_scribbles
 
 __all__ = [
     "CalibrationResult",

@@ -12,20 +12,19 @@ import logging
 import cv2
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, fit_automatic, mask_labels
-from vastcal.calibrate.marks import fit_from_marks
 from vastcal.calibrate.methods import objective_factory
 from vastcal.calibrate.objective import LevelMaps, Objective, Prior, WithPrior
 from vastcal.calibrate.parameters import ParameterSpace
 from vastcal.calibrate.region import Region, specimen_region
 from vastcal.calibrate.sampling import resize_stack
-from vastcal.calibrate.view_budget import specimen_maps_within
 from vastcal.config import CalibrationSettings
 from vastcal.errors import EmptyHullError, UserInputError
+from vastcal.segmentation import ColourModel, fit_automatic, fit_from_marks, mask_labels, specimen_maps_within
 
 log = logging.getLogger(__name__)
 
-#: Other views, evenly spread over the turn, in which a marked background material must hold its place (:mod:`.marks`).
+#: Other views, evenly spread over the turn, in which a marked background material must hold its place
+#: (:func:`vastcal.segmentation.fit_from_marks`).
 MARKS_OTHER_VIEWS = 6
 
 

@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 
 from vastcal.calibrate.coarse_to_fine import Start, coarse_to_fine
-from vastcal.calibrate.colour_model import ColourModel, check_images
 from vastcal.calibrate.methods import objective_factory
 from vastcal.calibrate.observer import ProgressCallback, ProgressClock
 from vastcal.calibrate.optimise import RESTARTS
@@ -32,10 +31,12 @@ from vastcal.calibrate.stage_polish import Polish
 from vastcal.calibrate.stage_references import KeepReferences
 from vastcal.calibrate.stage_roll_scan import RollScan
 from vastcal.calibrate.stage_roll_widths import RollWidths as RollWidthsStage
-from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb
+from vastcal.calibrate.view_budget import peak_resident_mb
 from vastcal.config import CalibrationSettings, check_setting
 from vastcal.errors import AnalysisError, UserInputError
 from vastcal.geometry import projection_matrices
+from vastcal.segmentation import ColourModel, check_images
+from vastcal.session_frames import SessionFrames
 from vastcal.uncertainty import drift_rms_deg
 
 log = logging.getLogger(__name__)

@@ -16,16 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel
 from vastcal.calibrate.observer import ProgressCallback
 from vastcal.calibrate.parameters import normalise_free, parse_views
 from vastcal.calibrate.run import CalibrationResult, Marks, References, calibrate_views
-from vastcal.calibrate.view_budget import SessionFrames
 from vastcal.config import RENAMED_KEYS, CalibrationSettings, RoiConfig, check_setting
 from vastcal.errors import ConfigError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import circular_fit_shortfall, decompose_circular, intrinsics_from_optics
 from vastcal.rig_health import load_rig_prior
+from vastcal.segmentation import ColourModel
 from vastcal.session import Session, software_versions, write_attrs
+from vastcal.session_frames import SessionFrames
 
 log = logging.getLogger(__name__)
 

@@ -14,10 +14,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel
 from vastcal.calibrate.objective import LevelMaps, Objective, WithPrior
 from vastcal.calibrate.observer import ProgressClock
 from vastcal.calibrate.problem import Problem
+from vastcal.segmentation import ColourModel
 
 
 @dataclass
