@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import decompose_circular
 from vastcal.importer import import_folder, read_cameras
@@ -47,9 +46,8 @@ def main() -> None:
             seed=seed,
             free=["rolls"],
             bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-            settings=CalibrationSettings(
-                roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0, roll_prior_weight=0.0
-            ),
+            roll_offset_scan_deg=float(sys.argv[3]) if len(sys.argv) > 3 else 0.0,
+            roll_prior_weight=0.0,
             judge_imported_cameras=False,
         )
         wall = time.perf_counter() - t
@@ -65,7 +63,8 @@ def main() -> None:
     # also print the error with the median offset removed, over all views and over views 2-17.
     d = err - np.median(err)
     print(
-        f"median offset {np.median(err):+.3f}° removed: mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°; "
+        f"median offset {np.median(err):+.3f}° removed: mean |e| {np.mean(np.abs(d)):.3f}°, max "
+        f"{np.max(np.abs(d)):.3f}°; "
         f"views 2-17: mean |e| {np.mean(np.abs(d[2:])):.3f}°, max {np.max(np.abs(d[2:])):.3f}°"
     )
 

@@ -24,9 +24,8 @@ import numpy as np
 from compare_methods import DATA, _angle_errors, _truth_session
 
 from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.calibrate.session_run import session_camera_model
-from vastcal.config import CalibrationBounds
+from vastcal.config import CalibrationBounds, CalibrationSettings
 from vastcal.session import Session
 
 
@@ -49,7 +48,8 @@ def main() -> None:
         base = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
         print(f"ETH David, +10° on 10 views; equal budget: {S} starts vs one run with {S}× each level's evaluations")
         print(
-            f"{'variant':12s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'evals':>6s} {'time s':>7s}"
+            f"{'variant':12s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'evals':>6s} "
+            f"{'time s':>7s}"
         )
         for seed in [int(x) for x in a.seeds.split(",")]:
             for v in a.variants.split(","):
@@ -67,7 +67,10 @@ def main() -> None:
                     seed=seed,
                     free=["rolls"],
                     bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                    settings=settings,
+                    levels=settings.levels,
+                    restarts=settings.restarts,
+                    roll_offset_scan_deg=settings.roll_offset_scan_deg,
+                    roll_prior_weight=settings.roll_prior_weight,
                     starts=starts,
                     score_thetas=[truth],
                     judge_imported_cameras=False,
@@ -76,7 +79,8 @@ def main() -> None:
                 mean, mx = _angle_errors(r.theta_deg, true_rolls)
                 name = f"starts {S}" if v == "starts" else v
                 print(
-                    f"{name:12s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.n_evaluations:6d} {wall:7.1f}",
+                    f"{name:12s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} "
+                    f"{r.n_evaluations:6d} {wall:7.1f}",
                     flush=True,
                 )
 

@@ -2,11 +2,10 @@
 flattened sideways lying up to 40 µm off the rotation axis, 21 views).
 
 Acquires a revolution from the simulated rig (seeds from ``simulation.seed``), runs the calibration (default: coherence)
-with the rig file's settings (config/simulated.yaml: the photometric yaw search is on, ~15–40 s of each
-calibration) and prints per-view roll RMS error beside the commanded angles' (both relative to view 0, views 1..N-1),
+with the rig file's settings (config/simulated.yaml) and prints per-view roll RMS error beside the commanded angles'
+(both relative to view 0, views 1..N-1),
 the views that ended more than 0.1° farther from the truth than commanded, yaw and pitch errors (degrees), the stored
-pose's cost beside the commanded angles', evaluations and wall time, and the photometric yaw's last-stage iterations
-(whether its convergence rule was met or the cap hit) and time. Prints the load average first and last (timings
+pose's cost beside the commanded angles', evaluations and wall time. Prints the load average first and last (timings
 are only comparable on a quiet machine).
 
     python benchmarks/calibrate_simulated.py [n_rigs=3] [method=coherence]
@@ -55,27 +54,25 @@ def main() -> None:
             e_cal = (cal.theta_deg[3:] - cal.theta_deg[3]) - (actual - actual[0])
             e_cmd = (cal.theta0_deg[3:] - cal.theta0_deg[3]) - (actual - actual[0])
             rms_cmd = float(np.sqrt(np.mean(e_cmd[1:] ** 2)))
-            photo = next((r for r in cal.level_reports if r.get("stage") == "photometric yaw"), None)
-            photo_text = (
-                "no photometric yaw"
-                if photo is None
-                else f"photometric yaw {photo['time_s']:.1f} s, "
-                f"{photo.get('final_iterations', '?')} iterations{'' if photo.get('converged', True) else ' (cap)'}"
-            )
             worse = np.flatnonzero(np.abs(e_cal) > np.abs(e_cmd) + 0.1).tolist()
             rows.append(
                 (s["angle_rms_error_deg"], s["yaw_error_deg"], s["pitch_error_deg"], cal.n_evaluations, wall, rms_cmd)
             )
             print(
-                f"rig seed {cfg.simulation.seed}: roll RMS error {s['angle_rms_error_deg']:.3f}° (commanded {rms_cmd:.3f}°; views > 0.1° "
-                f"farther than commanded: {worse}), yaw error {s['yaw_error_deg']:+.3f}°, pitch error {s['pitch_error_deg']:+.3f}°, "
-                f"cost {cal.final_cost:.5g} (commanded {cal.theta0_cost:.5g}), {cal.n_evaluations} evaluations, {wall:.1f} s ({photo_text})",
+                f"rig seed {cfg.simulation.seed}: roll RMS error {s['angle_rms_error_deg']:.3f}° (commanded "
+                f"{rms_cmd:.3f}°; views > 0.1° "
+                f"farther than commanded: {worse}), yaw error {s['yaw_error_deg']:+.3f}°, pitch error "
+                f"{s['pitch_error_deg']:+.3f}°, "
+                f"cost {cal.final_cost:.5g} (commanded {cal.theta0_cost:.5g}), {cal.n_evaluations} evaluations, "
+                f"{wall:.1f} s",
                 flush=True,
             )
     a = np.array(rows)
     print(
-        f"mean over {n_rigs} rigs: roll RMS error {a[:, 0].mean():.3f}° (commanded {a[:, 5].mean():.3f}°), |yaw| {np.abs(a[:, 1]).mean():.3f}° "
-        f"(max {np.abs(a[:, 1]).max():.3f}°), |pitch| {np.abs(a[:, 2]).mean():.3f}° (max {np.abs(a[:, 2]).max():.3f}°; targets <= 0.05°), "
+        f"mean over {n_rigs} rigs: roll RMS error {a[:, 0].mean():.3f}° (commanded {a[:, 5].mean():.3f}°), |yaw| "
+        f"{np.abs(a[:, 1]).mean():.3f}° "
+        f"(max {np.abs(a[:, 1]).max():.3f}°), |pitch| {np.abs(a[:, 2]).mean():.3f}° (max "
+        f"{np.abs(a[:, 2]).max():.3f}°; targets <= 0.05°), "
         f"{a[:, 4].mean():.1f} s per calibration; load average {os.getloadavg()[0]:.2f}"
     )
 

@@ -40,7 +40,6 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.run import CalibrationSettings
 from vastcal.config import CalibrationBounds, load_config
 from vastcal.geometry import decompose_circular, shift_pixels
 from vastcal.importer import import_folder, read_cameras
@@ -237,15 +236,16 @@ def run_truth_set(
     masks += f", colour model from view {mask_view}'s threshold mask" if mask is not None else ""
     protocol = f", views {offset} free, the others fixed (errors over the free views, absolute)" if fixed else ""
     print(
-        f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean {start_mean:.3f}°, max {start_max:.3f}° (gauge-free)"
+        f"\n== {name}{masks}{' started at the truth' if at_truth else ''}{protocol}: start error mean "
+        f"{start_mean:.3f}°, max {start_max:.3f}° (gauge-free)"
     )
     print(
-        f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+        f"{'method':10s} {'seed':>4s} {'mean°':>7s} {'max°':>7s} {'cost':>9s} {'truth':>9s} {'θ0':>9s} "
+        f"{'conv':>5s} {'evals':>6s} {'time s':>7s} "
         f"{'volume':>9s} {'area':>9s}"
     )
     for method in methods:
         for seed in seeds:
-            settings = CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0)
             t = time.perf_counter()
             scan = _view_scans(truth) if at_truth else []
             r = calibrate_session(
@@ -254,7 +254,8 @@ def run_truth_set(
                 seed=seed,
                 free=["rolls"],
                 bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                settings=settings,
+                roll_offset_scan_deg=0.5,
+                roll_prior_weight=0.0,
                 starts=starts,
                 score_thetas=[truth] + scan,
                 fixed_views=fixed,
@@ -273,13 +274,15 @@ def run_truth_set(
                 mean, mx = _angle_errors(r.theta_deg, true_rolls)
             vol, area = _measure(s, r)
             print(
-                f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} {r.theta0_cost:9.5g} "
+                f"{method:10s} {seed:4d} {mean:7.3f} {mx:7.3f} {r.final_cost:9.5g} {r.scored_costs[0]:9.5g} "
+                f"{r.theta0_cost:9.5g} "
                 f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}",
                 flush=True,
             )
             worse = np.flatnonzero(np.abs(e) > np.abs(e0) + 0.1)
             print(
-                f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they started: {worse.tolist()}"
+                f"{'':15s} per view {np.round(e, 2).tolist()}; views > 0.1° farther from the truth than they "
+                f"started: {worse.tolist()}"
             )
             if at_truth:
                 _print_view_minima(
@@ -300,7 +303,8 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
     )
     print("\n== ZF1 (no truth): all of θ free as in config/guo2019-zebrafish.yaml")
     print(
-        f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} {'evals':>6s} {'time s':>7s} "
+        f"{'method':10s} {'seed':>4s} {'yaw°':>8s} {'pitch°':>8s} {'γ°':>8s} {'cost':>9s} {'θ0':>9s} {'conv':>5s} "
+        f"{'evals':>6s} {'time s':>7s} "
         f"{'mm³':>9s} {'mm²':>9s}"
     )
     for method in methods:
@@ -315,7 +319,8 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
             rolls.append(th[3:])
             vol, area = _measure(s, r)
             print(
-                f"{method:10s} {seed:4d} {th[0]:+8.4f} {th[1]:+8.4f} {th[2]:+8.4f} {r.final_cost:9.5g} {r.theta0_cost:9.5g} "
+                f"{method:10s} {seed:4d} {th[0]:+8.4f} {th[1]:+8.4f} {th[2]:+8.4f} {r.final_cost:9.5g} "
+                f"{r.theta0_cost:9.5g} "
                 f"{str(r.converged):>5s} {r.n_evaluations:6d} {wall:7.1f} {vol:9.5g} {area:9.5g}",
                 flush=True,
             )
@@ -323,7 +328,8 @@ def run_zebrafish(tmp: Path, methods: list[str], seeds: list[int], starts: int) 
             R = np.array(rolls)
             spread = np.sqrt(np.mean((R - R.mean(axis=0)) ** 2, axis=0))
             print(
-                f"{method:10s} roll spread over {len(rolls)} seeds: RMS per view {np.sqrt(np.mean(spread**2)):.3f}°, max {spread.max():.3f}°"
+                f"{method:10s} roll spread over {len(rolls)} seeds: RMS per view "
+                f"{np.sqrt(np.mean(spread**2)):.3f}°, max {spread.max():.3f}°"
             )
 
 

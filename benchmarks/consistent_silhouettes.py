@@ -35,9 +35,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import compare_methods as cm  # noqa: E402  (benchmarks/ is not a package)
 
-from vastcal.calibrate.run import CalibrationSettings, Level  # noqa: E402
 from vastcal.calibrate.session_run import calibrate_session, session_camera_model  # noqa: E402
-from vastcal.config import CalibrationBounds  # noqa: E402
+from vastcal.config import (  # noqa: E402
+    CalibrationBounds,  # noqa: E402
+    CalibrationSettings,
+    Level,
+)
 from vastcal.importer import read_cameras  # noqa: E402
 from vastcal.session import Session  # noqa: E402
 
@@ -131,16 +134,18 @@ def score(session: Path, true_rolls: np.ndarray, width: int, edge_lines: int) ->
         _, _, theta0, _ = session_camera_model(ss)
     truth = theta0.copy()
     truth[3:] = true_rolls
-    settings = CalibrationSettings(
-        roll_prior_weight=0.0, polish=False, levels=(Level(width, 16000, 0.05, 12, edge_lines, scaled_steps=True),)
-    )
+    settings = {
+        "roll_prior_weight": 0.0,
+        "polish": False,
+        "levels": (Level(width, 16000, 0.05, 12, edge_lines, scaled_steps=True),),
+    }
     r = calibrate_session(
         session,
         seed=0,
         free=["rolls"],
         bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-        settings=settings,
         starts=1,
+        **settings,
         score_thetas=[truth] + cm._view_scans(truth),
         judge_imported_cameras=False,
     )
@@ -168,13 +173,15 @@ def calibrate_consistent(
             seed=seed,
             free=["rolls"],
             bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-            settings=CalibrationSettings(roll_offset_scan_deg=0.5, roll_prior_weight=0.0),
+            roll_offset_scan_deg=0.5,
+            roll_prior_weight=0.0,
             score_thetas=[truth],
             judge_imported_cameras=False,
         )
         mean, mx = cm._angle_errors(r.theta_deg, true_rolls)
         print(
-            f"{name:6s} consistent, calibrated from views {cm.OFFSET_VIEWS[name]} +10°, seed {seed}: gauge-free {mean:.3f}/{mx:.3f}°, "
+            f"{name:6s} consistent, calibrated from views {cm.OFFSET_VIEWS[name]} +10°, seed {seed}: gauge-free "
+            f"{mean:.3f}/{mx:.3f}°, "
             f"cost {r.final_cost:.5f} (truth {r.scored_costs[0]:.5f})  ({time.perf_counter() - t:.0f} s)",
             flush=True,
         )
@@ -204,7 +211,8 @@ def main() -> None:
     )
     a = ap.parse_args()
     print(
-        f"{'set':6s} {'images':28s} {'cost at truth':>13s} {'mean |min|°':>11s} {'max':>6s} {'at ±0.4°':>8s} {'harmonic°':>9s}  per-view minima (°)"
+        f"{'set':6s} {'images':28s} {'cost at truth':>13s} {'mean |min|°':>11s} {'max':>6s} {'at ±0.4°':>8s} "
+        f"{'harmonic°':>9s}  per-view minima (°)"
     )
     for name in a.data.split(","):
         folder, cams, n, origin, unit, pattern, keep = SETS[name]
@@ -232,7 +240,8 @@ def main() -> None:
                 kind_s = kind if kind == "masks" else f"{kind} (ellipsoids × {scale:.2f})"
                 print(
                     f"{name:6s} {kind_s:28s} {cost:13.5f} {m.mean():11.3f} {m.max():6.2f} {int(np.sum(m >= 0.399)):8d} "
-                    f"{first_harmonic(true_rolls[1:], mins):9.3f}  {np.round(mins, 2).tolist()}  ({time.perf_counter() - t:.0f} s)",
+                    f"{first_harmonic(true_rolls[1:], mins):9.3f}  {np.round(mins, 2).tolist()}  "
+                    f"({time.perf_counter() - t:.0f} s)",
                     flush=True,
                 )
             if a.calibrate:

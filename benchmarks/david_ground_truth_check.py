@@ -34,6 +34,7 @@ import numpy as np
 
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
+    Penalty,
     axis_crossings,
     signed_distance_maps,
     silhouette_edges,
@@ -78,12 +79,15 @@ def main() -> None:
     pf = hand_masks(n)
     P_true = projection_matrices(K, m.distance, theta[None])[0]
     edges = silhouette_edges(pf, axis_crossings(P_true, pf.shape[1:]), max_lines=48)
-    obj = CoherenceObjective(signed_distance_maps(pf), edges, K, m.distance, radius_um=3.0, sigma_px=0.1, trim=0)
+    obj = CoherenceObjective(
+        signed_distance_maps(pf), edges, K, m.distance, radius_um=3.0, penalty=Penalty(sigma_px=0.1, trim=0)
+    )
 
     steps = np.diff(m.rolls_deg)
     print("1. ground-truth steps (deg):", np.round(steps, 4).tolist())
     print(
-        f"   views 2-{n - 1}: {steps[2:].mean():.6f} ± {steps[2:].std():.1e}; rolls of views 0, 1 against that lattice: "
+        f"   views 2-{n - 1}: {steps[2:].mean():.6f} ± {steps[2:].std():.1e}; rolls of views 0, 1 against that "
+        "lattice: "
         f"{-(m.rolls_deg[2] - 40.0):+.3f}°, {m.rolls_deg[1] - 20.0 - (m.rolls_deg[2] - 40.0):+.3f}°"
     )
 
@@ -115,12 +119,14 @@ def main() -> None:
     d -= np.median(d)
     others = np.setdiff1d(np.arange(n), [0, 1])
     print(
-        f"3. joint consensus (view {ref} fixed, seed {seed}): cost {es.result.fbest:.5f} against {cost(np.zeros(len(free))):.5f} "
+        f"3. joint consensus (view {ref} fixed, seed {seed}): cost {es.result.fbest:.5f} against "
+        f"{cost(np.zeros(len(free))):.5f} "
         f"at the ground truth ({es.result.evaluations} evaluations)"
     )
     print("   consensus − ground truth, median removed (deg):", np.round(d, 2).tolist())
     print(
-        f"   views 0, 1: {d[0]:+.2f}°, {d[1]:+.2f}°; the other {len(others)} views: mean |.| {np.abs(d[others]).mean():.3f}°, "
+        f"   views 0, 1: {d[0]:+.2f}°, {d[1]:+.2f}°; the other {len(others)} views: mean |.| "
+        f"{np.abs(d[others]).mean():.3f}°, "
         f"max {np.abs(d[others]).max():.2f}°"
     )
     print(f"   {time.perf_counter() - t0:.0f} s")

@@ -3,7 +3,7 @@
 Acquires a revolution from the simulated rig (config/simulated.yaml; --views, default 13) with the progress
 the CLI draws (vastcal.progress.CountProgress), calibrates it with the progress callback the CLI uses
 (vastcal.progress.CalibrationProgress on a PhaseProgress that draws nothing), and for every phase (the
-acquisition's, each CMA-ES level of each start, the per-view polish, the photometric yaw) prints its duration
+acquisition's, each CMA-ES level of each start, the per-view polish) prints its duration
 and the ETA's error.
 
 The criterion (an ETA that is right within 30 % over the second half of every phase): at every
@@ -24,8 +24,7 @@ Set-up phases that report no progress (maps, regions, judging) show no ETA and a
 ``--import-folder`` also imports a folder of images with the progress `vastcal import` draws and judges its phases.
 The batch's ETA is judged by ``benchmarks/batch_throughput.py`` (from the log lines a batch prints).
 
-Several runs (or starts) end with a summary by kind of phase (each level, the polish, each photometric yaw width;
-at the last width its first samples and its doublings apart).
+Several runs (or starts) end with a summary by kind of phase (each level, the polish).
 
 Timings on a shared machine are noisy; the ETA is judged against the same run's own clock.
 """
@@ -79,7 +78,8 @@ def one_run(views: int, starts: int, seed: int, sim_seed: int | None) -> list[di
         with bar:
             calibrate_session(session, seed=seed, starts=starts, progress=CalibrationProgress(bar))
     print(
-        f"simulator seed {cfg.simulation.seed}, {views} views, {starts} start(s); load average {os.getloadavg()[0]:.2f} at the end"
+        f"simulator seed {cfg.simulation.seed}, {views} views, {starts} start(s); load average "
+        f"{os.getloadavg()[0]:.2f} at the end"
     )
     return report(acq.bar.records + bar.records, cfg.simulation.seed)
 
@@ -114,14 +114,16 @@ def report(records: list, sim_seed: int | None) -> list[dict]:
         }
         rows.append(row)
         print(
-            f"{r.name:<44} {row['duration_s']:7.2f} {len(errs):7d} {_pct(row['median_error'])} {_pct(row['max_error'])} "
+            f"{r.name:<44} {row['duration_s']:7.2f} {len(errs):7d} {_pct(row['median_error'])} "
+            f"{_pct(row['max_error'])} "
             f"{_pct(row['max_error_but_last_2'], 14)} {_pct(row['share_within_30pct'], 10)}"
         )
     timed = [r for r in rows if r["max_error"] is not None]
     if timed:
         worst = max(timed, key=lambda r: r["max_error"])
         print(
-            f"worst phase: {worst['phase']} (max error {100 * worst['max_error']:.0f} %); phases with every second-half ETA "
+            f"worst phase: {worst['phase']} (max error {100 * worst['max_error']:.0f} %); phases with every "
+            "second-half ETA "
             f"within 30 %: {sum(r['max_error'] <= 0.3 for r in timed)}/{len(timed)}, all but the last 2 updates: "
             f"{sum(r['max_error_but_last_2'] <= 0.3 for r in timed)}/{len(timed)}; median of the phases' medians "
             f"{100 * float(np.median([r['median_error'] for r in timed])):.0f} %"
@@ -145,25 +147,22 @@ def _pct(v: float | None, w: int = 7) -> str:
 
 
 def summary(rows: list[dict]) -> None:
-    """Every kind of phase (a level, the polish, a photometric yaw width, the last width's doublings)
-    over all runs and starts."""
+    """Every kind of phase (a level, the polish) over all runs and starts."""
     kinds: dict[str, list[dict]] = {}
     for r in rows:
         if r["max_error"] is not None:
             name = r["phase"].split(",")[0]  # a level of every start together
-            if (
-                "iterations (cap" in name
-            ):  # the photometric yaw's last stage: its doublings together, apart from its first samples
-                name = name.split(":")[0] + ": doubling"
             kinds.setdefault(name, []).append(r)
     print(
-        f"{'kind of phase':<40} {'phases':>6} {'median of medians':>17} {'worst max':>9} {'worst but last 2':>16} {'met':>5} {'met but last 2':>14}"
+        f"{'kind of phase':<40} {'phases':>6} {'median of medians':>17} {'worst max':>9} {'worst but last 2':>16} "
+        f"{'met':>5} {'met but last 2':>14}"
     )
     for k, rs in kinds.items():
         print(
             f"{k:<40} {len(rs):6d} {_pct(float(np.median([r['median_error'] for r in rs])), 17)} "
             f"{_pct(max(r['max_error'] for r in rs), 9)} {_pct(max(r['max_error_but_last_2'] for r in rs), 16)} "
-            f"{sum(r['max_error'] <= 0.3 for r in rs):2d}/{len(rs):<2d} {sum(r['max_error_but_last_2'] <= 0.3 for r in rs):11d}/{len(rs):<2d}"
+            f"{sum(r['max_error'] <= 0.3 for r in rs):2d}/{len(rs):<2d} "
+            f"{sum(r['max_error_but_last_2'] <= 0.3 for r in rs):11d}/{len(rs):<2d}"
         )
 
 
@@ -173,7 +172,7 @@ def main() -> None:
         "--views",
         type=int,
         default=13,
-        help="views (default 13: odd and above the 11 directions the photometric yaw needs, so that every phase runs)",
+        help="views (default 13)",
     )
     ap.add_argument("--starts", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0, help="calibration seed")
@@ -196,7 +195,8 @@ def main() -> None:
         "--json",
         type=Path,
         default=None,
-        help="also write the per-phase figures and every update (time, fraction, ETA, true time left, work done and forecast left) here",
+        help="also write the per-phase figures and every update (time, fraction, ETA, true time left, work done and "
+        "forecast left) here",
     )
     args = ap.parse_args()
     rows: list[dict] = []

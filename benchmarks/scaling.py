@@ -2,14 +2,13 @@
 
 Acquires simulated sessions (the rig file config/simulated.yaml, rig seed ``--seed``) of 21, 41, 81, 161
 and 360 views on the rig's 1024 × 320 ROI, and one full 1024 × 1024 frame case, then calibrates them
-(``calibrate_session``, the rig file's settings: silhouette coherence + photometric yaw) and
+(``calibrate_session``, the rig file's settings: silhouette coherence) and
 reconstructs them (``reconstruct_session``), each step in a fresh process so that its peak memory is
 its own. Prints wall time, evaluations, time per evaluation, peak memory (ru_maxrss of the process) and
-yaw / pitch errors against the simulator's truth (S.truth.json; each case's JSON line also holds the photometric
-yaw's sub-revolutions, ``yaw_views``, and each one's yaw error, ``yaw_group_errs``), then the growth exponent b of
-time ≈ a·N^b (and of peak memory) fitted over the ROI cases (b = 1: linear), and the
-figures that bound it: time(81) / time(21) of calibration (≤ 4.5), the 360-view calibration's wall time (≤ 5 min)
-and peak memory (≤ 2 GB, calibration and reconstruction), yaw / pitch errors at 81 and 360 views against 21.
+yaw / pitch errors against the simulator's truth (S.truth.json), then the growth exponent b of
+time ≈ a·N^b (and of peak memory) fitted over the ROI cases (b = 1: linear), and the figures that bound it:
+time(81) / time(21) of calibration (≤ 4.5), the 360-view calibration's wall time (≤ 5 min) and peak memory
+(≤ 2 GB, calibration and reconstruction), yaw / pitch errors at 81 and 360 views against 21.
 The memory budgets are the rig file's ``calibration.memory_mb`` and ``reconstruction.memory_mb``.
 CPU is shared on the development machine: ``uptime`` is printed before and after; compare ratios within
 one run, and run with OPENBLAS_NUM_THREADS=1.
@@ -23,7 +22,6 @@ written next to its session (``*.calibrate.log``); the full run is long
     python benchmarks/scaling.py --views --full-frame 360    # the 360-view full-frame session
     python benchmarks/scaling.py --views 360 --no-reconstruct
     python benchmarks/scaling.py --map-bytes --views 21 --full-frame 21   # bytes per pixel of the specimen maps
-    python benchmarks/scaling.py --photometric-mb 21 31 63 --views 360 --full-frame 360   # the photometric yaw's memory
 """
 
 from __future__ import annotations
@@ -160,17 +158,15 @@ def _step(
         from vastcal.pipeline import score_against_truth
 
         if step == "calibrate_whole_frames":  # the path before the window: every objective's atlas over whole frames
-            import vastcal.calibrate.run as run
+            import vastcal.calibrate.objective_coherence as oc
             from vastcal.calibrate.objective_coherence import signed_distance_maps
             from vastcal.calibrate.sampling import Atlas
 
-            run.coherence_atlas = lambda pf: Atlas.from_stack(signed_distance_maps(pf))  # type: ignore[assignment]
+            oc.coherence_atlas = lambda pf: Atlas.from_stack(signed_distance_maps(pf))  # type: ignore[assignment]
         t, c = time.perf_counter(), _cpu_s()
         cal = calibrate_session(session)
         wall, cpu = time.perf_counter() - t, _cpu_s() - c
         s = score_against_truth(session, truth)
-        photo = next((r for r in cal.level_reports if r.get("stage") == "photometric yaw"), {})
-        true_yaw = float(cal.theta_deg[0]) - s["yaw_error_deg"]
         return {
             "cal_s": wall,
             "cal_cpu_s": cpu,
@@ -180,8 +176,6 @@ def _step(
             "yaw_err": s["yaw_error_deg"],
             "pitch_err": s["pitch_error_deg"],
             "roll_rms": s["angle_rms_error_deg"],
-            "yaw_views": photo.get("group_views"),  # the photometric yaw's sub-revolutions and each one's yaw error
-            "yaw_group_errs": [round(y - true_yaw, 4) for y in photo.get("group_yaws_deg") or []],
             "theta": [float(v) for v in cal.theta_deg],
         }
     if step == "reconstruct":
@@ -198,8 +192,6 @@ def _step(
             "rec_mb": _peak_mb(),
             "vol_pct": s.get("volume_vs_true_hull_pct", float("nan")),
         }
-    if step.startswith("photometric"):  # photometric<K>: the photometric yaw's memory with K views
-        return photometric_mb(session, int(step[len("photometric") :]))
     raise SystemExit(f"unknown step {step}")
 
 
@@ -221,40 +213,6 @@ def map_bytes_per_pixel(session: Path, views: int = 21) -> float:
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     return (peak + frames.nbytes) / float(np.prod(frames.shape[:3]))
-
-
-def photometric_mb(session: Path, k: int) -> dict[str, float]:
-    """What the photometric yaw holds with ``k`` evenly spread views of a calibrated session (run in a fresh process):
-    the resident memory's rise during ``refine_yaw`` (ru_maxrss, when it is the process's peak) plus the frames and
-    full-frame specimen maps handed to it, MB — what view_budget.photometric_bytes estimates."""
-    from vastcal.calibrate.photometric_yaw import refine_yaw
-    from vastcal.calibrate.session_run import session_camera_model
-    from vastcal.calibrate.view_budget import evenly_spread_views, peak_resident_mb, photometric_bytes, resident_mb
-    from vastcal.segmentation import ColourModel, specimen_maps_within
-    from vastcal.session import Session
-    from vastcal.session_frames import SessionFrames
-
-    with Session.open(session, "r") as s:
-        cal = s.latest_result("calibration")
-        theta = np.asarray(cal["theta_deg"][...], float)
-        model = ColourModel.from_group(cal["colour_model"])
-        K, d, _, _ = session_camera_model(s)
-    frames = SessionFrames(session)
-    sub = evenly_spread_views(theta[3:], k)
-    images = frames[sub]
-    pf = specimen_maps_within(model, images, 1536.0)
-    base, before = resident_mb(), peak_resident_mb()
-    r = refine_yaw(images, pf, K, d, np.concatenate([theta[:3], theta[3:][sub]]), (theta[0] - 2.0, theta[0] + 2.0))
-    assert r is not None
-    held = (images.nbytes + pf.nbytes) / 2**20
-    return {
-        "k": k,
-        "photometric_mb": peak_resident_mb() - base + held,
-        "estimate_mb": photometric_bytes(k, images.shape[1:], r.n_voxels) / 2**20,
-        "peak_before_mb": before,
-        "peak_mb": peak_resident_mb(),
-        "n_voxels": r.n_voxels,
-    }
 
 
 def _run_step(
@@ -311,15 +269,6 @@ def main() -> None:
         "--map-bytes", action="store_true", help="only measure the specimen maps' bytes per frame pixel (21 views)"
     )
     ap.add_argument(
-        "--photometric-mb",
-        type=int,
-        nargs="*",
-        default=[],
-        metavar="K",
-        help="only measure what the photometric yaw holds with K evenly spread views of each (calibrated) case, "
-        "against view_budget.photometric_bytes",
-    )
-    ap.add_argument(
         "--profile-memory",
         action="store_true",
         help="also write where each step's resident memory reached its high-water marks (<session>.<step>.memory.log)",
@@ -346,18 +295,10 @@ def main() -> None:
         for views, full in cases or [(21, False)]:
             _run_step("acquire", views, full, a.seed, a.workdir)
             print(
-                f"{views} views, {'full frame' if full else 'ROI'}: specimen maps hold {map_bytes_per_pixel(_session(a.workdir, views, full, a.seed)[0]):.1f} "
+                f"{views} views, {'full frame' if full else 'ROI'}: specimen maps hold "
+                f"{map_bytes_per_pixel(_session(a.workdir, views, full, a.seed)[0]):.1f} "
                 "bytes per frame pixel at their peak (21 views)"
             )
-        return
-    if a.photometric_mb:
-        for views, full in cases:
-            for k in a.photometric_mb:
-                r = _run_step(f"photometric{k}", views, full, a.seed, a.workdir)
-                print(
-                    f"{views} views, {'full frame' if full else 'ROI'}: photometric yaw with {k} views holds {r['photometric_mb']:.0f} MB "
-                    f"(estimate {r['estimate_mb']:.0f} MB; process peak {r['peak_mb']:.0f} MB, {r['peak_before_mb']:.0f} MB before it)"
-                )
         return
     load = os.getloadavg()[0]
     print(
@@ -366,7 +307,8 @@ def main() -> None:
         flush=True,
     )
     hdr = (
-        f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} {'yaw err':>8} "
+        f"{'views':>5} {'frame':>9} | {'cal s':>7} {'cal cpu':>7} {'evals':>5} {'ms/eval':>7} {'cal MB':>6} "
+        f"{'yaw err':>8} "
         f"{'pitch err':>9} {'roll rms':>8} | {'rec s':>6} {'rec cpu':>7} {'rec MB':>6} {'vol %':>6}"
     )
     rows = []
@@ -379,8 +321,10 @@ def main() -> None:
                 w = _run_step("calibrate_whole_frames", views, full, a.seed, a.workdir)
                 d = np.abs(np.subtract(r["theta"], w["theta"]))
                 print(
-                    f"{views} views ({'full' if full else 'ROI'}): window vs whole-frame maps: yaw err {r['yaw_err']:+.4f} / {w['yaw_err']:+.4f}°, "
-                    f"pitch err {r['pitch_err']:+.4f} / {w['pitch_err']:+.4f}°, roll RMS err {r['roll_rms']:.4f} / {w['roll_rms']:.4f}°, "
+                    f"{views} views ({'full' if full else 'ROI'}): window vs whole-frame maps: yaw err "
+                    f"{r['yaw_err']:+.4f} / {w['yaw_err']:+.4f}°, "
+                    f"pitch err {r['pitch_err']:+.4f} / {w['pitch_err']:+.4f}°, roll RMS err {r['roll_rms']:.4f} / "
+                    f"{w['roll_rms']:.4f}°, "
                     f"max |Δθ| {d.max():.4f}° (axis {d[:3].max():.4f}°), {r['evals']} / {w['evals']} evaluations, "
                     f"{r['cal_cpu_s']:.1f} / {w['cal_cpu_s']:.1f} CPU s, {r['cal_mb']:.0f} / {w['cal_mb']:.0f} MB",
                     flush=True,
@@ -393,7 +337,8 @@ def main() -> None:
     for r in rows:
         frame = "1024x1024" if r["full"] else "1024x320"
         cal = (
-            f"{r['cal_s']:7.1f} {r['cal_cpu_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} {r['yaw_err']:+8.3f} "
+            f"{r['cal_s']:7.1f} {r['cal_cpu_s']:7.1f} {r['evals']:5d} {r['ms_per_eval']:7.2f} {r['cal_mb']:6.0f} "
+            f"{r['yaw_err']:+8.3f} "
             f"{r['pitch_err']:+9.3f} {r['roll_rms']:8.3f}"
             if "cal_s" in r
             else " ".join(f"{'-':>{k}}" for k in (7, 7, 5, 7, 6, 8, 9, 8))
@@ -437,7 +382,8 @@ def main() -> None:
         frame = "full frame" if r["full"] else "ROI"
         if "cal_s" in r:
             print(
-                f"360 views ({frame}): calibration {r['cal_s']:.0f} s wall (<= 300), {r['cal_mb']:.0f} MB peak (<= 2048)"
+                f"360 views ({frame}): calibration {r['cal_s']:.0f} s wall (<= 300), {r['cal_mb']:.0f} MB peak (<= "
+                "2048)"
             )
         if "rec_s" in r:
             print(f"360 views ({frame}): reconstruction {r['rec_s']:.0f} s wall, {r['rec_mb']:.0f} MB peak (<= 2048)")
@@ -448,8 +394,10 @@ def main() -> None:
                     by_n[21]["pitch_err"]
                 )
                 print(
-                    f"|yaw|, |pitch| error at {v} views: {abs(by_n[v]['yaw_err']):.3f}°, {abs(by_n[v]['pitch_err']):.3f}° against "
-                    f"{abs(by_n[21]['yaw_err']):.3f}°, {abs(by_n[21]['pitch_err']):.3f}° at 21 ({'not larger' if ok else 'LARGER'})"
+                    f"|yaw|, |pitch| error at {v} views: {abs(by_n[v]['yaw_err']):.3f}°, "
+                    f"{abs(by_n[v]['pitch_err']):.3f}° against "
+                    f"{abs(by_n[21]['yaw_err']):.3f}°, {abs(by_n[21]['pitch_err']):.3f}° at 21 "
+                    f"({'not larger' if ok else 'LARGER'})"
                 )
     print(f"uptime at end: {_uptime()}")
 

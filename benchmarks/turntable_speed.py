@@ -63,7 +63,7 @@ import numpy as np
 
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate import objective_coherence as oc
-from vastcal.calibrate.run import CalibrationResult, CalibrationSettings
+from vastcal.calibrate.run import CalibrationResult
 from vastcal.calibrate.threads import ENV as THREADS_ENV
 from vastcal.calibrate.threads import compute_threads
 from vastcal.config import CalibrationBounds
@@ -479,7 +479,7 @@ def main() -> None:
         chords = instrument_chords(a.chords)
         bar = PhaseProgress("calibrate", enabled=False)
         profiler = cProfile.Profile() if a.profile else None
-        settings = CalibrationSettings(roll_offset_scan_deg=a.offset_scan, roll_prior_weight=0.0)
+        settings = {"roll_offset_scan_deg": a.offset_scan, "roll_prior_weight": 0.0}
         t0, mono0 = time.perf_counter(), time.monotonic()  # the phases are timed on the monotonic clock
         if profiler is not None:
             profiler.enable()
@@ -490,11 +490,11 @@ def main() -> None:
                 seed=a.seed,
                 free=["rolls"],
                 bounds=CalibrationBounds(0.0, 0.0, 0.0, 15.0),
-                settings=settings,
                 progress=CalibrationProgress(bar),
                 score_thetas=[truth],
                 judge_imported_cameras=False,
                 mask=(0, cv2.imread(str(tmp / "mask_00.png"), cv2.IMREAD_GRAYSCALE)) if a.mask else None,
+                **settings,
             )
         if profiler is not None:
             profiler.disable()
@@ -504,7 +504,8 @@ def main() -> None:
     d = err - np.median(err)
     print(
         f"coherence seed {a.seed}{' (under cProfile)' if profiler is not None else ''}: calibration {wall:.2f} s wall, "
-        f"{r.n_evaluations} evaluations, {1000 * wall / max(r.n_evaluations, 1):.2f} ms per evaluation, {r.n_voxels} voxels; "
+        f"{r.n_evaluations} evaluations, {1000 * wall / max(r.n_evaluations, 1):.2f} ms per evaluation, "
+        f"{r.n_voxels} voxels; "
         f"{compute_threads()} evaluation thread(s), load average {os.getloadavg()[0]:.2f}"
     )
     print(
@@ -513,29 +514,35 @@ def main() -> None:
     )
     if bar.records:
         print(
-            f"phases (before the first: {bar.records[0].t0 - mono0:.2f} s of set-up; after the last: {mono1 - bar.records[-1].t1:.2f} s):"
+            f"phases (before the first: {bar.records[0].t0 - mono0:.2f} s of set-up; after the last: "
+            f"{mono1 - bar.records[-1].t1:.2f} s):"
         )
     for p in bar.records:
         print(f"  {p.name:<48} {p.t1 - p.t0:6.2f} s")
     print(
-        f"judge cost: result {r.final_cost:.5f}, true rolls {r.scored_costs[0]:.5f}, commanded angles {r.theta0_cost:.5f}"
+        f"judge cost: result {r.final_cost:.5f}, true rolls {r.scored_costs[0]:.5f}, commanded angles "
+        f"{r.theta0_cost:.5f}"
     )
     print(
         f"angle error (views 1-{n - 1}): mean |e| {np.mean(np.abs(err[1:])):.3f}°, max {np.max(np.abs(err[1:])):.3f}° "
         f"(start: mean {np.mean(np.abs(commanded - true_rolls)[1:]):.2f}°)"
     )
     print(
-        f"gauge-free (median offset {np.median(err):+.3f}° removed): mean |e| {np.mean(np.abs(d)):.3f}°, max {np.max(np.abs(d)):.3f}°"
+        f"gauge-free (median offset {np.median(err):+.3f}° removed): mean |e| {np.mean(np.abs(d)):.3f}°, max "
+        f"{np.max(np.abs(d)):.3f}°"
     )
     print("per view:", np.round(err, 2).tolist())
     for samples, times in sorted(chords.calls.items()):
         print(
-            f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, {1000 * np.mean(times):.1f} ms each"
+            f"full searches along chords of {samples} samples ({a.chords}): {len(times)}, "
+            f"{1000 * np.mean(times):.1f} ms each"
         )
     if a.chords == "verify":
         print(
-            f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of {chords.rays} rays "
-            f"with another maximum, {chords.values_differ} samples read with another value; {chords.read / max(chords.total, 1):.1%} "
+            f"bounded against dense (chords of {oc.CHORD_BOUND_MIN_SAMPLES} samples or more): {chords.differ} of "
+            f"{chords.rays} rays "
+            f"with another maximum, {chords.values_differ} samples read with another value; "
+            f"{chords.read / max(chords.total, 1):.1%} "
             "of their samples read"
         )
     if profiler is not None:

@@ -19,6 +19,8 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import importlib.resources
+import json
+import logging
 import math
 import reprlib
 import types
@@ -30,6 +32,8 @@ from typing import Any, Literal
 import yaml
 
 from vastcal.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 
 def _shipped_config_dir() -> Path:
@@ -193,38 +197,119 @@ class CalibrationBounds:
 
 
 @dataclass(frozen=True)
-class CalibrationConfig:
-    """Settings of ``vastcal calibrate`` (command-line flags override them)."""
+class Level:
+    """One resolution level of the coarse-to-fine search (``calibration.levels``, coarsest first)."""
+
+    width_px: int = field(metadata=_range(8, 100_000))
+    """Width the specimen maps are resized to (area averaging), pixels; never upsampled."""
+    voxels: int = field(metadata=_range(100, 100_000_000))
+    """Approximate number of voxels in the specimen region at this level."""
+    sigma0: float = field(metadata=_range(0.0, 1.0, lo_open=True))
+    """Initial CMA-ES step, as a fraction of each parameter's half-width."""
+    max_evaluations: int = field(metadata=_range(1, 10_000_000))
+    """Evaluation budget of this level."""
+    edge_lines: int = field(default=48, metadata=_range(1, 10_000))
+    """Lines across the axis image along which the coherence cost finds each view's silhouette edges."""
+    groups: tuple[str, ...] | None = None
+    """Parameter groups this level optimises (null: all free ones); e.g. the axis first, rolls later."""
+    scaled_steps: bool = False
+    """Start CMA-ES with per-coordinate steps inversely proportional to how far each coordinate moves the specimen's
+    image (:meth:`vastcal.calibrate.parameters.ParameterSpace.image_sensitivity`) instead of equal box fractions."""
+    max_initial_step_px: float | None = None
+    """Cap of each coordinate's initial CMA-ES step, pixels of image motion at this level (null: no cap). The coherence
+    cost searches every candidate's rays around the population mean's maxima, a few pixels wide: a population spread
+    wider than that under-rates the far candidates."""
+
+
+DEFAULT_LEVELS = (
+    Level(256, 4000, 0.3, 1200, 32, ("yaw", "pitch", "gamma"), max_initial_step_px=8.0),
+    Level(512, 16000, 0.05, 800, 48, scaled_steps=True),
+)
+"""The axis first on quarter-size maps, then everything on half-size maps with scaled steps (docs/calibration.md)."""
+
+RENAMED_KEYS = {
+    "calibration.prior_weight": "roll_prior_weight",
+    "calibration.offset_scan_deg": "roll_offset_scan_deg",
+}
+"""Rig-file keys read under their current name (sessions store the rig file they were made with)."""
+
+REMOVED_KEYS = frozenset({"calibration.photometric_yaw", "calibration.photometric_sirt_iterations"})
+"""Rig-file keys of settings that no longer exist: read and ignored (docs/decisions/0050-photometric-yaw-removed.md)."""
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """Every setting of a calibration: the rig file's ``calibration:`` section, key for key (stored with every run).
+
+    Angles in degrees, image distances in pixels of the level, costs dimensionless.
+    """
 
     method: Literal["coherence", "pi", "vr"] = "coherence"
-    """coherence: vastcal's silhouette-coherence cost (default); pi: the paper's objective as published; vr: voxel residual."""
+    """coherence: vastcal's silhouette-coherence cost (default); pi: the paper's objective as published; vr: voxel
+    residual (:data:`vastcal.calibrate.methods.OBJECTIVES`)."""
     free: tuple[str, ...] = ("yaw", "pitch", "gamma", "rolls")
     seed: int = field(default=0, metadata=_range(0, 2**31 - 1))
+    """CMA-ES seed of the first start; start s uses seed + 10 s."""
     bounds: CalibrationBounds = field(default_factory=CalibrationBounds)
-    offset_scan_deg: float = field(default=0.0, metadata=_range(0.0, 5.0))
-    """Step (degrees) of the common roll-offset scan after the coarse level; 0 = off (``--offset-scan``)."""
-    roll_scan: bool = True
-    """After the coarse level, score every free roll over its whole box and move the views left in another basin
-    (:mod:`vastcal.calibrate.roll_scan`; the coherence method). It scans only rolls whose box is wider than the
-    narrowest basin of their cost, so on a microscope (rolls that barely move the image) it costs nothing; false = off."""
-    prior_weight: float = field(default=0.05, metadata=_range(0.0, 100.0))
-    """Weight of the Gaussian prior (rolls around the commanded angles, yaw around 0) relative to the
-    data cost; 0 = none (for commanded angles known to be wrong, as in the ETH test)."""
+    starts: int = field(default=1, metadata=_range(1, 1000))
+    """Independent coarse-to-fine runs; the one of lowest judged cost is kept."""
+    levels: tuple[Level, ...] = DEFAULT_LEVELS
+    tolx: float = field(default=2e-4, metadata=_range(0.0, 1.0))
+    """CMA-ES stops when its steps fall below this fraction of the half-widths."""
+    tolfun: float = field(default=1e-8, metadata=_range(0.0, 1.0))
+    """CMA-ES stops when the cost varies less than this."""
+    popsize: int | None = None
+    """CMA-ES population (null: cma's default 4 + 3 ln F)."""
+    restarts: Literal["none", "ipop", "bipop"] = "none"
+    """CMA-ES restarts within every level; with restarts a level spends its whole ``max_evaluations``."""
+    level_handover: float = field(default=0.1, metadata=_range(0.0, 1.0))
+    """Every level but the last ends when its step moves the image by less than this share of the smallest initial
+    step the next level starts with (0: on ``tolx`` only; docs/calibration.md, "Where a coarse level hands over")."""
+    eps: float = field(default=1e-4, metadata=_range(0.0, 0.5, lo_open=True))
+    """Clamp of the posteriors: p in [eps, 1 - eps]."""
+    threshold: float = field(default=0.5, metadata=_range(0.0, 1.0))
+    """p_f above which a pixel belongs to a rough silhouette (the region, VR)."""
+    vr_blur_px: float = field(default=0.7, metadata=_range(0.0, 100.0, lo_open=True))
+    """Gaussian blur (sigma) of the VR silhouettes, so that bilinear sampling is smooth."""
+    pi_form: Literal["loglik", "count"] = "loglik"
+    """``method: pi``'s voxel sum: loglik (the paper's log-ratios) or count (the authors' code's count, smoothed)."""
+    coherence_sigma_px: float = field(default=0.1, metadata=_range(0.0, 100.0, lo_open=True))
+    """Softness of the coherence penalty."""
+    coherence_trim: int = field(default=1, metadata=_range(0, 100))
+    """A ray point's residual is the (trim + 1)-th smallest signed distance over the other views."""
+    roll_prior_weight: float = field(default=0.05, metadata=_range(0.0, 100.0))
+    """Weight of the Gaussian prior (rolls around the commanded angles, yaw around its start) relative to the data
+    cost; 0 = none (for commanded angles known to be wrong). Silhouettes of convex cross-sections hardly constrain
+    the individual rolls: without it CMA-ES wanders along those flat directions."""
     roll_prior_deg: float = field(default=1.0, metadata=_range(0.0, 90.0, lo_open=True))
-    """σ of the roll prior, degrees: the stage's expected step error."""
+    """Sigma of the roll prior: the stage's expected step error."""
     yaw_prior_deg: float = field(default=0.5, metadata=_range(0.0, 45.0))
-    """σ of the yaw prior, degrees (0 = no yaw prior)."""
-    photometric_yaw: bool = False
-    """After the silhouettes, search the axis yaw by projection matching of absorption images
-    (PI with the yaw free; brightfield only; about 25 s more on the simulated rig). See
-    :mod:`vastcal.calibrate.photometric_yaw`."""
+    """Sigma of the yaw prior (0 = none): a nearly orthographic microscope hardly sees the yaw."""
+    region_tolerance: float = field(default=0.1, metadata=_range(0.0, 1.0))
+    """Cap of the first level's region tolerance, fraction of the image height (keeps static structures out)."""
+    refine_tolerance_px: float = field(default=2.0, metadata=_range(0.0, 1000.0))
+    """Tolerance of the region of later levels, carved around the previous level's solution."""
+    roll_offset_scan_deg: float = field(default=0.0, metadata=_range(0.0, 5.0))
+    """Step of the common roll-offset scan after the first level; 0 = off (``--offset-scan``)."""
+    roll_scan: bool = True
+    """After every level but the last, score every free roll over its whole box and move the views left in another
+    basin (:mod:`vastcal.calibrate.stage_roll_scan`; the coherence cost). Rolls whose box lies within one basin are
+    not scanned, so on a microscope it costs nothing."""
+    polish: bool = True
+    """After the starts, a per-view compass search of every free roll (:mod:`vastcal.calibrate.stage_polish`)."""
+    polish_steps_deg: tuple[float, ...] = (0.2, 0.1, 0.05, 0.025)
+    """The polish's steps, largest first."""
+    polish_zooms: int = field(default=2, metadata=_range(0, 10))
+    """Zoom stages of the polish's cost along every edge ray, so that its trials are read as finely as θ."""
     memory_mb: float = field(default=1536.0, metadata=_range(256.0, 1e7))
-    """Memory budget of a calibration, MB: the photometric yaw uses as many views (evenly spread) as fit
-    in it; the silhouette cost grows linearly with the views (:mod:`vastcal.calibrate.view_budget`)."""
+    """Memory budget, MB: the specimen maps are made for as many views at once as fit in it."""
     prior_from: str | None = None
-    """Results folder of an earlier ``vastcal batch`` on this rig (``RESULTS/``; relative to the working folder):
-    its ``rig_health.json`` — the stage's angle error per commanded angle and the axis yaw/pitch — becomes the
-    start and the prior's centre of this calibration (:func:`vastcal.rig_health.load_rig_prior`); null = none."""
+    """Results folder of an earlier ``vastcal batch`` on this rig: its ``rig_health.json`` becomes the start and the
+    prior's centre (:func:`vastcal.rig_health.load_rig_prior`); null = none."""
+
+    def to_json(self) -> str:
+        """JSON of every setting."""
+        return json.dumps(dataclasses.asdict(self))
 
 
 @dataclass(frozen=True)
@@ -257,7 +342,7 @@ class SimulationConfig:
     noise: float = field(default=1.0, metadata=_range(0.0, 100.0))
     """Shot-noise scale (1 = physical Poisson noise at the configured full well)."""
 
-    # -- specimen and scene realism (issue 15; simulators/camera/larva.py, scene.py). Each is drawn
+    # -- specimen and scene realism (simulators/camera/larva.py, scene.py). Each is drawn
     # from ``seed``; false / 0 switches it off (the defaults: the fixed 3 mm phantom, a clean scene).
     larva_varies: bool = False
     """Draw the larva's age in ``age_dpf``, and from it length, height, flattening, yolk and contrast;
@@ -300,7 +385,7 @@ class RigConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     optics: OpticsConfig = field(default_factory=OpticsConfig)
     acquisition: AcquisitionConfig = field(default_factory=AcquisitionConfig)
-    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    calibration: CalibrationSettings = field(default_factory=CalibrationSettings)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     simulation: SimulationConfig | None = None
     source: str = field(default="<defaults>", compare=False, repr=False)
@@ -394,6 +479,15 @@ def _build(cls: Any, data: Any, where: str, fail: typing.Callable[[str, str], Co
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         path = f"{where}.{key}" if where else str(key)
+        if path in REMOVED_KEYS:
+            if value:
+                log.warning("%s is no longer a setting (docs/decisions/0050-photometric-yaw-removed.md); ignored", path)
+            continue
+        if path in RENAMED_KEYS:
+            former, key = path, RENAMED_KEYS[path]
+            path = f"{where}.{key}"
+            if key in data:
+                raise fail(path, f"given twice (also under its former name {former})")
         if key not in fields:
             close = difflib.get_close_matches(str(key), list(fields), n=1)
             hint = f"; did you mean '{close[0]}'?" if close else f"; known keys: {', '.join(fields)}"
@@ -443,7 +537,8 @@ def parse_config(data: Any, source: str = "<string>") -> RigConfig:
     if roi.x + roi.width > optics.sensor_width_px or roi.y + roi.height > optics.sensor_height_px:
         raise fail(
             "camera.roi",
-            f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, got x={roi.x} width={roi.width} y={roi.y} height={roi.height}",
+            f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, "
+            f"got x={roi.x} width={roi.width} y={roi.y} height={roi.height}",
         )
     for name in cfg.calibration.free:
         if name not in FREE_NAMES:

@@ -17,12 +17,12 @@ from vastcal.simulators.camera.phantom import zebrafish_phantom  # noqa: E402
 
 def fast_session(path: Path, views: PhantomViews) -> Path:
     """A 9-view phantom session whose rig config keeps the run short (yaw only free, a 100 k-voxel grid)."""
-    from vastcal.config import CalibrationConfig, ReconstructionConfig, RigConfig, dump_config
+    from vastcal.config import CalibrationSettings, ReconstructionConfig, RigConfig, dump_config
     from vastcal.session import SessionWriter
 
     cfg = dataclasses.replace(
         RigConfig(),
-        calibration=dataclasses.replace(CalibrationConfig(), free=("yaw",)),
+        calibration=dataclasses.replace(CalibrationSettings(), free=("yaw",)),
         reconstruction=ReconstructionConfig(target_voxels=100_000),
     )
     n = len(views.angles_deg)

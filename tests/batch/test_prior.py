@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from vastcal.config import CalibrationConfig, RigConfig, dump_config, parse_config
+from vastcal.config import CalibrationSettings, RigConfig, dump_config, parse_config
 from vastcal.errors import ConfigError
 from vastcal.rig_health import HEALTH_FILE, load_rig_prior, rig_health, rig_health_dict
 
@@ -48,7 +48,9 @@ def _session(path: Path, prior_from: str | None) -> Path:
     """A 12-view session of the default rig (no imported cameras) whose rig file names ``prior_from``."""
     from vastcal.session import SessionWriter
 
-    cfg = dataclasses.replace(RigConfig(), calibration=dataclasses.replace(CalibrationConfig(), prior_from=prior_from))
+    cfg = dataclasses.replace(
+        RigConfig(), calibration=dataclasses.replace(CalibrationSettings(), prior_from=prior_from)
+    )
     frames = np.random.default_rng(0).integers(0, 255, (12, 24, 32), dtype=np.uint8)
     with SessionWriter.create(
         path,

@@ -13,19 +13,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import synthetic as sy  # noqa: E402
 
-from vastcal.calibrate import CalibrationSettings, Level  # noqa: E402
-from vastcal.config import (
+from vastcal.config import (  # noqa: E402
     CalibrationBounds,
-    CalibrationConfig,
+    CalibrationSettings,
     CameraConfig,
+    Level,
     OpticsConfig,
     RigConfig,
     RoiConfig,
     dump_config,
-)  # noqa: E402
+)
 from vastcal.session import SessionWriter  # noqa: E402
 
 FAST = CalibrationSettings(levels=(Level(160, 1500, 0.3, 600), Level(320, 3000, 0.03, 300)))
+"""Small levels; ``calibrate_session(..., levels=FAST.levels)`` takes them over a session's rig file."""
 
 
 def rig_yaml(bounds: CalibrationBounds | None = None) -> str:
@@ -44,7 +45,7 @@ def rig_yaml(bounds: CalibrationBounds | None = None) -> str:
             name="synthetic",
             optics=optics,
             camera=CameraConfig(roi=RoiConfig(0, 0, sy.W, sy.H)),
-            calibration=CalibrationConfig(bounds=bounds or CalibrationBounds(3.0, 3.0, 0.2, 4.0)),
+            calibration=CalibrationSettings(bounds=bounds or CalibrationBounds(3.0, 3.0, 0.2, 4.0)),
         )
     )
 

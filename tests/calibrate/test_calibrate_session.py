@@ -18,9 +18,9 @@ _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's 
 FAST = _helpers.FAST
 write_session = _helpers.write_session
 
-from vastcal.calibrate import ColourModel, calibrate_session
-from vastcal.errors import ColourModelError, SessionIncompleteError, UserInputError
-from vastcal.session import Session, read_attrs
+from vastcal.calibrate import ColourModel, calibrate_session  # noqa: E402
+from vastcal.errors import ColourModelError, SessionIncompleteError, UserInputError  # noqa: E402
+from vastcal.session import Session, read_attrs  # noqa: E402
 
 
 def _digest(p: Path) -> str:
@@ -28,7 +28,7 @@ def _digest(p: Path) -> str:
 
 
 def test_run_is_stored_with_every_field(session_path: Path, views: np.ndarray) -> None:
-    r = calibrate_session(session_path, method="pi", seed=1, free=["pitch", "gamma", "rolls"], settings=FAST)
+    r = calibrate_session(session_path, method="pi", seed=1, free=["pitch", "gamma", "rolls"], levels=FAST.levels)
     with Session.open(session_path) as s:
         g = s.latest_result("calibration")
         n = len(views)
@@ -61,8 +61,8 @@ def test_run_is_stored_with_every_field(session_path: Path, views: np.ndarray) -
 
 
 def test_several_runs_coexist_latest_is_default(session_path: Path) -> None:
-    calibrate_session(session_path, seed=0, free="pitch", settings=FAST)
-    r2 = calibrate_session(session_path, method="vr", seed=0, free="pitch", settings=FAST)
+    calibrate_session(session_path, seed=0, free="pitch", levels=FAST.levels)
+    r2 = calibrate_session(session_path, method="vr", seed=0, free="pitch", levels=FAST.levels)
     with Session.open(session_path) as s:
         assert s.stages_run()["calibration"] == ["run_000", "run_001"]
         assert read_attrs(s.latest_result("calibration"))["method"] == "vr"
@@ -71,7 +71,7 @@ def test_several_runs_coexist_latest_is_default(session_path: Path) -> None:
 
 def test_vr_uses_imported_masks(tmp_path: Path, views: np.ndarray, truth: np.ndarray) -> None:
     p = write_session(tmp_path / "m.h5", views, np.arange(len(views)) * 30.0, masks=sy.silhouettes(truth))
-    calibrate_session(p, method="vr", free="pitch", settings=FAST)
+    calibrate_session(p, method="vr", free="pitch", levels=FAST.levels)
     with Session.open(p) as s:
         assert read_attrs(s.latest_result("calibration"))["silhouettes"] == "imported masks"
 
@@ -80,7 +80,7 @@ def test_vr_uses_imported_masks(tmp_path: Path, views: np.ndarray, truth: np.nda
 def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(
     tmp_path: Path, views: np.ndarray, case: str
 ) -> None:
-    kwargs: dict = {"settings": FAST}
+    kwargs: dict = {"levels": FAST.levels}
     if case == "two-views":
         p, err = write_session(tmp_path / "s.h5", views[:2], np.array([0.0, 180.0])), SessionIncompleteError
     elif case == "blank":
@@ -238,3 +238,21 @@ def test_a_negative_seed_is_one_line_not_a_traceback(session_path: Path) -> None
     with pytest.raises(ValueError, match="seed"):
         calibrate_session(session_path, seed=-3)
     assert _digest(session_path) == before
+
+
+def test_the_rig_file_calibration_section_is_the_settings_key_for_key() -> None:
+    """Every setting is a rig-file key of the same name; former names are read under the new ones, a setting given
+    under both is one error line, and keys of removed settings are ignored."""
+    import dataclasses
+
+    from vastcal.config import CalibrationSettings, ConfigError, parse_config
+
+    names = {f.name for f in dataclasses.fields(CalibrationSettings)}
+    levels = [{"width_px": 100, "voxels": 1000, "sigma0": 0.3, "max_evaluations": 50}]
+    cfg = parse_config({"calibration": {"roll_prior_weight": 0.0, "levels": levels, "polish": False}}).calibration
+    assert cfg.roll_prior_weight == 0.0 and cfg.levels[0].width_px == 100 and cfg.polish is False
+    old = parse_config({"calibration": {"prior_weight": 0.2, "offset_scan_deg": 0.5, "photometric_yaw": False}})
+    assert (old.calibration.roll_prior_weight, old.calibration.roll_offset_scan_deg) == (0.2, 0.5)
+    assert {"prior_weight", "offset_scan_deg", "photometric_yaw"}.isdisjoint(names)
+    with pytest.raises(ConfigError, match="roll_prior_weight: given twice"):
+        parse_config({"calibration": {"prior_weight": 0.2, "roll_prior_weight": 0.1}})

@@ -10,8 +10,9 @@ import pytest
 
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
+    Penalty,
+    RaySearch,
     axis_crossings,
-    dark_feature_probability,
     signed_distance_maps,
     silhouette_edges,
 )
@@ -105,17 +106,6 @@ def test_no_specimen_is_a_clear_error() -> None:
         silhouette_edges(pf, axis_crossings(P, (40, 60)))
 
 
-def test_dark_features_are_found_inside_the_specimen() -> None:
-    rng = np.random.default_rng(0)
-    images = np.full((2, 40, 60), 220.0)
-    images[:, 10:30, 10:50] = 150
-    images[:, 15:20, 15:20] = 30
-    images = np.clip(images + rng.normal(0, 4, images.shape), 0, 255).astype(np.uint8)
-    pf = (images < 200).astype(np.float32)
-    dark = dark_feature_probability(images, pf)
-    assert dark is not None and dark[0, 17, 17] > 0.9 and dark[0, 25, 40] < 0.1 and dark[0, 2, 2] == 0
-
-
 def _david_masks(david_dir: Path) -> np.ndarray:
     """Clean silhouettes of the ETH statue: grey > 100, largest connected region (the data README's recipe)."""
     import cv2
@@ -147,7 +137,7 @@ def _roll_minimum(theta: np.ndarray, pf: np.ndarray, K: np.ndarray, d: float, vi
         K,
         d,
         radius_um=3.0,
-        sigma_px=0.1,
+        penalty=Penalty(sigma_px=0.1),
     )
     th = np.repeat(theta[None], len(steps), 0)
     th[:, 3 + view] += steps
@@ -281,7 +271,7 @@ def test_a_bounded_set_of_partners_keeps_the_truth_lowest() -> None:
     P = projection_matrices(K, d, theta[None])[0]
     edges = silhouette_edges(pf, axis_crossings(P, pf.shape[1:]), max_lines=16)
     sd = signed_distance_maps(pf)
-    few = CoherenceObjective(sd, edges, K, d, radius_um=400.0, max_partners=8, angles_deg=theta[3:])
+    few = CoherenceObjective(sd, edges, K, d, radius_um=400.0, search=RaySearch(max_partners=8), angles_deg=theta[3:])
     assert few.partners is not None and few.partners.shape == (36, 8)
     for index, delta in ((1, 0.4), (2, 0.08)):
         th = np.repeat(theta[None], 3, 0)
@@ -344,37 +334,6 @@ def test_displacement_bound_moves_each_roll_alone() -> None:
     assert np.allclose(displacement_bound(K, d, theta, hw, free, pts), brute, rtol=1e-9, atol=1e-9)
 
 
-def test_photometric_views_fit_the_budget() -> None:
-    from vastcal.calibrate.view_budget import evenly_spread_views, photometric_bytes, photometric_views
-
-    angles = np.arange(360) * 1.0
-    sub = evenly_spread_views(angles, 40)
-    assert len(sub) == 40 and sub[0] == 0 and np.all(np.diff(sub) == 9)
-    assert np.array_equal(evenly_spread_views(angles[:21], 40), np.arange(21))
-    # 1024 × 320 frames, 130 000 voxels: 1 GB free holds ~110 views (8.5 MB each to set up, ~20 MB more for each view
-    # of the sub-revolution being reconstructed), never fewer than 21
-    k = len(photometric_views(angles, (320, 1024), 130_000, memory_mb=1500, used_mb=500))
-    assert 90 <= k <= 130
-    assert photometric_bytes(k, (320, 1024), 130_000) <= 1000 * 2**20
-    # full 1024 × 1024 frames: 28 MB a view to set up, ~42 MB a view while 21-41 views are reconstructed at once
-    assert 40 <= len(photometric_views(angles, (1024, 1024), 72_000, memory_mb=1536, used_mb=320)) <= 45
-    assert len(photometric_views(angles, (320, 1024), 130_000, memory_mb=600, used_mb=500)) == 21
-    assert len(photometric_views(angles[:60], (320, 1024), 130_000, memory_mb=16000, used_mb=500)) == 60
-
-
-def test_photometric_bytes_count_one_sub_revolution_beside_every_view() -> None:
-    """Beyond 41 views the yaw reconstructs sub-revolutions of 21-41 views one at a time: only their share of the
-    matrices grows with the views' own share, every view's held maps (1024 × 1024 frames, 72 000 voxels)."""
-    from vastcal.calibrate.view_budget import photometric_bytes
-
-    shape, vox = (1024, 1024), 72_000
-    per_view_41 = photometric_bytes(41, shape, vox) / 41
-    assert photometric_bytes(21, shape, vox) == pytest.approx(21 * per_view_41)  # one group: every view reconstructed
-    assert photometric_bytes(63, shape, vox) < 63 * per_view_41  # three groups of 21, one at a time
-    assert photometric_bytes(63, shape, vox) >= 63 * 28.0 * 2**20  # never below every view's set-up
-    assert photometric_bytes(0, shape, vox) == 0.0
-
-
 @pytest.mark.parametrize("per_candidate", [True, False])
 def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(
     per_candidate: bool, monkeypatch: pytest.MonkeyPatch
@@ -396,7 +355,7 @@ def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(
             K,
             d,
             radius_um=400.0,
-            max_partners=6,
+            search=RaySearch(max_partners=6),
             per_candidate=per_candidate,
             angles_deg=theta[3:],
         )

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import vastcal.calibrate.run as run
+import vastcal.calibrate.coarse_to_fine as coarse_to_fine
 from vastcal.calibrate import calibrate_views
-from vastcal.config import CalibrationBounds
+from vastcal.config import CalibrationBounds, CalibrationSettings
 
 
 def test_gamma_step_is_capped_in_image_pixels(
@@ -26,15 +26,14 @@ def test_gamma_step_is_capped_in_image_pixels(
         seen.append(np.asarray(stds, float))
         raise KeyboardInterrupt  # the first level's steps are all this test needs
 
-    monkeypatch.setattr(run, "minimise", spy)
+    monkeypatch.setattr(coarse_to_fine, "minimise", spy)
     with pytest.raises(KeyboardInterrupt):
         calibrate_views(
             images,
             np.array(truth["K"]),
             truth["distance_um"],
             np.r_[0.0, 0.0, 0.0, commanded],
-            free="pitch,gamma,rolls",
-            bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0),
+            CalibrationSettings(free=("pitch", "gamma", "rolls"), bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0)),
         )
     pitch_std, gamma_std = seen[0]
     assert pitch_std == 1.0  # pitch moves the image a few pixels per box step: left alone
@@ -52,9 +51,7 @@ def test_two_free_axis_angles_with_a_wide_gamma_box_do_not_wander_off(
         np.array(truth["K"]),
         truth["distance_um"],
         np.r_[0.0, 0.0, 0.0, commanded],
-        free="pitch,gamma,rolls",
-        bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0),
-        seed=0,
+        CalibrationSettings(free=("pitch", "gamma", "rolls"), bounds=CalibrationBounds(3.0, 3.0, 1.0, 4.0), seed=0),
     )
     assert abs(r.theta_deg[1] - truth["pitch_deg"]) < 0.03
     assert abs(r.theta_deg[2] - truth["gamma_deg"]) < 0.003

@@ -16,12 +16,12 @@ _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
 FAST = _helpers.FAST
 
-from vastcal.calibrate import calibrate_views, fit_automatic
-from vastcal.calibrate.objective_pi import PIObjective
-from vastcal.calibrate.objective_vr import VRObjective
-from vastcal.calibrate.region import specimen_region
-from vastcal.calibrate.sampling import Projector
-from vastcal.config import CalibrationBounds
+from vastcal.calibrate import calibrate_views, fit_automatic  # noqa: E402
+from vastcal.calibrate.objective_pi import PIObjective  # noqa: E402
+from vastcal.calibrate.objective_vr import VRObjective  # noqa: E402
+from vastcal.calibrate.region import specimen_region  # noqa: E402
+from vastcal.calibrate.sampling import Projector  # noqa: E402
+from vastcal.config import CalibrationBounds  # noqa: E402
 
 
 def _objectives(views: np.ndarray, truth: np.ndarray):
@@ -32,8 +32,8 @@ def _objectives(views: np.ndarray, truth: np.ndarray):
     proj = Projector(K, d, region.voxels)
     logp = np.log(np.clip(pf, 1e-4, 1 - 1e-4)).astype(np.float32)
     return {
-        "pi-count": PIObjective(logp, proj),
-        "pi-loglik": PIObjective(logp, proj, form="loglik"),
+        "pi-count": PIObjective(logp, proj, form="count"),
+        "pi-loglik": PIObjective(logp, proj),
         "vr": VRObjective((pf > 0.5).astype(np.float32), proj),
     }
 
@@ -74,8 +74,8 @@ def test_same_seed_same_result_and_bounds_respected(views: np.ndarray) -> None:
     n = len(views)
     th0 = np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n]
     b = CalibrationBounds(2.0, 2.0, 0.1, 3.0)
-    r1 = calibrate_views(views, K, d, th0, seed=3, bounds=b, settings=FAST)
-    r2 = calibrate_views(views, K, d, th0, seed=3, bounds=b, settings=FAST)
+    r1 = calibrate_views(views, K, d, th0, dataclasses.replace(FAST, seed=3, bounds=b))
+    r2 = calibrate_views(views, K, d, th0, dataclasses.replace(FAST, seed=3, bounds=b))
     np.testing.assert_array_equal(r1.theta_deg, r2.theta_deg)
     assert r1.theta_deg[3] == th0[3]  # ω_0 fixed
     assert np.all(np.abs(r1.theta_deg - th0) <= np.r_[2.0, 2.0, 0.1, np.full(n, 3.0)] + 1e-9)
@@ -91,9 +91,7 @@ def test_progress_callback_reports_evaluations_and_eta(views: np.ndarray) -> Non
         K,
         d,
         np.r_[0.0, 0.0, 0.0, np.arange(n) * 30.0],
-        seed=0,
-        free="pitch",
-        settings=FAST,
+        dataclasses.replace(FAST, free=("pitch",)),
         progress=lambda *a: calls.append(a),
     )
     assert (
@@ -108,18 +106,18 @@ def test_eta_is_measured_after_the_first_generation(monkeypatch: pytest.MonkeyPa
     import math
     import types
 
-    from vastcal.calibrate import optimise
+    from vastcal.calibrate import observer
 
     now = [100.0]
-    monkeypatch.setattr(optimise, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
+    monkeypatch.setattr(observer, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
     seen: list[tuple[int, float, float, float]] = []
-    clock = optimise.ProgressClock(lambda *a: seen.append(a), budget=1000)
+    clock = observer.ProgressClock(lambda *a: seen.append(a), budget=1000)
     now[0] += 5.0
     clock.update(10, 1.0)  # 5 s, mostly one-off work
     now[0] += 1.0
     clock.update(110, 0.5)  # then 100 evaluations per second
     assert math.isnan(seen[0][3]) and seen[1][3] == pytest.approx(8.9) and seen[1][2] == pytest.approx(6.0)
-    # a slower phase (the photometric yaw's reconstructions, ~1 s each) gets an ETA from its own rate
+    # a slower phase (e.g. one of reconstructions, ~1 s each) gets an ETA from its own rate
     clock.start_phase(20)
     now[0] += 2.0
     clock.update(111, 9.0)
@@ -133,7 +131,11 @@ def test_recovers_pitch_and_gamma_with_true_rolls(views: np.ndarray, truth: np.n
     th0 = truth.copy()
     th0[:3] = 0.0
     r = calibrate_views(
-        views, K, d, th0, seed=0, free=["pitch", "gamma"], bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=FAST
+        views,
+        K,
+        d,
+        th0,
+        dataclasses.replace(FAST, free=("pitch", "gamma"), bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0)),
     )
     assert abs(r.theta_deg[1] - truth[1]) < 0.1
     assert abs(r.theta_deg[2] - truth[2]) < 0.01
@@ -148,9 +150,7 @@ def test_recovers_perturbed_rolls_and_axis(views: np.ndarray, truth: np.ndarray)
     K, d = sy.camera()
     n = len(views)
     th0 = np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n]
-    r = calibrate_views(
-        views, K, d, th0, seed=0, bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0), settings=dataclasses.replace(FAST)
-    )
+    r = calibrate_views(views, K, d, th0, dataclasses.replace(FAST, bounds=CalibrationBounds(3.0, 3.0, 0.2, 4.0)))
     err = r.theta_deg - truth
     assert np.sqrt(np.mean(err[4:] ** 2)) < 0.1 and abs(err[0]) < 0.1 and abs(err[1]) < 0.1
 
@@ -158,7 +158,7 @@ def test_recovers_perturbed_rolls_and_axis(views: np.ndarray, truth: np.ndarray)
 def test_common_roll_offset_scan_finds_the_view0_trap() -> None:
     """Every free roll off by the same −6° against view 0 (one-dimensional trap) is found by the scan."""
     from vastcal.calibrate.parameters import ParameterSpace
-    from vastcal.calibrate.run import _common_roll_offset_scan
+    from vastcal.calibrate.stage_offset_scan import common_roll_offset_scan
     from vastcal.config import CalibrationBounds
 
     theta0 = np.concatenate([[0.0, 0.0, 0.0], np.arange(8) * 45.0])
@@ -169,10 +169,10 @@ def test_common_roll_offset_scan_finds_the_view0_trap() -> None:
         d = np.atleast_2d(th)[:, 4:] - target[None]
         return 1.0 - np.exp(-np.mean(d**2, axis=1)) + 0.5 * (1.0 - np.exp(-np.mean((d - 6.0) ** 2, axis=1) * 4)) - 0.5
 
-    x, n = _common_roll_offset_scan(cost, space, np.zeros(space.n_free), 0.5)
+    x, n = common_roll_offset_scan(cost, space, np.zeros(space.n_free), 0.5)
     assert n == 61
     np.testing.assert_allclose(space.theta(x)[0][4:], target, atol=1e-9)
-    x_none, _ = _common_roll_offset_scan(
+    x_none, _ = common_roll_offset_scan(
         lambda th: np.sum((np.atleast_2d(th)[:, 4:] - theta0[4:]) ** 2, axis=1), space, np.zeros(space.n_free), 0.5
     )
     np.testing.assert_array_equal(x_none, 0.0)  # already at the best offset: unchanged
@@ -223,21 +223,21 @@ def test_image_sensitivity_of_each_coordinate() -> None:
 def test_a_coarse_search_that_wanders_off_says_so(views: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
     """With 3 simulated views the coarse level found an axis far off (cost ≈ 0: three silhouettes
     agree with many axes) and the next level's region was empty; the error blamed the commanded angles."""
-    import vastcal.calibrate.run as run
+    import vastcal.calibrate.problem as problem
     from vastcal.errors import EmptyHullError
 
-    real = run.specimen_region
+    real = problem.specimen_region
 
     def empty_after_the_coarse_level(*a, **kw):  # type: ignore[no-untyped-def]
         if "extra_px" in kw:
             raise EmptyHullError("no voxel projects inside every view's foreground under the commanded angles")
         return real(*a, **kw)
 
-    monkeypatch.setattr(run, "specimen_region", empty_after_the_coarse_level)
+    monkeypatch.setattr(problem, "specimen_region", empty_after_the_coarse_level)
     K, d = sy.camera()
     n = len(views)
     with pytest.raises(EmptyHullError, match="coarse search ended .* hold more of θ fixed"):
-        calibrate_views(views, K, d, np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n], seed=0, settings=FAST)
+        calibrate_views(views, K, d, np.r_[0.0, 0.0, 0.0, np.arange(n) * 360.0 / n], FAST)
 
 
 def test_cma_is_imported_without_its_plotting_and_surrogate_imports_which_stay_importable() -> None:
@@ -247,11 +247,13 @@ def test_cma_is_imported_without_its_plotting_and_surrogate_imports_which_stay_i
     import sys
 
     code = (
-        "import sys; from vastcal.calibrate.optimise import _cma, minimise; import numpy as np; cma = _cma(); "
+        "import sys; from vastcal.calibrate.optimise import SearchOptions, _cma, minimise; import numpy as np; "
+        "cma = _cma(); "
         "assert 'matplotlib' not in sys.modules and 'scipy.stats' not in sys.modules, sorted(sys.modules); "
         "r = minimise(lambda X: np.sum(np.asarray(X) ** 2, axis=1), np.full(3, 0.5), 0.3, np.ones(3), seed=1, "
-        "max_evaluations=400, tolx=1e-6, tolfun=1e-12); assert r.f_best < 1e-3, r.f_best; "
-        "import scipy.stats, matplotlib.pyplot; assert scipy.stats.kendalltau([1, 2, 3], [1, 2, 3])[0] == 1.0; print('ok')"
+        "options=SearchOptions(400, 1e-6, 1e-12)); assert r.f_best < 1e-3, r.f_best; "
+        "import scipy.stats, matplotlib.pyplot; "
+        "assert scipy.stats.kendalltau([1, 2, 3], [1, 2, 3])[0] == 1.0; print('ok')"
     )
     out = subprocess.run([sys.executable, "-W", "error", "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

@@ -18,6 +18,7 @@ from vastcal.calibrate.objective_coherence import (
 from vastcal.calibrate.parameters import ParameterSpace
 from vastcal.calibrate.roll_scan import (
     MAX_OUTLIER_VIEWS,
+    ScanRule,
     basin_half_widths_deg,
     outlier_views,
     plan_grid,
@@ -25,7 +26,8 @@ from vastcal.calibrate.roll_scan import (
     roll_scan,
     scan_outlier_views,
 )
-from vastcal.calibrate.run import POLISH_REACH, polish_rolls, roll_share
+from vastcal.calibrate.stage_polish import POLISH_REACH, polish_rolls
+from vastcal.calibrate.stage_roll_scan import roll_share
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import projection_matrices
 
@@ -83,10 +85,7 @@ def _scan(scene: tuple, commanded: np.ndarray) -> tuple[ParameterSpace, np.ndarr
         space,
         x,
         f0,
-        half_width_deg=widths,
-        gauge=True,
-        reach_deg=REACH,
-        share=roll_share(fast, len(commanded) - 3),
+        ScanRule(widths, True, REACH, roll_share(fast, len(commanded) - 3)),
     )
     assert evals == report["evaluations"] > 0
     return space, x, f0, f, report
@@ -160,10 +159,7 @@ def test_the_scan_never_raises_the_judged_cost() -> None:
         space,
         np.zeros(n - 1),
         1.0,
-        half_width_deg=lambda th: np.full(n, 2.0),
-        gauge=False,
-        reach_deg=REACH,
-        share=1.0,
+        ScanRule(lambda th: np.full(n, 2.0), False, REACH, 1.0),
     )
     assert f <= 1.0 and f == pytest.approx(float(cost(space.theta(x))[0]))
     assert np.sum(np.abs(space.theta(x)[0][4:] - dip) < 0.5) <= 1  # one view moved, not the joint move that costs more
@@ -195,7 +191,7 @@ def test_the_polish_moves_view_0_through_the_gauge() -> None:
 def test_a_calibration_records_the_scan_in_its_level_reports() -> None:
     """calibrate_views (rolls free in ±15°, view 8 commanded 12° off): the scan after the first level is recorded in
     that level's report, round by round, and never raises the level's judged cost; off, nothing is recorded."""
-    from vastcal.calibrate.run import CalibrationSettings, Level, calibrate_views
+    from vastcal.calibrate import CalibrationSettings, Level, calibrate_views
 
     theta = synthetic.truth_theta(n=12, seed=3)
     images = synthetic.render(theta, phantom=ATTACHED)
@@ -209,9 +205,7 @@ def test_a_calibration_records_the_scan_in_its_level_reports() -> None:
             K,
             d,
             commanded,
-            free=["rolls"],
-            bounds=BOX,
-            settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, roll_scan=on),
+            CalibrationSettings(free=("rolls",), bounds=BOX, levels=levels, roll_prior_weight=0.0, roll_scan=on),
         )
         assert r.final_cost <= r.theta0_cost
         assert "roll_scan" not in r.level_reports[1]  # the last level is followed by the polish, not by a scan
@@ -235,13 +229,13 @@ def test_a_calibration_records_the_scan_in_its_level_reports() -> None:
 def test_views_moved_by_the_scan_double_the_next_level_s_budget(monkeypatch: pytest.MonkeyPatch) -> None:
     """When the scan moves views to other basins, the next level searches with MOVED_BUDGET_SCALE times its budget
     (the scan replaced by one that reports a move and returns x as it was)."""
-    from vastcal.calibrate import run as run_module
-    from vastcal.calibrate.run import MOVED_BUDGET_SCALE, CalibrationSettings, Level, calibrate_views
+    from vastcal.calibrate import CalibrationSettings, Level, calibrate_views, stage_roll_scan
+    from vastcal.calibrate.stage_roll_scan import MOVED_BUDGET_SCALE
 
-    def moved_one(obj, prior, judge, space, x, f, **_):  # noqa: ANN001, ANN003, ANN202 - roll_scan's signature
+    def moved_one(obj, prior, judge, space, x, f, rule, **_):  # noqa: ANN001, ANN003, ANN202 - roll_scan's signature
         return x, f, 0, {"rounds": [], "evaluations": 0, "judged_before": f, "judged_after": f, "moved": [8]}
 
-    monkeypatch.setattr(run_module, "roll_scan", moved_one)
+    monkeypatch.setattr(stage_roll_scan, "roll_scan", moved_one)
     theta = synthetic.truth_theta(n=12, seed=3)
     images = synthetic.render(theta, phantom=ATTACHED)
     K, d = synthetic.camera()
@@ -251,9 +245,7 @@ def test_views_moved_by_the_scan_double_the_next_level_s_budget(monkeypatch: pyt
         K,
         d,
         theta,
-        free=["rolls"],
-        bounds=BOX,
-        settings=CalibrationSettings(levels=levels, roll_prior_weight=0.0, polish=False),
+        CalibrationSettings(free=("rolls",), bounds=BOX, levels=levels, roll_prior_weight=0.0, polish=False),
     )
     assert r.level_reports[0]["roll_scan"]["moved"] == [8]
     assert r.level_reports[1]["max_evaluations"] == int(MOVED_BUDGET_SCALE * 200) > 200
@@ -301,7 +293,7 @@ def test_outlier_views_are_judged_by_the_median_and_its_absolute_deviation() -> 
 
 
 def test_a_moved_outlier_view_is_named_in_the_calibration_summary() -> None:
-    from vastcal.calibrate.run import CalibrationResult, CalibrationSettings
+    from vastcal.calibrate import CalibrationResult, CalibrationSettings
 
     def result(scan: dict) -> CalibrationResult:
         th = np.zeros(3 + 4)

@@ -91,7 +91,7 @@ def test_a_calibration_stores_each_roll_s_sigma(session_path: Path) -> None:
     from vastcal.calibrate import calibrate_session
     from vastcal.session import Session
 
-    r = calibrate_session(session_path, seed=0, free=["rolls"], settings=FAST)
+    r = calibrate_session(session_path, seed=0, free=["rolls"], levels=FAST.levels)
     assert r.roll_widths is not None
     with Session.open(session_path) as s:
         g = s.latest_result("calibration")

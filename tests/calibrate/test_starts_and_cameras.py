@@ -15,14 +15,14 @@ _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
 FAST = _helpers.FAST
 
-from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.parameters import ParameterSpace, parse_views
-from vastcal.calibrate.run import polish_rolls
-from vastcal.config import CalibrationBounds
-from vastcal.errors import ImportDataError, UserInputError
-from vastcal.geometry import CircularMotion, decompose_circular, project
-from vastcal.importer import camera_length_unit, read_cameras
-from vastcal.session import Session, read_attrs
+from vastcal.calibrate import calibrate_session  # noqa: E402
+from vastcal.calibrate.parameters import ParameterSpace, parse_views  # noqa: E402
+from vastcal.calibrate.stage_polish import polish_rolls  # noqa: E402
+from vastcal.config import CalibrationBounds  # noqa: E402
+from vastcal.errors import ImportDataError, UserInputError  # noqa: E402
+from vastcal.geometry import CircularMotion, decompose_circular, project  # noqa: E402
+from vastcal.importer import camera_length_unit, read_cameras  # noqa: E402
+from vastcal.session import Session, read_attrs  # noqa: E402
 
 
 def test_parse_views_and_fixed_views() -> None:
@@ -59,7 +59,7 @@ def test_polish_reaches_the_minimum_of_each_roll() -> None:
 
 def test_starts_are_stored_and_never_worse_than_commanded(session_path: Path, views: np.ndarray) -> None:
     r = calibrate_session(
-        session_path, seed=1, free=["pitch", "gamma", "rolls"], settings=FAST, starts=2, fixed_views="5-6"
+        session_path, seed=1, free=["pitch", "gamma", "rolls"], levels=FAST.levels, starts=2, fixed_views="5-6"
     )
     n = len(views)
     assert r.method == "coherence"
@@ -133,12 +133,10 @@ def test_a_level_that_hands_over_shows_exploring_until_its_end_is_planned(sessio
 
     from vastcal.progress import CalibrationProgress, PhaseProgress
 
-    settings = dataclasses.replace(
-        FAST, levels=(dataclasses.replace(FAST.levels[0], max_evaluations=4000), FAST.levels[1])
-    )
+    levels = (dataclasses.replace(FAST.levels[0], max_evaluations=4000), FAST.levels[1])
     bar = PhaseProgress("calibrate", enabled=False)
     with bar:
-        calibrate_session(session_path, seed=1, settings=settings, progress=CalibrationProgress(bar))
+        calibrate_session(session_path, seed=1, levels=levels, progress=CalibrationProgress(bar))
     names = [r.name for r in bar.records]
     first = "level 1/2 (160 px), seed 1"
     assert names.index(f"{first}: exploring") + 1 == names.index(first), names
@@ -175,14 +173,13 @@ def test_a_session_s_imported_cameras_are_kept_when_the_calibration_ends_costlie
         for i in range(n):
             w.append_view(views[i], truth[3 + i] + (10.0 if i % 2 else 0.0))
         w.write_cameras(projection_matrices(K, d, truth[None])[0], source="the truth")
-    one_generation = dataclasses.replace(
-        FAST,
+    one_generation = dict(
         levels=tuple(dataclasses.replace(lv, max_evaluations=8) for lv in FAST.levels),
         polish=False,
         roll_scan=False,
         roll_prior_weight=0.0,
     )
-    r = calibrate_session(path, seed=0, settings=one_generation, fixed_views="5")
+    r = calibrate_session(path, seed=0, fixed_views="5", **one_generation)
     with Session.open(path) as s:
         a = read_attrs(s.latest_result("calibration"))
     known = np.asarray(a["imported_cameras_theta_deg"])
@@ -194,7 +191,7 @@ def test_a_session_s_imported_cameras_are_kept_when_the_calibration_ends_costlie
     expected = known.copy()
     expected[3 + 5] = r.theta0_deg[3 + 5]  # a fixed view stays at its commanded angle
     np.testing.assert_allclose(r.theta_deg, expected, atol=1e-12)
-    hidden = calibrate_session(path, seed=0, settings=one_generation, fixed_views="5", judge_imported_cameras=False)
+    hidden = calibrate_session(path, seed=0, fixed_views="5", judge_imported_cameras=False, **one_generation)
     judge = next(rep for rep in hidden.level_reports if "judge" in rep)
     assert judge["reference_costs"] == [] and judge["kept"] != "the imported cameras"
     from vastcal.reconstruct import reconstruct_session

@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from vastcal.calibrate.optimise import ProgressClock
+from vastcal.calibrate.observer import ProgressClock
+from vastcal.calibrate.optimise import Generation
 from vastcal.progress import CalibrationProgress, PhaseEta, PhaseProgress
 
 
@@ -19,6 +20,19 @@ class Clock:
 
     def __call__(self) -> float:
         return self.now
+
+
+class _Told:
+    """An observer of a search: (evaluations, evaluations forecast left) per generation, and where the plan froze."""
+
+    def __init__(self) -> None:
+        self.told: list[tuple[int, float]] = []
+        self.planned_at: list[int] = []
+
+    def generation(self, g: Generation) -> None:
+        if g.plan_frozen:
+            self.planned_at.append(len(self.told))
+        self.told.append((g.evaluations, g.left))
 
 
 def test_eta_ignores_the_set_up_before_the_first_report_and_follows_the_recent_rate() -> None:
@@ -188,7 +202,7 @@ def test_a_planned_cma_forecast_freezes_its_end_at_a_third_and_counts_down_to_it
 
 def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_near_it() -> None:
     from vastcal.calibrate.forecast import tolx_quantities
-    from vastcal.calibrate.optimise import minimise
+    from vastcal.calibrate.optimise import SearchOptions, minimise
 
     scale = np.array([1.0, 10.0, 100.0])  # image motion per box unit of each coordinate
 
@@ -196,31 +210,17 @@ def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_ne
         return np.sum((np.asarray(X) * scale) ** 2, axis=1)
 
     resolution = 1e-3 / scale  # every coordinate: 1e-3 of image motion
-    told: list[tuple[int, float]] = []
-    planned_at: list[int] = []  # the convergence reports before on_plan: the generation the plan froze in is the next
-    r = minimise(
-        sphere,
-        np.full(3, 0.5),
-        0.3,
-        np.ones(3),
-        seed=2,
-        max_evaluations=5000,
-        tolx=1e-9,
-        tolfun=1e-30,
-        popsize=8,
-        resolution=resolution,
-        convergence=lambda d, left: told.append((d, left)),
-        on_plan=lambda: planned_at.append(len(told)),
-    )
+    seen = _Told()  # planned_at: the reports before the plan froze: the generation it froze in is the next
+    told, planned_at = seen.told, seen.planned_at
+    options = SearchOptions(5000, 1e-9, 1e-30, popsize=8, resolution=resolution)
+    r = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, options=options, observer=seen)
     assert (
         len(planned_at) == 1 and 0 < planned_at[0] < len(told) // 2
     )  # once, within the run's first half of generations
     assert all(
         left == pytest.approx(told[-1][0] + 2 - d + 6) for d, left in told[planned_at[0] :]
     )  # from then on: the end known
-    full = minimise(
-        sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, max_evaluations=5000, tolx=1e-9, tolfun=1e-30, popsize=8
-    )
+    full = minimise(sphere, np.full(3, 0.5), 0.3, np.ones(3), seed=2, options=SearchOptions(5000, 1e-9, 1e-30, 8))
     assert list(r.stop) == ["resolution"] and r.n_evaluations < full.n_evaluations
     assert r.n_evaluations == 8 * r.n_generations + 2
     end = told[-1][0] + 2
@@ -239,7 +239,7 @@ def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_ne
 
 
 def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_the_time_left() -> None:
-    from vastcal.calibrate.forecast import GenerationTime
+    from vastcal.calibrate.observer import GenerationTime
 
     research = np.array([0.01, 0.01, np.inf])  # the third coordinate is not watched
     gt = GenerationTime(research, popsize=10)
@@ -290,9 +290,9 @@ def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_
 
 
 def test_the_polish_runs_one_sweep_per_step_so_its_work_is_known_before_it_starts() -> None:
-    from vastcal.calibrate.forecast import POLISH_TAIL_SWEEPS, polish_sweeps_left
+    from vastcal.calibrate.observer import POLISH_TAIL_SWEEPS, polish_sweeps_left
     from vastcal.calibrate.parameters import CalibrationBounds, ParameterSpace
-    from vastcal.calibrate.run import polish_rolls
+    from vastcal.calibrate.stage_polish import polish_rolls
 
     theta0 = np.zeros(3 + 5)
     space = ParameterSpace.build(theta0, ["rolls"], CalibrationBounds(), fixed_views=[0])
@@ -313,20 +313,18 @@ def test_the_polish_runs_one_sweep_per_step_so_its_work_is_known_before_it_start
 
 
 def test_a_cma_level_reports_its_forecast_and_the_clock_turns_it_into_the_bar_fraction() -> None:
-    from vastcal.calibrate.optimise import minimise
+    from vastcal.calibrate.optimise import SearchOptions, minimise
 
-    told: list[tuple[int, float]] = []
+    seen = _Told()
+    told = seen.told
     r = minimise(
         lambda X: np.sum(np.asarray(X) ** 2, axis=1),
         np.full(3, 0.5),
         0.3,
         np.ones(3),
         seed=1,
-        max_evaluations=3000,
-        tolx=1e-5,
-        tolfun=1e-14,
-        popsize=8,
-        convergence=lambda d, left: told.append((d, left)),
+        options=SearchOptions(3000, 1e-5, 1e-14, popsize=8),
+        observer=seen,
     )
     assert "tolx" in r.stop and len(told) == r.n_generations
     gens_left = [left / 8 - 1 for _, left in told]  # less the re-scores' generation
@@ -444,7 +442,8 @@ def test_cli_import_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_t
 
 
 def test_a_frozen_plan_tells_the_generation_time_the_descent_it_plans() -> None:
-    from vastcal.calibrate.forecast import CMAStopForecast, GenerationTime
+    from vastcal.calibrate.forecast import CMAStopForecast
+    from vastcal.calibrate.observer import GenerationTime
 
     fc = CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10, planned=True)
     g = 0

@@ -74,10 +74,10 @@ def test_hostile_rig_files_are_refused_in_one_short_line(tmp_path: Path, text: s
 
 
 def test_nan_given_as_a_command_line_override_is_refused() -> None:
-    from vastcal.config import CalibrationConfig, check_setting
+    from vastcal.config import CalibrationSettings, check_setting
 
     with pytest.raises(ConfigError, match="--offset-scan: expected a finite number"):
-        check_setting(CalibrationConfig, "offset_scan_deg", float("nan"), "--offset-scan")
+        check_setting(CalibrationSettings, "roll_offset_scan_deg", float("nan"), "--offset-scan")
 
 
 def test_files_that_are_not_regular_or_too_large_are_not_read(tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ import cv2
 import h5py
 import numpy as np
 
-from vastcal.calibrate.run import _colour_model
+from vastcal.calibrate.problem import colour_model_for
 from vastcal.segmentation import ColourModel, GaussianMixture, fit_from_mask, specimen_maps
 
 
@@ -40,7 +40,7 @@ def test_a_turntable_marked_as_background_leaves_the_silhouettes() -> None:
     the grey turntable and its lit patches to the specimen, joined to the figure's base. The marks pick a mixture
     of the background's materials, and the turntable leaves every view's silhouette."""
     frames, figures, tables, patches = _turntable_scene()
-    model = _colour_model(frames, (0, figures[0].astype(np.uint8) * 255), None, None, 0)
+    model = colour_model_for(frames, (0, figures[0].astype(np.uint8) * 255), None, 0)
     assert isinstance(model.bg, GaussianMixture) and len(model.bg.parts) >= 2
     maps = specimen_maps(model, frames) > 0.5
     assert np.mean(maps[figures]) > 0.97
@@ -62,7 +62,7 @@ def test_scribbles_on_part_of_the_turntable_take_all_of_it_out() -> None:
     labels[60:120, 112:130] = 1  # a stroke down the figure, over its lit and its shaded side
     labels[10:14, 10:230] = 2  # one across the backdrop …
     labels[149:152, 40:90] = 2  # … and one across the turntable
-    model = _colour_model(frames, None, (0, labels), None, 0)
+    model = colour_model_for(frames, None, (0, labels), 0)
     assert isinstance(model.bg, GaussianMixture)
     maps = specimen_maps(model, frames) > 0.5
     assert np.mean(maps[figures]) > 0.97
@@ -89,7 +89,7 @@ def test_a_background_material_as_pale_as_the_fin_is_background_only_where_the_m
     assert np.mean(mixture.foreground_probability(frame[None])[0][14:20] > 0.5) < 0.05  # the strips: background
     unplaced = dataclasses.replace(mixture, bg=dataclasses.replace(mixture.bg, regions=None))
     assert np.mean(unplaced.foreground_probability(frame[None])[0][fin] > 0.5) < 0.05  # what the places avoid
-    model = _colour_model(frame[None], (0, body.astype(np.uint8)), None, None, 0)
+    model = colour_model_for(frame[None], (0, body.astype(np.uint8)), None, 0)
     assert np.mean(specimen_maps(model, frame[None])[0][14:20] > 0.5) == 0.0
 
 

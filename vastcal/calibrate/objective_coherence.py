@@ -55,10 +55,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vastcal.calibrate.objective import LevelMaps
 from vastcal.calibrate.sampling import Atlas
 from vastcal.calibrate.threads import compute_threads, run_slices
+from vastcal.config import CalibrationSettings
 from vastcal.errors import AnalysisError
-from vastcal.geometry import axis_origin_in_camera, project, rot_x, rot_y, rot_z
+from vastcal.geometry import axis_origin_in_camera, project, projection_matrices, rot_x, rot_y, rot_z
 from vastcal.segmentation import largest_region
 
 log = logging.getLogger(__name__)
@@ -280,38 +282,6 @@ def coherence_atlas(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6.0, u
     return Atlas.from_stack(signed_distance_maps(pf[:, y0:y1, x0:x1], level, clamp_px, upsample), window=(x0, y0, w, h))
 
 
-def dark_feature_probability(images: np.ndarray, pf: np.ndarray, min_fraction: float = 0.003) -> np.ndarray | None:
-    """Probability (N, H, W) that a pixel shows a dark internal feature (eyes, yolk) of the specimen.
-
-    The silhouette of a specimen whose cross-sections are convex says almost nothing about the
-    roll of each view: a slightly rotated set of tangent lines still bounds a convex section. The
-    dark, strongly absorbing features inside a translucent larva do: the two eyes project as one
-    or two blobs depending on the angle. Their "silhouettes" are found as the darker of two
-    luminance classes within the specimen (Otsu's split of the foreground pixels, decided at the
-    midpoint of the two class means), softened over a tenth of the gap between the means. Returns None when fewer than
-    ``min_fraction`` of the foreground pixels are dark (no usable internal features).
-    """
-    img = np.asarray(images, np.float32)
-    lum = img.mean(axis=-1) if img.ndim == 4 else img
-    fg = pf > 0.5
-    if fg.sum() < 100:
-        return None
-    vals = lum[fg]
-    lo, hi = np.percentile(vals, [0.5, 99.5])
-    if hi - lo < 1e-6:
-        return None
-    q = np.clip((vals - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
-    t_otsu, _ = cv2.threshold(q, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    thr = lo + t_otsu / 255.0 * (hi - lo)
-    dark_mean, light_mean = vals[vals <= thr].mean(), vals[vals > thr].mean()
-    if (vals <= thr).mean() < min_fraction or light_mean - dark_mean < 1e-6:
-        return None
-    mid = 0.5 * (dark_mean + light_mean)  # Otsu splits the classes; their midpoint is the decision level
-    scale = 0.1 * (light_mean - dark_mean)
-    p = 1.0 / (1.0 + np.exp(np.clip((lum - mid) / scale, -50, 50)))
-    return (p * pf).astype(np.float32)
-
-
 def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
     """(N, K) the views against which each view's edge rays are checked, K = min(N − 1, ``max_partners``).
 
@@ -342,30 +312,44 @@ def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
     return np.ascontiguousarray(order[:, pos])
 
 
-def coherence_parts(objective: object) -> list:
-    """The single objectives of ``objective``: a :class:`SumObjective`'s parts, else the objective itself."""
-    return list(getattr(objective, "parts", None) or [objective])
+@dataclass(frozen=True)
+class RaySearch:
+    """How the coherence cost searches each edge ray for the others' hull.
+
+    Attributes:
+        stages: samples of each zoom stage after the first (each spans ±1 step of the previous stage around its best
+            sample). The first stage samples the ray's chord through the cylinder of the specimen's radius about the
+            axis at about one pixel of the level per step (as seen from the other views), so that no thin part of the
+            specimen falls between samples; at most ``max_first_stage`` samples.
+        window, window_px: samples and half-width of the per-candidate window around the peaks; the half-width is
+            ``window_px`` pixels of the level at the axis distance.
+        max_slides: how often a ray's window may slide to bracket its maximum
+        (:meth:`CoherenceObjective._follow_rising_ends`).
+        research_deg: repeat the full search along the rays when the population mean has moved more than this
+            (degrees, any entry) since the last one.
+        max_points: bound of the ray samples × partner views held at once (memory ~40 bytes each).
+        max_partners: each edge ray is checked against at most this many other views (:func:`partner_views`); time
+            and memory then grow linearly with the number of views.
+    """
+
+    stages: tuple[int, ...] = (7, 7, 7)
+    window: int = 7
+    window_px: float = 1.5
+    max_slides: int = 3
+    max_first_stage: int = 256
+    research_deg: float = 0.1
+    max_points: int = 1_000_000
+    max_partners: int = 20
 
 
-class SumObjective:
-    """Sum of objectives over the same θ (e.g. body silhouettes + dark internal features)."""
+@dataclass(frozen=True)
+class Penalty:
+    """The one-sided penalty of an edge ray's residual r (pixels): softplus(−r/σ)·σ, capped (redescending) at
+    ``cap_px``; r is the (``trim`` + 1)-th smallest signed distance over the other views."""
 
-    def __init__(self, parts: list[CoherenceObjective], weights: list[float]) -> None:
-        self.parts, self.weights = parts, weights
-        self.name = "+".join(p.name for p in parts)
-        self.n_evaluations = 0
-
-    def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
-        """Costs (B,) for θ (B, 3 + N) degrees."""
-        th = np.atleast_2d(theta_deg)
-        self.n_evaluations += th.shape[0]
-        return sum(w * p(th) for p, w in zip(self.parts, self.weights))
-
-    def view_costs(self, theta_deg: np.ndarray) -> np.ndarray:
-        """(B, N): each view's edge rays' share of the cost (summed over the views: the cost)."""
-        th = np.atleast_2d(theta_deg)
-        self.n_evaluations += th.shape[0]
-        return sum(w * p.view_costs(th) for p, w in zip(self.parts, self.weights))
+    sigma_px: float = 0.33
+    trim: int = 1
+    cap_px: float = 1.5
 
 
 class CoherenceObjective:
@@ -378,24 +362,12 @@ class CoherenceObjective:
         K: intrinsics of the level's pixels.
         distance: axis distance d, µm.
         radius_um: the specimen lies within this distance of the axis (sets the depth range of the rays).
-        stages: samples of each zoom stage after the first (each spans ±1 step of the previous
-            stage around its best sample). The first stage samples the ray's chord through the
-            cylinder of ``radius_um`` about the axis at about one pixel of the level per step (as
-            seen from the other views), so that no thin part of the specimen falls between samples;
-            at most ``max_first_stage`` samples.
-        window, window_px: samples and half-width of the per-candidate window around the peaks; the
-            half-width is ``window_px`` pixels of the level at the axis distance (converted to µm).
-        max_slides: how often a ray's window may slide to bracket its maximum (:meth:`_follow_rising_ends`).
-        sigma_px: softness σ of the one-sided penalty, pixels.
-        research_deg: repeat the full search along the rays when the population mean has moved more
-            than this (degrees, any entry) since the last one.
-        max_points: bound of the ray samples × partner views held at once (memory ~40 bytes each).
-        max_partners: each edge ray is checked against at most this many other views
-            (:func:`partner_views`); time and memory then grow linearly with the number of views.
+        per_candidate: every candidate searches its own rays in full (its cost does not depend on its batch).
         angles_deg: (N,) roll angles that choose the partners (default: the first θ evaluated).
         local_zooms: zoom stages (``window`` samples over ± one step of the last, around the best) that refine
             every ray's maximum, so that a candidate's maximum is read as finely as the batch mean's own, found by
             the full search (:meth:`_local_max`).
+        penalty, search: :class:`Penalty` and :class:`RaySearch`.
     """
 
     name = "pi-coherence"
@@ -407,21 +379,16 @@ class CoherenceObjective:
         K: np.ndarray,
         distance: float,
         radius_um: float,
-        stages: tuple[int, ...] = (7, 7, 7),
-        window: int = 7,
-        window_px: float = 1.5,
-        max_slides: int = 3,
-        sigma_px: float = 0.33,
-        trim: int = 1,
-        cap_px: float = 1.5,
-        max_first_stage: int = 256,
-        research_deg: float = 0.1,
+        *,
         per_candidate: bool = False,
-        max_points: int = 1_000_000,
-        max_partners: int = 20,
         angles_deg: np.ndarray | None = None,
         local_zooms: int = 0,
+        penalty: Penalty = Penalty(),
+        search: RaySearch = RaySearch(),
     ) -> None:
+        stages, window, window_px, max_slides = search.stages, search.window, search.window_px, search.max_slides
+        max_first_stage, research_deg, max_points = search.max_first_stage, search.research_deg, search.max_points
+        sigma_px, trim, cap_px, max_partners = penalty.sigma_px, penalty.trim, penalty.cap_px, search.max_partners
         self.atlas = sd if isinstance(sd, Atlas) else Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
@@ -740,7 +707,8 @@ class CoherenceObjective:
         width = int(counts.max())
         if width == 0:
             return out
-        # Each (candidate, view)'s open gaps in order, padded by repeating its first (or gap 0 of ray 0: read, not kept).
+        # Each (candidate, view)'s open gaps in order, padded by repeating its first (or gap 0 of ray 0: read, not
+        # kept).
         bi, ii, ri, gi = np.nonzero(open_gap)
         slot = np.arange(bi.size) - np.repeat(
             np.cumsum(counts.ravel()) - counts.ravel(), counts.ravel()
@@ -919,7 +887,8 @@ class CoherenceObjective:
         return np.einsum("ij,bnjk->bnik", self.K.astype(np.float32), Rt).astype(np.float32)
 
     def _ray_points(self, rays: np.ndarray, R: np.ndarray, t: np.ndarray, Z: np.ndarray) -> np.ndarray:
-        """Homogeneous points (..., 4, R, S) on the edge rays ``rays`` (..., R, 3) of views posed R (..., 3, 3), t (..., 3)
+        """Homogeneous points (..., 4, R, S) on the edge rays ``rays`` (..., R, 3) of views posed R (..., 3, 3), t
+        (..., 3)
         at camera depths Z (..., R, S), µm: X = Rᵀ(z·ray − t), w = 1 (leading dimensions broadcast).
 
         Written as X = X₀ + (z − d)·Rᵀ ray with X₀ = Rᵀ(d·ray − t) the ray's point at the axis distance d: one
@@ -955,3 +924,27 @@ class CoherenceObjective:
     def view_costs(self, theta_deg: np.ndarray) -> np.ndarray:
         """(B, N): each view's edge rays' share of the cost (B,) (summed over the views: :meth:`__call__`)."""
         return self._weighted_penalties(theta_deg).sum(axis=2).astype(np.float64)
+
+
+def coherence_objective(
+    level: LevelMaps, settings: CalibrationSettings, *, exact: bool, local_zooms: int
+) -> CoherenceObjective:
+    """The coherence cost of one level: edges found under the level's start θ (the axis image barely moves), rays
+    searched within the region's radius, the level's signed-distance atlas shared by its objectives; ``exact``:
+    every candidate searches its own rays (its cost does not depend on its batch)."""
+    P_now = projection_matrices(level.K, level.distance, level.theta[None])[0]
+    edges = silhouette_edges(level.pf, axis_crossings(P_now, level.shape), max_lines=level.edge_lines)
+    region = level.region
+    radius = float(np.max(np.linalg.norm(region.voxels[:, 1:], axis=1))) + 2 * region.voxel_size
+    if "atlas" not in level.shared:
+        level.shared["atlas"] = coherence_atlas(level.pf)  # held over the specimen's window only
+    return CoherenceObjective(
+        level.shared["atlas"],
+        edges,
+        level.K,
+        level.distance,
+        radius,
+        per_candidate=exact,
+        local_zooms=local_zooms,
+        penalty=Penalty(sigma_px=settings.coherence_sigma_px, trim=settings.coherence_trim),
+    )

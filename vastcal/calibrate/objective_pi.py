@@ -16,17 +16,18 @@ and a voxel near the decision boundary contributes a graded amount.
 
 Two forms, ``form=``:
 
-* ``"count"`` (default): J_c = (1/M) Σ_j σ(logit P_f(Q_j)) = (1/M) Σ_j P_f(Q_j). The authors' code
+* ``"count"``: J_c = (1/M) Σ_j σ(logit P_f(Q_j)) = (1/M) Σ_j P_f(Q_j). The authors' code
   counts the voxels whose log-ratio log P_f − log P_b is positive, Σ_j H(logit P_f); replacing the
   step H by the logistic σ is the smooth version of exactly that count — a soft visual-hull
   volume, largest when all views agree. A voxel that some view calls background contributes
   P_f ≈ e^(k·log ε / N) → 0, so background voxels neither help nor hurt.
-* ``"loglik"``: J_l = (1/M) Σ_j logit P_f(Q_j), the sum of log-ratios as the equation is written.
+* ``"loglik"`` (the settings' default, ``pi_form``): J_l = (1/M) Σ_j logit P_f(Q_j), the sum of log-ratios as the
+equation is written.
   Measured on the real zebrafish: for a voxel that several views call background,
   logit P_f ≈ (1/N) Σ_i log p_f,i is *linear* in the per-view terms, so J_l decouples into one
   term per view — "cover as much foreground as possible with the voxel cloud's projection" —
   and static foreground-coloured structures (the capillary walls) drag the views to the bounds.
-  Kept for comparison.
+  The paper's form, hence the default.
 
 The voxels are fixed before optimisation (the region where the specimen can be, :mod:`.region`);
 the cost returned for minimisation is −J.
@@ -36,7 +37,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from vastcal.calibrate.objective import LevelMaps
 from vastcal.calibrate.sampling import Atlas, Projector
+from vastcal.config import CalibrationSettings
 
 
 class PIObjective:
@@ -46,13 +49,13 @@ class PIObjective:
         log_pf: (N, H, W) float32 clamped log foreground posteriors of the (resized) views.
         projector: the level's voxels and intrinsics.
         weights: (M,) voxel weights (0 for padding voxels), default 1.
-        form: ``"count"`` (smoothed voxel count, default) or ``"loglik"`` (sum of log-ratios).
+        form: ``"count"`` (smoothed voxel count) or ``"loglik"`` (sum of log-ratios, the settings' default).
     """
 
     name = "pi"
 
     def __init__(
-        self, log_pf: np.ndarray, projector: Projector, weights: np.ndarray | None = None, form: str = "count"
+        self, log_pf: np.ndarray, projector: Projector, weights: np.ndarray | None = None, form: str = "loglik"
     ) -> None:
         if form not in ("count", "loglik"):
             raise ValueError(f"unknown PI objective form {form!r}")
@@ -76,3 +79,12 @@ class PIObjective:
             term = a - np.log(-np.expm1(a))  # log P_f − log P_b
         self.n_evaluations += th.shape[0]
         return -(term @ self.weights).astype(np.float64)
+
+
+def pi_objective(level: LevelMaps, settings: CalibrationSettings, *, exact: bool, local_zooms: int) -> PIObjective:
+    """The PI objective of one level over the region's voxels (batch-independent: ``exact`` and ``local_zooms`` do
+    not apply)."""
+    eps = settings.eps
+    lmap = np.clip(np.log(np.clip(level.pf, eps, 1 - eps)), np.log(eps), np.log1p(-eps))
+    vox, weights = level.padded_voxels()
+    return PIObjective(lmap.astype(np.float32), Projector(level.K, level.distance, vox), weights, settings.pi_form)

@@ -18,9 +18,12 @@ out of view) and the next level had no voxels left; a cone union that vanishes n
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
+from vastcal.calibrate.objective import LevelMaps
 from vastcal.calibrate.sampling import Atlas, Projector
+from vastcal.config import CalibrationSettings
 
 
 class VRObjective:
@@ -58,3 +61,10 @@ class VRObjective:
         union = (mean @ self.weights).astype(np.float64)
         residual = ((mean - prod) @ self.weights).astype(np.float64)
         return np.where(union > 1e-6, residual / np.maximum(union, 1e-6), 1.0)
+
+
+def vr_objective(level: LevelMaps, settings: CalibrationSettings, *, exact: bool, local_zooms: int) -> VRObjective:
+    """The VR objective of one level on its rough silhouettes, blurred by ``vr_blur_px`` (batch-independent)."""
+    blurred = np.stack([cv2.GaussianBlur(s, (0, 0), settings.vr_blur_px) for s in level.silhouettes()])
+    vox, weights = level.padded_voxels()
+    return VRObjective(blurred, Projector(level.K, level.distance, vox), weights, settings.eps)

@@ -1,57 +1,19 @@
-"""The per-view roll scan: every free roll's cost over its whole box, the others held, to find views left in another basin.
+"""The per-view roll scan: every free roll's cost over its whole box, the others held, to find views left in another
+basin (docs/calibration.md, "The per-view roll scan", for the reasoning and the measurements).
 
-CMA-ES in 35 dimensions can end with single views in the wrong basin of the cost, several degrees from where the
-rest of the revolution puts them, and what follows it is local: the next level's CMA-ES starts with steps of a
-fraction of a degree, the per-view polish reaches 0.75° at most. So after every level but the last (in practice
-after the first, on its ¼-width maps) every free roll is scored over its whole box on a grid, all other views
-held at the current pose x; the views whose scan finds a lower cost beyond what the next level's first steps
-reach are moved, the joint move (and the moves of the better half, and the best single move) are scored on the
-level's batch-independent cost, and the lowest is kept when it lowers that cost. The views' costs are coupled (a
-view's rays are checked against its partners' silhouettes), hence the judged moves and the repeated rounds. The
-last level then refines from there (:func:`.run._run_start`).
+CMA-ES in many dimensions can leave single views in the wrong basin, and what follows it is local. So every free roll
+is scored over its whole box on a grid, the others held at x; the views whose scan finds a lower cost beyond what the
+next level's first steps reach are candidates; their joint move, the better half's and the best single move are
+judged on a batch-independent cost and the lowest is kept when it lowers that cost; rounds repeat while one keeps a
+move. View 0 (fixed, it defines 0°) is scanned through the gauge when every other roll is free: a common rotation
+about the axis leaves the coherence cost unchanged, so view 0 by d is every free roll by −d.
 
-View 0 is held fixed (it defines 0°), yet it is the one view that can be off: when the other views agree with
-each other a few degrees away from it (a +10° test leaves them there), no single free roll can repair that. A
-common rotation of every view about the axis is a gauge of the coherence cost (it rotates the world about the
-axis: the same images, the same cylinder), so moving view 0 by d costs what moving every other view by −d
-costs. When all other rolls are free the scan therefore scores view 0 as well, by moving its roll in θ alone
-(a single-roll trial like the others); a move of it is applied as −d on every free roll. The roll prior is not
-gauge-free: a trial of view 0 is scored with the prior of the others moved.
-
-The grid step, from the basin width
------------------------------------
-The coherence cost sums per-edge penalties that grow with an edge ray's gap and saturate at ``cap_px`` (level
-pixels; :class:`.objective_coherence.CoherenceObjective`). A roll of view v by δ degrees moves the specimen's
-image in view v by about m_v · δ pixels (m_v: the RMS image motion of the specimen region's points per degree of
-that roll at x, with the level's camera: :func:`roll_motion_px_per_deg`), and it turns view v's edge rays about the
-axis, which its partners, spread around the revolution, see moving by about the RMS m̄ of every view's motion. One
-edge's penalty needs a roll of about cap_px / m degrees to go from its lowest to its plateau, and a sum of such
-penalties forms no dip narrower than its narrowest term: w_v = cap_px / max(m_v, m̄) is the narrowest half-width
-of a basin of view v's cost (:func:`basin_half_widths_deg`). The grid step is half of it (:data:`STEP_FRACTION`):
-every basin then holds at least two samples on each side of its minimum, and its best sample lies within a
-quarter of w_v of the minimum, where a parabolic basin has risen by at most 1/16 of its rise over w_v. A parabola
-through the best sample and its neighbours then places the move. A roll whose whole range in the box is no wider
-than w_v has room for one basin at most, which the local search finds; it is not scanned. A microscope's rolls
-barely move its image, so there nothing is scanned and nothing costs: ZF1 (±5° box) w_v 12–13°, the simulated
-demo (±4°) 10.5–11°.
-
-Measured on the synthetic 36-view 720 × 576 turntable set (``benchmarks/turntable_speed.py``, ±15° box) at the
-first level's 256 px: m_v 0.12–0.73 px per degree, w_v 2.0–3.3° (steps 1.0–1.7°, ~1000 trials a round); the
-single-view profiles of that cost have basins 4–6° wide on either side of their minima, above the bound as they
-must be. With the view's own motion alone (no m̄) views 27 and 28, which see the specimen move along their line of
-sight, got 6–6.5° steps and their basins were stepped over.
-
-Batches: the cost that searches its rays around the batch mean
---------------------------------------------------------------
-The scan's cost is the level's fast coherence cost, which searches every ray's maximum for the batch's mean θ and
-scores each candidate on a window around those depths (:class:`.objective_coherence.CoherenceObjective`); a
-batch of single-roll moves re-evaluates only the moved view's rays and those of the views that check against it.
-Each batch holds x and, for every scanned view, the pair x ± j·s_v of its j-th step: its mean is x, as the
-polish's batches (:func:`.run.polish_rolls`), so that every trial is scored on the same footing as x, whose cost
-is in every batch, and the ray search is done once at x. A pair's trial beyond the box is scored (the cost is
-defined there) but never chosen. Far trials are scored on x's ray depths, which over-rates them a little (the
-window slides only so far): a gain the scan sees is an under-estimate, and every move is judged on the
-batch-independent cost before it is kept.
+The grid step is half of view v's narrowest basin half-width w_v = cap_px / max(m_v, m̄) (degrees): one edge's
+penalty saturates at ``cap_px`` level pixels, m_v is the RMS image motion (level pixels per degree) of the specimen
+region under v's roll, m̄ the RMS over the views (v's partners see its rays turn). A roll whose box range is no wider
+than w_v has room for one basin and is not scanned: a microscope's rolls barely move its image, so there nothing is.
+Each batch holds x and every scanned view's pair x ± j·s_v, so its mean is x and the fast cost's ray search (around
+the batch mean) is done once at x; far trials are somewhat over-rated, so every move is judged before it is kept.
 """
 
 from __future__ import annotations
@@ -271,6 +233,23 @@ def compose(space: ParameterSpace, x: np.ndarray, moves: dict[int, float]) -> np
     return np.clip(space.x(th), -1.0, 1.0)
 
 
+@dataclass(frozen=True)
+class ScanRule:
+    """What the roll scan scans and keeps.
+
+    Attributes:
+        half_width_deg: θ (3 + N,) degrees → every view's narrowest basin half-width (N,), degrees.
+        gauge: view 0 is scanned too, through the gauge (every other roll free, no roll prior).
+        reach_deg: what the per-view polish that follows reaches on its own: moves within it are left to it.
+        share: the part of the cost one roll enters (:func:`.stage_roll_scan.roll_share`).
+    """
+
+    half_width_deg: Callable[[np.ndarray], np.ndarray]
+    gauge: bool
+    reach_deg: float
+    share: float
+
+
 def roll_scan(
     data: CostFn,
     prior: CostFn,
@@ -278,11 +257,8 @@ def roll_scan(
     space: ParameterSpace,
     x: np.ndarray,
     f_judged: float,
+    rule: ScanRule,
     *,
-    half_width_deg: Callable[[np.ndarray], np.ndarray],
-    gauge: bool,
-    reach_deg: float,
-    share: float,
     on_round: Callable[[int, int], None] | None = None,
     on_batch: Callable[[int], None] | None = None,
 ) -> tuple[np.ndarray, float, int, dict[str, Any]]:
@@ -293,12 +269,14 @@ def roll_scan(
     half-width w_v, degrees: :func:`basin_half_widths_deg`), scans (:func:`scan_views`), and takes as candidates the
     views whose best move lies beyond ``reach_deg`` (what the per-view polish that follows reaches on its own)
     with a predicted gain above :data:`GAIN_RTOL` × ``share`` × the cost (``share``: the part of the cost one roll
-    enters, :func:`.run.roll_share`). The joint move of all candidates, of the better half by gain and the best
+    enters, :func:`.stage_roll_scan.roll_share`). The joint move of all candidates, of the better half by gain and the
+    best
     single move are scored on ``judge`` (batch-independent, with the prior); the lowest is kept if it is lower
     than x's judged cost. A round that keeps nothing, or finds no candidate, ends the scan; at most
     :data:`MAX_ROUNDS` rounds. ``on_round(r, evaluations)`` is told each round's planned evaluations before it
     starts, ``on_batch(evaluations)`` the scan's evaluations so far (all rounds).
     """
+    half_width_deg, gauge, reach_deg, share = rule.half_width_deg, rule.gauge, rule.reach_deg, rule.share
     evals, rounds = 0, []
     f = float(f_judged)
     for r in range(MAX_ROUNDS):
@@ -402,7 +380,8 @@ def scan_outlier_views(
     half_width_deg: np.ndarray,
     on_view: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, float, int, dict[str, Any]]:
-    """A last look for views left in another basin: each outlier view's roll (:func:`outlier_views` of its own edge rays'
+    """A last look for views left in another basin: each outlier view's roll (:func:`outlier_views` of its own edge
+    rays'
     cost at x) scored over its whole box on the batch-independent ``judge`` (with the prior), the others held.
 
     The per-view roll scan (:func:`roll_scan`) runs on a level's fast cost, whose far trials are read in windows

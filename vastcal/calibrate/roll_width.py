@@ -57,7 +57,8 @@ class RollWidths:
 
     @property
     def n_evaluations(self) -> int:
-        """Evaluations of the data cost the widths took: θ and ±σ_p on each measured roll (none when nothing was measured)."""
+        """Evaluations of the data cost the widths took: θ and ±σ_p on each measured roll (none when nothing was
+        measured)."""
         measured = int(np.isfinite(self.rise).sum())
         return 2 * measured + 1 if measured else 0
 
@@ -69,7 +70,10 @@ class RollWidths:
         sigma = float(np.median(self.sigma_deg[np.isfinite(self.rise)]))
         if most:
             return f"the images determine {determined} of {n_free} free rolls (median sigma {sigma:.3g}°)"
-        return f"undetermined by the images ({determined} of {n_free} free rolls): the rolls follow the prior (median sigma {sigma:.3g}°)"
+        return (
+            f"undetermined by the images ({determined} of {n_free} free rolls): "
+            f"the rolls follow the prior (median sigma {sigma:.3g}°)"
+        )
 
 
 def roll_widths(

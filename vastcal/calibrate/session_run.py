@@ -16,12 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from vastcal.calibrate.optimise import ProgressCallback
-from vastcal.calibrate.parameters import parse_views
-from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method, calibrate_views
-from vastcal.config import CalibrationBounds, CalibrationConfig, RoiConfig, check_setting
-from vastcal.errors import SessionIncompleteError, UserInputError, VastcalError
+from vastcal.calibrate.observer import ProgressCallback
+from vastcal.calibrate.parameters import normalise_free, parse_views
+from vastcal.calibrate.run import CalibrationResult, Marks, References, calibrate_views
+from vastcal.config import RENAMED_KEYS, CalibrationSettings, RoiConfig, check_setting
+from vastcal.errors import ConfigError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import circular_fit_shortfall, decompose_circular, intrinsics_from_optics
+from vastcal.rig_health import load_rig_prior
 from vastcal.segmentation import ColourModel
 from vastcal.session import Session, software_versions, write_attrs
 from vastcal.session_frames import SessionFrames
@@ -89,88 +90,87 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
     )
 
 
+def session_settings(session: Session, overrides: dict[str, Any]) -> CalibrationSettings:
+    """The session's rig file's ``calibration:`` settings with ``overrides`` (setting name → value; None: not given;
+    a setting's former rig-file name is accepted), each checked against the setting's type and range.
+
+    Raises:
+        ConfigError: an unknown setting or a value out of its range (one line naming it).
+    """
+    settings = session.rig_config().calibration
+    given = {RENAMED_KEYS.get(f"calibration.{k}", k): v for k, v in overrides.items() if v is not None}
+    known = {f.name for f in dataclasses.fields(CalibrationSettings)}
+    for name, value in given.items():
+        if name not in known:
+            raise ConfigError(f"unknown calibration setting {name!r}")
+        if name == "free":
+            value = normalise_free(value)
+        elif name not in ("bounds", "levels"):
+            value = int(value) if isinstance(value, np.integer) else value
+            value = check_setting(CalibrationSettings, name, value, name.replace("_", " "))
+        settings = dataclasses.replace(settings, **{name: value})
+    return settings
+
+
 def calibrate_session(
     path_or_session: str | Path | Session,
     *,
-    method: Method | None = None,
-    seed: int | None = None,
-    free: Sequence[str] | str | None = None,
-    bounds: CalibrationBounds | None = None,
     mask: tuple[int, np.ndarray] | None = None,
     scribbles: tuple[int, np.ndarray] | None = None,
     use_masks: bool | None = None,
-    settings: CalibrationSettings | None = None,
-    offset_scan_deg: float | None = None,
     progress: ProgressCallback | None = None,
     fixed_views: str | Sequence[int] | None = None,
-    starts: int | None = None,
     score_thetas: Sequence[np.ndarray] = (),
     prior_from: str | Path | None = None,
     judge_imported_cameras: bool = True,
+    **overrides: Any,
 ) -> CalibrationResult:
     """Calibrate a session and store the run (see the module docstring).
 
     Args:
         path_or_session: a session file, or a :class:`Session` opened with ``mode="a"``.
-        method: ``"coherence"`` (vastcal's own cost), ``"pi"`` (the paper's objective as published) or ``"vr"``
-            (default: the rig config's ``calibration.method``).
-        seed, free, bounds: CMA-ES seed, free groups, half-widths (defaults from the rig config).
         mask: (view, array) rough mask (nonzero = specimen) for the colour models.
         scribbles: (view, labels) with 0 unknown, 1 specimen, 2 background.
         use_masks: VR only — use the session's imported masks as silhouettes (default: when present).
-        settings: numerical settings (default: :class:`CalibrationSettings` with the rig config's
-            ``calibration.offset_scan_deg``, ``roll_scan``, ``prior_weight``, ``roll_prior_deg`` and ``yaw_prior_deg``).
-        offset_scan_deg: overrides the settings' common roll-offset scan step (``--offset-scan``).
         progress: callback (evaluations, best cost, elapsed s, ETA s).
         fixed_views: views whose roll stays at its commanded angle: ``"10-35"``, ``"0,3,5-7"`` or indices (0-based).
-        starts: independent starts, the best kept (default ``settings.starts``, 1).
         score_thetas: θ vectors (degrees, the session's frame) only scored on the final cost (benchmarks: the truth).
         prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default the rig
             config's ``calibration.prior_from``): see :func:`apply_rig_prior`.
         judge_imported_cameras: never store a pose the cost rates worse than the session's imported cameras (their own
             θ); False where those cameras are a ground truth the calibration must not see (benchmarks).
+        overrides: calibration settings by name (:class:`vastcal.config.CalibrationSettings`: ``method``, ``seed``,
+            ``free``, ``bounds``, ``starts``, ``roll_offset_scan_deg``, ``levels``, …) over the session's rig file's;
+            None leaves a setting as it is.
 
     Raises:
         SessionIncompleteError: incomplete session, fewer than 3 views, no angles.
         UserInputError: bad mask/scribbles/free; ColourModelError, EmptyHullError: data that cannot be calibrated.
+        ConfigError: an unknown setting or one out of its range.
     """
     own = not isinstance(path_or_session, Session)
     session = Session.open(path_or_session, "r") if own else path_or_session
     try:
         session.require_complete(min_views=3)
-        cfg = session.rig_config().calibration
-        if method is None and cfg.method == "pi":
+        if overrides.get("method") is None and session.rig_config().calibration.method == "pi":
             log.warning(
-                "%s: its rig file asks for method pi, the paper's objective as published (since 2026-11-25); vastcal's "
-                "default cost is now called coherence (--method coherence)",
+                "%s: its rig file asks for method pi, the paper's objective as published; vastcal's own cost is "
+                "method coherence (--method coherence)",
                 session.path,
             )
-        method = method or cfg.method
-        seed = cfg.seed if seed is None else int(seed)
-        free = cfg.free if free is None else free
-        bounds = bounds or cfg.bounds
-        if settings is None:
-            settings = CalibrationSettings(
-                roll_offset_scan_deg=cfg.offset_scan_deg,
-                roll_scan=cfg.roll_scan,
-                roll_prior_weight=cfg.prior_weight,
-                roll_prior_deg=cfg.roll_prior_deg,
-                yaw_prior_deg=cfg.yaw_prior_deg,
-                photometric_yaw=cfg.photometric_yaw,
-                memory_mb=cfg.memory_mb,
-            )
-        if offset_scan_deg is not None:  # the rig file's range applies to the override too
-            scan = check_setting(CalibrationConfig, "offset_scan_deg", offset_scan_deg, "offset scan (--offset-scan)")
-            settings = dataclasses.replace(settings, roll_offset_scan_deg=float(scan))
+        try:
+            settings = session_settings(session, overrides)
+        except VastcalError as exc:
+            raise exc.about(session.path) from None
         K, d, theta0, notes = session_camera_model(session)
         commanded0 = theta0.copy()
-        prior_src = cfg.prior_from if prior_from is None else str(prior_from)
+        prior_src = settings.prior_from if prior_from is None else str(prior_from)
         if prior_src is not None:
             theta0 = apply_rig_prior(theta0, prior_src, notes)
         fixed = parse_views(fixed_views, len(theta0) - 3)
         images = SessionFrames(session.path if own else session)  # read when needed, never the whole revolution at once
         masks = session.masks
-        sil = masks if (method == "vr" and masks is not None and use_masks is not False) else None
+        sil = masks if (settings.method == "vr" and masks is not None and use_masks is not False) else None
         if use_masks and masks is None:
             raise UserInputError(f"{session.path}: no imported masks to use as silhouettes")
     finally:
@@ -182,19 +182,11 @@ def calibrate_session(
             K,
             d,
             theta0,
-            method=method,
-            seed=seed,
-            free=free,
-            bounds=bounds,
-            mask=mask,
-            scribbles=scribbles,
-            silhouettes=sil,
             settings=settings,
+            marks=Marks(mask=mask, scribbles=scribbles, silhouettes=sil),
             progress=progress,
             fixed_views=fixed,
-            starts=starts,
-            score_thetas=score_thetas,
-            **(_imported_reference(notes) if judge_imported_cameras else {}),
+            references=_references(notes if judge_imported_cameras else {}, score_thetas),
         )
     except VastcalError as exc:  # name the session in errors found in its data
         raise exc.about(getattr(path_or_session, "path", path_or_session)) from None
@@ -220,12 +212,12 @@ def calibrate_session(
     return result
 
 
-def _imported_reference(notes: dict[str, Any]) -> dict[str, Any]:
-    """calibrate_views' reference θ: the imported cameras' own, when the session has them."""
+def _references(notes: dict[str, Any], score_thetas: Sequence[np.ndarray]) -> References:
+    """calibrate_views' references: the imported cameras' own θ, when the session has them; the θ only scored."""
     known = notes.get("imported_cameras_theta_deg")
     if known is None:
-        return {}
-    return {"reference_thetas": [np.asarray(known, float)], "reference_names": ["the imported cameras"]}
+        return References(score_thetas=tuple(score_thetas))
+    return References([np.asarray(known, float)], ["the imported cameras"], tuple(score_thetas))
 
 
 def apply_rig_prior(theta0: np.ndarray, results_dir: str | Path, notes: dict[str, Any]) -> np.ndarray:
@@ -239,8 +231,6 @@ def apply_rig_prior(theta0: np.ndarray, results_dir: str | Path, notes: dict[str
     Raises:
         ConfigError: ``calibration.prior_from`` names no usable results folder (one line).
     """
-    from vastcal.rig_health import load_rig_prior
-
     prior = load_rig_prior(results_dir)
     out = np.asarray(theta0, float).copy()
     shift = prior.roll_shift_deg(out[3:])

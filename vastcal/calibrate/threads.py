@@ -36,7 +36,8 @@ _pool_size = 0
 
 
 def compute_threads() -> int:
-    """Threads for one evaluation: ``VASTCAL_THREADS`` if set (≥ 1), else the usable CPUs, at most :data:`MAX_THREADS`."""
+    """Threads for one evaluation: ``VASTCAL_THREADS`` if set (≥ 1), else the usable CPUs, at most
+    :data:`MAX_THREADS`."""
     value = os.environ.get(ENV, "").strip()
     if value:
         try:
