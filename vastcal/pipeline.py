@@ -38,8 +38,8 @@ class RunSummary:
     timings_s: dict[str, float] = field(default_factory=dict)
     truth: dict[str, Any] = field(default_factory=dict)
     length_unit: str = "um"
-    """The world's unit: a known one (``um`` on a rig, ``nm`` … ``m`` of imported cameras: values in mm³/mm²), or ``px`` /
-    ``unknown`` (values in that unit, never as mm)."""
+    """The world's unit: a known one (``um`` on a rig, ``nm`` … ``m`` of imported cameras: values in mm³/mm²), or
+    ``px`` / ``unknown`` (values in that unit, never as mm)."""
 
     def summary(self) -> str:
         """Human lines: measurements with units, calibration, timings, truth comparison."""
@@ -87,7 +87,8 @@ def check_camera_choice(session: str | Path, calibration_run: str | None) -> Non
     """Check, before any work, that the cameras a stage is asked to use exist in the session.
 
     Args:
-        calibration_run: ``run_NNN``, ``"imported"`` (the imported cameras) or None (the latest run, else the imported cameras).
+        calibration_run: ``run_NNN``, ``"imported"`` (the imported cameras) or None (the latest run, else the
+            imported cameras).
 
     Raises:
         UserInputError: no such calibration run (the message lists the runs), or no imported cameras.
@@ -108,8 +109,60 @@ def check_camera_choice(session: str | Path, calibration_run: str | None) -> Non
         runs = s.stages_run().get("calibration", [])
         if calibration_run not in runs:
             raise UserInputError(
-                f"{session}: --calibration-run: no calibration run {calibration_run} (runs: {', '.join(runs) or 'none'})"
+                f"{session}: --calibration-run: no calibration run {calibration_run} "
+                f"(runs: {', '.join(runs) or 'none'})"
             )
+
+
+def check_session_units(session: str | Path, *, voxel_size_um: float | None = None) -> None:
+    """Check, before any work, the units a session's measurement rests on (:mod:`vastcal.plausibility`): its pixel
+    on the specimen (when known), the commanded angles an import took from a file or a stack's metadata (not the
+    uniform default, the cameras' rolls or a stage's steps), and the voxel size (``voxel_size_um``, else the stored
+    rig file's) against the pixel at the rotation axis and the frame.
+
+    The pixel at the axis is the imported cameras' (distance to the axis / focal length, in their world unit made
+    µm, or in their own unit when it is unknown), else the session's pixel on the specimen.
+
+    Raises:
+        ImplausibleValueError: naming the session, the value and the likely fix.
+    """
+    from vastcal import plausibility
+    from vastcal.importer import UNIFORM_ANGLES, pixel_size_known
+    from vastcal.session import Session
+
+    with Session.open(session) as s:
+        plan, pixel_um = s.plan, s.pixel_size_um[0]
+        if pixel_size_known(plan):
+            plausibility.check_specimen_pixel(pixel_um, f"{session}: the pixel size on the specimen")
+        source = str(plan.get("angle_source", ""))
+        if plan.get("source") == "import" and source != UNIFORM_ANGLES and not source.startswith("the rolls"):
+            plausibility.check_angles(s.angles_deg, f"{session}: the commanded angles ({source})")
+        if voxel_size_um is None:
+            try:
+                voxel_size_um = s.rig_config().reconstruction.voxel_size_um
+            except VastcalError:  # an unreadable stored rig file: reconstruct says so itself
+                voxel_size_um = None
+        if voxel_size_um is not None:
+            pixel_axis = _pixel_at_axis(s) or pixel_um
+            plausibility.check_voxel_size(voxel_size_um, pixel_axis, s.frame_shape, f"{session}: the voxel size")
+
+
+def _pixel_at_axis(s: Any) -> float | None:
+    """Size (µm, or the cameras' own unit when unknown) of one pixel at the rotation axis of a session's imported
+    cameras, or None (no imported cameras, or not a circular motion)."""
+    from vastcal.geometry import LENGTH_UNITS_UM, decompose_circular
+    from vastcal.session import read_attrs
+
+    P = s.known_cameras
+    if P is None:
+        return None
+    try:
+        motion = decompose_circular(P).motion
+    except VastcalError:
+        return None
+    unit = str(read_attrs(s.h5["/entry/vastcal/cameras"]).get("length_unit", "um"))
+    focal_px = float(np.sqrt(abs(motion.K[0, 0] * motion.K[1, 1])))
+    return motion.distance * LENGTH_UNITS_UM.get(unit, 1.0) / focal_px
 
 
 def _run_number(name: str) -> int:
