@@ -75,7 +75,7 @@ def did_you_mean_um(value_um: float, lo: float, hi: float) -> str:
     [lo, hi], else the range itself."""
     for factor, unit in _UNIT_SLIPS:
         if lo <= value_um * factor <= hi:
-            return f"did you mean {value_um * factor:.4g} µm? (the value in {unit})"
+            return f"did you mean {value_um * factor:.6g} µm? (the value in {unit})"
     return f"expected {lo:g} to {hi:g} µm"
 
 
