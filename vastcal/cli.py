@@ -72,9 +72,10 @@ def _progress(args: argparse.Namespace, label: str, unit: str = "") -> CountProg
 def cmd_import(args: argparse.Namespace) -> int:
     """vastcal import FOLDER -o S.h5 …"""
     from vastcal.config import load_config
-    from vastcal.importer import CameraFile, ImportSettings, import_folder
+    from vastcal.importer import CameraFile, ImportSettings, check_pixel_origin, import_folder
 
     check_output_file(args.output, force=args.force)
+    check_pixel_origin(args.pixel_origin)
     if args.length_unit is not None and args.cameras is None:
         raise UserInputError(
             "--length-unit describes imported cameras; give --cameras too (without them the world is in um)"
@@ -511,7 +512,7 @@ def cmd_prune(args: argparse.Namespace) -> int:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table (exit 1 if any failed)."""
+    """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table (:func:`batch_exit_code`)."""
     from vastcal.batch import run_batch
 
     res = run_batch(

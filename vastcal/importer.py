@@ -700,13 +700,23 @@ def _check_config_roi(views: ImageSet, config: RigConfig) -> None:
         )
 
 
-def _check_arguments(cameras: CameraFile | None, settings: ImportSettings) -> None:
-    """Refuse arguments that are wrong whatever the images: pixel origin, name, a length unit without cameras."""
-    if cameras is not None and cameras.pixel_origin not in PIXEL_ORIGINS:
+def check_pixel_origin(origin: float) -> None:
+    """Refuse a pixel origin (``--pixel-origin``) other than :data:`PIXEL_ORIGINS`.
+
+    Raises:
+        ImportDataError: naming the accepted values.
+    """
+    if origin not in PIXEL_ORIGINS:
         raise ImportDataError(
             f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
-            f"(the coordinate of the first pixel's centre, --pixel-origin), got {cameras.pixel_origin}"
+            f"(the coordinate of the first pixel's centre, --pixel-origin), got {origin}"
         )
+
+
+def _check_arguments(cameras: CameraFile | None, settings: ImportSettings) -> None:
+    """Refuse arguments that are wrong whatever the images: pixel origin, name, a length unit without cameras."""
+    if cameras is not None:
+        check_pixel_origin(cameras.pixel_origin)
     name = settings.name
     if name is not None and (not name.strip() or len(name) > 200 or any(c in name for c in "\n\r\0")):
         raise ImportDataError(f"--name: expected a specimen name of 1 to 200 characters on one line, got {name[:60]!r}")
