@@ -69,9 +69,7 @@ def test_a_pixel_size_typed_in_mm_is_refused_with_the_likely_value(
     code, err = _main(capsys, "import", images, "-o", out, "--config", _rig(tmp_path, magnification=500.0))
     assert code == 2 and "optics.magnification: magnification 500" in err
     code, err = _main(capsys, "import", images, "-o", out, "--config", _rig(tmp_path, working_distance_um=65.0))
-    assert (
-        code == 2 and "optics.working_distance_um: working distance 65 µm" in err and "did you mean 65000 µm?" in err
-    )
+    assert code == 2 and "optics.working_distance_um: working distance 65 µm" in err and "did you mean 65000 µm?" in err
 
 
 def test_accept_units_imports_the_value_as_it_is_and_later_stages_check_it_again(
@@ -175,3 +173,16 @@ def test_the_shipped_rig_files_pass(rig: str) -> None:
     from vastcal.plausibility import check_rig
 
     check_rig(load_config(CONFIG_DIR / rig))
+
+
+def test_acquire_refuses_a_rig_file_in_mm_before_the_stage_moves(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = yaml.safe_load((CONFIG_DIR / "simulated.yaml").read_text())
+    data["optics"]["pixel_size_um"] = 0.0055
+    rig = tmp_path / "sim.yaml"
+    rig.write_text(yaml.safe_dump(data))
+    out = tmp_path / "S.h5"
+    code, err = _main(capsys, "acquire", "--simulate", "--config", rig, "-o", out, "--views", "3")
+    assert code == 2 and "pixel size 0.0055 µm: did you mean 5.5 µm?" in err and not out.exists()
+    assert not (tmp_path / "S.truth.json").exists()
