@@ -447,7 +447,8 @@ def parse_config(data: Any, source: str = "<string>") -> RigConfig:
     if roi.x + roi.width > optics.sensor_width_px or roi.y + roi.height > optics.sensor_height_px:
         raise fail(
             "camera.roi",
-            f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, got x={roi.x} width={roi.width} y={roi.y} height={roi.height}",
+            f"expected the ROI inside the {optics.sensor_width_px} x {optics.sensor_height_px} px sensor, "
+            f"got x={roi.x} width={roi.width} y={roi.y} height={roi.height}",
         )
     for name in cfg.calibration.free:
         if name not in FREE_NAMES:
