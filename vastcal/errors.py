@@ -70,7 +70,7 @@ EXIT_CODES: dict[int, str] = {
     EXIT_FAILURE: "failure",
     EXIT_BAD_INPUT: "bad input (arguments, files, existing output without --force)",
     EXIT_INCOMPLETE: "incomplete (session or work)",
-    EXIT_QC_FAIL: "measured, but the quality verdict is fail (report written; 'check' exits 0, verdict on stderr)",
+    EXIT_QC_FAIL: "measured, but the quality verdict is fail (results stored; 'check' exits 0, verdict on stderr)",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C); another stop signal N gives 128+N (SIGTERM 143, SIGHUP 129)",
 }
 """The exit-code table every command follows (printed in ``vastcal --help``)."""
