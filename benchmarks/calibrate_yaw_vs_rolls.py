@@ -27,9 +27,9 @@ import numpy as np
 from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.photometric_yaw import SCHEDULE, refine_yaw
 from vastcal.calibrate.run import CalibrationSettings
-from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.config import load_config
 from vastcal.pipeline import acquire_simulated
+from vastcal.segmentation import specimen_maps
 from vastcal.session import Session
 
 

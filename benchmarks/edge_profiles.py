@@ -7,7 +7,7 @@ simulator's refraction rim ``simulation.refractive_index`` drawn from the given 
 session, renders the body's exact pixel coverage for the true cameras, and prints:
 
 * the hull volume and area carved with the TRUE coverage (the reconstruction's own error) and with the
-  automatic specimen maps (``vastcal.calibrate.silhouettes.specimen_maps``), both with the true cameras,
+  automatic specimen maps (``vastcal.segmentation.specimen_maps``), both with the true cameras,
   against the exact body hull of the truth file;
 * per view, the mean outward offset (px) of the automatic silhouette (p > ½) from the true outline
   (pixel count difference / contour length): where the error comes from;
@@ -86,11 +86,10 @@ def profile(t: np.ndarray, s: np.ndarray, lo: float = -2.0, hi: float = 6.0) -> 
 
 
 def one_larva(seed: int, outdir: Path, refractive_index: tuple[float, float]) -> None:
-    from vastcal.calibrate.colour_model import fit_automatic
-    from vastcal.calibrate.silhouettes import contrast, specimen_maps
     from vastcal.measure import MeasureSettings, measure_hull
     from vastcal.pipeline import acquire_simulated
     from vastcal.reconstruct import choose_grid, visual_hull_in_grid
+    from vastcal.segmentation import contrast, fit_automatic, specimen_maps
     from vastcal.simulators.camera.battery import battery_config
 
     session = outdir / f"larva_{seed:03d}.h5"
@@ -130,10 +129,9 @@ def zf1() -> None:
     sys.path.insert(0, str(REPO / "tests" / "reconstruct"))
     from phantom_views import read_authors_cameras
 
-    from vastcal.calibrate.colour_model import fit_automatic
-    from vastcal.calibrate.silhouettes import contrast, specimen_maps
     from vastcal.measure import measure_hull
     from vastcal.reconstruct import visual_hull
+    from vastcal.segmentation import contrast, fit_automatic, specimen_maps
     from vastcal.voxels import VoxelGrid
 
     d = REPO.parent / "shared" / "data" / "zf_3dpf_s001"

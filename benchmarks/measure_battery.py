@@ -16,7 +16,7 @@ larva's drawn features. Then a summary: how many within 1 % (volume) and 2 % (ar
 cases, the coverage, the median half-widths, and which features the failures carry.
 
 ``--true-cameras`` skips the calibration: the automatic colour model and specimen maps
-(``vastcal.calibrate.silhouettes.specimen_maps``) are carved with the simulator's true cameras, in
+(``vastcal.segmentation.specimen_maps``) are carved with the simulator's true cameras, in
 this process — the silhouettes' own share of the error, in ~10 s per larva. ``--reuse`` keeps
 sessions already in ``--dir`` (a session that has been run holds its calibrations; ``vastcal run``
 adds new runs and reports the latest). Each finished larva is appended to
@@ -111,10 +111,9 @@ def run_true_cameras(session: Path) -> dict[str, Any]:
     """Automatic silhouettes carved with the simulator's true cameras (no calibration), in this process."""
     import h5py
 
-    from vastcal.calibrate.colour_model import fit_automatic
-    from vastcal.calibrate.silhouettes import specimen_maps, touches_frame_edge
     from vastcal.measure import MeasureSettings, measure_hull
     from vastcal.reconstruct import choose_grid, visual_hull_in_grid
+    from vastcal.segmentation import fit_automatic, specimen_maps, touches_frame_edge
 
     t = time.monotonic()
     P = true_cameras(truth_of(session))

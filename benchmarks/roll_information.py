@@ -38,10 +38,10 @@ from vastcal.calibrate import calibrate_session
 from vastcal.calibrate.objective_coherence import axis_probe
 from vastcal.calibrate.photometric_yaw import absorption_images, background_noise, drop_static
 from vastcal.calibrate.session_run import load_colour_model
-from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.config import load_config
 from vastcal.geometry import project, projection_matrices
 from vastcal.pipeline import acquire_simulated
+from vastcal.segmentation import specimen_maps
 from vastcal.session import Session
 from vastcal.simulators.camera.phantom import zebrafish_phantom
 from vastcal.simulators.camera.render import BrightfieldRenderer

@@ -205,11 +205,10 @@ def _step(
 
 def map_bytes_per_pixel(session: Path, views: int = 21) -> float:
     """Peak bytes (tracemalloc: NumPy's and OpenCV's arrays) per frame pixel of one ``specimen_maps`` call on the
-    first ``views`` frames of a session, frames included: what view_budget.SPECIMEN_MAP_BYTES_PER_PIXEL states."""
+    first ``views`` frames of a session, frames included: what probability_maps.SPECIMEN_MAP_BYTES_PER_PIXEL states."""
     import tracemalloc
 
-    from vastcal.calibrate.colour_model import fit_automatic
-    from vastcal.calibrate.silhouettes import specimen_maps
+    from vastcal.segmentation import fit_automatic, specimen_maps
     from vastcal.session import Session
 
     with Session.open(session, "r") as s:
@@ -228,18 +227,12 @@ def photometric_mb(session: Path, k: int) -> dict[str, float]:
     """What the photometric yaw holds with ``k`` evenly spread views of a calibrated session (run in a fresh process): the
     resident memory's rise during ``refine_yaw`` (ru_maxrss, when it is the process's peak) plus the frames and
     full-frame specimen maps handed to it, MB — what view_budget.photometric_bytes estimates."""
-    from vastcal.calibrate.colour_model import ColourModel
     from vastcal.calibrate.photometric_yaw import refine_yaw
     from vastcal.calibrate.session_run import session_camera_model
-    from vastcal.calibrate.view_budget import (
-        SessionFrames,
-        evenly_spread_views,
-        peak_resident_mb,
-        photometric_bytes,
-        resident_mb,
-        specimen_maps_within,
-    )
+    from vastcal.calibrate.view_budget import evenly_spread_views, peak_resident_mb, photometric_bytes, resident_mb
+    from vastcal.segmentation import ColourModel, specimen_maps_within
     from vastcal.session import Session
+    from vastcal.session_frames import SessionFrames
 
     with Session.open(session, "r") as s:
         cal = s.latest_result("calibration")

@@ -21,7 +21,7 @@ with the figure — between the background's brightness and the figure's, partly
 automatic colour model, as the real turntable is. The truth is still the cameras; the cost at the truth rises
 twelvefold (0.0245 → 0.29 with stop 31's edges): what a turntable in the silhouettes does to the calibration.
 ``--mask`` gives the calibration view 0's figure mask (the pixels that see the figure first), as a user's ``vastcal
-calibrate --mask 0:FILE`` marks the turntable as background (:mod:`vastcal.calibrate.marks`).
+calibrate --mask 0:FILE`` marks the turntable as background (:mod:`vastcal.segmentation.marks`).
 
 The frames (PNG) and a ``name K R t`` camera file (Middlebury's format, 0-based pixel centres) are imported with
 ``vastcal.importer.import_folder``; as in benchmarks/calibrate_david.py the commanded angles of 10 views are offset

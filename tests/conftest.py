@@ -28,3 +28,9 @@ def zebrafish_dir() -> Path:
 def david_dir() -> Path:
     """../shared/data/eth_david (skips when absent)."""
     return shared_dataset("eth_david")
+
+
+@pytest.fixture
+def zebrafish2_dir() -> Path:
+    """../shared/data/zf_4dpf_s008 (skips when absent): its silhouettes/081.tif is a 1-bit CCITT RLE TIFF."""
+    return shared_dataset("zf_4dpf_s008")

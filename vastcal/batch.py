@@ -23,6 +23,7 @@ its report under ``RESULTS/reports/<name>/``; the rows are collected into ``RESU
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import hashlib
 import json
@@ -35,12 +36,16 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from vastcal.errors import OutputExistsError, UserInputError, VastcalError
+from vastcal.errors import OutputExistsError, SessionBusyError, UserInputError, VastcalError
 from vastcal.progress import CountProgress, format_duration
-from vastcal.screen_table import atomic_write_bytes, write_index, write_table
+from vastcal.screen_table import atomic_write_bytes, write_table
+from vastcal.session_files import PathLock
 from vastcal.specimen import read_specimen, session_specimen
+
+if TYPE_CHECKING:
+    from vastcal.rig_health import RigHealth
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +72,8 @@ class BatchResult:
         ok = sum(r.get("status") == "ok" for r in self.rows)
         return "\n".join(
             [
-                f"sessions         {len(self.rows)} ({ok} ok, {len(self.rows) - ok} failed; {self.processed} processed now, {self.skipped} skipped as done)",
+                f"sessions         {len(self.rows)} ({ok} ok, {len(self.rows) - ok} failed; "
+                f"{self.processed} processed now, {self.skipped} skipped as done)",
                 f"time             {format_duration(self.wall_time_s)}",
                 f"table            {self.results_dir / 'measurements.csv'}",
                 f"overview         {self.results_dir / 'index.html'}",
@@ -269,6 +275,8 @@ def load_state(results_dir: Path) -> dict[str, Any]:
 
 
 def _save(results_dir: Path, state: dict[str, Any], title: str, progress: str = "") -> None:
+    from vastcal.batch_page import write_index
+
     atomic_write_bytes(results_dir / STATE_FILE, json.dumps(state, indent=1, default=str).encode())
     rows = table_rows(state)
     write_table(rows, results_dir)
@@ -276,7 +284,7 @@ def _save(results_dir: Path, state: dict[str, Any], title: str, progress: str = 
         rows,
         results_dir,
         title=title,
-        extra_html=_rig_html(state, results_dir),
+        health=_rig_health(state, results_dir),
         progress=progress,
         refresh_s=REFRESH_S if progress else None,
     )
@@ -297,14 +305,15 @@ def table_rows(state: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-def _rig_html(state: dict[str, Any], results_dir: Path) -> str:
-    """The rig-health section of the overview; also writes ``rig_health.json`` (what ``calibration.prior_from`` reads)."""
-    from vastcal.rig_health import HEALTH_FILE, rig_health, rig_health_dict, rig_health_html
+def _rig_health(state: dict[str, Any], results_dir: Path) -> RigHealth:
+    """The rig's health over the calibrated sessions of the state; also writes ``rig_health.json`` (what
+    ``calibration.prior_from`` reads)."""
+    from vastcal.rig_health import HEALTH_FILE, rig_health, rig_health_dict
 
     records = [e["row"].get("_rig") for e in state["sessions"].values() if e["row"].get("status") == "ok"]
     health = rig_health([r for r in records if r])
     atomic_write_bytes(results_dir / HEALTH_FILE, json.dumps(rig_health_dict(health), indent=1).encode())
-    return rig_health_html(health)
+    return health
 
 
 def _prior_settings(prior_from: str | Path, out: Path) -> dict[str, Any]:
@@ -388,45 +397,60 @@ def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
 # ---------------------------------------------------------------- the batch
 
 
-def run_batch(
-    sessions: Iterable[str | Path],
-    results_dir: str | Path,
-    *,
-    method: str | None = None,
-    seed: int | None = None,
-    starts: int = 3,
-    force: bool = False,
-    scheduler: str | None = None,
-    n_workers: int | None = None,
-    quiet: bool = False,
-    say: Callable[[str], None] | None = None,
-    title: str = "vastcal screen",
-    prior_from: str | Path | None = None,
-) -> BatchResult:
-    """Process every session on Dask and write the screen's table (see the module docstring).
+@dataclass(frozen=True)
+class BatchOptions:
+    """How a batch runs (``vastcal batch``'s options).
 
-    Args:
-        sessions: session files, folders and glob patterns.
-        results_dir: ``RESULTS/``: ``measurements.csv`` (+ ``.parquet``), ``index.html``, ``reports/<name>/``,
-            ``batch_state.json``; created when missing.
+    Attributes:
         method, seed, starts: calibration settings passed to :func:`vastcal.pipeline.run_session`.
         force: re-process sessions already done with the same settings.
         scheduler: ``tcp://HOST:PORT`` of an existing Dask scheduler (default ``DASK_SCHEDULER_ADDRESS``,
             else an embedded LocalCluster).
         n_workers: workers of the embedded LocalCluster (default: one per core).
-        quiet: no progress line; say: where start-up lines go (dashboard link; default ``log.info``).
+        quiet: no progress line.
+        title: the overview page's title.
         prior_from: an earlier batch's results folder whose ``rig_health.json`` seeds every calibration (as the rig
             file's ``calibration.prior_from``); part of the settings: a changed prior re-processes the sessions.
-
-    Returns the rows of every session (also those skipped as done).
     """
-    t_start = time.monotonic()
-    say = say or log.info
-    if n_workers is not None and n_workers < 1:
-        raise UserInputError(f"--workers: expected an integer >= 1, got {n_workers}")
-    if starts < 1:
-        raise UserInputError(f"--starts: expected an integer >= 1, got {starts}")
-    paths = expand_sessions(sessions)
+
+    method: str | None = None
+    seed: int | None = None
+    starts: int = 3
+    force: bool = False
+    scheduler: str | None = None
+    n_workers: int | None = None
+    quiet: bool = False
+    title: str = "vastcal screen"
+    prior_from: str | Path | None = None
+
+    def check(self) -> None:
+        """Raise :class:`UserInputError` (one line naming the option) for a value out of range."""
+        if self.n_workers is not None and self.n_workers < 1:
+            raise UserInputError(f"--workers: expected an integer >= 1, got {self.n_workers}")
+        if self.starts < 1:
+            raise UserInputError(f"--starts: expected an integer >= 1, got {self.starts}")
+
+
+@dataclass
+class _Run:
+    """One batch run's working state, shared by the steps of :func:`run_batch`."""
+
+    out: Path
+    names: dict[Path, str]
+    settings: dict[str, Any]
+    shash: str
+    state: dict[str, Any]
+    res: BatchResult
+    options: BatchOptions
+    say: Callable[[str], None]
+
+
+def results_lock(out: Path) -> PathLock:
+    """The lock that makes a results folder one batch's at a time (the hidden ``.batch_state.json.lock`` in it)."""
+    return PathLock(out / STATE_FILE, what="results folder")
+
+
+def _prepare_results(results_dir: str | Path) -> Path:
     out = Path(results_dir)
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out}: exists and is not a folder")
@@ -434,114 +458,142 @@ def run_batch(
         (out / "reports").mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserInputError(f"{out}: cannot create the results folder ({exc.strerror})") from None
-    state = load_state(out)
-    settings: dict[str, Any] = {"method": method, "seed": seed, "starts": int(starts)}
-    if prior_from is not None:
-        settings.update(_prior_settings(prior_from, out))
-    shash = settings_hash(settings)
-    names = session_names(paths)
-    todo: list[Path] = []
-    skipped = 0
-    for p in paths:
-        entry = state["sessions"].get(names[p])
-        if (
-            not force
-            and entry
-            and entry.get("settings_hash") == shash
-            and entry["row"].get("status") == "ok"
-            and entry.get("fingerprint") == file_fingerprint(p)
-            and entry["row"].get("path") == str(p)
-        ):
-            skipped += 1
-        else:
-            todo.append(p)
-    res = BatchResult(out, skipped=skipped)
-    if skipped:
-        say(f"{skipped} session(s) already processed with these settings: skipped (--force re-processes them)")
-    if todo:
-        _run_on_dask(todo, names, out, settings, shash, state, res, scheduler, n_workers, quiet, say, title)
-    _save(out, state, title)
-    res.rows = table_rows(state)
+    return out
+
+
+def run_batch(
+    sessions: Iterable[str | Path],
+    results_dir: str | Path,
+    options: BatchOptions | None = None,
+    *,
+    say: Callable[[str], None] | None = None,
+    **option_values: Any,
+) -> BatchResult:
+    """Process every session on Dask and write the screen's table (see the module docstring).
+
+    Args:
+        sessions: session files, folders and glob patterns.
+        results_dir: ``RESULTS/``: ``measurements.csv`` (+ ``.parquet``), ``index.html``, ``reports/<name>/``,
+            ``batch_state.json``; created when missing. One batch at a time: while one runs on it, another is
+            refused (:class:`UserInputError`, before any work).
+        options: :class:`BatchOptions`; ``option_values`` (``starts=1, n_workers=2`` …) replace single fields.
+        say: where start-up lines go (dashboard link; default ``log.info``).
+
+    Returns the rows of every session (also those skipped as done).
+
+    Raises:
+        UserInputError: bad options or sessions, a results folder that cannot be used or is in use.
+    """
+    t_start = time.monotonic()
+    opts = dataclasses.replace(options or BatchOptions(), **option_values)
+    opts.check()
+    paths = expand_sessions(sessions)
+    out = _prepare_results(results_dir)
+    lock = results_lock(out)
+    try:
+        lock.acquire()
+    except SessionBusyError as exc:
+        raise UserInputError(f"{exc}; or give another -o folder").about(out) from None
+    except OSError as exc:
+        raise UserInputError(f"{out}: cannot lock the results folder ({exc.strerror or exc})") from None
+    try:
+        res = _run_locked(paths, out, opts, say or log.info)
+    finally:
+        lock.release()
     res.wall_time_s = time.monotonic() - t_start
     return res
 
 
-def _run_on_dask(
-    todo: list[Path],
-    names: dict[Path, str],
-    out: Path,
-    settings: dict[str, Any],
-    shash: str,
-    state: dict[str, Any],
-    res: BatchResult,
-    scheduler: str | None,
-    n_workers: int | None,
-    quiet: bool,
-    say: Callable[[str], None],
-    title: str,
-) -> None:
+def _run_locked(paths: list[Path], out: Path, opts: BatchOptions, say: Callable[[str], None]) -> BatchResult:
+    """:func:`run_batch` once the results folder is this process's."""
+    state = load_state(out)
+    settings: dict[str, Any] = {"method": opts.method, "seed": opts.seed, "starts": int(opts.starts)}
+    if opts.prior_from is not None:
+        settings.update(_prior_settings(opts.prior_from, out))
+    shash = settings_hash(settings)
+    names = session_names(paths)
+    todo: list[Path] = []
+    for p in paths:
+        entry = state["sessions"].get(names[p])
+        done = (
+            entry
+            and entry.get("settings_hash") == shash
+            and entry["row"].get("status") == "ok"
+            and entry.get("fingerprint") == file_fingerprint(p)
+            and entry["row"].get("path") == str(p)
+        )
+        if opts.force or not done:
+            todo.append(p)
+    res = BatchResult(out, skipped=len(paths) - len(todo))
+    if res.skipped:
+        say(f"{res.skipped} session(s) already processed with these settings: skipped (--force re-processes them)")
+    if todo:
+        _run_on_dask(todo, _Run(out, names, settings, shash, state, res, opts, say))
+    _save(out, state, opts.title)
+    res.rows = table_rows(state)
+    return res
+
+
+def _failed_task_row(p: Path, exc: BaseException) -> dict[str, Any]:
+    """The row of a session whose task itself could not run (its worker died twice, unpicklable …)."""
+    return {
+        "path": str(p),
+        "status": "failed",
+        "exit_class": type(exc).__name__,
+        "reason": f"the task did not complete: {exc}".splitlines()[0],
+        "exit_code": 1,
+        "fingerprint": file_fingerprint(p),
+    }
+
+
+def _run_on_dask(todo: list[Path], run: _Run) -> None:
+    """Submit ``todo`` to Dask and record each row as it arrives (the table and page rewritten each time)."""
     from distributed import as_completed
 
-    client, cluster = _client(scheduler, n_workers)
+    out, say, res, opts = run.out, run.say, run.res, run.options
+    client, cluster = _client(opts.scheduler, opts.n_workers)
     try:
         res.dashboard = str(client.dashboard_link or "")
-        info = client.scheduler_info()
-        nw = len(info.get("workers", {}))
-        say(
-            f"Dask: {nw} worker(s) at {client.scheduler.address}; dashboard {res.dashboard or '(not available: install bokeh)'}"
-        )
+        nw = len(client.scheduler_info().get("workers", {}))
+        dashboard = res.dashboard or "(not available: install bokeh)"
+        say(f"Dask: {nw} worker(s) at {client.scheduler.address}; dashboard {dashboard}")
         say(f"progress: {out / 'index.html'} (reloads every {REFRESH_S} s while the batch runs)")
-        _save(out, state, title, progress=f"; running: 0/{len(todo)} of this run done")
+        _save(out, run.state, opts.title, progress=f"; running: 0/{len(todo)} of this run done")
         futures = {}
         for p in todo:
-            name = names[p]
-            key = f"vastcal-session-{name}-{shash}-{hashlib.sha1(str(p).encode()).hexdigest()[:8]}"
-            fut = client.submit(
-                process_session, str(p), str(out / "reports" / name), settings, key=key, retries=1, pure=False
-            )
+            name = run.names[p]
+            key = f"vastcal-session-{name}-{run.shash}-{hashlib.sha1(str(p).encode()).hexdigest()[:8]}"
+            report_dir = str(out / "reports" / name)
+            fut = client.submit(process_session, str(p), report_dir, run.settings, key=key, retries=1, pure=False)
             futures[fut] = p
-        bar = CountProgress("batch", "sessions", enabled=not quiet)
+        bar = CountProgress("batch", "sessions", enabled=not opts.quiet)
         t0 = time.monotonic()
-        done = 0
         try:
             for fut in as_completed(list(futures)):
                 p = futures[fut]
-                name = names[p]
                 try:
                     row = fut.result()
-                except Exception as exc:  # the task itself could not run (worker died twice, unpicklable …)
-                    row = {
-                        "path": str(p),
-                        "status": "failed",
-                        "exit_class": type(exc).__name__,
-                        "reason": f"the task did not complete: {exc}".splitlines()[0],
-                        "exit_code": 1,
-                        "fingerprint": file_fingerprint(p),
-                    }
+                except Exception as exc:  # the task itself could not run
+                    row = _failed_task_row(p, exc)
                 row["path"] = str(p)
-                state["sessions"][name] = {
-                    "settings_hash": shash,
-                    "fingerprint": row.pop("fingerprint", {}),
+                fingerprint = row.pop("fingerprint", {})
+                run.state["sessions"][run.names[p]] = {
+                    "settings_hash": run.shash,
+                    "fingerprint": fingerprint,
                     "row": row,
                 }
-                done += 1
                 res.processed += 1
                 res.failed += row.get("status") != "ok"
-                elapsed = time.monotonic() - t0
-                _save(
-                    out,
-                    state,
-                    title,
-                    progress=f"; running: {done}/{len(todo)} of this run done, {format_duration(elapsed)} elapsed",
-                )
-                bar.update(done, len(todo), extra=f"{res.failed} failed" if res.failed else "")
+                elapsed = format_duration(time.monotonic() - t0)
+                progress = f"; running: {res.processed}/{len(todo)} of this run done, {elapsed} elapsed"
+                _save(out, run.state, opts.title, progress=progress)
+                bar.update(res.processed, len(todo), extra=f"{res.failed} failed" if res.failed else "")
         finally:
             bar.close()
     finally:
-        if not logging.getLogger("vastcal").isEnabledFor(logging.DEBUG):  # "worker process still alive … killing" at
-            logging.getLogger("distributed.nanny").setLevel(
-                logging.ERROR
-            )  # shutdown of a loaded machine: only with -vv
+        if not logging.getLogger("vastcal").isEnabledFor(logging.DEBUG):
+            # "worker process still alive … killing" at shutdown of a loaded machine: only with -vv
+            logging.getLogger("distributed.nanny").setLevel(logging.ERROR)
         client.close()
         if cluster is not None:
             cluster.close()

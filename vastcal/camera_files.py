@@ -24,8 +24,11 @@ the import say that (:mod:`vastcal.importer`).
 from __future__ import annotations
 
 import re
+import struct
+import zipfile
+import zlib
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -36,7 +39,8 @@ MAX_TEXT_BYTES = 16 << 20
 """Largest angle or camera text file read, bytes (one line per view)."""
 
 MAX_ARRAY_BYTES = 64 << 20
-"""Largest ``.npy``/``.npz``/``.mat`` camera file read, bytes (a million cameras take 96 MB of float64)."""
+"""Largest ``.npy``/``.npz``/``.mat`` camera file read, bytes; and the most its arrays may take once unpacked
+(:func:`check_unpacked_size`): 64 MiB hold 700 000 cameras in float64."""
 
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$|^[+-]?(nan|inf|infinity)$", re.IGNORECASE)
 
@@ -201,17 +205,121 @@ def _pick(path: Path, variables: dict[str, Any]) -> tuple[np.ndarray, list[str]]
     return P, [f"{key}[{i}]" for i in range(len(P))]
 
 
+def _refuse_size(path: Path, what: str, nbytes: int | None) -> ImportDataError:
+    """The error for arrays that unpack to ``nbytes`` (None: more than the limit, counting stopped there)."""
+    size = f"{nbytes / 2**20:,.0f} MiB, more than" if nbytes is not None else "more than"
+    return ImportDataError(
+        f"{path}: {what} unpacks to {size} {MAX_ARRAY_BYTES >> 20} MiB; expected an array of 3 x 4 cameras (not read)"
+    )
+
+
+def _npy_nbytes(fh: IO[bytes], path: Path, what: str) -> int:
+    """Bytes of the array whose ``.npy`` header ``fh`` is at, from the header alone (nothing else read)."""
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+    else:
+        shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+    n = 1
+    for d in shape:
+        n *= int(d)  # Python integers: 10^12 x 3 x 4 does not overflow
+    nbytes = n * dtype.itemsize
+    if nbytes > MAX_ARRAY_BYTES:
+        shape_text = " x ".join(str(int(d)) for d in shape)
+        raise _refuse_size(path, f"{what} (its header claims {shape_text} {dtype})", nbytes)
+    return nbytes
+
+
+def _npz_nbytes(fh: IO[bytes], path: Path) -> int:
+    """Bytes the arrays of an ``.npz`` (a zip of ``.npy`` files) take unpacked, from the zip's directory and each
+    member's ``.npy`` header (a member is never decompressed past its header)."""
+    with zipfile.ZipFile(fh) as zf:
+        members = zf.infolist()
+        declared = sum(m.file_size for m in members)
+        if declared > MAX_ARRAY_BYTES:
+            raise _refuse_size(path, f"the zip archive ({len(members)} member(s))", declared)
+        total = 0
+        for m in members:
+            with zf.open(m) as member:
+                total += _npy_nbytes(member, path, f"member {m.filename}")
+    if total > MAX_ARRAY_BYTES:
+        raise _refuse_size(path, "its arrays", total)
+    return total
+
+
+MAT_COMPRESSED = 15
+"""MAT-file v5 data type ``miCOMPRESSED``: one variable deflated with zlib."""
+
+
+def _inflated_size(data: bytes, limit: int) -> int:
+    """Bytes ``data`` (a zlib stream) inflates to, counted in 1 MiB steps and stopped past ``limit``."""
+    d = zlib.decompressobj()
+    total, chunk = 0, data
+    while chunk and total <= limit:
+        total += len(d.decompress(chunk, 1 << 20))
+        chunk = d.unconsumed_tail
+    return total
+
+
+def _mat_nbytes(fh: IO[bytes], path: Path) -> int:
+    """Bytes the variables of a MAT-file v5 take unpacked: each compressed variable inflated and counted (never
+    kept), stopped as soon as the total passes :data:`MAX_ARRAY_BYTES`; uncompressed ones are their size in the
+    file. A v4 file (no compression) is its own size."""
+    head = fh.read(128)
+    if len(head) < 128 or head[126:128] not in (b"IM", b"MI"):
+        return 0  # v4, or not a MAT-file at all: SciPy's reader says which
+    order = "<" if head[126:128] == b"IM" else ">"
+    if head[124 + (order == "<")] != 1:
+        return 0  # v7.3 (HDF5): refused by name where SciPy reads the header
+    total = 0
+    while len(tag := fh.read(8)) == 8:
+        kind, nbytes = struct.unpack(order + "II", tag)
+        if kind >> 16:  # a small data element: type and size packed in the first word, 4 bytes of data
+            continue
+        if kind == MAT_COMPRESSED:
+            total += _inflated_size(fh.read(nbytes), MAX_ARRAY_BYTES - total)
+        else:
+            total += nbytes
+            fh.seek(nbytes + (-nbytes % 8), 1)
+        if total > MAX_ARRAY_BYTES:
+            raise _refuse_size(path, "the MAT-file's data" if kind == MAT_COMPRESSED else "a variable", None)
+    return total
+
+
+def check_unpacked_size(fh: IO[bytes], path: Path) -> int:
+    """Bytes the arrays of a ``.npy``/``.npz``/``.mat`` file take once read, bounded before reading them: from the
+    ``.npy`` headers (in an ``.npz`` also its zip directory), and for a MAT-file by inflating its compressed
+    variables only as far as :data:`MAX_ARRAY_BYTES` (an unpacking bomb: a small file of compressed zeros, or a
+    header that claims 10^12 cameras, is refused in a fraction of a second). Leaves ``fh`` at its start.
+
+    Raises:
+        ImportDataError: more than :data:`MAX_ARRAY_BYTES` unpacked.
+        ValueError, OSError, zipfile.BadZipFile, EOFError, struct.error: a damaged file (the caller names it).
+    """
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            return _npy_nbytes(fh, path, "the array")
+        if suffix == ".npz":
+            return _npz_nbytes(fh, path)
+        return _mat_nbytes(fh, path)
+    finally:
+        fh.seek(0)
+
+
 def read_camera_array(path: Path) -> tuple[np.ndarray, list[str]]:
     """Cameras (N, 3, 4) and names (``P[i]``) from a ``.npy``, ``.npz`` or MATLAB ``.mat`` file.
 
     Raises:
-        ImportDataError: unreadable, too large, or no array that can be the cameras.
+        ImportDataError: unreadable, too large (on disk or unpacked: :func:`check_unpacked_size`), or no array that
+            can be the cameras.
     """
     if path.stat().st_size > MAX_ARRAY_BYTES:
         raise ImportDataError(f"{path}: larger than {MAX_ARRAY_BYTES} bytes; expected an array of 3 x 4 cameras")
     suffix = path.suffix.lower()
     try:
         with open(path, "rb") as fh:  # our handle: a parser that fails half-way must not leave the file open
+            check_unpacked_size(fh, path)
             if suffix == ".npy":
                 variables = {"P": np.load(fh, allow_pickle=False)}
             elif suffix == ".npz":
@@ -226,6 +334,8 @@ def read_camera_array(path: Path) -> tuple[np.ndarray, list[str]]:
             f"{path}: a MATLAB v7.3 file; save the cameras with save(..., '-v7') or as text "
             f"(one 'name p11 ... p34' line per view)"
         ) from None
+    except ImportDataError:
+        raise
     except MemoryError:
         raise
     except Exception as exc:  # a truncated or foreign file: the parsers raise anything from BadZipFile to IndexError
@@ -252,6 +362,29 @@ def match_cameras_to_images(
 
 ARRAY_SUFFIXES = (".npy", ".npz", ".mat")
 
+CAMERA_NUMBER_RANGE = (1e-100, 1e100)
+"""Range of the largest magnitude in a camera matrix. P and λ·P are the same camera, so any scale would do, but
+beyond this range the arithmetic of a projection (squares, products of three entries) overflows or underflows
+double precision: such a file is refused, with the advice to scale it."""
+
+
+def check_camera_numbers(P: np.ndarray, names: list[str], path: Path) -> None:
+    """Refuse cameras holding NaN or infinity, or numbers outside :data:`CAMERA_NUMBER_RANGE` (naming the view).
+
+    Raises:
+        ImportDataError: naming the file, the view and the offending value.
+    """
+    lo, hi = CAMERA_NUMBER_RANGE
+    for p, name in zip(P, names):
+        if not np.all(np.isfinite(p)):
+            raise ImportDataError(f"{path}: camera {name}: holds NaN or infinity; expected 12 finite numbers")
+        biggest = float(np.max(np.abs(p)))
+        if biggest > hi or 0 < biggest < lo:  # all zeros: "not a projection matrix", said where it is decomposed
+            raise ImportDataError(
+                f"{path}: camera {name}: its largest number is {biggest:.3g}; expected numbers up to {hi:.0e} "
+                f"(and some above {lo:.0e}): divide the matrix by a common factor (P and s·P are the same camera)"
+            )
+
 
 def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
     """Known cameras as given: (N, 3, 4) and one name per view, from any format of the module docstring.
@@ -260,7 +393,8 @@ def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
     :func:`vastcal.geometry.decompose_projection`).
 
     Raises:
-        ImportDataError: wrong format or a count different from ``n``.
+        ImportDataError: wrong format, a count different from ``n``, numbers that are not finite or out of range
+            (:func:`check_camera_numbers`).
         UnicodeDecodeError: a binary file given where text was expected (the caller names it).
     """
     if path.is_dir():
@@ -271,4 +405,5 @@ def read_cameras(path: Path, n: int) -> tuple[np.ndarray, list[str]]:
         raise ImportDataError(f"{path}: no such camera file or folder")
     if len(mats) != n:
         raise ImportDataError(f"{path}: {len(mats)} cameras for {n} images")
+    check_camera_numbers(mats, names, path)
     return mats, names

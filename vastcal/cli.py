@@ -192,6 +192,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         raise UserInputError("give --config RIG.yaml for the real rig, or --simulate for the simulated one")
     if args.simulate and cfg.camera.driver != "simulated":
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
+    cfg = _simulation_seeded(cfg, args)
     if not args.accept_units:
         from vastcal.plausibility import check_rig
 
@@ -243,7 +244,49 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         )
         return 128 + (RECEIVED[0] if RECEIVED else signal.SIGINT) if result.exit_status == "abort" else 1
     print(f"wrote {out}: {result.views_written} views")
+    if cfg.camera.driver == "simulated" and not args.resume and cfg.simulation is not None and not args.quiet:
+        seed = cfg.simulation.seed
+        _say(f"simulated larva and stage errors drawn from seed {seed}: --seed {seed} acquires the same again")
     return 0
+
+
+def _simulation_seeded(cfg: Any, args: argparse.Namespace) -> Any:
+    """The rig config with the simulation's seed of this acquisition: ``--seed N``; else the seed the ``--config`` file
+    sets (``simulation.seed``); else a new one, so that every simulated acquisition is a new larva. Without
+    ``--config`` (the shipped simulated rig) the larva's age, length and shape are drawn from that seed too
+    (``simulation.larva_varies``); a rig file decides that itself. A resumed session keeps what is stored in it.
+
+    Raises:
+        UserInputError: ``--seed`` for a real rig, or with ``--resume``.
+    """
+    if args.seed is not None and (cfg.camera.driver != "simulated" or args.resume):
+        raise UserInputError(
+            "--seed: only for a new simulated acquisition (--simulate); "
+            + ("a resumed session keeps its seed" if args.resume else f"{cfg.source} describes a real rig")
+        )
+    if cfg.camera.driver != "simulated" or args.resume or cfg.simulation is None:
+        return cfg
+    if args.seed is not None:
+        seed = args.seed
+    elif args.config and _rig_file_sets_seed(args.config):
+        return cfg
+    else:
+        import secrets
+
+        seed = secrets.randbelow(2**31)
+    import dataclasses
+
+    varies = {} if args.config else {"larva_varies": True}  # the shipped rig: a larva of drawn age and shape
+    return dataclasses.replace(cfg, simulation=dataclasses.replace(cfg.simulation, seed=seed, **varies))
+
+
+def _rig_file_sets_seed(path: str) -> bool:
+    """Whether the rig file sets ``simulation.seed`` itself (it was read and checked once already)."""
+    from vastcal.config import _load_yaml
+
+    data = _load_yaml(Path(path).read_text(encoding="utf-8"))
+    sim = data.get("simulation") if isinstance(data, dict) else None
+    return isinstance(sim, dict) and sim.get("seed") is not None
 
 
 def _check_views(views: int | None) -> None:
@@ -372,11 +415,14 @@ def _marks_args(args: argparse.Namespace) -> tuple[Any, Any]:
 
 def _add_marks_options(s: argparse.ArgumentParser) -> None:
     s.add_argument(
-        "--mask", help="VIEW:FILE rough mask of one view for the colour models, nonzero = specimen (default: automatic)"
+        "--mask",
+        metavar="VIEW:FILE",
+        help="rough mask of one view (0-based) for the colour models, nonzero = specimen (default: automatic)",
     )
     s.add_argument(
         "--scribbles",
-        help="VIEW:FILE label image of one view for the colour models: 0 unknown, 1 specimen, 2 background",
+        metavar="VIEW:FILE",
+        help="label image of one view (0-based) for the colour models: 0 unknown, 1 specimen, 2 background",
     )
 
 
@@ -440,10 +486,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     """vastcal reconstruct S.h5 [--voxel-size UM] [--masks] [--mesh OUT.ply|.stl [--force]] [--calibration-run N | --cameras imported]"""
     _check_session_arg(args.session)
     run = _calibration_run_arg(args)
-    if args.mesh:
-        if Path(args.mesh).suffix.lower() not in (".ply", ".stl"):
-            raise UserInputError(f"{args.mesh}: --mesh: expected a file ending in .ply or .stl")
-        check_output_file(args.mesh, force=args.force, option="--mesh")
+    _check_mesh_arg(args)
     from vastcal.pipeline import check_camera_choice
     from vastcal.reconstruct import reconstruct_session
 
@@ -454,6 +497,18 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     )
     print(m.summary() if hasattr(m, "summary") else m)
     return verdict_exit_code(str((getattr(m, "qc", None) or {}).get("verdict", "")), _qc_line(m))
+
+
+def _check_mesh_arg(args: argparse.Namespace) -> None:
+    """``--mesh FILE``: a .ply or .stl file that does not exist yet (or ``--force``).
+
+    Raises:
+        UserInputError: another suffix; OutputExistsError: the file exists and no ``--force``.
+    """
+    if args.mesh:
+        if Path(args.mesh).suffix.lower() not in (".ply", ".stl"):
+            raise UserInputError(f"{args.mesh}: --mesh: expected a file ending in .ply or .stl")
+        check_output_file(args.mesh, force=args.force, option="--mesh")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -481,11 +536,14 @@ def cmd_run(args: argparse.Namespace) -> int:
             "--mask/--scribbles guide the calibration's colour model; with --cameras imported nothing is calibrated"
         )
     check_camera_choice(args.session, "imported" if args.cameras == "imported" else None)
-    _check_units(args)
+    _check_units(args, voxel_size_um=args.voxel_size)
     mask, scribbles = _marks_args(args)
+    _check_mesh_arg(args)
     res = run_session(
         args.session,
         out,
+        voxel_size_um=args.voxel_size,
+        mesh_path=args.mesh,
         method=args.method,
         seed=args.seed,
         quiet=args.quiet,
@@ -534,7 +592,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 def cmd_annotate(args: argparse.Namespace) -> int:
     """vastcal annotate S.h5… --id … | --manifest screen.csv: specimen metadata in S.specimen.json sidecars."""
-    from vastcal.specimen import annotate, annotate_from_manifest
+    from vastcal.specimen import annotate_from_manifest, annotate_sessions
 
     fields = {
         "specimen_id": args.id,
@@ -553,7 +611,7 @@ def cmd_annotate(args: argparse.Namespace) -> int:
             raise UserInputError(
                 "annotate: expected session files and at least one of --id --age-dpf --strain --treatment --plate --well"
             )
-        written = [annotate(s, fields) for s in args.sessions]
+        written = annotate_sessions(args.sessions, fields)
     for w in written:
         print(f"wrote {w}")
     return 0
@@ -578,9 +636,22 @@ def _did_you_mean(word: str, choices: Sequence[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, but a help line is never broken at a hyphen (a path such as ``wt-present/…`` stays
+    whole)."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        import textwrap
+
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors suggest the closest command, choice or option (difflib), and whose
     unknown options are reported by the subcommand's parser (its usage, not the top-level one)."""
+
+    def __init__(self, *args: Any, formatter_class: Any = _HelpFormatter, **kwargs: Any) -> None:
+        super().__init__(*args, formatter_class=formatter_class, **kwargs)
 
     def error(self, message: str) -> NoReturn:  # type: ignore[override]
         m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
@@ -673,8 +744,35 @@ def _add_accept_units(s: argparse.ArgumentParser) -> None:
     )
 
 
+SESSION_HELP = "session file (.h5) written by 'vastcal acquire' or 'vastcal import'"
+"""Help of every command's SESSION argument."""
+
+SEED_HELP = (
+    "random seed of the calibration's CMA-ES: start k uses seed + 10 k, so a run is repeated exactly "
+    "(default: the rig config's calibration.seed, 0)"
+)
+"""Help of the calibration seed (calibrate, run, batch)."""
+
+STARTS_WHY = (
+    "a single start is quick and enough for a look or for a chosen --seed; 'run' and 'batch' default to 3 "
+    "because a single start can settle in the worse of two optima (seen on a larva), and each start adds about one "
+    "calibration's time"
+)
+"""Why ``calibrate --starts`` defaults to 1 and ``run``/``batch`` to 3."""
+
+
+def _shipped_rig_example() -> str:
+    """Where the commented example rig file is on this installation (``vast-rig.yaml`` of the package data)."""
+    try:
+        import importlib.resources
+
+        return str(importlib.resources.files("vastcal.rig_configs") / "vast-rig.yaml")
+    except (ModuleNotFoundError, TypeError):
+        return "vast-rig.yaml of the installed vastcal.rig_configs package"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of every command."""
+    """The argument parser of every command (one function per command below)."""
     p = _Parser(
         prog="vastcal",
         description="Acquire, calibrate and measure rotating-capillary microscope sessions.",
@@ -685,33 +783,96 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_Parser)
+    for add in (
+        _add_demo,
+        _add_acquire,
+        _add_import,
+        _add_info,
+        _add_calibrate,
+        _add_reconstruct,
+        _add_report,
+        _add_run,
+        _add_prune,
+        _add_batch,
+        _add_annotate,
+    ):
+        add(sub)
+    p.set_defaults(_commands=sub.choices)
+    for sp in sub.choices.values():  # the global flags are accepted after the command too
+        sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
+        sp.add_argument(
+            "-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)"
+        )
+    return p
 
-    s = sub.add_parser("demo", help="acquire from the simulated rig, calibrate, reconstruct and report")
+
+Subparsers = Any
+"""argparse's sub-parser action (``ArgumentParser.add_subparsers``'s return; private type)."""
+
+
+def _add_demo(sub: Subparsers) -> None:
+    s = sub.add_parser(
+        "demo",
+        help="acquire from the simulated rig, calibrate, reconstruct and report",
+        description="Acquire one revolution from the simulated rig, then calibrate, reconstruct and report it, and "
+        "compare the result with the simulator's hidden truth. The demo's larva and rig are always the same "
+        "(simulation seed 1 of the shipped simulated.yaml), so that its numbers can be compared between installations; "
+        "'vastcal acquire --simulate' draws a new larva each time.",
+    )
     s.add_argument("-o", "--output", default="vastcal-demo", help="output folder (default: vastcal-demo)")
     s.add_argument(
-        "--views", type=int, default=None, help="views in the revolution (default: from config/simulated.yaml)"
+        "--views",
+        type=int,
+        default=None,
+        help="views in the revolution, a count of 3 or more (default: 21, from the shipped simulated.yaml)",
     )
     s.add_argument("--force", action="store_true", help="overwrite an existing demo session and its report")
     s.set_defaults(func=cmd_demo)
 
-    s = sub.add_parser("acquire", help="acquire one revolution into a session file")
-    s.add_argument("--config", help="rig description YAML (e.g. config/vast-rig.yaml)")
-    s.add_argument(
-        "--simulate", action="store_true", help="use the simulated rig (config/simulated.yaml unless --config)"
+
+def _add_acquire(sub: Subparsers) -> None:
+    s = sub.add_parser(
+        "acquire",
+        help="acquire one revolution into a session file",
+        description="Acquire one revolution into a session file, from the rig a rig file describes, or from the "
+        "simulated rig (--simulate). Every simulated acquisition draws a new larva and new stage errors unless a seed "
+        "is given (--seed N, or simulation.seed in the --config file); the seed used is printed on stderr (unless -q) "
+        "and stored in the session's rig description, so 'vastcal acquire --simulate --seed N' acquires that larva "
+        "again.",
     )
-    s.add_argument("-o", "--output", help="session file to create (.h5)")
+    s.add_argument(
+        "--config",
+        metavar="RIG.yaml",
+        help="rig description YAML; copy and edit the commented example shipped with vastcal: "
+        + _shipped_rig_example(),
+    )
+    s.add_argument(
+        "--simulate", action="store_true", help="use the simulated rig (the shipped simulated.yaml unless --config)"
+    )
+    s.add_argument("-o", "--output", metavar="S.h5", help="session file to create (.h5)")
     s.add_argument("--resume", metavar="S.h5", help="continue an incomplete session")
-    s.add_argument("--views", type=int, help="number of views (default from the config)")
+    s.add_argument("--views", type=int, help="views in the revolution, a count of 3 or more (default from the config)")
+    s.add_argument(
+        "--seed",
+        type=_int_in(0, 2**31 - 1),
+        default=None,
+        metavar="N",
+        help="simulated rig only: draw the larva and the stage's errors from seed N (the same N gives the same "
+        "session); default: the --config file's simulation.seed, else a new seed each time",
+    )
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")
     s.add_argument(
         "--specimen",
         metavar="ID=…,age_dpf=…|FILE",
-        help="specimen metadata stored in the session: ID=F12,age_dpf=5,strain=AB,treatment=…,plate=…,well=B3, "
-        "or a YAML file of those fields, or a screen's manifest (YAML or CSV) with an entry for this session",
+        help="specimen metadata stored in the session: ID=F12,age_dpf=5 (days post fertilisation),strain=AB,"
+        "treatment=…,plate=…,well=B3, or a YAML file of those fields, or a screen's manifest (YAML or CSV) with an "
+        "entry for this session",
     )
     _add_accept_units(s)
     s.set_defaults(func=cmd_acquire)
 
+
+def _add_import(sub: Subparsers) -> None:
     s = sub.add_parser(
         "import", help="make a session from a folder of images or a stack file (multi-page TIFF, OME-TIFF)"
     )
@@ -720,7 +881,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="folder of images (tif, png, ppm, jpg; natural sort order), or one stack file (multi-page TIFF, "
         "OME-TIFF, ImageJ hyperstack: one view per page)",
     )
-    s.add_argument("-o", "--output", required=True, help="session file to create (.h5)")
+    s.add_argument("-o", "--output", required=True, metavar="S.h5", help="session file to create (.h5)")
     s.add_argument(
         "--name", help="specimen name for the report and the screen table (default: the folder's or stack file's name)"
     )
@@ -728,62 +889,71 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--angles",
         help="text file: one commanded angle in degrees per view (default: a stack's own angles - OME 'angle' "
-        "annotations, ImageJ slice labels 'angle=12.5' - else uniform over 360)",
+        "annotations, ImageJ slice labels 'angle=12.5' - else uniform over 360 degrees)",
     )
     s.add_argument(
         "--cameras",
-        help="known 3 x 4 cameras: a text file ('[name] p11 .. p34' or '[name] K(9) R(9) t(3)' per line, or 3 rows of 4 "
-        "numbers per view), a folder of .pa or PMVS .txt files, or an .npy/.npz/.mat array (README: import)",
+        help="known 3 x 4 cameras: a text file ('[name] p11 .. p34' or '[name] K(9) R(9) t(3)' per line, or 3 rows "
+        "of 4 numbers per view), a folder of .pa or PMVS .txt files, or an .npy/.npz/.mat array (README: import)",
     )
     s.add_argument(
         "--length-unit",
         choices=("nm", "um", "mm", "cm", "m"),
         default=None,
-        help="world unit of --cameras (default: um when their distance to the axis matches --config's working distance, "
-        "else unknown: measurements in units of the cameras)",
+        help="world unit of --cameras: nm, um (µm), mm, cm or m (default: µm when their distance to the axis matches "
+        "--config's working distance, else unknown: measurements in units of the cameras)",
     )
     s.add_argument(
         "--pixel-origin",
         type=float,
         default=0.0,
-        help="coordinate --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at integers), 1 (1-based, MATLAB); default 0",
+        metavar="PX",
+        help="coordinate, in px, that --cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel corners at "
+        "integers), 1 (1-based, MATLAB); default 0",
     )
     s.add_argument(
         "--roi-offset",
         type=int,
         nargs=2,
         metavar=("X", "Y"),
-        help="offset of cropped images on the sensor, px (default: --config's camera.roi when its size is the images', else 0 0)",
+        help="offset of cropped images on the sensor, px (default: --config's camera.roi when its size is the "
+        "images', else 0 0)",
     )
     s.add_argument(
         "--pixel-size-um",
         type=float,
         metavar="UM",
-        help="pixel pitch on the specimen, um; overrides --config and the files' metadata (OME PhysicalSizeX, ImageJ/TIFF "
-        "resolution). Without any of them the pixel size is unknown and measurements are in pixels",
+        help="pixel pitch on the specimen, µm; overrides --config and the files' metadata (OME PhysicalSizeX, "
+        "ImageJ/TIFF resolution). Without any of them the pixel size is unknown and measurements are in pixels",
     )
-    s.add_argument("--config", help="rig description YAML for the optics (pixel size, focal length, principal point)")
+    s.add_argument(
+        "--config",
+        metavar="RIG.yaml",
+        help="rig description YAML for the optics (pixel size µm, focal length, principal point px)",
+    )
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")
     _add_accept_units(s)
     s.set_defaults(func=cmd_import)
 
+
+def _add_info(sub: Subparsers) -> None:
     s = sub.add_parser("info", help="summarise a session (exit 3 if incomplete)")
-    s.add_argument("session")
+    s.add_argument("session", help=SESSION_HELP)
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(func=cmd_info)
 
+
+def _add_calibrate(sub: Subparsers) -> None:
     s = sub.add_parser("calibrate", help="calibrate the camera of every view; stores a run in the session")
-    s.add_argument("session")
+    s.add_argument("session", help=SESSION_HELP)
     s.add_argument(
         "--method",
         choices=METHOD_CHOICES,
         default=None,
-        help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's objective as "
-        "published; vr: voxel residual baseline",
+        help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's objective "
+        "as published; vr: voxel residual baseline",
     )
-    s.add_argument(
-        "--seed", type=_int_in(0, 2**32 - 1), default=None, help="random seed of CMA-ES (default from the rig config)"
-    )
+    s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None, metavar="N", help=SEED_HELP)
     s.add_argument(
         "--free",
         nargs="+",
@@ -797,7 +967,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="DEG",
         help="after the coarse level, scan a common offset of all rolls over the search box in steps of DEG degrees "
-        "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, 0 = off)",
+        "(for commanded angles that are far off, e.g. 0.5; default: the rig config's calibration.offset_scan_deg, "
+        "0 = off)",
     )
     s.add_argument(
         "--fixed-views",
@@ -810,49 +981,63 @@ def build_parser() -> argparse.ArgumentParser:
         type=_int_in(1, 100),
         default=1,
         metavar="S",
-        help="independent CMA-ES starts (seeds seed, seed+10, ...); the one of lowest cost is kept (default 1)",
+        help="independent CMA-ES starts (seeds seed, seed+10, ...); the one of lowest cost is kept. Default 1: "
+        + STARTS_WHY,
     )
     _add_accept_units(s)
     s.set_defaults(func=cmd_calibrate)
 
-    s = sub.add_parser("reconstruct", help="visual hull, volume (mm3) and surface area (mm2)")
-    s.add_argument("session")
+
+def _add_reconstruction_options(s: argparse.ArgumentParser, *, force_help: str) -> None:
+    """``--voxel-size UM``, ``--mesh FILE`` and ``--force`` of a command that reconstructs (reconstruct, run)."""
     s.add_argument(
         "--voxel-size",
         type=_float_in(0.0, inclusive=False),
-        help="voxel edge in um (default: from the specimen extent)",
+        metavar="UM",
+        help="voxel edge, µm (default: from the specimen extent, about 5 million voxels in its box)",
     )
+    s.add_argument("--mesh", metavar="FILE", help="also write the measured surface (.ply or .stl; mesh in µm)")
+    s.add_argument("--force", action="store_true", help=force_help)
+
+
+def _add_reconstruct(sub: Subparsers) -> None:
+    s = sub.add_parser("reconstruct", help="visual hull, volume (mm³) and surface area (mm²)")
+    s.add_argument("session", help=SESSION_HELP)
+    _add_reconstruction_options(s, force_help="overwrite an existing --mesh file")
     s.add_argument("--masks", action="store_true", help="use the imported masks instead of the probability maps")
-    s.add_argument("--mesh", help="also write the mesh (.ply or .stl)")
-    s.add_argument("--force", action="store_true", help="overwrite an existing --mesh file")
     _add_camera_choice(s)
     _add_accept_units(s)
     s.set_defaults(func=cmd_reconstruct)
 
+
+def _add_report(sub: Subparsers) -> None:
     s = sub.add_parser("report", help="report.json, report.csv and report.html of a session")
-    s.add_argument("session")
-    s.add_argument("-o", "--output", required=True, help="output folder")
+    s.add_argument("session", help=SESSION_HELP + ", measured ('vastcal reconstruct' or 'vastcal run')")
+    s.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     s.add_argument(
         "--force", action="store_true", help="overwrite the report files of an earlier report in that folder"
     )
     s.set_defaults(func=cmd_report)
 
+
+def _add_run(sub: Subparsers) -> None:
     s = sub.add_parser("run", help="replay a recorded session: calibrate, reconstruct, report")
-    s.add_argument("session")
-    s.add_argument("-o", "--output", help="report folder (default: S-report beside the session)")
-    s.add_argument(
-        "--force", action="store_true", help="overwrite the report files of an earlier run in the report folder"
+    s.add_argument("session", help=SESSION_HELP)
+    s.add_argument("-o", "--output", metavar="DIR", help="report folder (default: S-report beside the session)")
+    _add_reconstruction_options(
+        s, force_help="overwrite the report files of an earlier run in the report folder, and an existing --mesh file"
     )
     s.add_argument(
         "--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr"
     )
-    s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None)
+    s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None, metavar="N", help=SEED_HELP)
     s.add_argument(
         "--starts",
         type=_int_in(1, 100),
         default=3,
         metavar="S",
-        help="independent calibration starts; the one of lowest cost is kept (default 3)",
+        help="independent calibration starts; the one of lowest cost is kept. Default 3 ('vastcal calibrate': 1): "
+        + STARTS_WHY,
     )
     s.add_argument(
         "--cameras",
@@ -872,12 +1057,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_accept_units(s)
     s.set_defaults(func=cmd_run)
 
+
+def _add_prune(sub: Subparsers) -> None:
     s = sub.add_parser("prune", help="delete old calibration/reconstruction/measurement runs from a session")
-    s.add_argument("session")
+    s.add_argument("session", help=SESSION_HELP)
     s.add_argument("--keep", type=_int_in(1), required=True, metavar="N", help="newest runs to keep of every stage")
     s.add_argument("--dry-run", action="store_true", help="only list what would be deleted")
     s.set_defaults(func=cmd_prune)
 
+
+def _add_batch(sub: Subparsers) -> None:
     s = sub.add_parser("batch", help="run many sessions on Dask; one measurements table per screen")
     s.add_argument(
         "sessions", nargs="+", metavar="SESSIONS", help="session files, folders (every *.h5 below) or glob patterns"
@@ -902,9 +1091,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--method", choices=METHOD_CHOICES, default=None, help="coherence (default, from the rig config), pi or vr"
     )
-    s.add_argument("--seed", type=int, default=None)
+    s.add_argument("--seed", type=int, default=None, metavar="N", help=SEED_HELP)
     s.add_argument(
-        "--starts", type=int, default=3, metavar="S", help="independent calibration starts per session (default 3)"
+        "--starts",
+        type=int,
+        default=3,
+        metavar="S",
+        help="independent calibration starts per session (default 3, as 'vastcal run')",
     )
     s.add_argument(
         "--prior-from",
@@ -914,28 +1107,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.set_defaults(func=cmd_batch)
 
+
+def _add_annotate(sub: Subparsers) -> None:
     s = sub.add_parser("annotate", help="attach specimen metadata to sessions (S.specimen.json beside S.h5)")
-    s.add_argument("sessions", nargs="*", metavar="S.h5")
+    s.add_argument("sessions", nargs="*", metavar="S.h5", help="session files to annotate with the fields given")
     s.add_argument(
         "--manifest",
         metavar="CSV",
         help="CSV with a 'session' column and specimen_id, age_dpf, strain, treatment, plate, well; "
         "or YAML mapping session file names to those fields",
     )
-    s.add_argument("--id", default=None, help="specimen ID")
-    s.add_argument("--age-dpf", default=None, help="age, days post fertilisation")
-    s.add_argument("--strain", default=None)
-    s.add_argument("--treatment", default=None)
-    s.add_argument("--plate", default=None)
-    s.add_argument("--well", default=None)
+    s.add_argument("--id", default=None, help="specimen ID (e.g. F12)")
+    s.add_argument("--age-dpf", default=None, metavar="DAYS", help="age, days post fertilisation (a number >= 0)")
+    s.add_argument("--strain", default=None, help="strain or genotype (e.g. AB, TL, casper)")
+    s.add_argument("--treatment", default=None, help="treatment or condition (e.g. DMSO 0.1 %%)")
+    s.add_argument("--plate", default=None, help="plate name or barcode")
+    s.add_argument("--well", default=None, help="well on the plate (e.g. B7)")
     s.set_defaults(func=cmd_annotate)
-    p.set_defaults(_commands=sub.choices)
-    for sp in sub.choices.values():  # the global flags are accepted after the command too
-        sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress lines")
-        sp.add_argument(
-            "-v", "--verbose", action="count", default=argparse.SUPPRESS, help="more log output (-vv for debug)"
-        )
-    return p
 
 
 def _resource_exhausted(exc: BaseException) -> str | None:

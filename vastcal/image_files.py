@@ -1,7 +1,11 @@
 """Reading image files the way labs store them: single images, multi-page TIFF, OME-TIFF and ImageJ hyperstacks.
 
 * TIFF files (``.tif``/``.tiff``, OME-TIFF included) are read with ``tifffile``: every page of the file's
-  image series, never only the first. A stack's *view axis* is the one axis besides Y, X (and colour) with
+  image series, never only the first. Compressed TIFFs as lab software writes them (LZW, Deflate, JPEG, PackBits,
+  CCITT RLE/Group 3/Group 4 for 1-bit masks) are decoded by ``imagecodecs``; a 1-bit (bilevel) image becomes
+  uint8 0/255 as it is displayed (``WhiteIsZero`` inverted). A damaged or truncated TIFF is refused in one error
+  (what ``tifffile`` logs about it is not printed: it goes into the error, or to this module's log).
+  A stack's *view axis* is the one axis besides Y, X (and colour) with
   more than one entry (ImageJ ``T``/``Z``, OME ``T``/``Z``, tifffile's ``I``/``Q``/``A``...); a stack
   with two such axes (a time-lapse of z-stacks) is refused, naming them. A ``C`` axis of 3 (or RGB samples)
   is colour; any other number of channels is refused.
@@ -27,6 +31,8 @@ import logging
 import re
 import warnings
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -344,6 +350,59 @@ def _to_views(arr: np.ndarray, axes: str, path: Path, rgb_samples: bool) -> np.n
     return np.ascontiguousarray(arr)
 
 
+DAMAGE = re.compile(r"invalid (page )?offset|failed to (reshape|read)|truncat|corrupt|incomplete", re.IGNORECASE)
+"""What ``tifffile`` logs about a damaged or truncated file (it then reads what it can: fewer pages, no pixels)."""
+
+
+class _Collect(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+@contextmanager
+def tifffile_messages(path: Path) -> Iterator[list[str]]:
+    """While reading ``path``: what ``tifffile`` logs is collected (not printed, even under ``-q``) into the list
+    yielded, and its warnings are silenced. Messages that do not say the file is damaged go to this module's log
+    (DEBUG) at the end; :func:`check_undamaged` turns the others into an error."""
+    logger = logging.getLogger("tifffile")
+    handler, propagate = _Collect(), logger.propagate
+    logger.addHandler(handler)
+    logger.propagate = False
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield handler.messages
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
+        for m in handler.messages:
+            if not DAMAGE.search(m):
+                log.debug("%s: tifffile: %s", path.name, m)
+
+
+def check_undamaged(messages: list[str], path: Path) -> None:
+    """Raise :class:`ImportDataError` when ``tifffile`` said the file is damaged or truncated (:data:`DAMAGE`)."""
+    damage = [m for m in messages if DAMAGE.search(m)]
+    if damage:
+        first = re.sub(r"^<[^>]*>\s*", "", damage[0])  # tifffile names its own object first
+        raise ImportDataError(f"{path}: cannot read this TIFF: damaged or truncated ({first[:120]})")
+
+
+def _display_levels(arr: np.ndarray, series: Any) -> np.ndarray:
+    """A 1-bit (bilevel) image as uint8 0/255 as it is displayed: ``WhiteIsZero`` (photometric 0) inverted."""
+    if arr.dtype != np.bool_:
+        return arr
+    try:
+        white_is_zero = int(series.pages[0].photometric) == 0
+    except Exception:  # noqa: BLE001 - no photometric tag: BlackIsZero, the baseline default
+        white_is_zero = False
+    return np.where(arr != white_is_zero, np.uint8(255), np.uint8(0))
+
+
 def tiff_frame_count(path: Path) -> int:
     """Number of views a TIFF file holds (its first image series), without decoding pixels.
 
@@ -353,17 +412,16 @@ def tiff_frame_count(path: Path) -> int:
     import tifffile
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with tifffile.TiffFile(path) as tif:
-                s = tif.series[0]
-                shape = dict(zip(s.axes.upper(), s.shape))
-                colour = "S" if "S" in shape else ("C" if shape.get("C") in (3, 4) else None)
-                n = 1
-                for a, v in shape.items():
-                    if a not in ("Y", "X", colour):
-                        n *= int(v)
-                return n
+        with tifffile_messages(path) as messages, tifffile.TiffFile(path) as tif:
+            s = tif.series[0]
+            shape = dict(zip(s.axes.upper(), s.shape))
+            colour = "S" if "S" in shape else ("C" if shape.get("C") in (3, 4) else None)
+            n = 1
+            for a, v in shape.items():
+                if a not in ("Y", "X", colour):
+                    n *= int(v)
+        check_undamaged(messages, path)
+        return n
     except ImportDataError:
         raise
     except Exception as exc:  # tifffile raises many types on damaged files
@@ -393,8 +451,7 @@ def read_tiff(path: Path, max_frame_pixels: int, max_bytes: int | None = None) -
     import tifffile
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with tifffile_messages(path) as messages:
             with tifffile.TiffFile(path) as tif:
                 if not tif.series:
                     raise ImportDataError(f"{path}: cannot read this TIFF (no image in it)")
@@ -421,9 +478,10 @@ def read_tiff(path: Path, max_frame_pixels: int, max_bytes: int | None = None) -
                         f"{path}: {s.shape} {s.dtype} need {nbytes / 2**30:.1f} GiB, more than this machine's "
                         f"{max_bytes / 2**30:.1f} GiB of memory (calibration loads every frame)"
                     )
-                arr = s.asarray()
+                arr = _display_levels(s.asarray(), s)
                 views = _to_views(arr, s.axes, path, _rgb_samples(s))
                 meta = tiff_metadata(tif, path, views.shape[0])
+        check_undamaged(messages, path)
     except ImportDataError:
         raise
     except MemoryError:
@@ -524,9 +582,7 @@ def tiff_file_metadata(path: Path) -> ImageMetadata:
     import tifffile
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with tifffile.TiffFile(path) as tif:
-                return tiff_metadata(tif, path, 1)
+        with tifffile_messages(path), tifffile.TiffFile(path) as tif:
+            return tiff_metadata(tif, path, 1)
     except Exception:  # noqa: BLE001 - metadata is optional; read_tiff reports damage
         return ImageMetadata()

@@ -61,11 +61,18 @@ class RunSummary:
         if self.verdict:
             lines.append(f"verdict          {self.verdict}")
         if self.calibration:
-            c = self.calibration
+            from vastcal.report.words import converged_text
+
+            c = {k: v for k, v in self.calibration.items() if k not in ("converged", "stop_reason")}
             lines.append(
                 "calibration      "
                 + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items())
             )
+            if "converged" in self.calibration:
+                lines.append(
+                    "                 "
+                    + converged_text(self.calibration["converged"], self.calibration.get("stop_reason", ""))
+                )
         for k, v in self.truth.items():
             lines.append(f"vs truth         {k}: {v:.4g}" if isinstance(v, float) else f"vs truth         {k}: {v}")
         if self.timings_s:
@@ -220,6 +227,8 @@ def run_session(
     prior_from: str | Path | None = None,
     mask: tuple[int, Any] | None = None,
     scribbles: tuple[int, Any] | None = None,
+    voxel_size_um: float | None = None,
+    mesh_path: str | Path | None = None,
 ) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
@@ -239,6 +248,8 @@ def run_session(
         truth_path: a simulated session's hidden truth: scored (:func:`score_against_truth`) and shown in the report.
         mask, scribbles: (view, image) marks of one view for the calibration's colour model (as ``vastcal calibrate
             --mask``/``--scribbles``; a scene with a turntable): every start uses them.
+        voxel_size_um: the hull's voxel edge, µm (default: from the specimen extent, as ``vastcal reconstruct``).
+        mesh_path: also write the measured surface there (.ply or .stl, µm).
     """
     from vastcal.calibrate import calibrate_session
     from vastcal.reconstruct import reconstruct_session
@@ -277,7 +288,7 @@ def run_session(
     try:
         t = time.monotonic()
         steps.phase("visual hull, volume and area")
-        m = reconstruct_session(path, calibration_run=calibration_run)
+        m = reconstruct_session(path, calibration_run=calibration_run, voxel_size_um=voxel_size_um, mesh_path=mesh_path)
         res.timings_s["reconstruct"] = time.monotonic() - t
         res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)
         res.length_unit = str((getattr(m, "provenance", None) or {}).get("length_unit", "um"))
@@ -343,7 +354,7 @@ def acquire_simulated(
 def _calibration_digest(cal: Any) -> dict[str, Any]:
     """A few numbers of a calibration result, whatever its exact type."""
     out: dict[str, Any] = {}
-    for name in ("method", "n_evaluations", "wall_time_s", "final_cost", "converged"):
+    for name in ("method", "n_evaluations", "wall_time_s", "final_cost", "converged", "stop_reason"):
         if hasattr(cal, name):
             out[name] = getattr(cal, name)
     delta = getattr(cal, "delta_angle_deg", None)

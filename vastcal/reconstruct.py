@@ -724,7 +724,7 @@ def session_specimen_maps(session: Any, model: Any, *, memory_mb: float = DEFAUL
     holds, all of them on a 21-view session), and each view's map is kept cropped to the specimen and
     quantised to uint8 (:class:`SilhouetteMaps`).
     """
-    from vastcal.calibrate.view_budget import grouped_specimen_maps
+    from vastcal.segmentation import grouped_specimen_maps
 
     idx = session.projection_indices
     n = len(idx)
@@ -809,7 +809,7 @@ def session_inputs(
     # The silhouettes do not depend on the cameras: imported cameras take the latest calibration run's colour model.
     model_run = cal if cal is not None else session.latest_result("calibration")
     if not use_masks and model_run is not None and "colour_model" in model_run:
-        from vastcal.calibrate.colour_model import ColourModel
+        from vastcal.segmentation.colour_models import ColourModel
 
         model = ColourModel.from_group(model_run["colour_model"])
         # soft maps: a voxel is inside when the bilinearly sampled probability is >= 0.5 (sub-pixel edges)

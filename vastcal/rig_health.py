@@ -19,7 +19,6 @@ What the data can and cannot determine — say it with every figure:
 
 from __future__ import annotations
 
-import html
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -156,7 +155,8 @@ def rig_health(records: Sequence[Mapping[str, Any]]) -> RigHealth:
     if len(informative) < len(records):
         h.notes.append(
             f"{len(records) - len(informative)} of {len(records)} sessions held the rolls at the commanded angles "
-            "or their report marks the drift not estimated/undetermined (rolls following the prior): left out of the angle error"
+            "or their report marks the drift not estimated/undetermined (rolls following the prior): "
+            "left out of the angle error"
         )
     h.notes.append("angles are relative to view 0: an error common to all angles is not determined")
     h.notes.append(
@@ -164,78 +164,6 @@ def rig_health(records: Sequence[Mapping[str, Any]]) -> RigHealth:
         "a periodic stage error shows here attenuated, not amplified"
     )
     return h
-
-
-def _svg_points(
-    xs: Sequence[float], ys: Sequence[float], es: Sequence[float], label: str, width: int = 420, height: int = 180
-) -> str:
-    pad = 30
-    ok = [(x, y, e if math.isfinite(e) else 0.0) for x, y, e in zip(xs, ys, es) if math.isfinite(y)]
-    if not ok:
-        return ""
-    x0, x1 = min(p[0] for p in ok), max(p[0] for p in ok)
-    y0, y1 = min(p[1] - p[2] for p in ok), max(p[1] + p[2] for p in ok)
-    if x1 <= x0:
-        x1 = x0 + 1
-    if y1 <= y0:
-        y0, y1 = y0 - 0.01, y1 + 0.01
-
-    def sx(x: float) -> float:
-        return pad + (x - x0) / (x1 - x0) * (width - 2 * pad)
-
-    def sy(y: float) -> float:
-        return height - pad - (y - y0) / (y1 - y0) * (height - 2 * pad)
-
-    marks = "".join(
-        f'<line x1="{sx(x):.1f}" x2="{sx(x):.1f}" y1="{sy(y - e):.1f}" y2="{sy(y + e):.1f}" stroke="#888"/>'
-        f'<circle cx="{sx(x):.1f}" cy="{sy(y):.1f}" r="2.5" fill="#b04a4a"/>'
-        for x, y, e in ok
-    )
-    return (
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">'
-        f'<text x="{pad}" y="14" font-size="12">{html.escape(label)}</text>{marks}'
-        f'<text x="4" y="{pad}" font-size="10">{y1:.3g}</text><text x="4" y="{height - pad}" font-size="10">{y0:.3g}</text></svg>'
-    )
-
-
-def rig_health_html(h: RigHealth) -> str:
-    """An HTML section (inline SVG, every value escaped) for the batch overview."""
-    if h.n_sessions == 0:
-        return ""
-    parts = [f"<h2>Rig health ({h.n_sessions} calibrated sessions)</h2>"]
-    if h.angle_error:
-        parts.append(
-            _svg_points(
-                [a.commanded_deg for a in h.angle_error],
-                [a.mean_deg for a in h.angle_error],
-                [a.standard_error_deg for a in h.angle_error],
-                f"calibrated − commanded angle (deg, ± SE) vs commanded angle, {h.n_rolls_informative} sessions",
-            )
-        )
-    else:
-        parts.append("<p>Stage angle error: not determined (no session calibrated its rolls).</p>")
-    for t in (h.yaw, h.pitch):
-        if t is None:
-            continue
-        slope = (
-            f"; trend {t.slope_deg_per_day:+.3g} ± {t.slope_se_deg_per_day:.2g} °/day"
-            if t.slope_deg_per_day is not None and t.slope_se_deg_per_day is not None
-            else ""
-        )
-        parts.append(
-            f"<p>{html.escape(t.name)}: mean {t.mean_deg:+.4f} ± {t.standard_error_deg:.2g}° (SE, n = {len(t.values_deg)})"
-            f"{html.escape(slope)}</p>"
-        )
-        parts.append(
-            _svg_points(
-                list(range(len(t.values_deg))),
-                t.values_deg,
-                [0.0] * len(t.values_deg),
-                f"{t.name} (deg) per session, in time order",
-            )
-        )
-    parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in h.notes) + "</ul>")
-    return "\n".join(parts)
 
 
 # ---------------------------------------------------------------- as a file, and as the prior of the next calibration
@@ -289,7 +217,8 @@ class RigPrior:
         """One line for logs and the calibration's attributes."""
         parts = [f"{self.source}: {self.n_sessions} session(s)"]
         parts.append(
-            f"stage error at {self.commanded_deg.size} commanded angle(s), max |e| {np.max(np.abs(self.error_deg)):.3f} deg"
+            f"stage error at {self.commanded_deg.size} commanded angle(s), "
+            f"max |e| {np.max(np.abs(self.error_deg)):.3f} deg"
             if self.error_deg.size
             else "stage error not determined (no roll shift)"
         )
@@ -324,7 +253,8 @@ def load_rig_prior(results_dir: str | Path, *, key: str = "calibration.prior_fro
         ) from None
     if not isinstance(data, dict) or data.get("schema") != HEALTH_SCHEMA:
         raise ConfigError(
-            f"{key}: {path}: expected schema {HEALTH_SCHEMA}, got {_short(data.get('schema') if isinstance(data, dict) else data)}"
+            f"{key}: {path}: expected schema {HEALTH_SCHEMA}, "
+            f"got {_short(data.get('schema') if isinstance(data, dict) else data)}"
         )
     pts: list[tuple[float, float, float]] = []
     try:

@@ -5,22 +5,25 @@ reader — or a batch killed half way — never sees a half-written table. Parqu
 ``pyarrow`` is importable (``pip install pyarrow``); the CSV always.
 
 Units are in the column names (``_mm3``, ``_mm2``, ``_deg``, ``_s``); ``U_`` columns are expanded
-uncertainties with the coverage factor ``k`` of the same row. Missing values are ``-`` in the CSV and
-null in Parquet.
+uncertainties with the coverage factor ``k`` of the same row. A missing value is an empty cell in the CSV
+(pandas and R read it as NA and keep the column numeric) and null in Parquet. Text cells of the CSV are
+neutralised against spreadsheet formulas (:func:`vastcal.csv_cells.spreadsheet_safe`, as ``report.csv``);
+Parquet keeps the text as given (its columns are typed: nothing evaluates them).
 """
 
 from __future__ import annotations
 
 import csv
-import html
 import io
 import logging
 import math
 import os
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+from vastcal.csv_cells import spreadsheet_safe
 
 log = logging.getLogger(__name__)
 
@@ -87,8 +90,6 @@ NUMERIC: frozenset[str] = frozenset(
     }
 )
 
-MISSING = "-"
-
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file in the same folder and one rename."""
@@ -108,14 +109,32 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         raise
 
 
-def _cell(value: Any) -> str:
-    if value is None or value == "":
-        return MISSING
-    if isinstance(value, float):
-        return MISSING if not math.isfinite(value) else f"{value:.6g}"
+def _text(value: Any) -> str:
+    """A value as text: lists joined with ``;``, None empty (no neutralisation)."""
+    if value is None:
+        return ""
     if isinstance(value, (list, tuple)):
-        return ";".join(str(v) for v in value) or MISSING
+        return ";".join(str(v) for v in value)
     return str(value)
+
+
+def csv_cell(value: Any, column: str = "") -> str:
+    """One cell of ``measurements.csv``: empty when missing (None, empty, NaN, ±inf); a number as a number
+    (``.6g``; integers whole); text, and a :data:`NUMERIC` column's value that is no number, neutralised
+    (:func:`vastcal.csv_cells.spreadsheet_safe`), a carriage return in it written as a line break."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float) or column in NUMERIC:
+        try:
+            x = float(value)
+        except (TypeError, ValueError):
+            pass  # text in a numeric column (a sidecar's "n/a"): written as text
+        else:
+            return f"{x:.6g}" if math.isfinite(x) else ""
+    # a carriage return as a line break: the writer quotes only fields holding its line terminator ("\n")
+    return spreadsheet_safe(_text(value)).replace("\r\n", "\n").replace("\r", "\n")
 
 
 def csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -124,11 +143,12 @@ def csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(COLUMNS)
     for r in rows:
-        w.writerow([_cell(r.get(c)) for c in COLUMNS])
+        w.writerow([csv_cell(r.get(c), c) for c in COLUMNS])
     return buf.getvalue()
 
 
-def _number(value: Any) -> float | None:
+def finite_number(value: Any) -> float | None:
+    """``value`` as a finite float, or None (missing, text, NaN, ±inf)."""
     try:
         x = float(value)
     except (TypeError, ValueError):
@@ -146,9 +166,9 @@ def write_parquet(rows: Sequence[Mapping[str, Any]], path: Path) -> bool:
     cols: dict[str, list[Any]] = {}
     for c in COLUMNS:
         if c in NUMERIC:
-            cols[c] = [_number(r.get(c)) for r in rows]
+            cols[c] = [finite_number(r.get(c)) for r in rows]
         else:
-            cols[c] = [None if r.get(c) in (None, "") else _cell(r.get(c)) for r in rows]
+            cols[c] = [_text(r.get(c)) or None for r in rows]
     table = pa.table({c: pa.array(v, type=pa.float64() if c in NUMERIC else pa.string()) for c, v in cols.items()})
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
@@ -165,118 +185,3 @@ def write_table(rows: Sequence[Mapping[str, Any]], results_dir: Path) -> list[Pa
     if write_parquet(rows, results_dir / "measurements.parquet"):
         out.append(results_dir / "measurements.parquet")
     return out
-
-
-# ---------------------------------------------------------------- HTML overview
-
-
-def _histogram_svg(values: Sequence[float], label: str, bins: int = 20, width: int = 420, height: int = 160) -> str:
-    """An inline SVG histogram of ``values`` (no scripts, no network)."""
-    vals = [v for v in values if v is not None and math.isfinite(v)]
-    if not vals:
-        return f"<p>{html.escape(label)}: no values</p>"
-    lo, hi = min(vals), max(vals)
-    if hi <= lo:
-        lo, hi = lo - 0.5 * abs(lo or 1) * 0.01, hi + 0.5 * abs(hi or 1) * 0.01
-    counts = [0] * bins
-    for v in vals:
-        counts[min(bins - 1, int((v - lo) / (hi - lo) * bins))] += 1
-    top = max(counts)
-    pad, bw = 30, (width - 40) / bins
-    bars = []
-    for i, c in enumerate(counts):
-        h = (height - 2 * pad) * c / top
-        bars.append(
-            f'<rect x="{pad + i * bw:.1f}" y="{height - pad - h:.1f}" width="{bw - 1:.1f}" height="{h:.1f}" fill="#4a7ab0">'
-            f"<title>{html.escape(f'{lo + i * (hi - lo) / bins:.4g} – {lo + (i + 1) * (hi - lo) / bins:.4g}: {c}')}</title></rect>"
-        )
-    return (
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">'
-        f'<text x="{pad}" y="14" font-size="12">{html.escape(label)} (n = {len(vals)})</text>'
-        + "".join(bars)
-        + f'<text x="{pad}" y="{height - 10}" font-size="11">{lo:.4g}</text>'
-        + f'<text x="{width - 10}" y="{height - 10}" font-size="11" text-anchor="end">{hi:.4g}</text></svg>'
-    )
-
-
-def outliers(rows: Iterable[Mapping[str, Any]], column: str, z: float = 3.5) -> list[Mapping[str, Any]]:
-    """Rows whose ``column`` lies more than ``z`` robust standard deviations (1.4826 × MAD) from the median."""
-    pts = [(r, _number(r.get(column))) for r in rows if r.get("status") == "ok"]
-    vals = sorted(v for _, v in pts if v is not None)
-    if len(vals) < 5:
-        return []
-    med = vals[len(vals) // 2]
-    mad = sorted(abs(v - med) for v in vals)[len(vals) // 2] * 1.4826
-    if mad <= 0:
-        return []
-    return [r for r, v in pts if v is not None and abs(v - med) > z * mad]
-
-
-def _link(row: Mapping[str, Any]) -> str:
-    name = html.escape(str(row.get("session", "?")))
-    rep = row.get("report")
-    if rep and rep != MISSING:
-        return f'<a href="{html.escape(str(rep))}/report.html">{name}</a>'
-    return name
-
-
-def index_html(
-    rows: Sequence[Mapping[str, Any]],
-    *,
-    title: str = "vastcal screen",
-    extra_html: str = "",
-    progress: str = "",
-    refresh_s: int | None = None,
-) -> str:
-    """The screen overview: counts, histograms of volume and area, outliers, failed sessions, the table.
-
-    Every value from the data is escaped with :func:`html.escape`; ``extra_html`` is trusted (built here).
-    ``refresh_s``: while a batch runs, the page reloads itself every so many seconds (a meta refresh: no script,
-    works from ``file://``); the final page has none.
-    """
-    rows = sorted(rows, key=lambda r: str(r.get("session", "")))
-    ok = [r for r in rows if r.get("status") == "ok"]
-    failed = [r for r in rows if r.get("status") != "ok"]
-    reload = f"<meta http-equiv='refresh' content='{int(refresh_s)}'>" if refresh_s else ""
-    parts = [
-        f"<!doctype html><html><head><meta charset='utf-8'>{reload}<title>{html.escape(title)}</title>",
-        "<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse;font-size:12px}"
-        "td,th{border:1px solid #ccc;padding:2px 5px}.failed{background:#fdd}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
-        f"<p>{len(ok)} measured, {len(failed)} failed{html.escape(progress)}</p>",
-        _histogram_svg([_number(r.get("volume_mm3")) for r in ok], "volume (mm³)"),
-        _histogram_svg([_number(r.get("area_mm2")) for r in ok], "surface area (mm²)"),
-    ]
-    for col, label in (("volume_mm3", "volume"), ("area_mm2", "area")):
-        out = outliers(rows, col)
-        if out:
-            parts.append(
-                f"<h2>Outliers in {label} (&gt; 3.5 robust SD from the median)</h2><ul>"
-                + "".join(f"<li>{_link(r)}: {html.escape(_cell(r.get(col)))}</li>" for r in out)
-                + "</ul>"
-            )
-    if failed:
-        parts.append(
-            "<h2>Failed sessions</h2><ul>"
-            + "".join(
-                f"<li>{_link(r)}: {html.escape(_cell(r.get('exit_class')))} — {html.escape(_cell(r.get('reason')))}</li>"
-                for r in failed
-            )
-            + "</ul>"
-        )
-    parts.append(extra_html)
-    shown = [c for c in COLUMNS if c not in ("path", "uid")]
-    parts.append("<h2>All sessions</h2><table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in shown) + "</tr>")
-    for r in rows:
-        cls = "" if r.get("status") == "ok" else " class='failed'"
-        cells = [_link(r) if c == "session" else html.escape(_cell(r.get(c))) for c in shown]
-        parts.append(f"<tr{cls}>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    parts.append("</table><p>measurements.csv holds the same rows.</p></body></html>")
-    return "\n".join(parts)
-
-
-def write_index(rows: Sequence[Mapping[str, Any]], results_dir: Path, **kw: Any) -> Path:
-    """Write ``index.html`` into ``results_dir`` atomically."""
-    path = Path(results_dir) / "index.html"
-    atomic_write_bytes(path, index_html(rows, **kw).encode())
-    return path

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -26,6 +27,8 @@ from typing import Any
 
 from vastcal.errors import UserInputError
 from vastcal.screen_table import SPECIMEN_FIELDS, atomic_write_bytes
+
+log = logging.getLogger(__name__)
 
 ALIASES: dict[str, str] = {"id": "specimen_id", "age": "age_dpf"}
 """Short names accepted by ``--specimen`` and in YAML (case-insensitive)."""
@@ -61,32 +64,85 @@ def _clean(fields: Mapping[str, Any], source: str) -> dict[str, Any]:
     return out
 
 
-def read_specimen(session: str | Path) -> dict[str, Any]:
-    """The specimen fields of a session (``{}`` when there is no sidecar or it is unreadable)."""
+def read_sidecar(session: str | Path) -> dict[str, Any]:
+    """The fields of the session's sidecar ``S.specimen.json`` (``{}`` when there is none).
+
+    Raises:
+        UserInputError: the sidecar exists but cannot be read, or is not a JSON object of specimen fields
+            (one line naming the file and what was expected).
+    """
+    side = sidecar_path(session)
     try:
-        data = json.loads(sidecar_path(session).read_text())
-    except (OSError, ValueError):
+        raw = side.read_bytes()
+    except FileNotFoundError:
         return {}
+    except OSError as exc:
+        raise UserInputError(f"{side}: cannot read the specimen sidecar ({exc.strerror or exc})") from None
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise UserInputError(
+            f"{side}: not a specimen sidecar ({type(exc).__name__}: {str(exc).splitlines()[0][:120]}); expected a JSON "
+            f"object of {', '.join(SPECIMEN_FIELDS)}: repair or remove it, then annotate again"
+        ) from None
     if not isinstance(data, dict):
-        return {}
+        raise UserInputError(
+            f"{side}: not a specimen sidecar (a JSON {type(data).__name__}); expected a JSON object of "
+            f"{', '.join(SPECIMEN_FIELDS)}: repair or remove it, then annotate again"
+        )
     return {k: data[k] for k in SPECIMEN_FIELDS if data.get(k) not in (None, "")}
+
+
+def read_specimen(session: str | Path) -> dict[str, Any]:
+    """The sidecar's specimen fields, for readers that go on without them: ``{}`` when there is no sidecar, and
+    ``{}`` with a warning naming the file when it is unreadable (:func:`read_sidecar` raises instead)."""
+    try:
+        return read_sidecar(session)
+    except UserInputError as exc:
+        log.warning("%s (its fields are left out)", exc)
+        return {}
+
+
+def specimen_fields(session: str | Path) -> dict[str, Any]:
+    """Every specimen field of a session, in :data:`SPECIMEN_FIELDS` order: those stored at acquisition, overridden
+    by the sidecar's (an unreadable sidecar is left out with a warning)."""
+    merged = {**session_specimen(session), **read_specimen(session)}
+    return {k: merged[k] for k in SPECIMEN_FIELDS if k in merged}
 
 
 def annotate(session: str | Path, fields: Mapping[str, Any], *, source: str = "annotate") -> Path:
     """Merge ``fields`` into the session's sidecar (atomically); returns the sidecar path.
 
     Raises:
-        UserInputError: the session does not exist, an unknown field, an age that is not a number >= 0.
+        UserInputError: the session does not exist, an unknown field, an age that is not a number >= 0, or its
+            sidecar exists but is not one (left as it is).
     """
     path = Path(session)
     if not path.is_file():
         raise UserInputError(f"{path}: no such session file")
     new = _clean(fields, source)
-    data = read_specimen(path)
+    data = read_sidecar(path)  # an unreadable sidecar is refused, never replaced
     data.update(new)
     side = sidecar_path(path)
     atomic_write_bytes(side, (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
     return side
+
+
+def annotate_sessions(sessions: list[str | Path], fields: Mapping[str, Any]) -> list[Path]:
+    """Merge the same ``fields`` into the sidecar of every session (``vastcal annotate S1.h5 S2.h5 --strain AB``).
+
+    Every session and sidecar is checked before anything is written.
+
+    Raises:
+        UserInputError: as :func:`annotate`, for the first session that would fail (nothing written then).
+    """
+    plan = []
+    for s in sessions:
+        if not Path(s).is_file():
+            raise UserInputError(f"{s}: no such session file")
+        plan.append((Path(s), dict(fields), "annotate"))
+    _clean(fields, "annotate")
+    return _annotate_all(plan)
 
 
 def annotate_from_manifest(manifest: str | Path) -> list[Path]:
@@ -109,7 +165,7 @@ def annotate_from_manifest(manifest: str | Path) -> list[Path]:
                 raise UserInputError(f"{mpath}: {key}: no such session file {target}")
             clean = _clean({_key(k): v for k, v in fields.items()}, f"{mpath}: {key}")
             plan.append((target, clean, f"{mpath}: {key}"))
-        return [annotate(t, f, source=src) for t, f, src in plan]
+        return _annotate_all(plan)
     try:
         with mpath.open(newline="") as f:
             rows = list(csv.DictReader(f))
@@ -128,6 +184,14 @@ def annotate_from_manifest(manifest: str | Path) -> list[Path]:
         fields = {k: v for k, v in row.items() if k is not None}
         _clean(fields, f"{mpath}: line {i}")
         plan.append((target, fields, f"{mpath}: line {i}"))
+    return _annotate_all(plan)
+
+
+def _annotate_all(plan: list[tuple[Path, dict[str, Any], str]]) -> list[Path]:
+    """Annotate every (session, fields, source) of a checked manifest; every sidecar is read first, so that an
+    unreadable one refuses the whole manifest before anything is written."""
+    for target, _, _ in plan:
+        read_sidecar(target)
     return [annotate(t, f, source=src) for t, f, src in plan]
 
 
@@ -151,7 +215,8 @@ def parse_specimen_text(text: str, source: str = "--specimen") -> dict[str, Any]
             continue
         if "=" not in item:
             raise UserInputError(
-                f"{source}: {item.strip()!r}: expected KEY=VALUE (keys: ID, {', '.join(SPECIMEN_FIELDS[1:])}) or a YAML/CSV file"
+                f"{source}: {item.strip()!r}: expected KEY=VALUE (keys: ID, {', '.join(SPECIMEN_FIELDS[1:])}) "
+                "or a YAML/CSV file"
             )
         k, v = item.split("=", 1)
         fields[_key(k)] = v.strip()

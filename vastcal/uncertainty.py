@@ -898,9 +898,9 @@ def assess_session_measurement(
     import cv2
 
     from vastcal import qc
-    from vastcal.calibrate.view_budget import SessionFrames
     from vastcal.errors import VastcalError
     from vastcal.session import read_attrs
+    from vastcal.session_frames import SessionFrames
 
     cal = session.result("calibration", inputs.calibration_run) if inputs.calibration_run else None
     spread = calibration_spread_from_group(cal) if cal is not None else None

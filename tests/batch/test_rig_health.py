@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 
-from vastcal.rig_health import angle_error_by_commanded, axis_trend, rig_health, rig_health_html
+from vastcal.batch_page import health_context
+from vastcal.rig_health import angle_error_by_commanded, axis_trend, rig_health
 
 
 def _records(n: int, amplitude: float, noise: float, seed: int = 0) -> list[dict]:
@@ -46,8 +47,10 @@ def test_sessions_with_held_rolls_are_left_out_and_trends_have_slopes() -> None:
     assert (
         h.pitch is not None and h.pitch.slope_deg_per_day is not None and abs(h.pitch.slope_deg_per_day - 0.01) < 0.02
     )
-    page = rig_health_html(h)
-    assert "<svg" in page and "relative to view 0" in page
+    section = health_context(h)
+    assert section is not None and section["angle_error_uri"].startswith("data:image/svg+xml;base64,")
+    assert [a["name"] for a in section["axes"]] == ["yaw", "pitch"]
+    assert any("relative to view 0" in n for n in section["notes"])
 
 
 def test_axis_trend_without_times_has_no_slope() -> None:

@@ -88,3 +88,29 @@ def test_annotate_from_a_yaml_manifest(tmp_path: Path, capsys: pytest.CaptureFix
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "c.h5" in err[0] and "no such file" in err[1], err
     assert "strain" not in read_specimen(tmp_path / "a.h5")  # nothing written when an entry is bad
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b'{"strain": "AB", ', b"[1, 2]", b"\xff\xfe not text", b'"just a string"'],
+    ids=["truncated JSON", "a list", "not UTF-8", "a string"],
+)
+def test_annotate_refuses_a_corrupt_sidecar_and_keeps_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes
+) -> None:
+    s, other = tmp_path / "a.h5", tmp_path / "b.h5"
+    for p in (s, other):
+        p.write_bytes(b"session bytes")
+    side = tmp_path / "a.specimen.json"
+    side.write_bytes(content)
+    capsys.readouterr()
+    assert main(["annotate", str(other), str(s), "--strain", "TL"]) == 2
+    (tmp_path / "screen.csv").write_text("session,well\nb.h5,A1\na.h5,A2\n")
+    assert main(["annotate", "--manifest", str(tmp_path / "screen.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("vastcal: error: ") for line in err), err
+    assert all(str(side) in line and "not a specimen sidecar" in line and "JSON object" in line for line in err), err
+    assert side.read_bytes() == content  # never replaced
+    assert not (tmp_path / "b.specimen.json").exists()  # every sidecar is checked before any is written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "a.specimen.json", "b.h5", "screen.csv"]
+    assert read_specimen(s) == {}  # readers that go on without it (the batch table) leave its fields out

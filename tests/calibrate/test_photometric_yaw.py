@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from vastcal.calibrate import calibrate_views
-from vastcal.calibrate.colour_model import fit_automatic
 from vastcal.calibrate.photometric_yaw import (
     AbsorptionMatch,
     absorption_images,
@@ -28,8 +27,8 @@ from vastcal.calibrate.photometric_yaw import (
     spread_order,
     yaw_groups,
 )
-from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.geometry import projection_matrices
+from vastcal.segmentation import fit_automatic, specimen_maps
 
 _spec = importlib.util.spec_from_file_location("synthetic_views", Path(__file__).with_name("synthetic.py"))
 synthetic = importlib.util.module_from_spec(_spec)
@@ -304,10 +303,9 @@ def test_a_product_split_over_threads_is_bit_identical(monkeypatch: pytest.Monke
 _COST_SCRIPT = """
 import importlib.util, sys
 from pathlib import Path
-from vastcal.calibrate.colour_model import fit_automatic
 from vastcal.calibrate.photometric_yaw import AbsorptionMatch, absorption_images
-from vastcal.calibrate.silhouettes import specimen_maps
 from vastcal.geometry import projection_matrices
+from vastcal.segmentation import fit_automatic, specimen_maps
 spec = importlib.util.spec_from_file_location("synthetic_views", sys.argv[1])
 synthetic = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(synthetic)

@@ -3,6 +3,11 @@ malformed file is refused naming the file and line."""
 
 from __future__ import annotations
 
+import io
+import resource
+import struct
+import zipfile
+import zlib
 from pathlib import Path
 
 import cv2
@@ -184,7 +189,8 @@ def test_import_says_how_well_circular_motion_describes_the_cameras(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A ring fits to ~0 px; a view with its own focal length (2 % longer) or cameras that turn about no common axis
-    are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot reach them."""
+    are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot
+    reach them."""
     from vastcal.calibrate.session_run import session_camera_model
     from vastcal.geometry import CIRCULAR_FIT_WARN_PX
 
@@ -264,3 +270,152 @@ def test_named_angles_are_matched_to_the_images_by_name(tmp_path: Path) -> None:
     assert cli.main(["-q", "import", str(img), "-o", str(out := tmp_path / "s.h5"), "--angles", str(angles)]) == 0
     with Session.open(out) as s:
         np.testing.assert_allclose(s.angles_deg, np.arange(12) * 30.0)
+
+
+# ---------------------------------------------------------------- unpacking bombs
+
+ZERO_CHUNK = 1 << 24
+"""Zeros are deflated 16 MiB at a time: after a full flush the compressor starts afresh, so every chunk of zeros
+deflates to the same bytes, computed once (a 2 GiB member is written in milliseconds, not a minute)."""
+
+
+def _deflated(head: bytes, n_chunks: int, wbits: int) -> bytes:
+    """A deflate stream of ``head`` then ``n_chunks`` × 16 MiB of zeros (``wbits`` -15: raw; 15: zlib format)."""
+    c = zlib.compressobj(9, zlib.DEFLATED, -15)
+    first = c.compress(head) + c.flush(zlib.Z_FULL_FLUSH)
+    zeros = c.compress(bytes(ZERO_CHUNK)) + c.flush(zlib.Z_FULL_FLUSH)
+    body = first + zeros * n_chunks + c.flush()
+    if wbits < 0:
+        return body
+    a, b = 1, 0  # Adler-32 of head, then of the zeros in closed form: a stays, b grows by a per byte
+    for byte in head:
+        a = (a + byte) % 65521
+        b = (b + a) % 65521
+    b = (b + a * n_chunks * ZERO_CHUNK) % 65521
+    return b"\x78\xda" + body + struct.pack(">I", (b << 16) | a)
+
+
+def _npy_head(shape: tuple[int, ...]) -> bytes:
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    return buf.getvalue()
+
+
+def _zip(members: list[tuple[str, bytes, int, int]]) -> bytes:
+    """A zip archive of already deflated members: (name, raw deflate data, CRC-32, unpacked size)."""
+    local, central = b"", b""
+    for name, data, crc, size in members:
+        n = name.encode()
+        central += (
+            struct.pack(
+                "<IHHHHHHIIIHHHHHII",
+                0x02014B50,
+                20,
+                20,
+                0,
+                8,
+                0,
+                0x21,
+                crc,
+                len(data),
+                size,
+                len(n),
+                0,
+                0,
+                0,
+                0,
+                0,
+                len(local),
+            )
+            + n
+        )
+        local += struct.pack("<IHHHHHIIIHH", 0x04034B50, 20, 0, 8, 0, 0x21, crc, len(data), size, len(n), 0) + n + data
+    end = struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, len(members), len(members), len(central), len(local), 0)
+    return local + central + end
+
+
+def _npz_bomb(path: Path) -> Path:
+    """A 2 MB ``.npz``: a valid P (4 cameras) beside a member of 2 GiB of zeros."""
+    good = io.BytesIO()
+    np.save(good, _cameras())
+    c = zlib.compressobj(9, zlib.DEFLATED, -15)
+    p_data = c.compress(good.getvalue()) + c.flush()
+    head = _npy_head((2**28,))  # 2^28 float64: 2 GiB
+    crc = zlib.crc32(head)
+    zeros = bytes(ZERO_CHUNK)
+    for _ in range(2**31 // ZERO_CHUNK):
+        crc = zlib.crc32(zeros, crc)
+    members = [
+        ("P.npy", p_data, zlib.crc32(good.getvalue()), len(good.getvalue())),
+        ("zeros.npy", _deflated(head, 2**31 // ZERO_CHUNK, -15), crc, len(head) + 2**31),
+    ]
+    path.write_bytes(_zip(members))
+    return path
+
+
+def _mat_bomb(path: Path) -> Path:
+    """A 1 MB MAT-file v5: one compressed variable Z of 1 GiB of zeros (2^27 doubles), then a valid P."""
+    n = 2**27
+
+    def element(kind: int, data: bytes) -> bytes:
+        return struct.pack("<II", kind, len(data)) + data + bytes(-len(data) % 8)
+
+    head = element(6, struct.pack("<II", 6, 0)) + element(5, struct.pack("<ii", 1, n)) + element(1, b"Z")
+    head += struct.pack("<II", 9, 8 * n)  # miDOUBLE, 1 GiB
+    matrix = struct.pack("<II", 14, len(head) + 8 * n) + head
+    data = _deflated(matrix, 8 * n // ZERO_CHUNK, 15)
+    good = io.BytesIO()
+    scipy.io.savemat(good, {"P": _cameras()})
+    path.write_bytes(good.getvalue()[:128] + struct.pack("<II", 15, len(data)) + data + good.getvalue()[128:])
+    return path
+
+
+def test_unpacking_bombs_are_refused_from_their_headers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A 2 MB .npz with a 2 GiB member, a 1 MB .mat of 1 GiB of compressed zeros and a 228-byte .npy whose header
+    claims 10^12 x 3 x 4 doubles: each refused in one line, exit 2, before its arrays are read (the process stays
+    far below their size)."""
+    huge = tmp_path / "huge.npy"
+    huge.write_bytes(_npy_head((10**12, 3, 4)) + bytes(96))
+    bombs = [_npz_bomb(tmp_path / "bomb.npz"), _mat_bomb(tmp_path / "bomb.mat"), huge]
+    assert [b.stat().st_size < 3 << 20 for b in bombs] == [True] * 3
+    img = _images(tmp_path / "img", [f"v{i}.png" for i in range(N)])
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    for bomb, expected in zip(
+        bombs,
+        [
+            r"bomb\.npz: the zip archive \(2 member\(s\)\) unpacks to 2,048 MiB, more than 64 MiB",
+            r"bomb\.mat: the MAT-file's data unpacks to more than 64 MiB",
+            r"huge\.npy: the array \(its header claims 1000000000000 x 3 x 4 float64\) unpacks to 91,552,734 MiB",
+        ],
+    ):
+        with pytest.raises(ImportDataError, match=expected):
+            read_cameras(bomb, N)
+        assert cli.main(["-q", "import", str(img), "-o", str(tmp_path / "s.h5"), "--cameras", str(bomb)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "expected an array of 3 x 4 cameras (not read)" in err[0], err
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0 < 512 << 10  # KiB: never near 1 or 2 GiB
+    assert not (tmp_path / "s.h5").exists()
+    # the valid P of the .npz, alone, is read
+    with zipfile.ZipFile(bombs[0]) as z:
+        np.save(tmp_path / "P.npy", np.load(io.BytesIO(z.read("P.npy"))))
+    np.testing.assert_array_equal(read_cameras(tmp_path / "P.npy", N)[0], _cameras())
+
+
+@pytest.mark.parametrize("scale", [1e300, 1e-300])
+def test_cameras_at_the_limits_of_double_precision_are_one_error(
+    scale: float, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """P and s·P are one camera, but 1e300·P overflows a projection (a NaN principal point, a numpy warning and an
+    unrelated --roi-offset hint before): one line naming the file, the view and the number; exit 2."""
+    img = _images(tmp_path / "img", [f"v{i}.png" for i in range(N)])
+    cams = _write("name+P", _cameras() * scale, tmp_path / "cams")
+    assert cli.main(["-q", "import", str(img), "-o", str(tmp_path / "s.h5"), "--cameras", str(cams)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"vastcal: error: {cams}: camera 000: its largest number is "), err
+    assert "--roi-offset" not in err[0] and "Warning" not in err[0] and not (tmp_path / "s.h5").exists()
+    ok = _write("name+P", _cameras() * 1e90, tmp_path / "ok")  # still a usable scale
+    assert cli.main(["-q", "import", str(img), "-o", str(tmp_path / "s.h5"), "--cameras", str(ok)]) == 0
+    P = _cameras()
+    P[1, 2, 3] = np.inf
+    with pytest.raises(ImportDataError, match=r"camera 001: holds NaN or infinity"):
+        read_cameras(_write("name+P", P, tmp_path / "inf"), N)

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from phantom_views import PhantomViews, make_session
 
-import vastcal.calibrate.view_budget as view_budget
-from vastcal.calibrate.colour_model import ColourModel, fit_automatic, fit_views
-from vastcal.calibrate.silhouettes import specimen_maps
-from vastcal.calibrate.view_budget import grouped_specimen_maps, map_group_views, sub_revolutions
+import vastcal.segmentation.probability_maps as probability_maps
 from vastcal.reconstruct import SilhouetteMaps, session_specimen_maps, visual_hull
+from vastcal.segmentation import ColourModel, fit_automatic, grouped_specimen_maps, specimen_maps
+from vastcal.segmentation.colour_models import fit_views
+from vastcal.segmentation.probability_maps import map_group_views, sub_revolutions
 from vastcal.session import Session
 from vastcal.voxels import VoxelGrid
 
@@ -108,7 +108,7 @@ def test_grouped_maps_equal_the_whole_stack_when_it_fits_and_match_it_in_groups(
 
     assert grouped_specimen_maps(model, lambda v: frames[v], n, frames.shape[1:], 1536.0, store) == 1
     assert np.array_equal(out, whole)
-    monkeypatch.setattr(view_budget, "MIN_MAP_VIEWS", 7)
+    monkeypatch.setattr(probability_maps, "MIN_MAP_VIEWS", 7)
     seen.clear()
     assert grouped_specimen_maps(model, lambda v: frames[v], n, frames.shape[1:], 128.0, store) == 3
     assert seen == [list(range(j, n, 3)) for j in range(3)]
@@ -122,7 +122,7 @@ def test_session_maps_hold_one_sub_revolution_at_a_time(
     model = fit_automatic(_frames(spheroid_views))
 
     def peak_mb(min_views: int) -> tuple[float, SilhouetteMaps]:
-        monkeypatch.setattr(view_budget, "MIN_MAP_VIEWS", min_views)
+        monkeypatch.setattr(probability_maps, "MIN_MAP_VIEWS", min_views)
         with Session.open(path, "r") as s:
             tracemalloc.start()
             maps = session_specimen_maps(s, model, memory_mb=1.0)  # as few views at once as MIN_MAP_VIEWS allows
@@ -149,7 +149,7 @@ def test_the_colour_model_is_fitted_on_a_bounded_sample_of_views(spheroid_views:
 
 
 def test_posteriors_in_chunks_equal_one_pass(spheroid_views: PhantomViews, monkeypatch: pytest.MonkeyPatch) -> None:
-    import vastcal.calibrate.colour_model as cm
+    import vastcal.segmentation.colour_models as cm
 
     frames = _frames(spheroid_views)[:3]
     model: ColourModel = fit_automatic(frames)
@@ -159,8 +159,8 @@ def test_posteriors_in_chunks_equal_one_pass(spheroid_views: PhantomViews, monke
 
 
 def test_session_frames_are_read_when_asked(spheroid_views: PhantomViews, tmp_path: Path) -> None:
-    from vastcal.calibrate.colour_model import check_images
-    from vastcal.calibrate.view_budget import SessionFrames
+    from vastcal.segmentation import check_images
+    from vastcal.session_frames import SessionFrames
 
     path = make_session(tmp_path / "s.h5", spheroid_views, masks=False, cameras=False)
     frames = SessionFrames(path)
@@ -194,7 +194,7 @@ def test_maps_made_out_of_order_wait_compactly(
     specimen_maps(model, frames[:3])
     one_group = tracemalloc.get_traced_memory()[1] + frames[:3].nbytes
     tracemalloc.stop()
-    monkeypatch.setattr(view_budget, "MIN_MAP_VIEWS", 3)
+    monkeypatch.setattr(probability_maps, "MIN_MAP_VIEWS", 3)
     with Session.open(path, "r") as s:
         tracemalloc.start()
         maps = session_specimen_maps(s, model, memory_mb=1.0)  # 7 interleaved revolutions of 3 views
@@ -210,7 +210,7 @@ def test_maps_made_out_of_order_wait_compactly(
 
 
 def test_specimen_maps_hold_what_the_budget_states(spheroid_views: PhantomViews) -> None:
-    """The rules clear one stack of maps in place: the peak stays within view_budget's bytes per frame pixel (it was 36)."""
+    """The rules clear one stack of maps in place: the peak stays within probability_maps' bytes per frame pixel (it was 36)."""
     frames = _frames(spheroid_views)
     model = fit_automatic(frames)
     tracemalloc.start()
@@ -218,4 +218,4 @@ def test_specimen_maps_hold_what_the_budget_states(spheroid_views: PhantomViews)
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert maps.dtype == np.float32 and maps.shape == frames.shape
-    assert (peak + frames.nbytes) / frames.size <= view_budget.SPECIMEN_MAP_BYTES_PER_PIXEL
+    assert (peak + frames.nbytes) / frames.size <= probability_maps.SPECIMEN_MAP_BYTES_PER_PIXEL

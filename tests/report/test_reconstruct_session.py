@@ -79,17 +79,14 @@ def test_silhouettes_from_the_calibration_colour_model(
         def foreground_probability(self, images: np.ndarray) -> np.ndarray:
             return np.clip((230.0 - images.astype(np.float32)) / 150.0, 0, 1)  # inverts the session's frames
 
-    pkg = types.ModuleType("vastcal.calibrate")
-    mod = types.ModuleType("vastcal.calibrate.colour_model")
+    mod = types.ModuleType("vastcal.segmentation.colour_models")
     mod.ColourModel = FakeModel  # type: ignore[attr-defined]
-    sil = types.ModuleType("vastcal.calibrate.silhouettes")
-    sil.specimen_maps = lambda model, images, **kw: model.foreground_probability(images)  # type: ignore[attr-defined]  # no static blobs here
-    import vastcal.calibrate.view_budget as view_budget  # the real one: how many views are mapped at once
+    import vastcal.segmentation.probability_maps as probability_maps  # the real grouping: how many views at once
 
-    monkeypatch.setitem(sys.modules, "vastcal.calibrate.view_budget", view_budget)
-    monkeypatch.setitem(sys.modules, "vastcal.calibrate", pkg)
-    monkeypatch.setitem(sys.modules, "vastcal.calibrate.colour_model", mod)
-    monkeypatch.setitem(sys.modules, "vastcal.calibrate.silhouettes", sil)
+    monkeypatch.setitem(sys.modules, "vastcal.segmentation.colour_models", mod)
+    monkeypatch.setattr(  # no static blobs here
+        probability_maps, "specimen_maps", lambda model, images, **kw: model.foreground_probability(images)
+    )
     m = reconstruct_session(path, target_voxels=300_000)
     assert m.provenance["silhouette_source"].startswith("colour_model of calibration/run_000")
     assert m.volume_mm3 == pytest.approx(small_views.hull_volume_mm3, rel=0.03)  # type: ignore[attr-defined]

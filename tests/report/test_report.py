@@ -6,8 +6,7 @@ import base64
 import csv
 import json
 import re
-import shutil
-import subprocess
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -21,7 +20,10 @@ from vastcal.errors import MissingStageError, UserInputError
 from vastcal.report import CSV_COLUMNS, write_report
 from vastcal.report.figures import agreement_plot, convergence_plot, drift_plot, outline_path, view_overlay
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # headless_browser (--import-mode=importlib)
+from headless_browser import CHROMIUM  # noqa: E402
+from headless_browser import chromium as _chromium  # noqa: E402
+from headless_browser import crop_is_a_picture as _crop_is_a_picture  # noqa: E402
 
 
 @pytest.fixture
@@ -311,27 +313,6 @@ def test_view_overlay_outline_follows_the_hull_in_pixel_coordinates() -> None:
     )
 
 
-def _chromium(url: str, profile: Path, *extra: str) -> subprocess.CompletedProcess[str]:
-    assert CHROMIUM is not None
-    cmd = [
-        CHROMIUM,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        "--hide-scrollbars",
-        "--force-device-scale-factor=1",
-        f"--user-data-dir={profile}",
-        "--virtual-time-budget=8000",
-        *extra,
-        url,
-    ]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-
-
 PROBE = """<script>window.addEventListener('load',()=>{setTimeout(()=>{
 const rect=e=>{const r=e.getBoundingClientRect();return [r.left+scrollX,r.top+scrollY,r.width,r.height];};
 const im=[...document.images];
@@ -346,16 +327,6 @@ out.lightbox={open:!box.hidden,natural:full?full.naturalWidth:0,shown:full?full.
 document.dispatchEvent(new KeyboardEvent('keydown',{key:'Escape'}));out.lightbox.closed=box.hidden;
 document.body.dataset.probe=JSON.stringify(out);},300);});</script>"""
 """Measures the laid-out page (where each figure is), then opens a view in the zoom box and closes it."""
-
-
-def _crop_is_a_picture(shot: np.ndarray, r: list[float]) -> tuple[float, float]:
-    """(grey-level standard deviation, fraction of pixels off the crop's most common colour) inside a rectangle of the screenshot."""
-    x, y, w, h = (int(round(v)) for v in r)
-    crop = shot[y + 2 : y + h - 2, x + 2 : x + w - 2].reshape(-1, 3).astype(int)
-    assert crop.size, f"empty crop {r}"
-    colours, counts = np.unique(crop, axis=0, return_counts=True)
-    background = colours[np.argmax(counts)]
-    return float(crop.std()), float(np.mean(np.abs(crop - background).sum(1) > 30))
 
 
 @pytest.mark.slow

@@ -7,9 +7,9 @@ Public API::
     ColourModel.from_group(run["colour_model"]).foreground_probability(images)   -> (N, H, W) float32
 """
 
-from vastcal.calibrate.colour_model import ColourModel, Gaussian, fit_automatic, fit_from_mask, fit_from_scribbles
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Level, calibrate_views
 from vastcal.calibrate.session_run import calibrate_session, load_colour_model
+from vastcal.segmentation import ColourModel, Gaussian, fit_automatic, fit_from_mask, fit_from_scribbles
 
 __all__ = [
     "CalibrationResult",

@@ -56,10 +56,10 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.sampling import Atlas
-from vastcal.calibrate.specimen_parts import largest_region
 from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.errors import AnalysisError
 from vastcal.geometry import axis_origin_in_camera, project, rot_x, rot_y, rot_z
+from vastcal.segmentation import largest_region
 
 log = logging.getLogger(__name__)
 

@@ -33,9 +33,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, check_images, fit_automatic, mask_labels
 from vastcal.calibrate.forecast import polish_sweeps_left
-from vastcal.calibrate.marks import fit_from_marks
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
     SumObjective,
@@ -67,10 +65,19 @@ from vastcal.calibrate.roll_scan import (
 )
 from vastcal.calibrate.roll_width import RollWidths, roll_widths
 from vastcal.calibrate.sampling import Projector, resize_stack
-from vastcal.calibrate.view_budget import SessionFrames, peak_resident_mb, photometric_views, specimen_maps_within
+from vastcal.calibrate.view_budget import peak_resident_mb, photometric_views
 from vastcal.config import CalibrationBounds, CalibrationConfig, check_setting
 from vastcal.errors import AnalysisError, EmptyHullError, UserInputError
 from vastcal.geometry import projection_matrices
+from vastcal.segmentation import (
+    ColourModel,
+    check_images,
+    fit_automatic,
+    fit_from_marks,
+    mask_labels,
+    specimen_maps_within,
+)
+from vastcal.session_frames import SessionFrames
 
 log = logging.getLogger(__name__)
 

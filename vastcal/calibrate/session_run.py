@@ -16,15 +16,15 @@ from typing import Any
 
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel
 from vastcal.calibrate.optimise import ProgressCallback
 from vastcal.calibrate.parameters import parse_views
 from vastcal.calibrate.run import CalibrationResult, CalibrationSettings, Method, calibrate_views
-from vastcal.calibrate.view_budget import SessionFrames
 from vastcal.config import CalibrationBounds, CalibrationConfig, RoiConfig, check_setting
 from vastcal.errors import SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import circular_fit_shortfall, decompose_circular, intrinsics_from_optics
+from vastcal.segmentation import ColourModel
 from vastcal.session import Session, software_versions, write_attrs
+from vastcal.session_frames import SessionFrames
 
 log = logging.getLogger(__name__)
 

@@ -27,8 +27,19 @@ from typing import Any
 
 import numpy as np
 
+from vastcal.csv_cells import spreadsheet_safe
 from vastcal.errors import AnalysisError, MissingStageError, UserInputError
 from vastcal.report import figures
+from vastcal.report.imported import comparison_rows
+from vastcal.report.words import (
+    converged_text,
+    glossary,
+    optimiser_runs,
+    provenance_rows,
+    readable_time,
+    threshold_rows,
+)
+from vastcal.screen_table import SPECIMEN_FIELDS
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +47,7 @@ REPORT_SCHEMA = "vastcal.report/1"
 
 CSV_COLUMNS = (
     "specimen",
+    *SPECIMEN_FIELDS,
     "session_uid",
     "session_file",
     "volume_mm3",
@@ -67,10 +79,13 @@ CSV_COLUMNS = (
     "report_time",
     "length_unit",
 )
-"""Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate). ``length_unit``: the world's
-unit — a known one (``um`` on a rig; ``nm`` … ``m`` for imported cameras, converted) when the ``_mm3``/``_mm2``/``_um``
-columns are what they say; ``px`` or ``unknown`` (cameras of unknown unit) when they hold 10⁻⁹ px³ / 10⁻⁹ (units of the
-cameras)³ and so on — the measurement in that unit, scaled as if it were µm."""
+"""Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate).
+
+``length_unit``: the world's unit — a known one (``um`` on a rig; ``nm`` … ``m`` for imported cameras, converted)
+when the ``_mm3``/``_mm2``/``_um`` columns are what they say; ``px`` or ``unknown`` (cameras of unknown unit) when
+they hold 10⁻⁹ px³ / 10⁻⁹ (units of the cameras)³ and so on — the measurement in that unit, scaled as if it were µm.
+``specimen_id`` … ``well``: the specimen metadata (:mod:`vastcal.specimen`; empty when not given), as in the batch's
+screen table."""
 
 
 @dataclass
@@ -102,8 +117,10 @@ class ReportData:
     def csv_row(self) -> dict[str, Any]:
         """The one row of ``report.csv``."""
         m, c, s = self.measurement, self.calibration, self.session
+        meta = s.get("metadata") or {}
         return {
             "specimen": s.get("specimen", ""),
+            **{k: meta.get(k) for k in SPECIMEN_FIELDS},
             "session_uid": s.get("uid", ""),
             "session_file": s.get("file", ""),
             "volume_mm3": m.get("volume_mm3"),
@@ -185,6 +202,7 @@ def _calibration_summary(
         for k in ("free", "converged", "stop_reason", "sigma0"):
             if k in a:
                 out[k] = a[k]
+        out["optimiser_runs"] = optimiser_runs(a.get("levels"))
         if "theta_deg" in g:
             th = np.asarray(g["theta_deg"][...], float)
             out.update(
@@ -257,7 +275,8 @@ def _calibration_summary(
 
 def _measurement_units(length_unit: str) -> dict[str, str]:
     """report.json's ``units`` of a measurement in a world of ``length_unit`` (the stored labels,
-    :func:`vastcal.measure.measurement_units`; for a world of unknown unit, :func:`vastcal.measure.world_unit_words`' note)."""
+    :func:`vastcal.measure.measurement_units`; for a world of unknown unit,
+    :func:`vastcal.measure.world_unit_words`' note)."""
     from vastcal.measure import measurement_units, world_unit_words
 
     volume, area = measurement_units(length_unit)
@@ -266,6 +285,46 @@ def _measurement_units(length_unit: str) -> dict[str, str]:
         return {**units, "voxel_size_um": "um", "iso_level": "silhouettes"}
     unit, why = world_unit_words(length_unit)
     return {**units, "voxel_size_um": unit.strip("()"), "iso_level": "silhouettes", "note": why}
+
+
+GENERIC_FOLDER_NAMES = frozenset(
+    {
+        "images",
+        "image",
+        "imgs",
+        "img",
+        "frames",
+        "frame",
+        "data",
+        "raw",
+        "tif",
+        "tiff",
+        "png",
+        "stack",
+        "stacks",
+        "views",
+        "projections",
+        "silhouettes",
+        "masks",
+        "input",
+        "output",
+        "export",
+        "acquisition",
+        "sequence",
+    }
+)
+"""Folder names that say what the files are, not which specimen: never a report's title."""
+
+
+def specimen_title(metadata: dict[str, Any], title: str, path: Path) -> str:
+    """The name a report gives its specimen: the specimen ID of its metadata; else the session's title (the imported
+    folder's or stack's name, ``vastcal import --name``) unless that is a generic folder name such as ``images``;
+    else the session file's stem."""
+    if metadata.get("specimen_id"):
+        return str(metadata["specimen_id"])
+    if title.strip() and title.strip().lower() not in GENERIC_FOLDER_NAMES:
+        return title.strip()
+    return path.stem
 
 
 def cost_trace_columns(trace: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -279,6 +338,38 @@ def cost_trace_columns(trace: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return t[:, 0], t[:, 1]
     c = t.ravel()
     return np.arange(1, c.size + 1, dtype=float), c
+
+
+def _session_facts(path: Path, title: str, start: dict[str, Any], n_views: int) -> dict[str, Any]:
+    """report.json's ``session``: the file, the specimen's name (:func:`specimen_title`) and metadata
+    (:func:`vastcal.specimen.specimen_fields`), the start record's uid and time, the number of views."""
+    from vastcal.specimen import specimen_fields
+
+    metadata = specimen_fields(path)
+    return {
+        "file": str(path.resolve()),
+        "specimen": specimen_title(metadata, title, path),
+        "uid": start.get("uid", ""),
+        "start_time": start.get("time", ""),
+        "n_views": int(n_views),
+        "metadata": metadata,
+    }
+
+
+def _compare_imported(s: Any, P: np.ndarray, mesh: Any, *, compare_cameras_too: bool) -> dict[str, Any]:
+    """The session's imported masks (read one view at a time) and, when the measurement used calibrated cameras
+    ``P`` (µm), its imported cameras, compared with what the measurement used (:mod:`vastcal.report.imported`)."""
+    from vastcal.reconstruct import _world_length_unit, cameras_in_um
+    from vastcal.report.imported import compare_cameras, compare_masks
+
+    out: dict[str, Any] = {}
+    group = s.h5["/entry/vastcal"]
+    if compare_cameras_too and "cameras" in group:
+        known = cameras_in_um(np.asarray(s.known_cameras, float), _world_length_unit(s, None))[0]
+        out["cameras"] = compare_cameras(P, known)
+    if "masks" in group:
+        out["masks"] = compare_masks(group["masks"], P, mesh.vertices, mesh.faces)
+    return out
 
 
 def collect(session_path: str | Path, *, measurement_run: str | None = None) -> tuple[ReportData, dict[str, Any]]:
@@ -340,10 +431,12 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         for stage, names in runs.items():
             run_log[stage] = [{"run": n, "time": read_attrs(s.result(stage, n)).get("time", "")} for n in names]
         mesh = load_mesh(meas)
+        imported = _compare_imported(s, P, mesh, compare_cameras_too=bool(cal_run))
     boundary = hull_boundary(hull.occupancy)
     points = (
         np.asarray(hull.grid.origin, float) + np.stack(np.unravel_index(boundary, hull.grid.shape), 1) * hull.grid.size
     )
+    cal.update({"imported_cameras_comparison": imported["cameras"]} if "cameras" in imported else {})
 
     qc_doc = ma.get("qc") if isinstance(ma.get("qc"), dict) else None
     length_unit = str((ma.get("provenance") or {}).get("length_unit", "um"))
@@ -369,8 +462,8 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         "volume_note": (
             "volume_mm3 (voxels whose centres lie inside all silhouettes x voxel volume) is the measurement: it is the "
             "visual hull's volume itself and converges to it as the voxels shrink (within 0.1 % on phantoms with exact "
-            "silhouettes). mesh_volume_mm3 encloses the smoothed iso-surface at N - 1.6 silhouettes, which lies outside the "
-            "hull by construction (chosen for the area): a diagnostic, not a second measurement."
+            "silhouettes). mesh_volume_mm3 encloses the smoothed iso-surface at N - 1.6 silhouettes, which lies "
+            "outside the hull by construction (chosen for the area): a diagnostic, not a second measurement."
         ),
         "uncertainty": ma.get("uncertainty"),
         "qc": qc_doc,
@@ -389,14 +482,9 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
             "n_voxels": ra.get("n_voxels"),
             "hull_wall_time_s": ra.get("wall_time_s"),
         },
+        **({"imported_masks_comparison": imported["masks"]} if "masks" in imported else {}),
     }
-    session = {
-        "file": str(path.resolve()),
-        "specimen": title or path.stem,
-        "uid": start.get("uid", ""),
-        "start_time": start.get("time", ""),
-        "n_views": int(len(commanded)),
-    }
+    session = _session_facts(path, title, start, len(commanded))
     provenance = {
         "report_time": _dt.datetime.now(_dt.UTC).isoformat(),
         "software_versions": software_versions(),
@@ -450,10 +538,6 @@ def _write_text(path: Path, text: str) -> None:
         raise UserInputError(f"{path}: cannot write the report ({exc.strerror or exc})") from None
 
 
-CSV_UNSAFE_START = ("=", "+", "-", "@", "\t", "\r")
-"""A spreadsheet reads a cell beginning with one of these as a formula (CSV injection)."""
-
-
 def csv_cell(v: Any) -> str:
     """One CSV cell: numbers formatted (``.6g``), None empty, text neutralised — a text cell beginning
     with = + - @ tab or CR gets a leading ``'`` so that no spreadsheet evaluates it."""
@@ -465,8 +549,7 @@ def csv_cell(v: Any) -> str:
         return f"{v:.6g}"
     if isinstance(v, (int, np.integer)):
         return str(int(v))
-    text = str(v)
-    return "'" + text if text.startswith(CSV_UNSAFE_START) else text
+    return spreadsheet_safe(str(v))
 
 
 def csv_text(data: ReportData) -> str:
@@ -501,12 +584,23 @@ TRUTH_LABELS = {
 """How the demo's comparison with the simulated truth (:func:`vastcal.pipeline.score_against_truth`) is labelled."""
 
 
-def truth_rows(truth: dict[str, Any] | None) -> list[dict[str, str]]:
-    """Rows (label, value with unit) of the comparison with a simulated truth, known keys first, in a fixed order."""
+UNDETERMINED_ANGLES_NOTE = (
+    " — the images could not decide the per-view angles (see the stage-angle card), so the calibration kept them "
+    "near the commanded ones: this is the simulated stage's own error, left uncorrected, not a calibration fault"
+)
+"""Added to the truth table's angle error when the drift is ``undetermined``: why it exceeds the card's RMS."""
+
+
+def truth_rows(truth: dict[str, Any] | None, *, drift_status: str = "") -> list[dict[str, str]]:
+    """Rows (label, value with unit) of the comparison with a simulated truth, known keys first, in a fixed order.
+
+    With ``drift_status`` ``undetermined`` the angle error's label says why it exceeds the stage-angle card's value."""
     rows = []
     truth = truth or {}
     for key, (label, unit, fmt) in TRUTH_LABELS.items():
         if key in truth:
+            if key == "angle_rms_error_deg" and drift_status == "undetermined":
+                label += UNDETERMINED_ANGLES_NOTE
             rows.append({"label": label, "value": f"{_num(truth[key], fmt)} {unit}"})
     for key, value in truth.items():
         if key not in TRUTH_LABELS:
@@ -543,7 +637,8 @@ def pretty(text: Any) -> str:
 
 
 def _environment() -> Any:
-    """The jinja2 environment of the report's templates (package data ``vastcal/report/templates``), autoescaping every value."""
+    """The jinja2 environment of the report's templates (package data ``vastcal/report/templates``), autoescaping
+    every value."""
     import jinja2
 
     env = jinja2.Environment(
@@ -554,6 +649,48 @@ def _environment() -> Any:
     )
     env.filters["pretty"] = pretty
     return env
+
+
+SPECIMEN_LABELS = {
+    "specimen_id": "specimen ID",
+    "age_dpf": "age (days post fertilisation)",
+    "strain": "strain",
+    "treatment": "treatment",
+    "plate": "plate",
+    "well": "well",
+}
+"""How the page labels the specimen metadata fields (:data:`vastcal.screen_table.SPECIMEN_FIELDS`)."""
+
+
+def specimen_rows(metadata: dict[str, Any]) -> list[tuple[str, str]]:
+    """(label, value) of every specimen field given, in :data:`SPECIMEN_LABELS` order; an age as a plain number."""
+    rows = []
+    for key, label in SPECIMEN_LABELS.items():
+        v = metadata.get(key)
+        if v not in (None, ""):
+            rows.append((label, _num(v, "g") if key == "age_dpf" else str(v)))
+    return rows
+
+
+def drift_card(rms_deg: Any, drift: dict[str, Any]) -> tuple[str, str]:
+    """(value, label) of the stage-angle card. When the images do not determine the per-view angles the value says so:
+    the calibrated − commanded RMS then only shows how closely the calibration kept to the commanded angles, and the
+    stage's true error may be as large as the prior's width."""
+    u = drift.get("u_per_view_deg")
+    rms = f"{_num(rms_deg, '.3f')}°"
+    if drift.get("status") == "undetermined":
+        return (
+            "not determined",
+            f"stage angle error per view (calibrated − commanded {rms} RMS: the calibration kept to the commanded "
+            "angles)",
+        )
+    if drift.get("status") in ("not estimated", "not available"):
+        return str(drift["status"]), "stage angle error per view (calibrated − commanded, views 1…N−1)"
+    value = f"{rms} ± {_num(u, '.3g')}° per view" if u is not None else rms
+    return (
+        value,
+        f"RMS calibrated − commanded angle (views 1…N−1): the stage's error as calibrated, {drift.get('status')}",
+    )
 
 
 def _flags_by_view(qc: dict[str, Any]) -> dict[int, list[str]]:
@@ -590,11 +727,7 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
     drift = dict(c.get("drift") or {})
     drift.setdefault("status", "not available")
     drift.setdefault("reason", "")
-    drift_value = (
-        f"{_num(c.get('drift_rms_deg'), '.3f')}° ± {_num(drift.get('u_per_view_deg'), '.3g')}° per view"
-        if drift.get("u_per_view_deg") is not None
-        else f"{_num(c.get('drift_rms_deg'), '.3f')}°"
-    )
+    drift_value, drift_label = drift_card(c.get("drift_rms_deg"), drift)
 
     def col(name: str, i: int) -> Any:
         vals = per_view.get(name) or []
@@ -661,7 +794,12 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
     )
     cost = arrays["cost"]
     convergence_uri = (
-        figures.convergence_plot(cost[0], cost[1], title=f"Best cost during calibration ({c.get('method', '')})")
+        figures.convergence_plot(
+            cost[0],
+            cost[1],
+            title=f"Best cost during calibration ({c.get('method', '')})",
+            runs=c.get("optimiser_runs") or (),
+        )
         if cost is not None and np.size(cost[1])
         else None
     )
@@ -702,7 +840,7 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         ("seed", str(c.get("seed", "–"))),
         (
             "yaw / pitch / γ",
-            f"{_num(c.get('yaw_deg'), '.4f')}° / {_num(c.get('pitch_deg'), '.4f')}° / {_num(c.get('gamma_deg'), '.4f')}°",
+            " / ".join(f"{_num(c.get(key), '.4f')}°" for key in ("yaw_deg", "pitch_deg", "gamma_deg")),
         ),
         ("cost: first / final", f"{_num(c.get('initial_cost'), '.6g')} / {_num(c.get('final_cost'), '.6g')}"),
         ("calibration time", f"{_num(c.get('wall_time_s'), '.1f')} s"),
@@ -731,9 +869,9 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         ]
     return {
         "session": s,
+        "specimen_rows": specimen_rows(s.get("metadata") or {}),
         "measurement": m,
         "calibration": c,
-        "provenance": data.provenance,
         "n_views": n,
         "verdict": str(m.get("verdict", "not evaluated")),
         "reasons": [str(r) for r in m.get("verdict_reasons", []) or []],
@@ -743,8 +881,9 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         "area_text": area_text,
         "drift": drift,
         "drift_value": drift_value,
+        "drift_label": drift_label,
         "units_note": units_note,
-        "truth": truth_rows(truth),
+        "truth": truth_rows(truth, drift_status=str(drift["status"])),
         "budget": budget,
         "not_evaluated": ", ".join(map(str, u.get("not_evaluated", []) or [])),
         "hull_bias": str(u.get("hull_bias", ""))[:1].upper() + str(u.get("hull_bias", ""))[1:],
@@ -758,11 +897,22 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         "drift_uri": drift_uri,
         "convergence_uri": convergence_uri,
         "n_evaluations_text": _num(c.get("n_evaluations"), "d"),
+        "converged_text": converged_text(c["converged"], c.get("stop_reason", "")) if "converged" in c else "",
         "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
         "numbers": numbers,
         "per_view": rows,
-        "thresholds": ", ".join(f"{k_} {v}" for k_, v in thresholds.items()),
-        "provenance_json": json.dumps(data.provenance, indent=1),
+        "thresholds": threshold_rows(thresholds),
+        "provenance": provenance_rows(data.provenance),
+        "report_time": readable_time(data.provenance.get("report_time", "")),
+        "imported_rows": comparison_rows(
+            c.get("imported_cameras_comparison") or {},
+            m.get("imported_masks_comparison") or {},
+            masks_carved=str(m.get("silhouette_source", "")).startswith("mask"),
+        ),
+        "glossary": glossary(
+            [str(comp.get("method", "")) + " " + str(comp.get("note", "")) for comp in u.get("components", []) or []]
+            + [str(drift.get("reason", "")), "IoU"]
+        ),
     }
 
 

@@ -21,6 +21,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -128,7 +129,13 @@ def drift_plot(delta_deg: Sequence[float], *, u_per_view_deg: float | None = Non
         fig = _figure()
         ax = fig.add_subplot()
         x = np.arange(d.size)
-        ax.bar(x, d, width=0.7, color=[BAR_COLOUR if v >= 0 else "#c0504d" for v in np.nan_to_num(d)])
+        up = np.nan_to_num(d) >= 0
+        for sel, colour, label in (
+            (up, BAR_COLOUR, "calibrated angle beyond the commanded one"),
+            (~up, "#c0504d", "calibrated angle short of the commanded one"),
+        ):
+            if sel.any():
+                ax.bar(x[sel], d[sel], width=0.7, color=colour, label=label)
         if u_per_view_deg:
             ax.axhspan(
                 -u_per_view_deg,
@@ -136,9 +143,9 @@ def drift_plot(delta_deg: Sequence[float], *, u_per_view_deg: float | None = Non
                 color="#999999",
                 alpha=0.18,
                 lw=0,
-                label=f"± {u_per_view_deg:g}° (roll prior: what the images cannot decide)",
+                label=f"± {u_per_view_deg:.3g}°: the range the images cannot decide (roll prior)",
             )
-            ax.legend(loc="upper right", frameon=False)
+        ax.legend(loc="upper right", frameon=False, fontsize="small")
         ax.axhline(0.0, color="#444444", lw=0.8)
         ax.set_xlabel("view")
         ax.set_ylabel("calibrated − commanded (°)")
@@ -189,13 +196,19 @@ def agreement_plot(
 
 
 def convergence_plot(
-    evaluations: Sequence[float], cost: Sequence[float], *, title: str = "Best cost during calibration"
+    evaluations: Sequence[float],
+    cost: Sequence[float],
+    *,
+    title: str = "Best cost during calibration",
+    runs: Sequence[dict[str, Any]] = (),
 ) -> str:
     """Best cost so far against the number of cost evaluations; SVG data URI.
 
     Log scale when every cost is positive and they span more than a factor 20. The stored trace
-    concatenates the optimiser's runs (every resolution level of every start): where the best-so-far
-    cost rises a new run begins, drawn as its own line; the last point is the stored pose's cost.
+    concatenates the optimiser's runs (every resolution level of every start). ``runs``
+    (:func:`vastcal.report.words.optimiser_runs`) cut it where each run ends and name it in the legend — one colour per
+    start, dashed for its coarser levels; without them a new line begins where the best-so-far cost rises, named
+    ``optimiser run 1``, ``2``…  The last point is the stored pose's cost.
     """
     ev = np.asarray(evaluations, float)
     c = np.asarray(cost, float)
@@ -205,21 +218,14 @@ def convergence_plot(
         fig = _figure()
         ax = fig.add_subplot()
         if c.size:
-            # a best-so-far cost that rises again starts the next optimiser run (another start, or the next
-            # resolution level, whose costs are not comparable with the previous level's): one line per run
-            cuts = np.flatnonzero(np.diff(c) > 0) + 1
-            segments = np.split(np.arange(c.size), cuts)
-            for j, seg in enumerate(segments):
+            segments = _trace_segments(ev, c, runs)
+            for seg, label, colour, style in segments:
                 ax.step(
-                    ev[seg],
-                    c[seg],
-                    where="post",
-                    lw=1.4,
-                    color=f"C{j % 10}",
-                    label=f"run {j + 1}" if len(segments) > 1 else None,
-                )
+                    ev[seg], c[seg], where="post", lw=1.4, color=colour, ls=style,
+                    label=label if len(segments) > 1 else None,
+                )  # fmt: skip
             ax.plot(ev[-1:], c[-1:], "o", color="#222222", ms=4, label="final (stored pose)")
-            ax.legend(loc="upper right", frameon=False, ncols=min(len(segments) + 1, 4))
+            ax.legend(loc="upper right", frameon=False, ncols=min(len(segments) + 1, 3), fontsize="small")
             if np.all(c > 0) and c.max() / c.min() > 20:
                 ax.set_yscale("log")
         else:
@@ -228,6 +234,30 @@ def convergence_plot(
         ax.set_ylabel("best cost so far")
         ax.set_title(title)
     return svg_data_uri(fig)
+
+
+def _trace_segments(
+    ev: np.ndarray, c: np.ndarray, runs: Sequence[dict[str, Any]]
+) -> list[tuple[np.ndarray, str, str, str]]:
+    """(indices, label, colour, line style) of each optimiser run in a cost trace (see :func:`convergence_plot`)."""
+    ends = [r.get("end_evaluations") for r in runs]
+    if runs and all(isinstance(e, (int, float)) for e in ends[:-1]) and len(runs) > 1:
+        which = np.searchsorted(np.asarray(ends[:-1], float), ev, side="left")
+        n_levels = max(int(r["level"]) for r in runs[:-1]) + 1
+        out = []
+        for j, r in enumerate(runs):
+            seg = np.flatnonzero(which == j)
+            if seg.size:
+                colour = f"C{int(r['start']) % 10}" if r.get("start") is not None else "#444444"
+                coarse = r.get("level") is not None and int(r["level"]) < n_levels - 1
+                out.append((seg, str(r["label"]), colour, "--" if coarse else "-"))
+        return out
+    # a best-so-far cost that rises again starts the next optimiser run (another start, or the next
+    # resolution level, whose costs are not comparable with the previous level's): one line per run
+    cuts = np.flatnonzero(np.diff(c) > 0) + 1
+    return [
+        (seg, f"optimiser run {j + 1}", f"C{j % 10}", "-") for j, seg in enumerate(np.split(np.arange(c.size), cuts))
+    ]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -353,10 +383,11 @@ def cluster_decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) ->
 
 
 def mesh_payload(vertices: np.ndarray, faces: np.ndarray, *, max_faces: int = 60_000) -> dict[str, object]:
-    """The mesh for the page's viewer: base64 of little-endian float32 vertices (µm) and uint16 (≤ 65536 vertices) or uint32 faces.
+    """The mesh for the page's viewer: base64 of little-endian float32 vertices (µm) and uint16 (≤ 65536 vertices) or
+    uint32 faces.
 
-    Returns a dict with ``vertices_b64``, ``faces_b64``, ``index_type`` (``u2`` or ``u4``), ``n_vertices``, ``n_faces`` (shown),
-    ``n_faces_measured`` (the stored mesh) and ``extent_um`` (bounding box sides).
+    Returns a dict with ``vertices_b64``, ``faces_b64``, ``index_type`` (``u2`` or ``u4``), ``n_vertices``,
+    ``n_faces`` (shown), ``n_faces_measured`` (the stored mesh) and ``extent_um`` (bounding box sides).
     """
     v, f = cluster_decimate(vertices, faces, max_faces)
     v32 = np.ascontiguousarray(v, dtype="<f4")

@@ -3,11 +3,11 @@
 Colour alone cannot tell whether a colour of the marked background that is neither the backdrop's nor the
 specimen's is a material of the scene (a grey turntable, the lit patches on it) or shared with the specimen
 (the dim strip beside a capillary wall is as pale as a clear fin). Two background models answer differently
-(:func:`.colour_model.fit_from_scribbles`): its dominant colour alone, leaving the other materials to the
+(:func:`.colour_models.fit_from_scribbles`): its dominant colour alone, leaving the other materials to the
 specimen and the silhouette rules; or a mixture of all its materials, each present only where the marks saw it
-(:meth:`.colour_model.GaussianMixture.localised`) and only if it holds that place in other views
-(:meth:`.colour_model.GaussianMixture.held_still`: a turntable does, a shadow the specimen casts does not). The marks
-themselves decide: the specimen map of the marked view (:func:`.silhouettes.specimen_maps`, every rule included) is
+(:meth:`.gaussians.GaussianMixture.localised`) and only if it holds that place in other views
+(:meth:`.gaussians.GaussianMixture.held_still`: a turntable does, a shadow the specimen casts does not). The marks
+themselves decide: the specimen map of the marked view (:func:`.probability_maps.specimen_maps`, every rule included) is
 made with each, and the model whose silhouette agrees better with the marks — the intersection over union of the
 marked specimen, counted over the marked pixels only — is kept; on a tie the mixture, which keeps every material the
 marks name as background (scribbles mark a few strokes, which both models often reproduce exactly).
@@ -20,8 +20,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, GaussianMixture, fit_from_scribbles
-from vastcal.calibrate.silhouettes import specimen_maps
+from vastcal.segmentation.colour_models import ColourModel, fit_from_scribbles
+from vastcal.segmentation.gaussians import GaussianMixture
+from vastcal.segmentation.probability_maps import specimen_maps
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +51,7 @@ def fit_from_marks(
     (``"mask:view 3"``); ``others``: images of other views, where a marked material must hold its place.
 
     Raises:
-        UserInputError, ColourModelError: as :func:`.colour_model.fit_from_scribbles`.
+        UserInputError, ColourModelError: as :func:`.colour_models.fit_from_scribbles`.
     """
     candidates = []
     for background in ("dominant", "mixture"):
@@ -65,8 +66,8 @@ def fit_from_marks(
         )
         agreement = marks_agreement(specimen_maps(model, np.asarray(image)[None])[0] > 0.5, labels)
         candidates.append((agreement, model, background))
-    # On a tie the mixture: the marks name its materials background, and nothing in them says otherwise (scribbles, whose
-    # strokes both models reproduce, would otherwise leave a marked turntable to the specimen).
+    # On a tie the mixture: the marks name its materials background, and nothing in them says otherwise (scribbles,
+    # whose strokes both models reproduce, would otherwise leave a marked turntable to the specimen).
     best = candidates[1] if candidates[1][0] >= candidates[0][0] else candidates[0]
     log.info(
         "colour model (%s): the specimen map of view %d agrees with the marks to IoU %s; background modelled as its %s",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from vastcal.calibrate.specimen_parts import single_specimen
+from vastcal.segmentation._specimen_parts import single_specimen
 
 
 def _views(n: int = 8, h: int = 100, w: int = 300) -> np.ndarray:

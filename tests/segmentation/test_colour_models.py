@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import synthetic as sy
 
-from vastcal.calibrate import ColourModel, fit_automatic, fit_from_mask, fit_from_scribbles
 from vastcal.errors import ColourModelError, UserInputError
+from vastcal.segmentation import ColourModel, fit_automatic, fit_from_mask, fit_from_scribbles
 
 
 def _accuracy(model: ColourModel, images: np.ndarray, sil: np.ndarray) -> float:

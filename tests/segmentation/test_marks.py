@@ -1,5 +1,5 @@
 """A user's marks of one view: the background as its dominant colour or as a mixture of its materials,
-whichever reproduces the marks (vastcal.calibrate.marks)."""
+whichever reproduces the marks (vastcal.segmentation.marks)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,8 @@ import cv2
 import h5py
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, GaussianMixture, fit_from_mask
 from vastcal.calibrate.run import _colour_model
-from vastcal.calibrate.silhouettes import specimen_maps
+from vastcal.segmentation import ColourModel, GaussianMixture, fit_from_mask, specimen_maps
 
 
 def _turntable_scene(views: int = 3, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -39,8 +38,7 @@ def _turntable_scene(views: int = 3, seed: int = 0) -> tuple[np.ndarray, np.ndar
 def test_a_turntable_marked_as_background_leaves_the_silhouettes() -> None:
     """A mask of one view marks the turntable as background; its one-Gaussian (dominant) background model leaves
     the grey turntable and its lit patches to the specimen, joined to the figure's base. The marks pick a mixture
-    of the background's materials, and the turntable leaves every view's silhouette (fails on the previous code,
-    which always fitted the dominant colour)."""
+    of the background's materials, and the turntable leaves every view's silhouette."""
     frames, figures, tables, patches = _turntable_scene()
     model = _colour_model(frames, (0, figures[0].astype(np.uint8) * 255), None, None, 0)
     assert isinstance(model.bg, GaussianMixture) and len(model.bg.parts) >= 2
@@ -74,8 +72,7 @@ def test_scribbles_on_part_of_the_turntable_take_all_of_it_out() -> None:
 def test_a_background_material_as_pale_as_the_fin_is_background_only_where_the_marks_saw_it() -> None:
     """Dim strips beside capillary walls are as pale as a larva's clear fin. A mixture component for them, present
     everywhere, takes the fin too; present only where the marks saw the strips (their convex hulls, along the walls),
-    it leaves the fin to the specimen (fails on the previous code: the fin lost), and the strips are cleared whichever
-    model the marks keep."""
+    it leaves the fin to the specimen, and the strips are cleared whichever model the marks keep."""
     rng = np.random.default_rng(1)
     img = np.full((120, 300), 235.0)
     img[10:14] = img[106:110] = 60.0  # walls …
@@ -126,8 +123,8 @@ def test_components_that_are_one_material_are_merged() -> None:
 def test_a_shadow_the_specimen_casts_is_not_background_by_place() -> None:
     """A shadow the specimen casts on the backdrop turns with it: its place in the marked view is where the specimen's
     own shaded side lies in another view, as grey as the shadow. Placed there, the shadow's material would take that
-    side; it does not hold its place in the other views, so it is dropped (fails on the previous code: the shaded side
-    of view 1 lost)."""
+    side; it does not hold its place in the other views, so it is dropped and the shaded side of view 1 stays
+    specimen."""
     rng = np.random.default_rng(3)
     frames, figures = [], []
     for x0 in (100, 80, 140, 60, 120):

@@ -3,7 +3,7 @@
 Physics: the specimen is one rigid body turning about the rotation axis, which runs along the image
 rows, under nearly orthographic optics. Two consequences hold for every view, whatever the body's
 shape, and neither holds for a particle drifting in the capillary (debris, a bubble) or for a
-sheet of fin left over once it is cut from the body (:mod:`.translucent`):
+sheet of fin left over once it is cut from the body (:mod:`._translucent`):
 
 1. Column u of every view images the same slice of the specimen across the axis, so the columns the
    body occupies are the same in every view.

@@ -8,7 +8,7 @@ small fraction of the body's next to them, over a region many pixels wide — wh
 contrast, blurred by the optics, falls from its plateau to zero within a few pixels of its outline.
 
 The rule: a pixel is *body core* when its (lightly smoothed) contrast reaches ``fraction`` (½, the
-half-contrast point of :func:`.silhouettes.half_contrast_edges`) of the **body reference** around
+half-contrast point of :func:`._edges.half_contrast_edges`) of the **body reference** around
 it — the highest smoothed contrast of the specimen within ``reach`` pixels, at most the specimen's
 mean contrast. Holes of the kept region
 (pale regions the body encloses: a swim bladder, the clear yolk seen edge-on) are filled, and so is
@@ -21,7 +21,7 @@ half-contrast rule. A fin wider than the band is therefore dropped, the body's b
 ``reach`` is the body's own scale: the median half-height of the specimen over the columns where
 it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
 farther than that from the body is cut off from it and left as a separate part; see
-:mod:`.specimen_parts`). The rule applies only to an absorbing specimen (darker than its
+:mod:`._specimen_parts`). The rule applies only to an absorbing specimen (darker than its
 background); a bright specimen on a dark background (a statue on a turntable) has no such physics
 and its maps are left alone.
 """

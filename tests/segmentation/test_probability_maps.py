@@ -1,18 +1,13 @@
-"""Silhouettes from posteriors: static bands out, rims at the half-contrast point."""
+"""Specimen maps from posteriors: static bands out, rims at the half-contrast point, translucent and loose parts out."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from vastcal.calibrate.colour_model import ColourModel, Gaussian
-from vastcal.calibrate.silhouettes import (
-    half_contrast_edges,
-    specimen_maps,
-    specimen_only,
-    static_bands,
-    touches_frame_edge,
-)
+from vastcal.segmentation import ColourModel, Gaussian, specimen_maps, touches_frame_edge
+from vastcal.segmentation._edges import half_contrast_edges
+from vastcal.segmentation._static_scene import specimen_only, static_bands
 
 
 def _walls_and_blob(n: int = 12, h: int = 80, w: int = 200) -> np.ndarray:
@@ -77,7 +72,7 @@ def test_a_dark_rim_is_cut_at_half_its_own_contrast() -> None:
     assert flat_plateau > r_true + 0.4
 
 
-# -- scenes of a larva in a capillary (issue 15): what the maps keep and drop --------------------------------
+# -- scenes of a larva in a capillary: what the maps keep and drop ------------------------------------------
 
 _BG = 230.0
 
@@ -126,7 +121,7 @@ def test_a_pale_interior_between_pigmented_rims_is_kept() -> None:
     """A thin tail: dark rims and a pale core (notochord) — all body, however pale inside."""
     n, h, w = 6, 100, 300
     views = []
-    for i in range(n):
+    for _ in range(n):
         a = _body(h, w, (150, 50), (120, 12), a_body=1.0)
         cv2.ellipse(a, (150, 50), (100, 7), 0, 0, 360, 0.15, -1)
         views.append(a)
@@ -169,7 +164,7 @@ def test_fill_holes_fills_what_the_outside_cannot_reach() -> None:
     """The flood fill equals scipy.ndimage.binary_fill_holes (4-connected background) on random masks and shapes."""
     from scipy import ndimage
 
-    from vastcal.calibrate.translucent import fill_holes
+    from vastcal.segmentation._translucent import fill_holes
 
     rng = np.random.default_rng(0)
     for _ in range(200):
