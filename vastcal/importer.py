@@ -18,9 +18,13 @@ Inputs, all but the images optional:
 * angles — a text file with one commanded angle (degrees) per view, or ``name angle`` lines;
   default: the stack's own angles when it has them (OME ``angle`` annotations, ImageJ slice labels such as
   ``angle=12.5``), else uniform over 360° starting at 0° — unless known cameras contradict that by more than the
-  calibration's roll box (:func:`angles_of_cameras`): their own rolls then.
+  calibration's roll box (:func:`angles_of_cameras`): their own rolls then. Angles from a file or a stack must
+  cover one turn in degrees (:mod:`vastcal.plausibility`; radians are named as such).
+* units — the rig file's optics and voxel size, ``--pixel-size-um`` or the files' pixel size, and the angles are
+  checked for plausible units before anything is written (:mod:`vastcal.plausibility`); ``accept_units``
+  (``--accept-units``) takes them as they are.
 * crops — frames cut from a larger sensor need their offset (``roi_offset``, ``--roi-offset``): from the
-  config's ``camera.roi`` when its size is the images'; an import whose principal point (the cameras' or
+  config's ``camera.roi`` when its size is the images'; an import whose principal point (metric cameras' or
   the config's) falls outside the images, or whose config ROI is another size, is refused naming ``--roi-offset``.
 * cameras — known projection matrices in any format of :mod:`vastcal.camera_files` (a text file with
   ``name p11 … p34`` or ``name K R t`` per line or matrices row by row, a folder of ``*.pa`` or PMVS ``*.txt``
