@@ -526,7 +526,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     """vastcal run S.h5 [-o DIR] [--force] [--cameras imported] [--keep-runs N] [--mask|--scribbles VIEW:FILE]: calibrate → reconstruct → report."""
     _check_session_arg(args.session)
-    from vastcal.pipeline import check_camera_choice, default_report_dir, run_session
+    from vastcal.pipeline import RunOptions, check_camera_choice, default_report_dir, run_session
 
     out = Path(args.output) if args.output else default_report_dir(args.session)
     check_report_folder(out, force=args.force, option="-o" if args.output else "the default report folder")
@@ -539,20 +539,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     _check_units(args, voxel_size_um=args.voxel_size)
     mask, scribbles = _marks_args(args)
     _check_mesh_arg(args)
-    res = run_session(
-        args.session,
-        out,
-        voxel_size_um=args.voxel_size,
-        mesh_path=args.mesh,
+    options = RunOptions(
         method=args.method,
         seed=args.seed,
-        quiet=args.quiet,
         starts=args.starts,
-        cameras=args.cameras,
-        keep_runs=args.keep_runs,
         mask=mask,
         scribbles=scribbles,
+        voxel_size_um=args.voxel_size,
+        mesh_path=args.mesh,
     )
+    res = run_session(args.session, out, options, cameras=args.cameras, quiet=args.quiet, keep_runs=args.keep_runs)
     print(res.summary())
     return verdict_exit_code(res.verdict.split(":", 1)[0], res.verdict)
 
