@@ -168,8 +168,9 @@ def test_pixel_origin_half_shifts_cameras_by_half_a_pixel(tmp_path: Path) -> Non
 def test_cameras_give_the_angles_where_uniform_steps_would_leave_the_roll_box(
     tmp_path: Path, step: float, jitter: float, cameras_taken: bool
 ) -> None:
-    """Without angles a revolution is taken as uniform steps over 360°; known cameras ~12° off that at the last view (a
-    ring of 384°, roll box ±5°) give their own rolls instead, while cameras within the box (±1° of uniform) leave them."""
+    """Without angles a revolution is taken as uniform steps over 360°; known cameras ~12° off that at the last view
+    (a ring of 384°, roll box ±5°) give their own rolls instead, while cameras within the box (±1° of uniform) leave
+    them."""
     from vastcal.geometry import projection_matrices
 
     write_images(tmp_path / "img", 12)
