@@ -21,7 +21,7 @@ import numpy as np
 from vastcal.calibrate import calibrate_session
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import decompose_circular
-from vastcal.importer import import_folder, read_cameras
+from vastcal.importer import CameraFile, import_folder, read_cameras
 
 DATA = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_david").resolve()
 
@@ -38,7 +38,7 @@ def main() -> None:
         angles = Path(tmp) / "angles.txt"
         angles.write_text("\n".join(f"{a:.6f}" for a in commanded))
         s = Path(tmp) / "david.h5"
-        import_folder(DATA, s, angles=angles, cameras=DATA, pixel_origin=0.5)
+        import_folder(DATA, s, angles=angles, cameras=CameraFile(DATA, pixel_origin=0.5))
         t = time.perf_counter()
         r = calibrate_session(
             s,

@@ -42,7 +42,7 @@ import numpy as np
 from vastcal.calibrate import calibrate_session
 from vastcal.config import CalibrationBounds, load_config
 from vastcal.geometry import decompose_circular, shift_pixels
-from vastcal.importer import import_folder, read_cameras
+from vastcal.importer import CameraFile, import_folder, read_cameras
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = (ROOT / ".." / "shared" / "data").resolve()
@@ -67,9 +67,7 @@ def _truth_session(
     angles = tmp / f"{name}_angles.txt"
     angles.write_text("\n".join(f"{a:.6f}" for a in commanded))
     s = tmp / f"{name}.h5"
-    import_folder(
-        image_folder or folder, s, angles=angles, cameras=cameras, pixel_origin=pixel_origin, length_unit=unit
-    )
+    import_folder(image_folder or folder, s, angles=angles, cameras=CameraFile(cameras, pixel_origin, unit))
     return s, true_rolls
 
 

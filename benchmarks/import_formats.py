@@ -24,7 +24,7 @@ import numpy as np
 import tifffile
 
 from vastcal.config import load_config
-from vastcal.importer import import_folder, pixel_size_known
+from vastcal.importer import ImportSettings, import_folder, pixel_size_known
 from vastcal.session import Session
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,7 +38,7 @@ def _timed_import(src: Path, out: Path, **kw: object) -> float:
 
 
 def formats(tmp: Path) -> None:
-    dt = _timed_import(DATA / "images", tmp / "folder.h5", roi_offset=(0, 387))
+    dt = _timed_import(DATA / "images", tmp / "folder.h5", settings=ImportSettings(roi_offset=(0, 387)))
     with Session.open(tmp / "folder.h5") as s:
         ref = s.projections()
     print(f"folder of {len(ref)} TIFFs {ref.shape[1:]} {ref.dtype}: {dt:.2f} s")
@@ -55,7 +55,7 @@ def formats(tmp: Path) -> None:
             "PhysicalSizeYUnit": "µm",
         },
     )
-    dt = _timed_import(tmp / "zf.ome.tif", tmp / "ome.h5", roi_offset=(0, 387))
+    dt = _timed_import(tmp / "zf.ome.tif", tmp / "ome.h5", settings=ImportSettings(roi_offset=(0, 387)))
     with Session.open(tmp / "ome.h5") as s:
         same = np.array_equal(s.projections(), ref)
         print(
@@ -65,7 +65,7 @@ def formats(tmp: Path) -> None:
     tifffile.imwrite(
         tmp / "zf_ij.tif", grey16, imagej=True, resolution=(1 / 5.5, 1 / 5.5), metadata={"axes": "TYX", "unit": "um"}
     )
-    dt = _timed_import(tmp / "zf_ij.tif", tmp / "ij.h5", roi_offset=(0, 387))
+    dt = _timed_import(tmp / "zf_ij.tif", tmp / "ij.h5", settings=ImportSettings(roi_offset=(0, 387)))
     with Session.open(tmp / "ij.h5") as s:
         print(
             f"ImageJ 16-bit hyperstack: {dt:.2f} s, frames exact {np.array_equal(s.projections(), grey16)}, "
@@ -73,7 +73,7 @@ def formats(tmp: Path) -> None:
         )
     f32 = ref.astype(np.float32) / 255.0
     tifffile.imwrite(tmp / "zf_float.tif", f32, photometric="rgb")
-    dt = _timed_import(tmp / "zf_float.tif", tmp / "float.h5", roi_offset=(0, 387))
+    dt = _timed_import(tmp / "zf_float.tif", tmp / "float.h5", settings=ImportSettings(roi_offset=(0, 387)))
     with Session.open(tmp / "float.h5") as s:
         back = s.projections().astype(np.float64) / 65535.0
         print(

@@ -137,7 +137,7 @@ def import_run(folder: Path) -> list[dict]:
 
     bar = CountProgress("import", "views", enabled=False)
     with tempfile.TemporaryDirectory() as tmp, bar:
-        import_folder(folder, Path(tmp) / "imported.h5", progress=lambda d, n: bar.update(d, n), phase=bar.phase)
+        import_folder(folder, Path(tmp) / "imported.h5", progress=bar)
     print(f"import of {folder}")
     return report(bar.bar.records, None)
 

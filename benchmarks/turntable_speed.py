@@ -469,7 +469,7 @@ def main() -> None:
         (tmp / "angles.txt").write_text("\n".join(f"{x:.6f}" for x in commanded) + "\n")
         session = tmp / "turntable.h5"
         t0 = time.perf_counter()
-        import_folder(tmp / "images", session, angles=tmp / "angles.txt", cameras=tmp / "cameras.txt", pixel_origin=0.0)
+        import_folder(tmp / "images", session, angles=tmp / "angles.txt", cameras=tmp / "cameras.txt")
         t_import = time.perf_counter() - t0
         print(
             f"{n} views {a.width} x {a.height}: rendered in {t_render:.1f} s, imported in {t_import:.1f} s; "

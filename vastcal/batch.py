@@ -159,7 +159,7 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
     """
     from vastcal.allocator import keep_large_blocks
     from vastcal.calibrate.view_budget import peak_resident_mb
-    from vastcal.pipeline import run_session
+    from vastcal.pipeline import RunOptions, run_session
 
     keep_large_blocks()  # as the vastcal command does: reuse the calibration's large temporaries
     t0, c0 = time.monotonic(), time.process_time()
@@ -169,16 +169,13 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
         "processed_at": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     try:
-        prior = {"prior_from": settings["prior_from"]} if settings.get("prior_from") else {}
-        summary = run_session(
-            path,
-            report_dir,
+        options = RunOptions(
             method=settings.get("method"),
             seed=settings.get("seed"),
             starts=int(settings.get("starts", 3)),
-            quiet=True,
-            **prior,
+            prior_from=settings.get("prior_from") or None,
         )
+        summary = run_session(path, report_dir, options, quiet=True)
         row.update(status="ok", report_dir=str(report_dir))
         row.update({f"t_{k}_s": v for k, v in summary.timings_s.items()})
     except VastcalError as exc:

@@ -3,7 +3,8 @@
 Every command maps to one function a Python user can call directly. Every error ends in one line
 on stderr, never a traceback (``-v`` shows the traceback of an unanticipated one), and one exit-code
 table (:data:`vastcal.errors.EXIT_CODES`, printed by ``vastcal --help``) holds for every command:
-0 ok, 1 failure, 2 bad input, 3 incomplete, 130 interrupted (Ctrl-C).
+0 ok, 1 failure, 2 bad input, 3 incomplete, 4 measured with the verdict ``fail``, 130 interrupted
+(Ctrl-C). A measurement whose verdict is ``check`` exits 0 with its verdict line on stderr.
 
 SIGINT (Ctrl-C), SIGTERM and SIGHUP all take the Ctrl-C path: ``acquire`` stops the motor and
 closes the session with status ``abort``; other commands stop at once. Ctrl-C exits 130 in every
@@ -49,6 +50,7 @@ from vastcal.errors import (
     EXIT_CODES,
     EXIT_FAILURE,
     EXIT_OK,
+    EXIT_QC_FAIL,
     UserInputError,
     VastcalError,
 )
@@ -70,10 +72,22 @@ def _progress(args: argparse.Namespace, label: str, unit: str = "") -> CountProg
 def cmd_import(args: argparse.Namespace) -> int:
     """vastcal import FOLDER -o S.h5 …"""
     from vastcal.config import load_config
-    from vastcal.importer import import_folder
+    from vastcal.importer import CameraFile, ImportSettings, check_pixel_origin, import_folder
 
     check_output_file(args.output, force=args.force)
+    check_pixel_origin(args.pixel_origin)
+    if args.length_unit is not None and args.cameras is None:
+        raise UserInputError(
+            "--length-unit describes imported cameras; give --cameras too (without them the world is in um)"
+        )
     cfg = load_config(args.config) if args.config else None
+    cameras = CameraFile(args.cameras, args.pixel_origin, args.length_unit) if args.cameras is not None else None
+    settings = ImportSettings(
+        pixel_size_um=args.pixel_size_um,
+        roi_offset=tuple(args.roi_offset) if args.roi_offset else None,
+        name=args.name,
+        accept_units=args.accept_units,
+    )
     bar = _progress(args, "import", "views")
     try:
         out = import_folder(
@@ -81,16 +95,11 @@ def cmd_import(args: argparse.Namespace) -> int:
             args.output,
             masks=args.masks,
             angles=args.angles,
-            cameras=args.cameras,
-            pixel_origin=args.pixel_origin,
-            roi_offset=tuple(args.roi_offset) if args.roi_offset else None,
+            cameras=cameras,
             config=cfg,
+            settings=settings,
             force=args.force,
-            progress=lambda d, t: bar.update(d, t),
-            phase=bar.phase,
-            length_unit=args.length_unit,
-            pixel_size_um=args.pixel_size_um,
-            name=args.name,
+            progress=bar,
         )
     finally:
         bar.close()
@@ -184,6 +193,10 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     if args.simulate and cfg.camera.driver != "simulated":
         raise UserInputError(f"{cfg.source}: --simulate needs a configuration with camera.driver: simulated")
     cfg = _simulation_seeded(cfg, args)
+    if not args.accept_units:
+        from vastcal.plausibility import check_rig
+
+        check_rig(cfg)  # before the stage moves
     check_output_file(
         out, force=args.force, option="--resume" if args.resume else "-o", existing=bool(args.resume)
     )  # before the stage moves
@@ -332,12 +345,54 @@ def _truth_path(session: Path) -> Path:
     return session.with_name(session.stem + ".truth.json")
 
 
+def _check_units(args: argparse.Namespace, voxel_size_um: float | None = None) -> None:
+    """The session's units checked before any work (:func:`vastcal.pipeline.check_session_units`), unless
+    ``--accept-units``."""
+    if not args.accept_units:
+        from vastcal.pipeline import check_session_units
+
+        check_session_units(args.session, voxel_size_um=voxel_size_um)
+
+
+def verdict_exit_code(verdict: str, line: str) -> int:
+    """Exit code of a command that measured: :data:`~vastcal.errors.EXIT_QC_FAIL` for the verdict ``fail``, else 0.
+
+    The verdict line (``check: …``, ``fail: …``) also goes to stderr, so that a script that reads only the exit code
+    and stderr sees it; ``ok`` says nothing there.
+    """
+    if verdict in ("check", "fail"):
+        _say(f"vastcal: verdict {line}")
+    return EXIT_QC_FAIL if verdict == "fail" else EXIT_OK
+
+
+def _qc_line(measurement: Any) -> str:
+    """The verdict line of a measurement (``check: flag; flag``)."""
+    from vastcal.qc import QCResult
+
+    qc = getattr(measurement, "qc", None)
+    return QCResult.from_dict(qc).verdict_line() if qc else ""
+
+
+def batch_exit_code(rows: Sequence[dict[str, Any]]) -> int:
+    """Exit code of a batch: 1 when a session could not be measured (its row's ``status`` is not ``ok``), else
+    :data:`~vastcal.errors.EXIT_QC_FAIL` when a session's verdict is ``fail``, else 0. The counts of ``check`` and
+    ``fail`` verdicts go to stderr; each row carries its own ``verdict``."""
+    verdicts = [str(r.get("verdict") or "") for r in rows if r.get("status") == "ok"]
+    counts = {v: verdicts.count(v) for v in ("check", "fail") if v in verdicts}
+    if counts:
+        _say("vastcal: verdicts " + ", ".join(f"{k} {n} of {len(rows)}" for k, n in counts.items()))
+    if any(r.get("status") != "ok" for r in rows):
+        return EXIT_FAILURE
+    return EXIT_QC_FAIL if "fail" in counts else EXIT_OK
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method coherence|pi|vr] [--seed N] [--free …] [--fixed-views 10-35] [--starts S]"""
     _check_session_arg(args.session)
     _check_session_writable(args.session)  # before the work: a read-only folder or a writer at work
     from vastcal.calibrate import calibrate_session
 
+    _check_units(args)
     mask, scribbles = _marks_args(args)
     bar = PhaseProgress(f"calibrate ({args.method or 'rig config method'})", enabled=not args.quiet)
     try:
@@ -449,11 +504,12 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     from vastcal.reconstruct import reconstruct_session
 
     check_camera_choice(args.session, run)
+    _check_units(args, voxel_size_um=args.voxel_size)
     m = reconstruct_session(
         args.session, calibration_run=run, voxel_size_um=args.voxel_size, use_masks=args.masks, mesh_path=args.mesh
     )
     print(m.summary() if hasattr(m, "summary") else m)
-    return 0
+    return verdict_exit_code(str((getattr(m, "qc", None) or {}).get("verdict", "")), _qc_line(m))
 
 
 def _check_mesh_arg(args: argparse.Namespace) -> None:
@@ -483,7 +539,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     """vastcal run S.h5 [-o DIR] [--force] [--cameras imported] [--keep-runs N] [--mask|--scribbles VIEW:FILE]: calibrate → reconstruct → report."""
     _check_session_arg(args.session)
-    from vastcal.pipeline import check_camera_choice, default_report_dir, run_session
+    from vastcal.pipeline import RunOptions, check_camera_choice, default_report_dir, run_session
 
     out = Path(args.output) if args.output else default_report_dir(args.session)
     check_report_folder(out, force=args.force, option="-o" if args.output else "the default report folder")
@@ -494,24 +550,21 @@ def cmd_run(args: argparse.Namespace) -> int:
             "--mask/--scribbles guide the calibration's colour model; with --cameras imported nothing is calibrated"
         )
     check_camera_choice(args.session, "imported" if args.cameras == "imported" else None)
+    _check_units(args, voxel_size_um=args.voxel_size)
     mask, scribbles = _marks_args(args)
     _check_mesh_arg(args)
-    res = run_session(
-        args.session,
-        out,
-        voxel_size_um=args.voxel_size,
-        mesh_path=args.mesh,
+    options = RunOptions(
         method=args.method,
         seed=args.seed,
-        quiet=args.quiet,
         starts=args.starts,
-        cameras=args.cameras,
-        keep_runs=args.keep_runs,
         mask=mask,
         scribbles=scribbles,
+        voxel_size_um=args.voxel_size,
+        mesh_path=args.mesh,
     )
+    res = run_session(args.session, out, options, cameras=args.cameras, quiet=args.quiet, keep_runs=args.keep_runs)
     print(res.summary())
-    return 0
+    return verdict_exit_code(res.verdict.split(":", 1)[0], res.verdict)
 
 
 def cmd_prune(args: argparse.Namespace) -> int:
@@ -527,7 +580,7 @@ def cmd_prune(args: argparse.Namespace) -> int:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table (exit 1 if any failed)."""
+    """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table (:func:`batch_exit_code`)."""
     from vastcal.batch import run_batch
 
     res = run_batch(
@@ -544,7 +597,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         prior_from=args.prior_from,
     )
     print(res.summary())
-    return 1 if any(r.get("status") != "ok" for r in res.rows) else 0
+    return batch_exit_code(res.rows)
 
 
 def cmd_annotate(args: argparse.Namespace) -> int:
@@ -584,7 +637,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     check_report_folder(out / "report", force=args.force, option="-o")
     out = demo(args.output, views=args.views, force=args.force, quiet=args.quiet)
     print(out.summary())
-    return 0
+    return verdict_exit_code(out.verdict.split(":", 1)[0], out.verdict)
 
 
 def _did_you_mean(word: str, choices: Sequence[str]) -> str:
@@ -688,6 +741,16 @@ def _add_camera_choice(s: argparse.ArgumentParser) -> None:
         default="calibrated",
         help="calibrated: a calibration run (default; the imported cameras when the session has none); imported: "
         "the cameras imported with the session (e.g. ETH/Middlebury ground truth), even when calibration runs exist",
+    )
+
+
+def _add_accept_units(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--accept-units",
+        action="store_true",
+        help="use a pixel size, angle list or voxel size that the unit checks refuse as it is (they refuse e.g. a "
+        "pixel size in mm where um is meant, angles in radians or not one turn, a voxel finer than 1/4 pixel): for "
+        "an instrument outside the usual ranges",
     )
 
 
@@ -815,6 +878,7 @@ def _add_acquire(sub: Subparsers) -> None:
         "treatment=…,plate=…,well=B3, or a YAML file of those fields, or a screen's manifest (YAML or CSV) with an "
         "entry for this session",
     )
+    _add_accept_units(s)
     s.set_defaults(func=cmd_acquire)
 
 
@@ -878,6 +942,7 @@ def _add_import(sub: Subparsers) -> None:
         help="rig description YAML for the optics (pixel size µm, focal length, principal point px)",
     )
     s.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    _add_accept_units(s)
     s.set_defaults(func=cmd_import)
 
 
@@ -929,6 +994,7 @@ def _add_calibrate(sub: Subparsers) -> None:
         help="independent CMA-ES starts (seeds seed, seed+10, ...); the one of lowest cost is kept. Default 1: "
         + STARTS_WHY,
     )
+    _add_accept_units(s)
     s.set_defaults(func=cmd_calibrate)
 
 
@@ -950,6 +1016,7 @@ def _add_reconstruct(sub: Subparsers) -> None:
     _add_reconstruction_options(s, force_help="overwrite an existing --mesh file")
     s.add_argument("--masks", action="store_true", help="use the imported masks instead of the probability maps")
     _add_camera_choice(s)
+    _add_accept_units(s)
     s.set_defaults(func=cmd_reconstruct)
 
 
@@ -997,6 +1064,7 @@ def _add_run(sub: Subparsers) -> None:
         help="afterwards, delete all but the newest N runs of every stage from the session (default: keep all)",
     )
     _add_marks_options(s)
+    _add_accept_units(s)
     s.set_defaults(func=cmd_run)
 
 

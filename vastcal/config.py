@@ -163,6 +163,10 @@ class OpticsConfig:
     (a telecentric-like microscope imaged as a pinhole at the working distance), unless
     ``focal_length_px`` is given. The principal point is in full-sensor pixels (0-based);
     ``None`` means the sensor centre.
+
+    The ranges below only keep values finite and positive; whether they are plausible — a sensor pitch of
+    1–30 µm, a pixel on the specimen no finer than optics resolve, a field of view a lens has — is checked
+    before acquisition and import by :func:`vastcal.plausibility.check_optics` (``--accept-units`` skips it).
     """
 
     pixel_size_um: float = field(default=5.5, metadata=_range(0.0, 1000.0, lo_open=True))

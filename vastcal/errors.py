@@ -15,6 +15,8 @@ Exit codes (one table for every command; :data:`EXIT_CODES`)::
     2    bad input: arguments, rig file, image folder, a damaged or foreign session; existing output without --force
     3    incomplete: the session (or the work) is incomplete (``info`` on an aborted session, a stage
          refused because the session lacks frames)
+    4    measured, but the quality verdict is ``fail``: the numbers are stored and reported, and must not be
+         used as they are (``check`` exits 0 and prints its verdict line on stderr)
     130  interrupted by Ctrl-C (SIGINT), in every phase of every command
     128+N  stopped by another signal N (SIGTERM 143, SIGHUP 129): kept as a shell reports it, so a batch
          scheduler or a service manager can tell its own kill from the operator's Ctrl-C
@@ -25,6 +27,7 @@ Tree::
     ├── UserInputError                 bad input from a user: exit code 2
     │   ├── ConfigError(ValueError)    rig YAML unreadable, unknown key, wrong type, out of range
     │   ├── ImportDataError(ValueError)image folder / camera file that cannot be imported
+    │   ├── ImplausibleValueError(ValueError) a pixel size, angle list or voxel size no instrument gives
     │   └── OutputExistsError(FileExistsError) refusing to overwrite without --force
     ├── SessionError                   a session file that is not ours or is damaged
     │   ├── NotASessionError(ValueError)   not HDF5, truncated, or written by another program: exit code 2
@@ -57,6 +60,8 @@ EXIT_BAD_INPUT = 2
 """Bad input: arguments, configuration, images, a damaged session, an existing output without ``--force``."""
 EXIT_INCOMPLETE = 3
 """The session (or the work) is incomplete."""
+EXIT_QC_FAIL = 4
+"""The measurement was made and stored, but its quality verdict is ``fail`` (a script must not use its numbers)."""
 EXIT_INTERRUPTED = 130
 """Interrupted by Ctrl-C (128 + SIGINT)."""
 
@@ -65,6 +70,7 @@ EXIT_CODES: dict[int, str] = {
     EXIT_FAILURE: "failure",
     EXIT_BAD_INPUT: "bad input (arguments, files, existing output without --force)",
     EXIT_INCOMPLETE: "incomplete (session or work)",
+    EXIT_QC_FAIL: "measured, but the quality verdict is fail (results stored; 'check' exits 0, verdict on stderr)",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C); another stop signal N gives 128+N (SIGTERM 143, SIGHUP 129)",
 }
 """The exit-code table every command follows (printed in ``vastcal --help``)."""
@@ -112,6 +118,12 @@ class ConfigError(UserInputError, ValueError):
 
 class ImportDataError(UserInputError, ValueError):
     """An image folder, mask folder, angle file or camera file cannot be imported."""
+
+
+class ImplausibleValueError(UserInputError, ValueError):
+    """A value whose unit is most likely wrong: a pixel size, an angle list or a voxel size outside what any
+    instrument or protocol gives (:mod:`vastcal.plausibility`). The message names the value, where it came from and
+    the likely fix; ``--accept-units`` uses the value as it is."""
 
 
 class OutputExistsError(UserInputError, FileExistsError):

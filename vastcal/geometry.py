@@ -106,7 +106,8 @@ class CircularMotion:
         K: 3×3 intrinsics in pixels of the stored frames (0-based). May be a full matrix, skew too.
         distance: distance d from the camera centre to the rotation axis, in world units (µm).
         yaw_deg, pitch_deg: axis tilt, degrees (R_axis = Rz(pitch)·Ry(yaw)).
-        gamma_deg: axis placement angle γ, degrees (t_axis = d·Rz(pitch)·[0, sin γ, cos γ], :func:`axis_origin_in_camera`).
+        gamma_deg: axis placement angle γ, degrees (t_axis = d·Rz(pitch)·[0, sin γ, cos γ],
+            :func:`axis_origin_in_camera`).
         rolls_deg: ω_i for every view, degrees, shape (N,).
     """
 
@@ -222,12 +223,32 @@ def decompose_projection(P: np.ndarray, front: np.ndarray | None = None) -> tupl
     return K, R, t
 
 
+METRIC_SKEW = 0.005
+"""Largest skew of a metric K, as a fraction of its focal length (a calibrated camera has none)."""
+METRIC_ASPECT = 0.15
+"""Largest departure of a metric K's pixel aspect |f_x / f_y| from 1 (analogue frame grabbers reach ~1.1)."""
+
+
+def projective_intrinsics(P: np.ndarray) -> str | None:
+    """Why cameras P (N, 3, 4) are projective rather than metric — the first view whose K has a skew or a pixel
+    aspect no calibrated camera has (:data:`METRIC_SKEW`, :data:`METRIC_ASPECT`), in words — or None when every K
+    is metric. A projective camera set (a projective reconstruction, such as the VGG turntable sequences) is a
+    valid camera set: its principal point says nothing about where the images sit on a sensor."""
+    for i, m in enumerate(np.asarray(P, float)):
+        K = decompose_projection(m)[0]
+        fx, fy, skew = float(K[0, 0]), float(K[1, 1]), float(K[0, 1])
+        if abs(skew) > METRIC_SKEW * abs(fx) or abs(abs(fx / fy) - 1.0) > METRIC_ASPECT:
+            return f"view {i}: K has a skew of {skew:.3g} px and focal lengths {fx:.5g} x {fy:.5g} px"
+    return None
+
+
 def _common_rotation_axis(Rs: np.ndarray) -> np.ndarray:
     """Unit axis (world frame) about which cameras with rotations Rs (N, 3, 3) turn, oriented so that successive
     views turn positively about it.
 
-    Each relative rotation R_0ᵀR_i = Rot(a_i, θ_i) has the symmetric part (R + Rᵀ)/2 − cos θ_i·I = (1 − cos θ_i)·a_i a_iᵀ;
-    their sum is a scatter matrix whose principal eigenvector is the common axis, each view weighted by 1 − cos θ_i
+    Each relative rotation R_0ᵀR_i = Rot(a_i, θ_i) has the symmetric part
+    (R + Rᵀ)/2 − cos θ_i·I = (1 − cos θ_i)·a_i a_iᵀ; their sum is a scatter matrix whose principal eigenvector is
+    the common axis, each view weighted by 1 − cos θ_i
     (its axis is the better defined the more it turns). Unlike the antisymmetric part (2 sin θ_i·a_i), this holds at
     θ = 180°, where a view facing view 0 — every even ring of uniform steps has one — leaves sin θ = 0 and the
     antisymmetric part only its noise. The sign comes from the antisymmetric parts of the successive steps

@@ -18,17 +18,23 @@ Inputs, all but the images optional:
 * angles — a text file with one commanded angle (degrees) per view, or ``name angle`` lines;
   default: the stack's own angles when it has them (OME ``angle`` annotations, ImageJ slice labels such as
   ``angle=12.5``), else uniform over 360° starting at 0° — unless known cameras contradict that by more than the
-  calibration's roll box (:func:`angles_of_cameras`): their own rolls then.
+  calibration's roll box (:func:`angles_of_cameras`): their own rolls then. Angles from a file or a stack must
+  cover one turn in degrees (:mod:`vastcal.plausibility`; radians are named as such).
+* units — the rig file's optics and voxel size, ``--pixel-size-um`` or the files' pixel size, and the angles are
+  checked for plausible units before anything is written (:mod:`vastcal.plausibility`); ``accept_units``
+  (``--accept-units``) takes them as they are.
 * crops — frames cut from a larger sensor need their offset (``roi_offset``, ``--roi-offset``): from the
-  config's ``camera.roi`` when its size is the images'; an import whose principal point (the cameras' or
+  config's ``camera.roi`` when its size is the images'; an import whose principal point (metric cameras' or
   the config's) falls outside the images, or whose config ROI is another size, is refused naming ``--roi-offset``.
 * cameras — known projection matrices in any format of :mod:`vastcal.camera_files` (a text file with
   ``name p11 … p34`` or ``name K R t`` per line or matrices row by row, a folder of ``*.pa`` or PMVS ``*.txt``
   files, ``.npy``/``.npz``/``.mat`` arrays). ``pixel_origin`` is the coordinate those cameras give to the
   *centre* of the first pixel: 0 (0-based centres), 1 (1-based, MATLAB) or 0.5 (pixel corners at
-  integers, the continuous-image convention); ``roi_offset`` (x, y) says where the stored frames sit on the sensor the cameras
-  were given for. The matrices are stored exactly as given (``cameras/P_given``) and converted
-  to 0-based pixels of the stored frames (``cameras/P``).
+  integers, the continuous-image convention); ``roi_offset`` (x, y) says where the stored frames sit on the sensor
+  the cameras were given for. Projective cameras (a skewed K, a principal point far outside the frames: the VGG
+  turntable sequences) are kept as given; only metric ones are checked for a crop whose offset is missing. The
+  matrices are stored exactly as given (``cameras/P_given``) and converted to 0-based pixels of the stored frames
+  (``cameras/P``).
 """
 
 from __future__ import annotations
@@ -37,8 +43,9 @@ import dataclasses
 import logging
 import os
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -46,9 +53,17 @@ from vastcal import image_files
 from vastcal.camera_files import MAX_TEXT_BYTES, match_cameras_to_images, read_cameras
 from vastcal.config import CameraConfig, OpticsConfig, RigConfig, RoiConfig, check_setting, dump_config
 from vastcal.errors import ImportDataError, VastcalError
-from vastcal.geometry import LENGTH_UNITS_UM, circular_fit_shortfall, decompose_circular, shift_pixels
+from vastcal.geometry import (
+    LENGTH_UNITS_UM,
+    circular_fit_shortfall,
+    decompose_circular,
+    intrinsics_from_optics,
+    projective_intrinsics,
+    shift_pixels,
+)
 from vastcal.image_files import IMAGE_SUFFIXES, natural_key, order_by_view_names
 from vastcal.outputs import check_output_file
+from vastcal.plausibility import check_angles, check_rig, check_specimen_pixel
 from vastcal.session import SessionWriter
 
 log = logging.getLogger(__name__)
@@ -234,7 +249,8 @@ def _folder_set(source: Path, files: list[Path]) -> ImageSet:
         img = first if f == files[0] else read_image(f)
         if img.shape != first.shape or img.dtype != first.dtype:
             raise ImportDataError(
-                f"{source}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, {f.name} is {img.shape} {img.dtype}"
+                f"{source}: mixed image sizes: {files[0].name} is {first.shape} {first.dtype}, "
+                f"{f.name} is {img.shape} {img.dtype}"
             )
         if img.dtype not in image_files.STORED_DTYPES:
             lo, hi = min(lo, float(img.min())), max(hi, float(img.max()))
@@ -269,7 +285,7 @@ def circular_fit_note(P: np.ndarray, source: str) -> dict[str, object]:
 
 
 def angles_of_cameras(P: np.ndarray, uniform: np.ndarray, roll_box_deg: float, source: str) -> tuple[np.ndarray, str]:
-    """The commanded angles (degrees) of an import that gives cameras P (N, 3, 4) but no angles, and where they come from.
+    """The commanded angles (degrees) of an import that gives cameras P (N, 3, 4) but no angles, and their source.
 
     Uniform steps over 360° (``uniform``) are the default guess of a stage's revolution. Known cameras measure the
     angles: their rolls (:func:`vastcal.geometry.decompose_circular`: view 0 at 0°, increasing, as ``uniform``) are
@@ -282,14 +298,14 @@ def angles_of_cameras(P: np.ndarray, uniform: np.ndarray, roll_box_deg: float, s
         rolls = np.asarray(decompose_circular(P).motion.rolls_deg, float)
     except VastcalError as exc:
         log.info("%s: no circular motion to take angles from (%s); angles uniform over 360 degrees", source, exc)
-        return uniform, "uniform over 360 degrees"
+        return uniform, UNIFORM_ANGLES
     off = np.abs((rolls - uniform + 180.0) % 360.0 - 180.0)
     worst = int(np.argmax(off))
     if off[worst] <= roll_box_deg:
-        return uniform, "uniform over 360 degrees"
+        return uniform, UNIFORM_ANGLES
     why = (
-        f"the rolls of the cameras in {source}: uniform steps over 360 degrees would put view {worst} {off[worst]:.1f} degrees "
-        f"from its camera, beyond the calibration's +/-{roll_box_deg:g} degree roll box"
+        f"the rolls of the cameras in {source}: uniform steps over 360 degrees would put view {worst} "
+        f"{off[worst]:.1f} degrees from its camera, beyond the calibration's +/-{roll_box_deg:g} degree roll box"
     )
     log.warning("angles: %s", why)
     return rolls, why
@@ -306,7 +322,8 @@ def read_angles(path: Path, n: int, names: Sequence[str]) -> np.ndarray:
     try:
         if not path.is_file():
             raise ImportDataError(
-                f"{path}: expected a text file of angles, got {'nothing' if not path.exists() else 'not a regular file'}"
+                f"{path}: expected a text file of angles, got "
+                f"{'nothing' if not path.exists() else 'not a regular file'}"
             )
         if path.stat().st_size > MAX_TEXT_BYTES:
             raise ImportDataError(f"{path}: larger than {MAX_TEXT_BYTES} bytes; expected one angle in degrees per line")
@@ -381,7 +398,8 @@ def camera_length_unit(P: np.ndarray, given: str | None, working_distance_um: fl
             )
         return (
             "unknown",
-            f"camera-to-axis distance {d:.4g} is not the rig's working distance {working_distance_um:.4g} um; give --length-unit",
+            f"camera-to-axis distance {d:.4g} is not the rig's working distance {working_distance_um:.4g} um; "
+            "give --length-unit",
         )
     return "unknown", "no rig description; give --length-unit"
 
@@ -416,7 +434,8 @@ def _resolve_optics(
     if pixel_size_um is not None:
         if not (np.isfinite(pixel_size_um) and 0 < pixel_size_um <= 1000):
             raise ImportDataError(
-                f"--pixel-size-um: expected the pixel pitch on the specimen in um (0 < value <= 1000), got {pixel_size_um}"
+                "--pixel-size-um: expected the pixel pitch on the specimen in um (0 < value <= 1000), "
+                f"got {pixel_size_um}"
             )
         for what, other in (
             ("--config", cfg_px if config_given else None),
@@ -470,9 +489,254 @@ def _check_crop(h: int, w: int, pp: np.ndarray, what: str) -> None:
     cx, cy = float(np.median(pp[:, 0])), float(np.median(pp[:, 1]))
     if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
         raise ImportDataError(
-            f"{what} put the principal point at ({cx:.1f}, {cy:.1f}) px, outside the {w} x {h} px images: they look like "
-            "a crop of a larger sensor; give where they sit on it with --roi-offset X Y"
+            f"{what} put the principal point at ({cx:.1f}, {cy:.1f}) px, outside the {w} x {h} px images: "
+            "they look like a crop of a larger sensor; give where they sit on it with --roi-offset X Y "
+            "(0 0: the images are the whole sensor)"
         )
+
+
+UNIFORM_ANGLES = "uniform over 360 degrees"
+"""``plan/angle_source`` of an import whose angles nobody gave: evenly spaced over one turn."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraFile:
+    """Known cameras to import (``--cameras``): a file or folder of any format of :mod:`vastcal.camera_files`.
+
+    Attributes:
+        path: the camera file or folder.
+        pixel_origin: the coordinate the cameras give to the first pixel's centre: 0 (0-based), 0.5 (pixel
+            corners at integers) or 1 (1-based, MATLAB) — one of :data:`PIXEL_ORIGINS`.
+        length_unit: their world unit (nm, um, mm, cm, m); None: µm when their distance to the axis matches the
+            rig file's working distance, else unknown (:func:`camera_length_unit`).
+    """
+
+    path: Path | str
+    pixel_origin: float = 0.0
+    length_unit: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class ImportSettings:
+    """What the images of an import do not say about themselves.
+
+    Attributes:
+        pixel_size_um: pixel pitch on the specimen, µm (``--pixel-size-um``); overrides the rig file and the files'
+            metadata (a disagreement is logged). With none of the three the pixel size is stored as unknown
+            (``plan/pixel_size_source = "unknown"``) and measurements are in pixels.
+        roi_offset: (x, y) of the stored frames on the sensor, px, 0-based (``--roi-offset``); default the rig
+            file's ``camera.roi`` when its size is the images', (0, 0) when the images are the whole sensor.
+        name: the specimen's name (``/entry/title``; the report's and the screen table's ``specimen``); default
+            the folder's or the stack file's name.
+        accept_units: use a pixel size or angle list that :mod:`vastcal.plausibility` refuses as it is
+            (``--accept-units``).
+    """
+
+    pixel_size_um: float | None = None
+    roi_offset: tuple[int, int] | None = None
+    name: str | None = None
+    accept_units: bool = False
+
+
+class ImportProgress(Protocol):
+    """Where an import reports its progress (:class:`vastcal.progress.CountProgress` is one)."""
+
+    def phase(self, name: str) -> None:
+        """A step begins: ``reading NAME``, ``copying N views``, ``finishing the session``."""
+
+    def update(self, done: int, total: int) -> None:
+        """``done`` of ``total`` views copied."""
+
+
+@dataclasses.dataclass(frozen=True)
+class KnownCameras:
+    """Imported cameras as read and checked, before they are shifted to the stored frames' pixels.
+
+    Attributes:
+        given: (N, 3, 4) the matrices exactly as the file gives them (matched to the images).
+        names: the file's name of each view.
+        file: where they came from, with their pixel origin and length unit as given.
+        unit, unit_why: their world unit and how it was decided (:func:`camera_length_unit`).
+        circular: the circular-motion fit note (:func:`circular_fit_note`).
+    """
+
+    given: np.ndarray
+    names: list[str]
+    file: CameraFile
+    unit: str
+    unit_why: str
+    circular: dict[str, object]
+
+    def stored(self, roi_offset: tuple[int, int]) -> tuple[np.ndarray, dict[str, object]]:
+        """(P in 0-based pixels of the stored frames, the attributes stored beside them)."""
+        origin = float(self.file.pixel_origin)
+        P = shift_pixels(self.given, origin + roi_offset[0], origin + roi_offset[1])
+        attrs = {
+            "pixel_origin": origin,
+            "roi_offset": list(roi_offset),
+            "names": self.names,
+            "length_unit": self.unit,
+            "length_unit_source": self.unit_why,
+            **self.circular,
+        }
+        return P, attrs
+
+
+def read_known_cameras(file: CameraFile, views: ImageSet, working_distance_um: float | None) -> KnownCameras:
+    """The cameras of ``file`` for ``views``: read, matched to the images by name (else in their order), checked
+    (:func:`check_cameras`), their circular fit noted and their world unit decided (:func:`camera_length_unit`).
+
+    Raises:
+        ImportDataError: unreadable, binary, too few or too many cameras, or not projection matrices.
+    """
+    path = Path(file.path)
+    try:
+        P, names = read_cameras(path, len(views))
+        P, names, reordered = match_cameras_to_images(P, names, views.names, path)
+    except UnicodeDecodeError:  # an image or other binary file given as --cameras
+        raise ImportDataError(
+            f"{path}: not a text file of cameras (binary content; an image given as --cameras?)"
+        ) from None
+    if reordered:
+        log.warning(
+            "%s lists the views in another order than the images' natural order: cameras matched to images by name",
+            path.name,
+        )
+    check_cameras(P, path, names)
+    circular = circular_fit_note(P, path.name)
+    unit, unit_why = camera_length_unit(P, file.length_unit, working_distance_um)
+    log.info("imported cameras: length unit %s (%s)", unit, unit_why)
+    return KnownCameras(P, list(names), file, unit, unit_why, circular)
+
+
+def _check_camera_crop(known: KnownCameras, shape: tuple[int, ...], roi_offset: tuple[int, int]) -> None:
+    """Refuse metric cameras whose principal point falls outside the frames (a crop whose offset was not given).
+
+    Projective cameras (:func:`.geometry.projective_intrinsics`: a skewed K, unequal focal lengths) put their
+    principal point anywhere — the VGG turntable cameras 1071 px above their 576 px images — and are kept as given.
+    """
+    why = projective_intrinsics(known.given)
+    if why is not None:
+        log.info(
+            "%s: projective cameras (%s): kept as given, their principal point is not a sensor's", known.file.path, why
+        )
+        return
+    origin = float(known.file.pixel_origin)
+    pp = _principal_point(shift_pixels(known.given, origin + roi_offset[0], origin + roi_offset[1]))
+    _check_crop(shape[0], shape[1], pp, f"the cameras of {Path(known.file.path).name}")
+
+
+def commanded_angles(views: ImageSet, angles: str | Path | None, accept_units: bool) -> tuple[np.ndarray, str]:
+    """(commanded angles in degrees, where they came from) of an import: ``angles`` (a text file,
+    :func:`read_angles`), else the stack's own, else :data:`UNIFORM_ANGLES`. Angles from a file or a stack are
+    checked to cover one turn in degrees (:func:`.plausibility.check_angles`) unless ``accept_units``.
+
+    Raises:
+        ImportDataError: an unreadable angle file, or stack angles that are not distinct finite numbers.
+        ImplausibleValueError: angles that do not cover one turn (radians, half a turn, two turns).
+    """
+    n, meta = len(views), views.metadata
+    if angles is not None:
+        values = read_angles(Path(angles), n, views.names)
+        if meta.angles_deg is not None and not np.allclose(np.asarray(meta.angles_deg) % 360, values % 360, atol=1e-6):
+            log.warning("angles: --angles %s overrides %s's %s", angles, views.source.name, meta.angles_source)
+        source = str(angles)
+    elif meta.angles_deg is not None:
+        values = np.asarray(meta.angles_deg, float)
+        if not np.all(np.isfinite(values)) or len(np.unique(np.round(values, 9))) != n:
+            raise ImportDataError(
+                f"{views.source}: the {meta.angles_source} angles are not {n} distinct finite numbers of degrees; "
+                "give them with --angles"
+            )
+        source = f"{views.source.name}: {meta.angles_source}"
+        log.info("angles from %s", source)
+    else:
+        return np.arange(n) * 360.0 / n, UNIFORM_ANGLES
+    if not accept_units:
+        check_angles(values, source if angles is None else f"{angles}: the angles")
+    return values, source
+
+
+def _import_rig(views: ImageSet, config: RigConfig | None, settings: ImportSettings) -> tuple[RigConfig, str]:
+    """(the rig description stored with the import, where its pixel size came from): ``config`` (or an "imported"
+    rig whose sensor is the images) with the resolved optics (:func:`_resolve_optics`) and the images' ROI.
+
+    Raises:
+        ImportDataError: a config ROI of another size than the images with no ``roi_offset``; an offset out of range.
+        ImplausibleValueError: a pixel size on the specimen no optics give (unless ``settings.accept_units``).
+    """
+    h, w = views.shape[:2]
+    cfg = config or RigConfig(name=f"imported from {views.source.name}", camera=CameraConfig(driver="genicam"))
+    roi_offset = settings.roi_offset
+    if roi_offset is None:
+        roi_offset = (0, 0)
+        roi = cfg.camera.roi
+        if config is not None and (roi.width, roi.height) == (w, h):
+            roi_offset = (roi.x, roi.y)
+    for axis, value in zip("xy", roi_offset):  # same range as camera.roi.x/y in a rig file
+        check_setting(RoiConfig, axis, value, f"roi offset {axis} (--roi-offset)")
+    optics, pixel_source = _resolve_optics(
+        cfg, config is not None, settings.pixel_size_um, views.metadata, views.source
+    )
+    if pixel_source != UNKNOWN_PIXEL_SIZE and not settings.accept_units:
+        check_specimen_pixel(optics.pixel_size_um / optics.magnification, f"{views.source}: {pixel_source}")
+    if config is None and settings.roi_offset is None:  # no rig description: the images are the sensor
+        optics = dataclasses.replace(optics, sensor_width_px=w, sensor_height_px=h)
+    else:
+        optics = dataclasses.replace(
+            optics,
+            sensor_width_px=max(optics.sensor_width_px, roi_offset[0] + w),
+            sensor_height_px=max(optics.sensor_height_px, roi_offset[1] + h),
+        )
+    camera = dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h))
+    return dataclasses.replace(cfg, optics=optics, camera=camera), pixel_source
+
+
+def _check_config_roi(views: ImageSet, config: RigConfig) -> None:
+    """Refuse images of neither the config's ROI size nor its sensor's when nothing says where they sit."""
+    h, w = views.shape[:2]
+    roi, optics = config.camera.roi, config.optics
+    if (roi.width, roi.height) != (w, h) and (optics.sensor_width_px, optics.sensor_height_px) != (w, h):
+        raise ImportDataError(
+            f"{views.source}: the images are {w} x {h} px, but the config's camera.roi is {roi.width} x {roi.height} "
+            f"and its sensor {optics.sensor_width_px} x {optics.sensor_height_px} px: give where the images "
+            "sit on the sensor with --roi-offset X Y"
+        )
+
+
+def check_pixel_origin(origin: float) -> None:
+    """Refuse a pixel origin (``--pixel-origin``) other than :data:`PIXEL_ORIGINS`.
+
+    Raises:
+        ImportDataError: naming the accepted values.
+    """
+    if origin not in PIXEL_ORIGINS:
+        raise ImportDataError(
+            f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
+            f"(the coordinate of the first pixel's centre, --pixel-origin), got {origin}"
+        )
+
+
+def _check_arguments(cameras: CameraFile | None, settings: ImportSettings) -> None:
+    """Refuse arguments that are wrong whatever the images: pixel origin, name, a length unit without cameras."""
+    if cameras is not None:
+        check_pixel_origin(cameras.pixel_origin)
+    name = settings.name
+    if name is not None and (not name.strip() or len(name) > 200 or any(c in name for c in "\n\r\0")):
+        raise ImportDataError(f"--name: expected a specimen name of 1 to 200 characters on one line, got {name[:60]!r}")
+
+
+@dataclasses.dataclass
+class _Import:
+    """Everything an import writes, read and checked before the session file is created."""
+
+    views: ImageSet
+    cfg: RigConfig
+    plan: dict[str, object]
+    angles_deg: np.ndarray
+    title: str
+    masks: np.ndarray | None = None
+    known: KnownCameras | None = None
 
 
 def import_folder(
@@ -481,18 +745,15 @@ def import_folder(
     *,
     masks: str | Path | None = None,
     angles: str | Path | None = None,
-    cameras: str | Path | None = None,
-    pixel_origin: float = 0,
-    roi_offset: tuple[int, int] | None = None,
+    cameras: CameraFile | str | Path | None = None,
     config: RigConfig | None = None,
+    settings: ImportSettings | None = None,
     force: bool = False,
-    progress: Callable[[int, int], None] | None = None,
-    phase: Callable[[str], None] | None = None,
-    length_unit: str | None = None,
-    pixel_size_um: float | None = None,
-    name: str | None = None,
+    progress: ImportProgress | None = None,
 ) -> Path:
     """Import a folder of images or one stack file (and optional masks, angles, cameras) into a new session.
+
+    Every input is read and checked before the session is created; nothing is written on a refusal.
 
     Args:
         folder: folder of images, one per view, in natural sort order; or one stack file (multi-page TIFF,
@@ -500,144 +761,96 @@ def import_folder(
         output: the session file to create.
         masks: folder of silhouettes matching the images one to one, or a stack file of them.
         angles: text file of commanded angles (degrees); default: the stack's own angles (OME annotations,
-            ImageJ slice labels) when it has them, else uniform over 360° (or the cameras' rolls, :func:`angles_of_cameras`).
-        cameras: a camera file or folder of any format of :mod:`vastcal.camera_files`.
-        pixel_origin: 0, 0.5 or 1 — the coordinate ``cameras`` give to the first pixel's centre.
-        roi_offset: (x, y) of the stored frames on the sensor (px, 0-based); default from
-            ``config.camera.roi`` when its size is the images', (0, 0) when the images are the whole sensor.
-        config: rig description for the optics (pixel size, K); default: an "imported" rig whose sensor is
-            the images (principal point at their centre).
+            ImageJ slice labels) when it has them, else uniform over 360° (or the cameras' rolls,
+            :func:`angles_of_cameras`). Angles from a file or a stack must cover one turn (:mod:`vastcal.plausibility`).
+        cameras: known cameras (:class:`CameraFile`; a plain path: 0-based pixel centres, unit decided from the rig).
+            Metric cameras whose principal point falls outside the images are refused as a crop whose offset is not
+            given; projective ones (skewed K) are kept as given (:func:`.geometry.projective_intrinsics`).
+        config: rig description for the optics (pixel size, K); checked for plausible units; default: an
+            "imported" rig whose sensor is the images (principal point at their centre).
+        settings: pixel size, crop offset, name and the units override (:class:`ImportSettings`).
         force: overwrite ``output`` if it exists.
-        progress: called with (views done, views total).
-        phase: called with the name of each step as it begins (a progress display's phases): ``reading NAME`` (the
-            file list or stack, masks, angles, cameras, checks), ``copying N views`` (then ``progress`` after each)
-            and ``finishing the session`` (masks, cameras, the stop record).
-        length_unit: the cameras' world unit (nm, um, mm, cm, m); default: µm when their distance to the axis
-            matches ``config``'s working distance, else unknown (:func:`camera_length_unit`); stored as the
-            cameras' ``length_unit`` attribute for calibration and measurement.
-        pixel_size_um: pixel pitch on the specimen, µm; overrides ``config`` and the files' metadata (a
-            disagreement is logged). With none of the three the pixel size is stored as unknown
-            (``plan/pixel_size_source = "unknown"``) and measurements are in pixels.
-        name: the specimen's name (``/entry/title``: the report's and the screen CSV's ``specimen``);
-            default: the folder's or the stack file's name.
+        progress: told each step (``reading NAME``, ``copying N views``, ``finishing the session``) and each view
+            copied.
 
     Raises:
         ImportDataError: any input that cannot be imported (nothing is written).
+        ImplausibleValueError: a pixel size or angle list in a wrong unit, most likely (nothing is written).
         OutputExistsError: ``output`` exists and ``force`` is false.
     """
     folder, out = Path(folder), Path(output)
     check_output_file(out, force=force)  # directories, devices, symlinks, read-only folders: refused before reading
-    if pixel_origin not in PIXEL_ORIGINS:
-        raise ImportDataError(
-            f"pixel origin must be one of {', '.join(map(str, PIXEL_ORIGINS))} "
-            f"(the coordinate of the first pixel's centre, --pixel-origin), got {pixel_origin}"
-        )
-    if name is not None and (not name.strip() or len(name) > 200 or any(c in name for c in "\n\r\0")):
-        raise ImportDataError(f"--name: expected a specimen name of 1 to 200 characters on one line, got {name[:60]!r}")
-    if phase:
-        phase(f"reading {folder.name or folder}")
+    settings = settings or ImportSettings()
+    file = CameraFile(cameras) if isinstance(cameras, (str, Path)) else cameras
+    _check_arguments(file, settings)
+    if config is not None and not settings.accept_units:
+        check_rig(config)
+    if progress:
+        progress.phase(f"reading {folder.name or folder}")
     views = read_views(folder)
-    n = len(views)
-    h, w = views.shape[:2]
-    mask_stack = _read_masks(Path(masks), n, (h, w)) if masks is not None else None
-    meta = views.metadata
-    if angles is not None:
-        angle_values = read_angles(Path(angles), n, views.names)
-        if meta.angles_deg is not None and not np.allclose(
-            np.asarray(meta.angles_deg) % 360, angle_values % 360, atol=1e-6
-        ):
-            log.warning("angles: --angles %s overrides %s's %s", angles, views.source.name, meta.angles_source)
-        angle_source = str(angles)
-    elif meta.angles_deg is not None:
-        angle_values = np.asarray(meta.angles_deg, float)
-        if not np.all(np.isfinite(angle_values)) or len(np.unique(np.round(angle_values, 9))) != n:
-            raise ImportDataError(
-                f"{views.source}: the {meta.angles_source} angles are not {n} distinct finite numbers of degrees; "
-                "give them with --angles"
-            )
-        angle_source = f"{views.source.name}: {meta.angles_source}"
-        log.info("angles from %s", angle_source)
-    else:
-        angle_values, angle_source = np.arange(n) * 360.0 / n, "uniform over 360 degrees"
-    cfg = config or RigConfig(name=f"imported from {views.source.name}", camera=CameraConfig(driver="genicam"))
-    roi_given = roi_offset is not None
-    if roi_offset is None:
-        roi_offset = (0, 0)
-        if config is not None:
-            roi = cfg.camera.roi
-            if (roi.width, roi.height) == (w, h):
-                roi_offset = (roi.x, roi.y)
-            elif (cfg.optics.sensor_width_px, cfg.optics.sensor_height_px) != (w, h) and cameras is None:
-                raise ImportDataError(
-                    f"{views.source}: the images are {w} x {h} px, but the config's camera.roi is {roi.width} x {roi.height} "
-                    f"and its sensor {cfg.optics.sensor_width_px} x {cfg.optics.sensor_height_px} px: give where the images "
-                    "sit on the sensor with --roi-offset X Y"
-                )
-    for axis, value in zip("xy", roi_offset):  # same range as camera.roi.x/y in a rig file
-        check_setting(RoiConfig, axis, value, f"roi offset {axis} (--roi-offset)")
-    optics, pixel_source = _resolve_optics(cfg, config is not None, pixel_size_um, meta, views.source)
-    if config is None and not roi_given:  # no rig description: the images are the sensor
-        optics = dataclasses.replace(optics, sensor_width_px=w, sensor_height_px=h)
-    else:
-        optics = dataclasses.replace(
-            optics,
-            sensor_width_px=max(optics.sensor_width_px, roi_offset[0] + w),
-            sensor_height_px=max(optics.sensor_height_px, roi_offset[1] + h),
-        )
-    cfg = dataclasses.replace(
-        cfg, optics=optics, camera=dataclasses.replace(cfg.camera, roi=RoiConfig(roi_offset[0], roi_offset[1], w, h))
-    )
-    P_given = names = None
-    circular: dict[str, object] = {}
-    if cameras is not None:
-        try:
-            P_given, names = read_cameras(Path(cameras), n)
-            P_given, names, reordered = match_cameras_to_images(P_given, names, views.names, Path(cameras))
-            if reordered:
-                log.warning(
-                    "%s lists the views in another order than the images' natural order: cameras matched to "
-                    "images by name",
-                    Path(cameras).name,
-                )
-        except UnicodeDecodeError:  # an image or other binary file given as --cameras
-            raise ImportDataError(
-                f"{cameras}: not a text file of cameras (binary content; an image given as --cameras?)"
-            ) from None
-        check_cameras(P_given, Path(cameras), names)
-        circular = circular_fit_note(P_given, Path(cameras).name)
-        if not roi_given:
-            _check_crop(
-                h,
-                w,
-                _principal_point(shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])),
-                f"the cameras of {Path(cameras).name}",
-            )
-        unit, unit_why = camera_length_unit(
-            P_given, length_unit, cfg.optics.working_distance_um if config is not None else None
-        )
-        log.info("imported cameras: length unit %s (%s)", unit, unit_why)
-        if angles is None and meta.angles_deg is None:
-            angle_values, angle_source = angles_of_cameras(
-                P_given, angle_values, cfg.calibration.bounds.roll_deg, Path(cameras).name
-            )
-    elif length_unit is not None:
-        raise ImportDataError(
-            "--length-unit describes imported cameras; give --cameras too (without them the world is in um)"
-        )
-    else:
-        from vastcal.geometry import intrinsics_from_optics
+    mask_stack = _read_masks(Path(masks), len(views), views.shape[:2]) if masks is not None else None
+    todo = _prepare(views, file, config, settings, angles)
+    todo.masks = mask_stack
+    _write_session(out, todo, force, progress)
+    log.info("imported %d views %s %s of %r into %s", len(views), views.shape, views.dtype, todo.title, out)
+    return out
 
+
+def _prepare(
+    views: ImageSet,
+    file: CameraFile | None,
+    config: RigConfig | None,
+    settings: ImportSettings,
+    angles: str | Path | None,
+) -> _Import:
+    """The rig, angles, cameras and plan of an import, checked (:func:`import_folder`)."""
+    if config is not None and settings.roi_offset is None and file is None:
+        _check_config_roi(views, config)
+    angle_values, angle_source = commanded_angles(views, angles, settings.accept_units)
+    cfg, pixel_source = _import_rig(views, config, settings)
+    roi_offset = (cfg.camera.roi.x, cfg.camera.roi.y)
+    known = None
+    if file is not None:
+        known = read_known_cameras(file, views, cfg.optics.working_distance_um if config is not None else None)
+        if settings.roi_offset is None:
+            _check_camera_crop(known, views.shape, roi_offset)
+        if angle_source == UNIFORM_ANGLES:
+            angle_values, angle_source = angles_of_cameras(
+                known.given, angle_values, cfg.calibration.bounds.roll_deg, Path(file.path).name
+            )
+    elif settings.roi_offset is None:
         K = intrinsics_from_optics(cfg.optics, cfg.camera.roi)
-        if not roi_given:
-            _check_crop(h, w, K[None, :2, 2], "the config's optics (principal point, sensor size, camera.roi)")
-    pixel_um = cfg.optics.pixel_size_um / cfg.optics.magnification
+        _check_crop(
+            views.shape[0],
+            views.shape[1],
+            K[None, :2, 2],
+            "the config's optics (principal point, sensor size, camera.roi)",
+        )
     plan = {
-        "views": n,
+        "views": len(views),
         "source": "import",
         "folder": str(views.source.resolve()),
         "pixel_size_source": pixel_source,
         "angle_source": angle_source,
     }
+    return _Import(views, cfg, plan, angle_values, _title(views, settings.name), known=known)
+
+
+def _title(views: ImageSet, name: str | None) -> str:
+    """The specimen's name: ``name``, else the folder's or the stack file's (without its TIFF suffixes)."""
+    if name is not None:
+        return name.strip()
+    title = views.source.name.removesuffix(".ome.tiff").removesuffix(".ome.tif")
+    if views.stack is not None and Path(title).suffix.lower() in image_files.TIFF_SUFFIXES:
+        return Path(title).stem
+    return title
+
+
+def _write_session(out: Path, todo: _Import, force: bool, progress: ImportProgress | None) -> None:
+    """Create the session ``out`` and write the views, masks, cameras and stop record of ``todo``."""
+    views, cfg = todo.views, todo.cfg
+    n = len(views)
+    pixel_um = cfg.optics.pixel_size_um / cfg.optics.magnification
     start_info: dict[str, object] = {"source": "import", "files": views.names}
     if views.raw_dtype != views.dtype:
         start_info["pixel_conversion"] = f"{views.raw_dtype} -> {views.dtype}" + (
@@ -646,50 +859,36 @@ def import_folder(
             else ": values kept"
         )
         log.info("%s: %s", views.source.name, start_info["pixel_conversion"])
-    title = name.strip() if name is not None else views.source.name.removesuffix(".ome.tiff").removesuffix(".ome.tif")
-    if name is None and views.stack is not None:
-        title = Path(title).stem if Path(title).suffix.lower() in image_files.TIFF_SUFFIXES else title
+    roi_offset = (cfg.camera.roi.x, cfg.camera.roi.y)
     with SessionWriter.create(
         out,
         frame_shape=views.shape,
         dtype=views.dtype,
         rig_yaml=dump_config(cfg),
-        plan=plan,
+        plan=todo.plan,
         pixel_size_um=(pixel_um, pixel_um),
         roi_offset_px=roi_offset,
-        title=title,
+        title=todo.title,
         start_info=start_info,
         force=force,
         live=False,
     ) as writer:
-        if phase:
-            phase(f"copying {n} views")
+        if progress:
+            progress.phase(f"copying {n} views")
         for i in range(n):
-            writer.append_view(views.view(i), float(angle_values[i]))
+            writer.append_view(views.view(i), float(todo.angles_deg[i]))
             if progress:
-                progress(i + 1, n)
-        if phase:
-            phase("finishing the session")
-        if mask_stack is not None:
-            writer.write_masks(mask_stack)
-        if P_given is not None:
-            P = shift_pixels(P_given, pixel_origin + roi_offset[0], pixel_origin + roi_offset[1])
+                progress.update(i + 1, n)
+        if progress:
+            progress.phase("finishing the session")
+        if todo.masks is not None:
+            writer.write_masks(todo.masks)
+        if todo.known is not None:
+            P, attrs = todo.known.stored(roi_offset)
             writer.write_cameras(
-                P,
-                source=str(Path(cameras).resolve()),
-                P_given=P_given,
-                attrs={
-                    "pixel_origin": float(pixel_origin),
-                    "roi_offset": list(roi_offset),
-                    "names": names,
-                    "length_unit": unit,
-                    "length_unit_source": unit_why,
-                    **circular,
-                },
+                P, source=str(Path(todo.known.file.path).resolve()), P_given=todo.known.given, attrs=attrs
             )
         writer.finish("success", views_planned=n)
-    log.info("imported %d views %s %s of %r into %s", n, views.shape, views.dtype, title, out)
-    return out
 
 
 def _physical_memory_bytes() -> int | None:

@@ -38,8 +38,8 @@ class RunSummary:
     timings_s: dict[str, float] = field(default_factory=dict)
     truth: dict[str, Any] = field(default_factory=dict)
     length_unit: str = "um"
-    """The world's unit: a known one (``um`` on a rig, ``nm`` … ``m`` of imported cameras: values in mm³/mm²), or ``px`` /
-    ``unknown`` (values in that unit, never as mm)."""
+    """The world's unit: a known one (``um`` on a rig, ``nm`` … ``m`` of imported cameras: values in mm³/mm²), or
+    ``px`` / ``unknown`` (values in that unit, never as mm)."""
 
     def summary(self) -> str:
         """Human lines: measurements with units, calibration, timings, truth comparison."""
@@ -94,7 +94,8 @@ def check_camera_choice(session: str | Path, calibration_run: str | None) -> Non
     """Check, before any work, that the cameras a stage is asked to use exist in the session.
 
     Args:
-        calibration_run: ``run_NNN``, ``"imported"`` (the imported cameras) or None (the latest run, else the imported cameras).
+        calibration_run: ``run_NNN``, ``"imported"`` (the imported cameras) or None (the latest run, else the
+            imported cameras).
 
     Raises:
         UserInputError: no such calibration run (the message lists the runs), or no imported cameras.
@@ -115,8 +116,60 @@ def check_camera_choice(session: str | Path, calibration_run: str | None) -> Non
         runs = s.stages_run().get("calibration", [])
         if calibration_run not in runs:
             raise UserInputError(
-                f"{session}: --calibration-run: no calibration run {calibration_run} (runs: {', '.join(runs) or 'none'})"
+                f"{session}: --calibration-run: no calibration run {calibration_run} "
+                f"(runs: {', '.join(runs) or 'none'})"
             )
+
+
+def check_session_units(session: str | Path, *, voxel_size_um: float | None = None) -> None:
+    """Check, before any work, the units a session's measurement rests on (:mod:`vastcal.plausibility`): its pixel
+    on the specimen (when known), the commanded angles an import took from a file or a stack's metadata (not the
+    uniform default, the cameras' rolls or a stage's steps), and the voxel size (``voxel_size_um``, else the stored
+    rig file's) against the pixel at the rotation axis and the frame.
+
+    The pixel at the axis is the imported cameras' (distance to the axis / focal length, in their world unit made
+    µm, or in their own unit when it is unknown), else the session's pixel on the specimen.
+
+    Raises:
+        ImplausibleValueError: naming the session, the value and the likely fix.
+    """
+    from vastcal import plausibility
+    from vastcal.importer import UNIFORM_ANGLES, pixel_size_known
+    from vastcal.session import Session
+
+    with Session.open(session) as s:
+        plan, pixel_um = s.plan, s.pixel_size_um[0]
+        if pixel_size_known(plan):
+            plausibility.check_specimen_pixel(pixel_um, f"{session}: the pixel size on the specimen")
+        source = str(plan.get("angle_source", ""))
+        if plan.get("source") == "import" and source != UNIFORM_ANGLES and not source.startswith("the rolls"):
+            plausibility.check_angles(s.angles_deg, f"{session}: the commanded angles ({source})")
+        if voxel_size_um is None:
+            try:
+                voxel_size_um = s.rig_config().reconstruction.voxel_size_um
+            except VastcalError:  # an unreadable stored rig file: reconstruct says so itself
+                voxel_size_um = None
+        if voxel_size_um is not None:
+            pixel_axis = _pixel_at_axis(s) or pixel_um
+            plausibility.check_voxel_size(voxel_size_um, pixel_axis, s.frame_shape, f"{session}: the voxel size")
+
+
+def _pixel_at_axis(s: Any) -> float | None:
+    """Size (µm, or the cameras' own unit when unknown) of one pixel at the rotation axis of a session's imported
+    cameras, or None (no imported cameras, or not a circular motion)."""
+    from vastcal.geometry import LENGTH_UNITS_UM, decompose_circular
+    from vastcal.session import read_attrs
+
+    P = s.known_cameras
+    if P is None:
+        return None
+    try:
+        motion = decompose_circular(P).motion
+    except VastcalError:
+        return None
+    unit = str(read_attrs(s.h5["/entry/vastcal/cameras"]).get("length_unit", "um"))
+    focal_px = float(np.sqrt(abs(motion.K[0, 0] * motion.K[1, 1])))
+    return motion.distance * LENGTH_UNITS_UM.get(unit, 1.0) / focal_px
 
 
 def _run_number(name: str) -> int:
@@ -160,82 +213,72 @@ def prune_runs(session: str | Path, *, keep: int, dry_run: bool = False) -> dict
     return removed
 
 
+@dataclass(frozen=True)
+class RunOptions:
+    """How :func:`run_session` calibrates and measures (the options of ``vastcal run``).
+
+    Attributes:
+        method: ``coherence``, ``pi`` or ``vr`` (default: the stored rig configuration's, normally coherence).
+        seed: CMA-ES seed of the first start (default from the stored rig configuration).
+        starts: independent calibration starts (seeds seed, seed + 10, …); the one of lowest cost is kept,
+            never a pose costlier than the commanded angles (one seed once kept the worse of two optima on a larva).
+        prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default: the stored rig
+            configuration's ``calibration.prior_from``).
+        mask, scribbles: (view, image) marks of one view for the calibration's colour model (as ``vastcal calibrate
+            --mask``/``--scribbles``; a scene with a turntable): every start uses them.
+        voxel_size_um: the hull's voxel edge, µm (default: from the specimen extent, as ``vastcal reconstruct``).
+        mesh_path: also write the measured surface there (.ply or .stl, µm).
+    """
+
+    method: str | None = None
+    seed: int | None = None
+    starts: int = 3
+    prior_from: str | Path | None = None
+    mask: tuple[int, Any] | None = None
+    scribbles: tuple[int, Any] | None = None
+    voxel_size_um: float | None = None
+    mesh_path: str | Path | None = None
+
+
 def run_session(
     session: str | Path,
     report_dir: str | Path | None = None,
+    options: RunOptions | None = None,
     *,
-    method: str | None = None,
-    seed: int | None = None,
-    quiet: bool = False,
-    starts: int = 3,
     cameras: str = "calibrated",
+    quiet: bool = False,
     keep_runs: int | None = None,
     truth_path: Path | None = None,
-    prior_from: str | Path | None = None,
-    mask: tuple[int, Any] | None = None,
-    scribbles: tuple[int, Any] | None = None,
-    voxel_size_um: float | None = None,
-    mesh_path: str | Path | None = None,
 ) -> RunSummary:
     """Calibrate, reconstruct and report a recorded session; results are stored in the session.
 
     Args:
         session: the session file (acquired or imported).
         report_dir: where the report goes (default: ``<session stem>-report`` beside the session).
+        options: the calibration and measurement options (:class:`RunOptions`; default: the stored rig configuration's).
         cameras: ``calibrated`` (calibrate, then reconstruct with that new run) or ``imported`` (no
             calibration: reconstruct with the session's imported cameras).
-        keep_runs: afterwards, delete all but the newest ``keep_runs`` runs of every stage (:func:`prune_runs`).
-        method: ``coherence``, ``pi`` or ``vr`` (default: the stored rig configuration's, normally coherence).
-        seed: CMA-ES seed of the first start (default from the stored rig configuration).
-        starts: independent calibration starts (seeds seed, seed + 10, …); the one of lowest cost is kept,
-            never a pose costlier than the commanded angles (one seed once kept the worse of two optima on a larva).
         quiet: no progress lines.
-        prior_from: a ``vastcal batch`` results folder whose rig health seeds the calibration (default: the stored rig
-            configuration's ``calibration.prior_from``).
+        keep_runs: afterwards, delete all but the newest ``keep_runs`` runs of every stage (:func:`prune_runs`).
         truth_path: a simulated session's hidden truth: scored (:func:`score_against_truth`) and shown in the report.
-        mask, scribbles: (view, image) marks of one view for the calibration's colour model (as ``vastcal calibrate
-            --mask``/``--scribbles``; a scene with a turntable): every start uses them.
-        voxel_size_um: the hull's voxel edge, µm (default: from the specimen extent, as ``vastcal reconstruct``).
-        mesh_path: also write the measured surface there (.ply or .stl, µm).
     """
-    from vastcal.calibrate import calibrate_session
     from vastcal.reconstruct import reconstruct_session
     from vastcal.report import write_report
 
     if cameras not in ("calibrated", "imported"):
         raise ValueError(f"cameras must be 'calibrated' or 'imported', got {cameras!r}")
+    opts = options or RunOptions()
     path = Path(session)
     out = Path(report_dir) if report_dir is not None else default_report_dir(path)
     res = RunSummary(path, out)
-    calibration_run: str | None = "imported"
-    if cameras == "calibrated":
-        bar = PhaseProgress(
-            f"calibrate ({method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})",
-            enabled=not quiet,
-        )
-        t = time.monotonic()
-        try:
-            bar.phase("colour model and specimen maps")
-            cal = calibrate_session(
-                path,
-                method=method,
-                seed=seed,
-                starts=starts,
-                prior_from=prior_from,
-                progress=CalibrationProgress(bar),
-                mask=mask,
-                scribbles=scribbles,
-            )
-        finally:
-            bar.close()
-        res.timings_s["calibrate"] = time.monotonic() - t
-        res.calibration = _calibration_digest(cal)
-        calibration_run = getattr(cal, "run", None)  # the run just stored, when the result names it; else the latest
+    calibration_run = _calibrate_step(path, opts, quiet, res) if cameras == "calibrated" else "imported"
     steps = PhaseProgress("measure", enabled=not quiet)  # set-up-like phases: their time shown, no ETA
     try:
         t = time.monotonic()
         steps.phase("visual hull, volume and area")
-        m = reconstruct_session(path, calibration_run=calibration_run, voxel_size_um=voxel_size_um, mesh_path=mesh_path)
+        m = reconstruct_session(
+            path, calibration_run=calibration_run, voxel_size_um=opts.voxel_size_um, mesh_path=opts.mesh_path
+        )
         res.timings_s["reconstruct"] = time.monotonic() - t
         res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)
         res.length_unit = str((getattr(m, "provenance", None) or {}).get("length_unit", "um"))
@@ -255,6 +298,35 @@ def run_session(
     if keep_runs is not None:
         prune_runs(path, keep=keep_runs)
     return res
+
+
+def _calibrate_step(path: Path, opts: RunOptions, quiet: bool, res: RunSummary) -> str | None:
+    """Calibrate ``path`` as ``opts`` say, its timing and digest into ``res``; the run stored (None: the latest)."""
+    from vastcal.calibrate import calibrate_session
+
+    starts = opts.starts
+    bar = PhaseProgress(
+        f"calibrate ({opts.method or 'rig config method'}, {starts} start{'s' if starts != 1 else ''})",
+        enabled=not quiet,
+    )
+    t = time.monotonic()
+    try:
+        bar.phase("colour model and specimen maps")
+        cal = calibrate_session(
+            path,
+            method=opts.method,
+            seed=opts.seed,
+            starts=starts,
+            prior_from=opts.prior_from,
+            progress=CalibrationProgress(bar),
+            mask=opts.mask,
+            scribbles=opts.scribbles,
+        )
+    finally:
+        bar.close()
+    res.timings_s["calibrate"] = time.monotonic() - t
+    res.calibration = _calibration_digest(cal)
+    return getattr(cal, "run", None)  # the run just stored, when the result names it; else the latest
 
 
 def acquire_simulated(

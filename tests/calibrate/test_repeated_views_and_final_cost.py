@@ -14,7 +14,7 @@ import pytest
 from vastcal.calibrate import calibrate_views
 from vastcal.errors import ImportDataError
 from vastcal.geometry import decompose_circular, shift_pixels
-from vastcal.importer import import_folder, read_cameras
+from vastcal.importer import CameraFile, import_folder, read_cameras
 from vastcal.session import Session
 
 _spec = _importlib_util.spec_from_file_location("calibrate_test_helpers", Path(__file__).with_name("conftest.py"))
@@ -54,7 +54,10 @@ def test_dino_ring_imports_all_48_views_with_its_true_angles(tmp_path: Path) -> 
     assert rolls[47] == pytest.approx(rolls[1] + 360.0, abs=1e-6)
     (tmp_path / "angles.txt").write_text("\n".join(f"{a:.6f}" for a in rolls))
     s = import_folder(
-        DINO, tmp_path / "dino.h5", angles=tmp_path / "angles.txt", cameras=DINO / "dinoR_par.txt", length_unit="m"
+        DINO,
+        tmp_path / "dino.h5",
+        angles=tmp_path / "angles.txt",
+        cameras=CameraFile(DINO / "dinoR_par.txt", length_unit="m"),
     )
     with Session.open(s) as ss:
         assert ss.n_views == 48 and ss.known_cameras is not None

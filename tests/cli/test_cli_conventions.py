@@ -41,7 +41,7 @@ def test_help_documents_the_one_exit_code_table(capsys: pytest.CaptureFixture[st
         cli.main(["--help"])
     assert e.value.code == 0
     out = capsys.readouterr().out
-    assert set(EXIT_CODES) == {0, 1, 2, 3, 130}
+    assert set(EXIT_CODES) == {0, 1, 2, 3, 4, 130}
     for code in EXIT_CODES:
         assert f"\n  {code:<4} " in out
     assert SessionIncompleteError("x").exit_code == 3 and cli.EXIT_INTERNAL == 1

@@ -392,6 +392,19 @@ def test_the_terminal_eta_counts_down_between_updates() -> None:
     assert column.render(task).plain == "ETA done"
 
 
+class _Events:
+    """An import's progress recorded as ("phase", name) and ("view", done, total) events."""
+
+    def __init__(self, events: list[tuple]) -> None:
+        self.events = events
+
+    def phase(self, name: str) -> None:
+        self.events.append(("phase", name))
+
+    def update(self, done: int, total: int) -> None:
+        self.events.append(("view", done, total))
+
+
 def test_import_names_its_phases_and_counts_the_views_inside_the_copying_one(tmp_path) -> None:
     import cv2
 
@@ -404,8 +417,7 @@ def test_import_names_its_phases_and_counts_the_views_inside_the_copying_one(tmp
     import_folder(
         tmp_path / "img",
         tmp_path / "s.h5",
-        progress=lambda d, t: events.append(("view", d, t)),
-        phase=lambda name: events.append(("phase", name)),
+        progress=_Events(events),
     )
     assert [e[1] for e in events if e[0] == "phase"] == ["reading img", "copying 5 views", "finishing the session"]
     k = events.index(("phase", "copying 5 views"))

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # hostile_files (--imp
 from hostile_files import png_claiming  # noqa: E402
 
 from vastcal.errors import VastcalError
-from vastcal.importer import import_folder
+from vastcal.importer import CameraFile, ImportSettings, import_folder
 from vastcal.session import Session
 
 CASES = 70
@@ -114,10 +114,10 @@ def _build_case(rng: random.Random, root: Path) -> tuple[dict, int]:
         if rng.random() < 0.15:
             text = rng.choice([text[: len(text) // 2], "\x89PNG\r\n\x1a\n\x00\x00binary", ""])
         (root / "cams.txt").write_text(text, errors="surrogateescape")
-        kwargs["cameras"] = root / "cams.txt"
-        kwargs["pixel_origin"] = rng.choice([0.0, 0.5, 1.0, 1.0, float("nan"), 2.0, -0.5])
+        origin = rng.choice([0.0, 0.5, 1.0, 1.0, float("nan"), 2.0, -0.5])
+        kwargs["cameras"] = CameraFile(root / "cams.txt", pixel_origin=origin)
     if rng.random() < 0.25:
-        kwargs["roi_offset"] = rng.choice([(0, 0), (5, 7), (-1, 0), (0, 10**9)])
+        kwargs["settings"] = ImportSettings(roi_offset=rng.choice([(0, 0), (5, 7), (-1, 0), (0, 10**9)]))
     return kwargs, n_files
 
 

@@ -17,7 +17,7 @@ from vastcal.calibrate.session_run import session_camera_model  # noqa: E402
 from vastcal.cli import main  # noqa: E402
 from vastcal.config import CONFIG_DIR, load_config  # noqa: E402
 from vastcal.errors import ImportDataError  # noqa: E402
-from vastcal.importer import import_folder, pixel_size_known  # noqa: E402
+from vastcal.importer import CameraFile, ImportSettings, import_folder, pixel_size_known  # noqa: E402
 from vastcal.info import format_summary, session_summary  # noqa: E402
 from vastcal.session import Session  # noqa: E402
 
@@ -86,14 +86,14 @@ def test_folder_of_images_is_named_after_the_folder_and_name_overrides(tmp_path:
         for i, f in enumerate(_frames(3, dtype=np.uint8)):
             cv2.imwrite(str(tmp_path / name / f"v{i}.png"), f)
         import_folder(tmp_path / name, tmp_path / f"{name}.h5")
-    import_folder(tmp_path / "fish_A", tmp_path / "named.h5", name="larva 3, tank 2")
+    import_folder(tmp_path / "fish_A", tmp_path / "named.h5", settings=ImportSettings(name="larva 3, tank 2"))
     titles = []
     for out in ("fish_A", "fish_B", "named"):
         with Session.open(tmp_path / f"{out}.h5") as s:
             titles.append(_title(s))
     assert titles == ["fish_A", "fish_B", "larva 3, tank 2"]
     with pytest.raises(ImportDataError, match="--name"):
-        import_folder(tmp_path / "fish_A", tmp_path / "bad.h5", name="two\nlines")
+        import_folder(tmp_path / "fish_A", tmp_path / "bad.h5", settings=ImportSettings(name="two\nlines"))
 
 
 def test_ome_tiff_pixel_size_and_angles_are_read_and_options_override_them(
@@ -119,12 +119,14 @@ def test_ome_tiff_pixel_size_and_angles_are_read_and_options_override_them(
         assert s.plan["pixel_size_source"] == "OME PhysicalSizeX/Y"
         np.testing.assert_allclose(s.angles_deg, angles)
         assert _title(s) == "rev"
-    (tmp_path / "angles.txt").write_text("\n".join(str(10.0 * k) for k in range(n)))
+    (tmp_path / "angles.txt").write_text("\n".join(str(10.0 + 72.0 * k) for k in range(n)))
     with caplog.at_level(logging.WARNING, logger="vastcal.importer"):
-        import_folder(path, tmp_path / "t.h5", pixel_size_um=1.3, angles=tmp_path / "angles.txt")
+        import_folder(
+            path, tmp_path / "t.h5", settings=ImportSettings(pixel_size_um=1.3), angles=tmp_path / "angles.txt"
+        )
     with Session.open(tmp_path / "t.h5") as s:
         assert s.pixel_size_um == pytest.approx((1.3, 1.3))
-        np.testing.assert_allclose(s.angles_deg, 10.0 * np.arange(n))
+        np.testing.assert_allclose(s.angles_deg, 10.0 + 72.0 * np.arange(n))
     text = caplog.text
     assert "--pixel-size-um 1.3 um overrides rev.ome.tif's OME PhysicalSizeX/Y (0.65 um)" in text
     assert "--angles" in text and "overrides" in text
@@ -182,7 +184,7 @@ def test_a_print_resolution_is_not_a_pixel_size_and_unknown_optics_are_said(tmp_
         tmp_path / "dpi.tif",
         tmp_path / "c.h5",
         config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"),
-        roi_offset=(0, 0),
+        settings=ImportSettings(roi_offset=(0, 0)),
     )
     with Session.open(tmp_path / "c.h5") as s:
         assert pixel_size_known(s.plan) and s.plan["pixel_size_source"] == "config"
@@ -259,7 +261,9 @@ def test_a_crop_without_its_offset_names_roi_offset(tmp_path: Path) -> None:
         match=r"cams.txt put the principal point at \(15.0, 500.0\) px, outside the 30 x 20 px images.*--roi-offset",
     ):
         import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt")
-    import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt", roi_offset=(0, 490))
+    import_folder(
+        tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt", settings=ImportSettings(roi_offset=(0, 490))
+    )
     with Session.open(tmp_path / "s.h5") as s:
         assert s.roi_offset_px == (0, 490)
     assert "pixel size unknown (the imported cameras set the scale)" in format_summary(
@@ -274,14 +278,13 @@ def test_zebrafish_crop_without_its_offset_names_roi_offset(zebrafish_dir: Path,
         ImportDataError,
         match=r"principal point at \(511.0, 511.0\) px, outside the 1024 x 250 px images.*--roi-offset X Y",
     ):
-        import_folder(zebrafish_dir / "images", tmp_path / "a.h5", cameras=cams, pixel_origin=1)
+        import_folder(zebrafish_dir / "images", tmp_path / "a.h5", cameras=CameraFile(cams, pixel_origin=1))
     import_folder(
         zebrafish_dir / "images",
         tmp_path / "b.h5",
-        cameras=cams,
-        pixel_origin=1,
+        cameras=CameraFile(cams, pixel_origin=1),
         config=load_config(CONFIG_DIR / "guo2019-zebrafish.yaml"),
-        name="ZF1",
+        settings=ImportSettings(name="ZF1"),
     )
     with Session.open(tmp_path / "b.h5") as s:
         assert s.roi_offset_px == (0, 387) and s.pixel_size_um == pytest.approx((5.5, 5.5)) and _title(s) == "ZF1"

@@ -13,7 +13,7 @@ import pytest
 from vastcal.config import CONFIG_DIR, load_config
 from vastcal.errors import ImportDataError, OutputExistsError
 from vastcal.geometry import decompose_circular, shift_pixels
-from vastcal.importer import import_folder, natural_key, read_cameras
+from vastcal.importer import CameraFile, import_folder, natural_key, read_cameras
 from vastcal.session import Session
 
 
@@ -145,11 +145,11 @@ def test_pixel_origin_half_shifts_cameras_by_half_a_pixel(tmp_path: Path) -> Non
     P = np.hstack([np.eye(3), np.ones((3, 1))])
     lines = [f"view{i} " + " ".join(f"{v:.6f}" for v in P.ravel()) for i in range(3)]
     (tmp_path / "cams.txt").write_text("\n".join(lines))
-    import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=tmp_path / "cams.txt", pixel_origin=0.5)
+    import_folder(tmp_path / "img", tmp_path / "s.h5", cameras=CameraFile(tmp_path / "cams.txt", pixel_origin=0.5))
     with Session.open(tmp_path / "s.h5") as s:
         np.testing.assert_allclose(s.known_cameras[0], shift_pixels(P, 0.5, 0.5))
     with pytest.raises(ImportDataError, match="pixel origin must be one of 0.0, 0.5, 1.0"):
-        import_folder(tmp_path / "img", tmp_path / "t.h5", cameras=tmp_path / "cams.txt", pixel_origin=2)
+        import_folder(tmp_path / "img", tmp_path / "t.h5", cameras=CameraFile(tmp_path / "cams.txt", pixel_origin=2))
     assert not (tmp_path / "t.h5").exists()
     proc = run_cli(
         "import",
@@ -168,8 +168,8 @@ def test_pixel_origin_half_shifts_cameras_by_half_a_pixel(tmp_path: Path) -> Non
 def test_cameras_give_the_angles_where_uniform_steps_would_leave_the_roll_box(
     tmp_path: Path, step: float, jitter: float, cameras_taken: bool
 ) -> None:
-    """Without angles a revolution is taken as uniform steps over 360°; known cameras ~12° off that at the last view (a
-    ring of 384°, roll box ±5°) give their own rolls instead, while cameras within the box (±1° of uniform) leave
+    """Without angles a revolution is taken as uniform steps over 360°; known cameras ~12° off that at the last view
+    (a ring of 384°, roll box ±5°) give their own rolls instead, while cameras within the box (±1° of uniform) leave
     them."""
     from vastcal.geometry import projection_matrices
 

@@ -14,7 +14,7 @@ pytest.importorskip("imagecodecs", reason="imagecodecs (a dependency of vastcal)
 from vastcal.cli import main  # noqa: E402
 from vastcal.errors import ImportDataError  # noqa: E402
 from vastcal.image_files import read_tiff  # noqa: E402
-from vastcal.importer import import_folder  # noqa: E402
+from vastcal.importer import CameraFile, ImportSettings, import_folder  # noqa: E402
 from vastcal.session import Session  # noqa: E402
 
 MAX_PIXELS = 16384 * 16384
@@ -72,9 +72,8 @@ def test_the_ccitt_mask_of_the_second_larva_is_imported(zebrafish2_dir: Path, tm
         zebrafish2_dir / "images",
         out,
         masks=zebrafish2_dir / "silhouettes",
-        cameras=zebrafish2_dir / "authors_par_pi.txt",
-        pixel_origin=1,
-        roi_offset=(0, 387),
+        cameras=CameraFile(zebrafish2_dir / "authors_par_pi.txt", pixel_origin=1),
+        settings=ImportSettings(roi_offset=(0, 387)),
     )
     with Session.open(out) as s:
         masks = np.asarray(s.masks)
