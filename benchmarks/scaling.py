@@ -375,7 +375,7 @@ def main() -> None:
             )
             if key in by_n[21]
         ]
-        print("time(81) / time(21): " + ", ".join(ratios) + " (acceptance: calibration <= 4.5)")
+        print("time(81) / time(21): " + ", ".join(ratios) + " (calibration: at most 4.5 expected)")
     for r in rows:
         if r["views"] != 360:
             continue

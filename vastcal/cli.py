@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 # The calibration's BLAS products are tiny (3 × 3K by 3 × M): OpenBLAS's own threads only contend with the cost's
-# slices (vastcal.calibrate.threads) and OpenCV's (docs/history.md, 2026-11-26). Set before NumPy
+# slices (vastcal.calibrate.threads) and OpenCV's (docs/decisions/0010-threads-within-an-evaluation-processes-for-parallel-starts.md). Set before NumPy
 # loads (nothing above imports it); a value the user set is kept.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 

@@ -85,9 +85,8 @@ def session_specimen_maps(session: Any, model: Any, *, memory_mb: float = DEFAUL
     def store(views: np.ndarray, pf: np.ndarray) -> None:
         np.clip(np.nan_to_num(pf, copy=False), 0.0, 1.0, out=pf)
         for v, m in zip(views, pf):
-            pending[int(v)] = maps.compact(
-                m
-            )  # compact at once: a full float32 frame per waiting view was 1.4 GB at 360 x 1 Mpx
+            # compact at once: a full float32 frame per waiting view would hold 1.4 GB at 360 x 1 Mpx
+            pending[int(v)] = maps.compact(m)
         while len(maps) in pending:  # views are added in order; a sub-revolution's maps wait for their turn
             maps.append_compact(*pending.pop(len(maps)))
 
