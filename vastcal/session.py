@@ -707,8 +707,11 @@ class SessionWriter:
             record["reason"] = reason[: STOP_RECORD_BYTES // 2] + " …"
             text = json.dumps(record, default=_json_default)[:STOP_RECORD_BYTES]
         try:
-            self._h5[ENTRY]["end_time"][()] = np.bytes_(_now()[:40])
-            self._h5[VASTCAL]["stop_record"][()] = np.bytes_(text.encode())
+            # The datasets stay open until the flush: HDF5 writes a small dataset's value when the dataset is flushed
+            # or closed, and a failed write at a close (a full disk) would only be an ignored error in a destructor.
+            end_time, stop = self._h5[ENTRY]["end_time"], self._h5[VASTCAL]["stop_record"]
+            end_time[()] = np.bytes_(_now()[:40])
+            stop[()] = np.bytes_(text.encode())
             self._h5.flush()
         except (OSError, RuntimeError) as exc:
             self._fail(exc)
@@ -1200,7 +1203,7 @@ class Session:
                 SessionWriter.rebuild(self, tmp)
             else:
                 shutil.copyfile(self.path, tmp)
-            staging = h5py.File(tmp, "r+")
+            staging = _open_unbuffered(tmp)
         except BaseException:
             tmp.unlink(missing_ok=True)
             lock.release()
@@ -1262,6 +1265,16 @@ class Session:
         place_atomically(self._staging_path, self.path, replace=True)
         self._staging_path = None
         log.debug("stored results in %s", self.path)
+
+
+def _open_unbuffered(path: Path) -> h5py.File:
+    """Open ``path`` for writing with no raw-data buffering (sieve buffer and chunk cache off): a dataset's values are
+    written by the call that sets them, so that a failed write (a full disk) raises there. Buffered, HDF5 writes them
+    when the dataset is closed, and h5py reports a failure at that point only as an ignored error in a destructor."""
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_sieve_buf_size(0)
+    fapl.set_cache(0, 0, 0, 0.0)  # metadata cache elements (ignored), chunk slots, chunk bytes, preemption
+    return h5py.File(h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDWR, fapl=fapl))
 
 
 def _check_cameras(p: Path, where: str, ds: Any, n: int) -> None:
