@@ -1,4 +1,4 @@
-"""What real larvae show (issue 15): each feature appears when switched on, is absent when off,
+"""What real larvae show: each feature appears when switched on, is absent when off,
 and every draw is reproducible from ``simulation.seed``."""
 
 from __future__ import annotations
