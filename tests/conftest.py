@@ -1,10 +1,16 @@
-"""Fixtures shared by every test folder: where the shared real datasets are."""
+"""Fixtures shared by every test folder: where the shared real datasets are; one BLAS thread."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+
+# The library runs in the test process with one BLAS thread, as the command line runs it (vastcal.cli): OpenBLAS's
+# threads would only contend with each other and with the rest of the machine. Set before anything imports NumPy
+# (this file is imported first); a value already set is kept. Child processes inherit it.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = (REPO / ".." / "shared" / "data").resolve()

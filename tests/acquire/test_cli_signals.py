@@ -44,6 +44,7 @@ def _reason(path: Path) -> str:
         return str(s.stop_record["reason"])
 
 
+@pytest.mark.slow
 def test_sigkill_mid_run_leaves_every_completed_view_readable_and_resume_completes_it(
     tmp_path: Path, acq: ModuleType, spawn, capsys: pytest.CaptureFixture[str]
 ) -> None:

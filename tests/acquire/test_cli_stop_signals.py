@@ -38,6 +38,7 @@ def test_stop_signal_aborts_a_cli_acquisition_like_ctrl_c(
         assert s.exit_status == "abort" and "cancelled" in s.stop_record["reason"]
 
 
+@pytest.mark.slow
 def test_sigterm_during_demo_ends_it_with_143_and_one_line(tmp_path: Path, spawn) -> None:
     """A command without its own gentle handler (demo: acquisition, then analysis) stops at once."""
     proc = spawn("-q", "demo", "-o", "D", "--views", "6", cwd=tmp_path)

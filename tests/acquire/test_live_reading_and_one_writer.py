@@ -9,12 +9,14 @@ from pathlib import Path
 from types import ModuleType
 
 import h5py
+import pytest
 
 VIEWS = 20
 LONG_VIEWS = 200
 """Long enough (a few 100 ms per view) that three `vastcal info` processes start while it runs."""
 
 
+@pytest.mark.slow
 def test_info_and_an_swmr_reader_follow_an_acquisition_while_it_writes(tmp_path: Path, acq: ModuleType, spawn) -> None:
     cfg = acq.small_config(views=LONG_VIEWS, slow=True)
     config = acq.write_config(cfg, tmp_path / "rig.yaml")
@@ -40,6 +42,7 @@ def test_info_and_an_swmr_reader_follow_an_acquisition_while_it_writes(tmp_path:
     assert json.loads(info.stdout)["exit_status"] == "abort"
 
 
+@pytest.mark.slow
 def test_a_second_writer_on_the_same_path_fails_at_once_and_the_first_is_untouched(
     tmp_path: Path, acq: ModuleType, spawn
 ) -> None:

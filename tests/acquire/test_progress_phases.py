@@ -7,6 +7,8 @@ import threading
 from pathlib import Path
 from types import ModuleType
 
+import pytest
+
 from vastcal.acquire import acquire
 from vastcal.rig import connect_rig
 
@@ -44,6 +46,7 @@ def test_the_library_names_each_phase_before_its_work_and_counts_the_views_in_th
     assert events[-1] == ("phase", "finishing the session")
 
 
+@pytest.mark.slow
 def test_cli_acquire_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_to_a_log(
     tmp_path: Path, acq: ModuleType
 ) -> None:

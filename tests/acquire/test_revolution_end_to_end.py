@@ -10,6 +10,7 @@ from types import ModuleType
 
 import h5py
 import numpy as np
+import pytest
 
 from vastcal import cli
 from vastcal.acquire import acquire, camera_settings
@@ -104,7 +105,7 @@ def test_simulated_revolution_is_a_valid_session_with_truth_beside_it_and_frames
             cfg.optics,
             cfg.camera,
             cfg.simulation,
-            angle_source=lambda: float(next(it)),
+            angle_source=lambda it=it: float(next(it)),
             capillary=simulated_capillary(),
         ) as cam:
             cam.configure(camera_settings(cfg))
@@ -122,6 +123,7 @@ def test_simulated_revolution_is_a_valid_session_with_truth_beside_it_and_frames
     assert "max read-back error 0 usteps" in text
 
 
+@pytest.mark.slow
 def test_cli_acquire_simulate_writes_a_complete_session_that_info_accepts(tmp_path: Path, acq: ModuleType) -> None:
     run = acq.cli("-q", "acquire", "--simulate", "-o", "S.h5", cwd=tmp_path)
     assert run.returncode == 0, run.stderr

@@ -12,8 +12,6 @@ for N = 1, 2, … until a run finishes before its N-th write (see ``kill_driver.
 
 from __future__ import annotations
 
-import json
-import os
 import pickle
 import shutil
 import subprocess
@@ -26,85 +24,18 @@ import pytest
 from vastcal.session import Session
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))  # kill_driver
 sys.path.insert(0, str(HERE.parent / "reconstruct"))  # phantom_views
+from kill_driver import kill_at_every_write, strace_cannot_inject  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
 
-def _strace_can_inject() -> str | None:
-    if shutil.which("strace") is None:
-        return "strace is not installed (Debian package 'strace'; .ci/run installs it)"
-    probe = subprocess.run(
-        ["strace", "-qq", "-o", "/dev/null", "-e", "inject=pwrite64:retval=0", "true"], capture_output=True, timeout=30
-    )
-    if probe.returncode != 0:
-        return f"strace cannot trace here: {probe.stderr.decode(errors='replace').strip()[:120]}"
-    return None
-
-
 @pytest.fixture(scope="module", autouse=True)
 def _need_strace() -> None:
-    reason = _strace_can_inject()
+    reason = strace_cannot_inject()
     if reason:
         pytest.skip(reason)
-
-
-def kill_at_every_write(
-    tmp: Path,
-    argv: list[str],
-    *,
-    input_file: Path | None = None,
-    then: list[str] | None = None,
-    stub: Path | None = None,
-    inject: str = "signal=SIGKILL",
-) -> list[dict]:
-    """Run the fork server over every write; one record per N (the last one unkilled).
-
-    One driver per CPU (at most two), each taking every other N: the Ns are independent runs, so together they
-    cover every N as one driver would, in about half the time on two cores. Records are merged in N's order and end
-    at the first N that was not killed (a driver may have gone one N past it).
-    """
-    workers = max(1, min(2, len(os.sched_getaffinity(0))))
-    env = {
-        **os.environ,
-        "OPENBLAS_NUM_THREADS": "1",
-        "OMP_NUM_THREADS": "1",
-    }  # one process per core: no BLAS thread pools
-    drivers = []
-    for w in range(workers):
-        plan = {
-            "argv": argv,
-            "work": str(tmp / "runs"),
-            "input": str(input_file) if input_file else None,
-            "first": 1 + w,
-            "last": 2000,
-            "step": workers,
-            "then": then,
-            "stub_calibration": str(stub) if stub else None,
-            "inject": inject,
-        }
-        (tmp / f"plan{w}.json").write_text(json.dumps(plan))
-        drivers.append(
-            subprocess.Popen(
-                [sys.executable, str(HERE / "kill_driver.py"), str(tmp / f"plan{w}.json")],
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-                text=True,
-                env=env,
-            )
-        )
-    records = []
-    for proc in drivers:
-        out, err = proc.communicate(timeout=1500)
-        assert proc.returncode == 0, err[-2000:]
-        records += [json.loads(line) for line in out.splitlines()]
-    records.sort(key=lambda r: r["n"])
-    end = next((k for k, r in enumerate(records) if not r["killed"]), None)
-    assert end is not None, "the driver stopped before the run could finish"
-    records = records[: end + 1]
-    assert [r["n"] for r in records] == list(range(1, len(records) + 1)), "an N was not run"
-    assert all(r["killed"] for r in records[:-1])
-    return records
 
 
 def _small_rig(path: Path, views: int) -> Path:
@@ -174,15 +105,19 @@ def test_acquire_killed_at_every_write_loses_at_most_the_view_in_flight_and_resu
     assert counts[views - 1] > 0 and counts[0] > 0  # the kills did land inside the revolution
 
 
-def _analysis_fixture(tmp: Path) -> Path:
-    """A phantom session with an earlier calibration run and an earlier reconstruction run."""
+@pytest.fixture(scope="module")
+def pristine_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A phantom session with an earlier calibration run and an earlier reconstruction run (made once; the tests
+    only copy it)."""
     from phantom_views import make_session, render_views  # tests/reconstruct/phantom_views.py
 
     from vastcal.reconstruct import reconstruct_session
     from vastcal.simulators.camera.phantom import zebrafish_phantom
 
     views = render_views(zebrafish_phantom(), 9, width=512, height=160, pixel_um=11.0, seed=2)
-    path = make_session(tmp / "pristine.h5", views, masks=True, cameras=True, calibration=True)
+    path = make_session(
+        tmp_path_factory.mktemp("analysis") / "pristine.h5", views, masks=True, cameras=True, calibration=True
+    )
     reconstruct_session(path, voxel_size_um=40.0)
     return path
 
@@ -222,10 +157,11 @@ def _check_analysis_kills(tmp: Path, records: list[dict], pristine: dict, stage:
 
 
 @pytest.mark.timeout(1200)
-def test_calibrate_killed_at_every_write_of_its_run_keeps_images_and_earlier_runs(tmp_path: Path) -> None:
+def test_calibrate_killed_at_every_write_of_its_run_keeps_images_and_earlier_runs(
+    tmp_path: Path, pristine_path: Path
+) -> None:
     from vastcal.calibrate.session_run import calibrate_session
 
-    pristine_path = _analysis_fixture(tmp_path)
     # The search runs once here; the killed processes store its result (the storing is under test).
     scratch = Path(shutil.copy(pristine_path, tmp_path / "scratch.h5"))
     result = calibrate_session(scratch, method="vr", seed=0)
@@ -238,8 +174,9 @@ def test_calibrate_killed_at_every_write_of_its_run_keeps_images_and_earlier_run
 
 
 @pytest.mark.timeout(1200)
-def test_reconstruct_killed_at_every_write_of_its_run_keeps_images_and_earlier_runs(tmp_path: Path) -> None:
-    pristine_path = _analysis_fixture(tmp_path)
+def test_reconstruct_killed_at_every_write_of_its_run_keeps_images_and_earlier_runs(
+    tmp_path: Path, pristine_path: Path
+) -> None:
     records = kill_at_every_write(
         tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path
     )
@@ -247,9 +184,10 @@ def test_reconstruct_killed_at_every_write_of_its_run_keeps_images_and_earlier_r
 
 
 @pytest.mark.timeout(1200)
-def test_a_full_disk_at_any_write_of_a_reconstruction_is_one_error_and_loses_nothing(tmp_path: Path) -> None:
+def test_a_full_disk_at_any_write_of_a_reconstruction_is_one_error_and_loses_nothing(
+    tmp_path: Path, pristine_path: Path
+) -> None:
     """ENOSPC injected at every write of storing a reconstruction: exit 1, nothing lost, nothing half-stored."""
-    pristine_path = _analysis_fixture(tmp_path)
     records = kill_at_every_write(
         tmp_path, ["-q", "reconstruct", "{out}", "--voxel-size", "40"], input_file=pristine_path, inject="error=ENOSPC"
     )

@@ -1,7 +1,7 @@
 """RGB views are written as three planes (red, green = the NXtomo detector data, blue) before their
 commit record: a real ``acquire`` of an RGB8 rig killed at *every* file write keeps every committed
 view bit-identical to an unkilled run, and ``--resume`` completes it (the mono twin of this test is
-tests/session/test_kill_at_every_write.py, whose fork-server driver this one uses)."""
+tests/session/test_kill_at_every_write.py; both use the fork server tests/session/kill_driver.py)."""
 
 from __future__ import annotations
 
@@ -16,14 +16,14 @@ import pytest
 from vastcal.session import Session
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import test_kill_at_every_write as kill_tests  # noqa: E402  (the driver and its strace check)
+from kill_driver import kill_at_every_write, strace_cannot_inject  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.mark.timeout(1200)
 def test_rgb_acquire_killed_at_every_write_keeps_committed_views_and_resume_completes_it(tmp_path: Path) -> None:
-    reason = kill_tests._strace_can_inject()
+    reason = strace_cannot_inject()
     if reason:
         pytest.skip(reason)
     from vastcal.config import dump_config, load_config
@@ -50,7 +50,7 @@ def test_rgb_acquire_killed_at_every_write_keeps_committed_views_and_resume_comp
         frames = s.projections()
         assert frames.shape == (views, 64, 64, 3) and s.colour_planes is not None
 
-    records = kill_tests.kill_at_every_write(
+    records = kill_at_every_write(
         tmp_path, ["-q", "acquire", "--config", str(rig), "-o", "{out}"], then=["-q", "acquire", "--resume", "{out}"]
     )
     counts = {"no file": 0, **{k: 0 for k in range(views + 1)}}

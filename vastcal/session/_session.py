@@ -107,7 +107,7 @@ class Session(SessionReader):
                 SessionWriter.rebuild(self, tmp)
             else:
                 shutil.copyfile(self.path, tmp)
-            staging = h5py.File(tmp, "r+")
+            staging = _open_unbuffered(tmp)
         except BaseException:
             tmp.unlink(missing_ok=True)
             lock.release()
@@ -190,3 +190,13 @@ def require_writable(path: str | Path, *, writer_free: bool = True) -> None:
         raise SessionBusyError(
             f"{p}: the session is being written by another vastcal process (pid {pid or '?'}); wait for it to finish"
         )
+
+
+def _open_unbuffered(path: Path) -> h5py.File:
+    """Open ``path`` for writing with no raw-data buffering (sieve buffer and chunk cache off): a dataset's values are
+    written by the call that sets them, so that a failed write (a full disk) raises there. Buffered, HDF5 writes them
+    when the dataset is closed, and h5py reports a failure at that point only as an ignored error in a destructor."""
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_sieve_buf_size(0)
+    fapl.set_cache(0, 0, 0, 0.0)  # metadata cache elements (ignored), chunk slots, chunk bytes, preemption
+    return h5py.File(h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDWR, fapl=fapl))

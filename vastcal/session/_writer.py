@@ -436,8 +436,11 @@ class SessionWriter:
             record["reason"] = reason[: STOP_RECORD_BYTES // 2] + " …"
             text = json.dumps(record, default=json_default)[:STOP_RECORD_BYTES]
         try:
-            self._h5[ENTRY]["end_time"][()] = np.bytes_(now_utc()[:40])
-            self._h5[VASTCAL]["stop_record"][()] = np.bytes_(text.encode())
+            # The datasets stay open until the flush: HDF5 writes a small dataset's value when the dataset is flushed
+            # or closed, and a failed write at a close (a full disk) would only be an ignored error in a destructor.
+            end_time, stop = self._h5[ENTRY]["end_time"], self._h5[VASTCAL]["stop_record"]
+            end_time[()] = np.bytes_(now_utc()[:40])
+            stop[()] = np.bytes_(text.encode())
             self._h5.flush()
         except (OSError, RuntimeError) as exc:
             self._fail(exc)

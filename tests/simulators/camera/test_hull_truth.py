@@ -5,6 +5,7 @@ to it as the grid is refined, on a varied larva lying against the wall of a tilt
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vastcal.simulators.camera.battery import battery_config
 from vastcal.simulators.camera.hull_numeric import numeric_hull
@@ -12,6 +13,7 @@ from vastcal.simulators.camera.larva import draw_specimen
 from vastcal.simulators.camera.truth_geometry import RigTruth, camera_pose
 
 
+@pytest.mark.slow
 def test_numeric_hull_of_the_pinhole_rig_converges_to_the_closed_form_truth() -> None:
     cfg = battery_config(1)  # a 4 dpf larva against the capillary wall
     assert cfg.simulation is not None
