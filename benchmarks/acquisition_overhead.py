@@ -193,7 +193,8 @@ def main() -> None:
 
     print(
         f"acquisition overhead on the simulated rig: {n} views, {w} x {h} {cfg.camera.pixel_format}, "
-        f"stage time scale {scale:g}, settle {cfg.stage.settle_s:g} s, exposure {cfg.camera.exposure_us:g} us (not waited by the simulator)"
+        f"stage time scale {scale:g}, settle {cfg.stage.settle_s:g} s, "
+        f"exposure {cfg.camera.exposure_us:g} us (not waited by the simulator)"
     )
     print(f"  run wall time            {total:8.3f} s  ({total / n * 1e3:.1f} ms per view)")
     print(f"  view wall time           {_ms(view_wall)}")

@@ -97,7 +97,8 @@ def main() -> int:
         if a.sequential_threads:
             seq_env["VASTCAL_THREADS"] = str(a.sequential_threads)
         print(
-            f"  sequential vastcal run with VASTCAL_THREADS={seq_env.get('VASTCAL_THREADS', 'unset (the usable CPUs)')}",
+            "  sequential vastcal run with "
+            f"VASTCAL_THREADS={seq_env.get('VASTCAL_THREADS', 'unset (the usable CPUs)')}",
             flush=True,
         )
         for s in timed:
@@ -155,12 +156,14 @@ def main() -> int:
     workers = len(peaks) or (a.workers or len(os.sched_getaffinity(0)))
     print(f"load average after: {os.getloadavg()}")
     print(
-        f"sessions: {len(sessions)} ({len(ok)} ok in the batch, exit {proc.returncode}); views {a.views or 'rig default'}; starts {a.starts}"
+        f"sessions: {len(sessions)} ({len(ok)} ok in the batch, exit {proc.returncode}); "
+        f"views {a.views or 'rig default'}; starts {a.starts}"
     )
     if per_session:
         print(
             f"sequential vastcal run: {seq_s:.1f} s = {3600 * len(sessions) / seq_s:.1f} sessions/h "
-            f"(per session mean {sum(per_session) / len(per_session):.1f} s, min {min(per_session):.1f}, max {max(per_session):.1f})"
+            f"(per session mean {sum(per_session) / len(per_session):.1f} s, "
+            f"min {min(per_session):.1f}, max {max(per_session):.1f})"
         )
     print(
         f"vastcal batch, {workers} workers: {batch_s:.1f} s = {3600 * len(sessions) / batch_s:.1f} sessions/h "
@@ -184,7 +187,8 @@ def main() -> int:
     if both:  # the same sessions both ways: what running two at a time costs each (sampling differences cancel)
         b, q = sum(x for x, _ in both), sum(y for _, y in both)
         print(
-            f"the {len(both)} sessions timed both ways: {b:.1f} CPU s in the batch workers against {q:.1f} s as sequential "
+            f"the {len(both)} sessions timed both ways: {b:.1f} CPU s "
+            f"in the batch workers against {q:.1f} s as sequential "
             f"vastcal run (ratio {b / q:.3f})"
         )
     print("peak resident memory per worker (MB): " + ", ".join(f"{v:.0f}" for v in sorted(peaks.values())))
@@ -234,7 +238,8 @@ def batch_eta(lines: list[tuple[float, str]]) -> None:
     relaxed = [e for _, e in errs[:-2]]
     print(
         f"batch ETA over the second half of its sessions phase ({len(errs)} lines): {text or '-'}; "
-        f"within 30 %: {'yes' if all(e <= 0.3 for _, e in errs) else 'no'}, all but the last two: {'yes' if all(e <= 0.3 for e in relaxed) else 'no'}"
+        f"within 30 %: {'yes' if all(e <= 0.3 for _, e in errs) else 'no'}, "
+        f"all but the last two: {'yes' if all(e <= 0.3 for e in relaxed) else 'no'}"
     )
 
 
@@ -268,7 +273,8 @@ def stage_error_recovery(battery: Path, results: Path, names: list[str]) -> None
     sigma = float(np.sqrt(resid @ resid / max(1, x.size - 1)))
     se = sigma / float(np.sqrt(x @ x)) if x @ x > 0 else float("nan")
     print(
-        f"stage error ({len(xs)} sessions, {x.size} views): true drift RMS {np.sqrt(np.mean(x**2)):.3f} deg; calibrated - commanded "
+        f"stage error ({len(xs)} sessions, {x.size} views): "
+        f"true drift RMS {np.sqrt(np.mean(x**2)):.3f} deg; calibrated - commanded "
         f"RMS {np.sqrt(np.mean(y**2)):.3f} deg; slope beta = {beta:.3f} +- {se:.3f} (1 = recovered, 0 = not seen); "
         f"residual sigma {sigma:.3f} deg per view"
     )
@@ -276,7 +282,8 @@ def stage_error_recovery(battery: Path, results: Path, names: list[str]) -> None
         h = json.loads((results / "rig_health.json").read_text())
         print(
             f"rig_health.json: {h.get('n_sessions')} sessions, {h.get('n_rolls_informative')} with informative rolls, "
-            f"angle error at {len(h.get('angle_error') or [])} commanded angles; notes: {' | '.join(h.get('notes') or [])}"
+            f"angle error at {len(h.get('angle_error') or [])} commanded angles; "
+            f"notes: {' | '.join(h.get('notes') or [])}"
         )
     except (OSError, ValueError):
         print("rig_health.json: missing")

@@ -47,8 +47,10 @@ def main() -> None:
             thetas.append(r.theta_deg)
             d_auth = (r.theta_deg[3:] - r.theta_deg[3]) - auth.rolls_deg
             print(
-                f"seed {seed}: {wall:.2f} s end to end, {r.n_evaluations} evaluations, {1e3 * r.time_per_evaluation_s:.2f} ms/evaluation, "
-                f"{r.n_voxels} voxels, peak RSS {r.peak_rss_mb:.0f} MB; yaw {r.theta_deg[0]:+.3f} pitch {r.theta_deg[1]:+.3f} "
+                f"seed {seed}: {wall:.2f} s end to end, {r.n_evaluations} evaluations, "
+                f"{1e3 * r.time_per_evaluation_s:.2f} ms/evaluation, "
+                f"{r.n_voxels} voxels, peak RSS {r.peak_rss_mb:.0f} MB; "
+                f"yaw {r.theta_deg[0]:+.3f} pitch {r.theta_deg[1]:+.3f} "
                 f"γ {r.theta_deg[2]:+.3f}; RMS vs authors' rolls {np.sqrt(np.mean(d_auth[1:] ** 2)):.3f}°"
             )
     th = np.array(thetas)

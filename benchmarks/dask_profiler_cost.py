@@ -56,7 +56,8 @@ def main() -> int:
                 cpu = one_round(a.sessions, profiler, a.starts, Path(tmp))
                 totals[profiler].append(sum(cpu))
                 print(
-                    f"round {r}: profiler {'on ' if profiler else 'off'}  CPU s per session {', '.join(f'{c:.1f}' for c in cpu)}"
+                    f"round {r}: profiler {'on ' if profiler else 'off'}  "
+                    f"CPU s per session {', '.join(f'{c:.1f}' for c in cpu)}"
                     f"  sum {sum(cpu):.1f}",
                     flush=True,
                 )

@@ -103,7 +103,8 @@ def one_larva(seed: int, outdir: Path, refractive_index: tuple[float, float]) ->
     st = MeasureSettings()
     n_rel = tr.get("specimen", {}).get("refractive_index", 1.0)
     print(
-        f"larva {seed} (n_rel {n_rel:.4f}, blur {tr.get('specimen', {}).get('defocus_sigma_px', 0):.1f} px{', cut' if cut else ''}):"
+        f"larva {seed} (n_rel {n_rel:.4f}, "
+        f"blur {tr.get('specimen', {}).get('defocus_sigma_px', 0):.1f} px{', cut' if cut else ''}):"
     )
     for name, m in (("true coverage", cov.astype(np.float32)), ("automatic maps", maps)):
         r = measure_hull(visual_hull_in_grid(P, m, choose_grid(P, m), min_count=st.min_count(len(P))), st)
@@ -148,7 +149,8 @@ def zf1() -> None:
     for name, m in (("hand masks", hand.astype(np.float32)), ("automatic maps", maps)):
         r = measure_hull(visual_hull(P, m, grid))
         print(
-            f"ZF1, authors' PI cameras, {name:14s}: V {r.volume_mm3:.4f} mm3 ({100 * (r.volume_mm3 / 0.249 - 1):+.2f} %)  "
+            "ZF1, authors' PI cameras, "
+            f"{name:14s}: V {r.volume_mm3:.4f} mm3 ({100 * (r.volume_mm3 / 0.249 - 1):+.2f} %)  "
             f"A {r.surface_area_mm2:.3f} mm2 ({100 * (r.surface_area_mm2 / 3.24 - 1):+.2f} %)"
         )
     t = contrast(model, model.features(images))

@@ -78,7 +78,8 @@ def main() -> int:
             lateral_scale=s,
         )
         print(
-            f"  {length_um / 1000:.2f} mm x {height_um / 1000:.2f} mm, lateral scale {s}: {ph.volume_mm3():.3f} mm³, {ph.area_mm2():.2f} mm² "
+            f"  {length_um / 1000:.2f} mm x {height_um / 1000:.2f} mm, "
+            f"lateral scale {s}: {ph.volume_mm3():.3f} mm³, {ph.area_mm2():.2f} mm² "
             f"(published ZF1: 0.249 mm³, 3.24 mm²)"
         )
     return 0

@@ -42,7 +42,8 @@ def main() -> None:
         centres = np.array([-(R.T @ t) for R, t in (camera_pose(truth, a) for a in angles)])
         v, a = sp.phantom.hull_volume_mm3(angles), sp.phantom.hull_area_mm2(angles)
         print(
-            f"larva {seed}: yaw {truth.yaw_deg:+.2f}°, pitch {truth.pitch_deg:+.2f}°, offset ({offset[0]:.0f}, {offset[1]:.0f}) µm, "
+            f"larva {seed}: yaw {truth.yaw_deg:+.2f}°, pitch {truth.pitch_deg:+.2f}°, "
+            f"offset ({offset[0]:.0f}, {offset[1]:.0f}) µm, "
             f"closed form V {v:.5f} mm³, A {a:.4f} mm²"
         )
         rel = []
@@ -51,7 +52,8 @@ def main() -> None:
             h = numeric_hull(sp.phantom, centres, offset, nx, nt)
             rel.append((h.volume_mm3 / v - 1.0, h.area_mm2 / a - 1.0))
             print(
-                f"  grid {nx:>3} x {nt:>3}: V {rel[-1][0] * 100:+.4f} %  A {rel[-1][1] * 100:+.4f} %  ({time.perf_counter() - t:.1f} s)",
+                f"  grid {nx:>3} x {nt:>3}: V {rel[-1][0] * 100:+.4f} %  "
+                f"A {rel[-1][1] * 100:+.4f} %  ({time.perf_counter() - t:.1f} s)",
                 flush=True,
             )
         ext = []
@@ -59,7 +61,8 @@ def main() -> None:
             p = np.log2(abs((f1 - f0) / (f2 - f1))) if f2 != f1 else np.inf
             ext.append((f2 + (f2 - f1) / (2.0**p - 1.0), p))
         print(
-            f"  extrapolated:    V {ext[0][0] * 100:+.4f} % (order {ext[0][1]:.1f})  A {ext[1][0] * 100:+.4f} % (order {ext[1][1]:.1f})"
+            f"  extrapolated:    V {ext[0][0] * 100:+.4f} % (order {ext[0][1]:.1f})  "
+            f"A {ext[1][0] * 100:+.4f} % (order {ext[1][1]:.1f})"
         )
 
 

@@ -59,7 +59,8 @@ def formats(tmp: Path) -> None:
     with Session.open(tmp / "ome.h5") as s:
         same = np.array_equal(s.projections(), ref)
         print(
-            f"OME-TIFF stack: {dt:.2f} s, frames identical {same}, pixel {s.pixel_size_um[0]:g} um from {s.plan['pixel_size_source']!r}"
+            f"OME-TIFF stack: {dt:.2f} s, frames identical {same}, "
+            f"pixel {s.pixel_size_um[0]:g} um from {s.plan['pixel_size_source']!r}"
         )
     grey16 = (ref.astype(np.uint32).sum(axis=3) * 85).astype(np.uint16)
     tifffile.imwrite(
@@ -106,7 +107,8 @@ def measure_in_pixels(tmp: Path) -> None:
         meas = getattr(m, "measurement", m)
         results[label] = (meas.volume_mm3, meas.surface_area_mm2)
         print(
-            f"{label}: calibrated yaw {cal.theta_deg[0]:+.3f} deg pitch {cal.theta_deg[1]:+.3f} deg, volume_mm3 field {meas.volume_mm3:.6g}, "
+            f"{label}: calibrated yaw {cal.theta_deg[0]:+.3f} deg pitch {cal.theta_deg[1]:+.3f} deg, "
+            f"volume_mm3 field {meas.volume_mm3:.6g}, "
             f"area_mm2 field {meas.surface_area_mm2:.6g} ({time.perf_counter() - t:.0f} s)"
         )
     (vu, au), (vp, ap) = results["um"], results["px"]

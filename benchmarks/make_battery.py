@@ -100,13 +100,15 @@ def main(argv: list[str] | None = None) -> int:
     a.outdir.mkdir(parents=True, exist_ok=True)
     rows = []
     print(
-        f"{'seed':>4} {'dpf':>4} {'L um':>5} {'hull V mm3':>10} {'hull A mm2':>10} {'body V':>7} {'body A':>7} {'s':>5}  flags"
+        f"{'seed':>4} {'dpf':>4} {'L um':>5} {'hull V mm3':>10} {'hull A mm2':>10} "
+        f"{'body V':>7} {'body A':>7} {'s':>5}  flags"
     )
     for seed in range(a.first_seed, a.first_seed + a.n):
         r = make_one(seed, a.outdir, a.views, a.force)
         rows.append(r)
         print(
-            f"{r['seed']:>4} {r['age_dpf']:>4.1f} {r['length_um']:>5} {r['hull_volume_mm3']:>10.4f} {r['hull_area_mm2']:>10.3f} "
+            f"{r['seed']:>4} {r['age_dpf']:>4.1f} {r['length_um']:>5} "
+            f"{r['hull_volume_mm3']:>10.4f} {r['hull_area_mm2']:>10.3f} "
             f"{r['true_volume_mm3']:>7.4f} {r['true_area_mm2']:>7.3f} {r['seconds']:>5.1f}  {r['flags']}",
             flush=True,
         )

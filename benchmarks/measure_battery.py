@@ -158,8 +158,9 @@ def print_row(r: dict[str, Any]) -> None:
         return f"{'-':>3}" if x is None else f"{'yes' if x else 'NO':>3}"
 
     print(
-        f"{r['seed']:>4} {r['age']:>4.1f} {r['volume']:>7.4f} {r['dv']:>+6.2f} {f(r['uv'], 5)} {yn(r['in_v'])} {r['area']:>6.3f} "
-        f"{r['da']:>+6.2f} {f(r['ua'], 5)} {yn(r['in_a'])} {r['seconds']:>5.0f}  {r['verdict'] or '-':8} {r['flags'] or '-'}"
+        f"{r['seed']:>4} {r['age']:>4.1f} {r['volume']:>7.4f} {r['dv']:>+6.2f} {f(r['uv'], 5)} {yn(r['in_v'])} "
+        f"{r['area']:>6.3f} {r['da']:>+6.2f} {f(r['ua'], 5)} {yn(r['in_a'])} "
+        f"{r['seconds']:>5.0f}  {r['verdict'] or '-':8} {r['flags'] or '-'}"
         f"{' [cut: vs in-frame hull]' if r['cut'] else ''} | {r['features']}",
         flush=True,
     )
@@ -216,7 +217,8 @@ def main(argv: list[str] | None = None) -> int:
 
     results = a.dir / ("results-true-cameras.jsonl" if a.true_cameras else "results-end-to-end.jsonl")
     print(
-        f"{'seed':>4} {'dpf':>4} {'V mm3':>7} {'dV %':>6} {'±V %':>5} {'in':>3} {'A mm2':>6} {'dA %':>6} {'±A %':>5} {'in':>3} "
+        f"{'seed':>4} {'dpf':>4} {'V mm3':>7} {'dV %':>6} {'±V %':>5} {'in':>3} "
+        f"{'A mm2':>6} {'dA %':>6} {'±A %':>5} {'in':>3} "
         f"{'s':>5}  {'verdict':8} flags | features",
         flush=True,
     )
@@ -250,17 +252,20 @@ def main(argv: list[str] | None = None) -> int:
     both = sum(abs(r["dv"]) <= V_TOL and abs(r["da"]) <= A_TOL for r in ok)
     beyond = [r for r in ok if abs(r["dv"]) > MAX_TOL or abs(r["da"]) > MAX_TOL]
     print(
-        f"  volume within {V_TOL:g} %: {within_v}/{len(rows)}; area within {A_TOL:g} %: {within_a}/{len(rows)}; both: {both}/{len(rows)} "
+        f"  volume within {V_TOL:g} %: {within_v}/{len(rows)}; "
+        f"area within {A_TOL:g} %: {within_a}/{len(rows)}; both: {both}/{len(rows)} "
         f"(target >= 28 of 30); beyond {MAX_TOL:g} %: {len(beyond)} (target 0)"
     )
     wv = max(ok, key=lambda r: abs(r["dv"]))
     wa = max(ok, key=lambda r: abs(r["da"]))
     print(
-        f"  volume error: mean {statistics.mean(r['dv'] for r in ok):+.2f} %, median {statistics.median(r['dv'] for r in ok):+.2f} %, "
+        f"  volume error: mean {statistics.mean(r['dv'] for r in ok):+.2f} %, "
+        f"median {statistics.median(r['dv'] for r in ok):+.2f} %, "
         f"worst {wv['dv']:+.2f} % (seed {wv['seed']}: {wv['features']})"
     )
     print(
-        f"  area error:   mean {statistics.mean(r['da'] for r in ok):+.2f} %, median {statistics.median(r['da'] for r in ok):+.2f} %, "
+        f"  area error:   mean {statistics.mean(r['da'] for r in ok):+.2f} %, "
+        f"median {statistics.median(r['da'] for r in ok):+.2f} %, "
         f"worst {wa['da']:+.2f} % (seed {wa['seed']}: {wa['features']})"
     )
     stated = [r for r in ok if r.get("uv") is not None]
@@ -298,7 +303,8 @@ def main(argv: list[str] | None = None) -> int:
         ]
         if grp:
             print(
-                f"    {name:15} {sum(r in fails for r in grp)}/{len(grp)} fail (mean dV {statistics.mean(r['dv'] for r in grp):+.2f} %)"
+                f"    {name:15} {sum(r in fails for r in grp)}/{len(grp)} fail "
+                f"(mean dV {statistics.mean(r['dv'] for r in grp):+.2f} %)"
             )
     print(f"  time per larva: median {statistics.median(r['seconds'] for r in ok):.0f} s")
     return 0

@@ -34,7 +34,8 @@ def main() -> int:
     args = ap.parse_args()
     s = MeasureSettings()
     print(
-        f"{args.views} views, ~{args.voxels:,} voxels, {'binary masks' if args.binary else 'soft silhouettes'}, iso-level N-{s.iso_offset}, "
+        f"{args.views} views, ~{args.voxels:,} voxels, {'binary masks' if args.binary else 'soft silhouettes'}, "
+        f"iso-level N-{s.iso_offset}, "
         f"{s.smoothing_steps} implicit steps lambda {s.smoothing_lambda}"
     )
     print(
@@ -55,7 +56,8 @@ def main() -> int:
             print(
                 f"{name:10} {seed:4d} {grid.size:6.2f} {m.volume_mm3:8.4f} {100 * (m.volume_mm3 / hv - 1):+8.2f} "
                 f"{100 * (m.volume_mm3 / ph.volume_mm3() - 1):+9.2f} {100 * (m.mesh_volume_mm3 / hv - 1):+12.2f} "
-                f"{m.surface_area_mm2:7.3f} {100 * (m.surface_area_mm2 / ha - 1):+8.2f} {100 * (m.surface_area_mm2 / ph.area_mm2() - 1):+9.2f} "
+                f"{m.surface_area_mm2:7.3f} {100 * (m.surface_area_mm2 / ha - 1):+8.2f} "
+                f"{100 * (m.surface_area_mm2 / ph.area_mm2() - 1):+9.2f} "
                 f"{th:6.2f} {m.timings_s['marching_cubes']:5.2f} {m.timings_s['smoothing']:8.2f}"
             )
     print(

@@ -40,10 +40,12 @@ def main() -> int:
     sil = np.stack([tifffile.imread(f) for f in sorted((data / "silhouettes").glob("*.tif"))]) > 0
     grid = VoxelGrid.with_voxel_count([-2900.0, -800.0, -800.0], [2900.0, 800.0, 800.0], 5_000_000)
     print(
-        f"grid {'x'.join(map(str, grid.shape))} = {grid.n_voxels:,} voxels of {grid.size:.2f} um; {len(sil)} silhouettes {sil.shape[1]}x{sil.shape[2]}"
+        f"grid {'x'.join(map(str, grid.shape))} = {grid.n_voxels:,} voxels of {grid.size:.2f} um; "
+        f"{len(sil)} silhouettes {sil.shape[1]}x{sil.shape[2]}"
     )
     print(
-        f"{'cams':4} {'volume mm3':>11} {'pub':>6} {'dev %':>6} {'mesh V mm3':>10} {'area mm2':>9} {'pub':>5} {'dev %':>6}"
+        f"{'cams':4} {'volume mm3':>11} {'pub':>6} {'dev %':>6} {'mesh V mm3':>10} "
+        f"{'area mm2':>9} {'pub':>5} {'dev %':>6}"
         f" {'hull s':>7} {'carve s':>7} {'count s':>7} {'MC s':>6} {'smooth s':>8}"
     )
     for method, (pv, pa) in PUBLISHED.items():
@@ -61,9 +63,11 @@ def main() -> int:
             sm.append(mm.timings_s["smoothing"])
         med = statistics.median
         print(
-            f"{method:4} {m.volume_mm3:11.4f} {pv:6.3f} {100 * (m.volume_mm3 / pv - 1):+6.2f} {m.mesh_volume_mm3:10.4f} "
+            f"{method:4} {m.volume_mm3:11.4f} {pv:6.3f} "
+            f"{100 * (m.volume_mm3 / pv - 1):+6.2f} {m.mesh_volume_mm3:10.4f} "
             f"{m.surface_area_mm2:9.3f} {pa:5.2f} {100 * (m.surface_area_mm2 / pa - 1):+6.2f} {med(times):7.3f} "
-            f"{med(p['carve'] for p in parts):7.3f} {med(p['counts'] for p in parts):7.3f} {med(mc):6.3f} {med(sm):8.3f}"
+            f"{med(p['carve'] for p in parts):7.3f} {med(p['counts'] for p in parts):7.3f} "
+            f"{med(mc):6.3f} {med(sm):8.3f}"
         )
     print("hull = carving + exact silhouette counts around the hull (uint8); the authors' MATLAB hull: 4.4 s")
     return 0

@@ -49,7 +49,8 @@ def main() -> None:
     shown = re.search(r'data-faces="(\d+)"', page)
     print(f"session            {args.session}")
     print(
-        f"report.html        {total / 1e6:.2f} MB, {n_views} views, mesh {shown.group(1) if shown else '?'} triangles shown"
+        f"report.html        {total / 1e6:.2f} MB, {n_views} views, "
+        f"mesh {shown.group(1) if shown else '?'} triangles shown"
     )
     for name, size in parts.items():
         print(f"  {name:<22} {size / 1e6:7.3f} MB  {100 * size / total:5.1f} %")

@@ -115,11 +115,14 @@ def main() -> None:
             for label in writers:
                 w, r, r_data = best[label, kind]
                 print(
-                    f"{kind:6} {label:>8}: write {n / w:5.0f} frames/s ({n * mb / w:4.0f} MB/s); read Session.frame {n / r:5.0f} frames/s "
-                    f"({n * mb / r:4.0f} MB/s), detector data alone {n / r_data:5.0f} frames/s; file {sizes[label, kind] / raw:.3f} x the pixels"
+                    f"{kind:6} {label:>8}: write {n / w:5.0f} frames/s ({n * mb / w:4.0f} MB/s); "
+                    f"read Session.frame {n / r:5.0f} frames/s "
+                    f"({n * mb / r:4.0f} MB/s), detector data alone {n / r_data:5.0f} frames/s; "
+                    f"file {sizes[label, kind] / raw:.3f} x the pixels"
                 )
     print(
-        f"({n} frames of 1024 x 1024 per run, best of {args.rounds} alternating rounds, fsync per view: {'yes' if args.fsync else 'no'})"
+        f"({n} frames of 1024 x 1024 per run, best of {args.rounds} alternating rounds, "
+        f"fsync per view: {'yes' if args.fsync else 'no'})"
     )
 
 

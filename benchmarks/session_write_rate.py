@@ -59,7 +59,8 @@ def main() -> None:
         label = "with fsync per view (default)" if durable else "without fsync (kill-safe, not power-cut-safe)"
         print(f"session write, {label}: {args.frames} frames of 1024x1024 Mono12 (uint16) in {elapsed:.2f} s")
         print(
-            f"  {rate:.0f} frames/s, {rate * 2.097:.0f} MB/s, {1000 / rate:.2f} ms per append+commit (target >= 100 frames/s);"
+            f"  {rate:.0f} frames/s, {rate * 2.097:.0f} MB/s, "
+            f"{1000 / rate:.2f} ms per append+commit (target >= 100 frames/s);"
             f" file {size_mb:.0f} MB"
         )
 

@@ -119,7 +119,10 @@ def main() -> None:
         "--aim-offset",
         type=float,
         default=0.0,
-        help="the levelled camera aims this many units beside the axis (the axis images upright beside the principal point)",
+        help=(
+            "the levelled camera aims this many units beside the axis "
+            "(the axis images upright beside the principal point)"
+        ),
     )
     a = ap.parse_args()
     root = Path(a.dir)
@@ -138,8 +141,9 @@ def main() -> None:
             r["in_V"], r["in_A"] = abs(g["V"] - f["V"]) <= g["UV"], abs(g["A"] - f["A"]) <= g["UA"]
             rows.append(r)
             print(
-                f"{r['seed']:4d} {r['setting']:<15s} {r['ambient']:5.2f} {g['V']:9.4f} ± {g['UV']:8.4f} {f['V']:8.4f} {dv:+7.2f} "
-                f"{'y' if r['in_V'] else 'n':>3s} {g['A']:8.3f} ± {g['UA']:7.3f} {f['A']:8.3f} {da:+7.2f} {'y' if r['in_A'] else 'n':>3s}  "
+                f"{r['seed']:4d} {r['setting']:<15s} {r['ambient']:5.2f} "
+                f"{g['V']:9.4f} ± {g['UV']:8.4f} {f['V']:8.4f} {dv:+7.2f} {'y' if r['in_V'] else 'n':>3s} "
+                f"{g['A']:8.3f} ± {g['UA']:7.3f} {f['A']:8.3f} {da:+7.2f} {'y' if r['in_A'] else 'n':>3s}  "
                 f"{g['verdict']}: {'; '.join(g['reasons'])[:140]}",
                 flush=True,
             )
@@ -148,7 +152,8 @@ def main() -> None:
         if sel:
             print(
                 f"{st}: volume interval covers the reference {sum(r['in_V'] for r in sel)}/{len(sel)}, area "
-                f"{sum(r['in_A'] for r in sel)}/{len(sel)}; |dV| mean {np.mean([abs(r['got']['V'] / r['ref']['V'] - 1) for r in sel]) * 100:.2f} %"
+                f"{sum(r['in_A'] for r in sel)}/{len(sel)}; "
+                f"|dV| mean {np.mean([abs(r['got']['V'] / r['ref']['V'] - 1) for r in sel]) * 100:.2f} %"
             )
 
 

@@ -51,9 +51,12 @@ def main() -> None:
             rows.append((inside_v, inside_a, 100 * Uv / m.volume_mm3, 100 * Ua / m.surface_area_mm2))
             qc = m.qc or {}
             print(
-                f"rig seed {cfg.simulation.seed}: volume {m.volume_mm3:.4f} ± {Uv:.4f} mm3 (true hull {tv:.4f}, error {100 * ev / tv:+.2f} %, "
-                f"U {100 * Uv / m.volume_mm3:.2f} %, {'inside' if inside_v else 'OUTSIDE'}); area {m.surface_area_mm2:.3f} ± {Ua:.3f} mm2 "
-                f"(true hull {ta:.3f}, error {100 * ea / ta:+.2f} %, U {100 * Ua / m.surface_area_mm2:.2f} %, {'inside' if inside_a else 'OUTSIDE'})"
+                f"rig seed {cfg.simulation.seed}: volume {m.volume_mm3:.4f} ± {Uv:.4f} mm3 "
+                f"(true hull {tv:.4f}, error {100 * ev / tv:+.2f} %, "
+                f"U {100 * Uv / m.volume_mm3:.2f} %, {'inside' if inside_v else 'OUTSIDE'}); "
+                f"area {m.surface_area_mm2:.3f} ± {Ua:.3f} mm2 "
+                f"(true hull {ta:.3f}, error {100 * ea / ta:+.2f} %, "
+                f"U {100 * Ua / m.surface_area_mm2:.2f} %, {'inside' if inside_a else 'OUTSIDE'})"
             )
             for c in u.get("components", []):
                 uv, ua = c.get("u_volume_mm3"), c.get("u_area_mm2")
@@ -65,8 +68,10 @@ def main() -> None:
                 )
             det = u.get("details", {})
             print(
-                f"    sigma_edge {det.get('edge_sigma_px', float('nan')):.3f} px (offset {det.get('threshold_offset_px', float('nan')):.3f}, "
-                f"half scatter {det.get('half_point_scatter_rms_px', float('nan')):.3f}, hull excess {det.get('hull_disagreement_excess_rms_px', float('nan')):.3f})"
+                f"    sigma_edge {det.get('edge_sigma_px', float('nan')):.3f} px "
+                f"(offset {det.get('threshold_offset_px', float('nan')):.3f}, "
+                f"half scatter {det.get('half_point_scatter_rms_px', float('nan')):.3f}, "
+                f"hull excess {det.get('hull_disagreement_excess_rms_px', float('nan')):.3f})"
             )
             print(
                 f"    verdict {qc.get('verdict', 'not evaluated')}"

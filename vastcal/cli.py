@@ -39,8 +39,9 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 # The calibration's BLAS products are tiny (3 × 3K by 3 × M): OpenBLAS's own threads only contend with the cost's
-# slices (vastcal.calibrate.threads) and OpenCV's (docs/decisions/0010-threads-within-an-evaluation-processes-for-parallel-starts.md). Set before NumPy
-# loads (nothing above imports it); a value the user set is kept.
+# slices (vastcal.calibrate.threads) and OpenCV's
+# (docs/decisions/0010-threads-within-an-evaluation-processes-for-parallel-starts.md). Set before NumPy loads (nothing
+# above imports it); a value the user set is kept.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from vastcal import __version__  # noqa: E402
@@ -110,7 +111,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     with Session.open(out) as s:
         if not pixel_size_known(s.plan) and s.known_cameras is None:
             print(
-                "pixel size unknown - measurements in pixels (give --pixel-size-um UM or --config RIG.yaml to measure in mm)"
+                "pixel size unknown - measurements in pixels "
+                "(give --pixel-size-um UM or --config RIG.yaml to measure in mm)"
             )
     return 0
 
@@ -452,7 +454,8 @@ def _view_image_arg(option: str, spec: str | None) -> Any:
 
 
 def _calibration_run_arg(args: argparse.Namespace) -> str | None:
-    """The calibration run a stage uses: ``run_NNN``, ``"imported"`` (the session's imported cameras) or None (the latest).
+    """The calibration run a stage uses: ``run_NNN``, ``"imported"`` (the session's imported cameras) or None (the
+    latest).
 
     Raises:
         UserInputError: both --calibration-run and --cameras imported, or a run that is not a number / run_NNN.
@@ -496,7 +499,9 @@ def check_report_folder(path: str | Path, *, force: bool, option: str = "-o") ->
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    """vastcal reconstruct S.h5 [--voxel-size UM] [--masks] [--mesh OUT.ply|.stl [--force]] [--calibration-run N | --cameras imported]"""
+    """vastcal reconstruct S.h5 [--voxel-size UM] [--masks] [--mesh OUT.ply|.stl [--force]]
+    [--calibration-run N | --cameras imported]
+    """
     _check_session_arg(args.session)
     run = _calibration_run_arg(args)
     _check_mesh_arg(args)
@@ -537,7 +542,9 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """vastcal run S.h5 [-o DIR] [--force] [--cameras imported] [--keep-runs N] [--mask|--scribbles VIEW:FILE]: calibrate → reconstruct → report."""
+    """vastcal run S.h5 [-o DIR] [--force] [--cameras imported] [--keep-runs N] [--mask|--scribbles VIEW:FILE]:
+    calibrate → reconstruct → report.
+    """
     _check_session_arg(args.session)
     from vastcal.pipeline import RunOptions, check_camera_choice, default_report_dir, run_session
 
@@ -580,7 +587,9 @@ def cmd_prune(args: argparse.Namespace) -> int:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table (:func:`batch_exit_code`)."""
+    """vastcal batch SESSIONS… -o RESULTS/: every session through ``run`` on Dask; one table
+    (:func:`batch_exit_code`).
+    """
     from vastcal.batch import run_batch
 
     res = run_batch(
@@ -619,7 +628,8 @@ def cmd_annotate(args: argparse.Namespace) -> int:
     else:
         if not args.sessions or all(v is None for v in fields.values()):
             raise UserInputError(
-                "annotate: expected session files and at least one of --id --age-dpf --strain --treatment --plate --well"
+                "annotate: expected session files and at least one of "
+                "--id --age-dpf --strain --treatment --plate --well"
             )
         written = annotate_sessions(args.sessions, fields)
     for w in written:
@@ -1205,7 +1215,8 @@ def _quiet_unraisable(unraisable: Any) -> None:
 EXIT_DAMAGED = EXIT_BAD_INPUT
 """Exit code when a session's contents are not what vastcal wrote (as for any bad input)."""
 EXIT_INTERNAL = EXIT_FAILURE
-"""Exit code of an error vastcal did not anticipate: a failure like any other (the one table has no code of its own for bugs)."""
+"""Exit code of an error vastcal did not anticipate: a failure like any other (the one table has no code of its own
+for bugs)."""
 
 THIRD_PARTY_LOGGERS = (
     "h5py",
@@ -1220,7 +1231,8 @@ THIRD_PARTY_LOGGERS = (
     "bokeh",
     "fsspec",
 )
-"""Libraries whose log lines (INFO chatter, h5py's DEBUG) stay out of stderr unless ``-vv`` (``-vvv`` for their DEBUG)."""
+"""Libraries whose log lines (INFO chatter, h5py's DEBUG) stay out of stderr unless ``-vv`` (``-vvv`` for their
+DEBUG)."""
 
 
 def _silence_third_party(verbose: int) -> None:
@@ -1253,12 +1265,14 @@ def _unexpected(exc: BaseException, args: argparse.Namespace) -> int:
     frames = traceback.extract_tb(exc.__traceback__)
     if session and any("/h5py/" in f.filename or "/vastcal/session/" in f.filename for f in frames):
         _say(
-            f"vastcal: error: {session}: damaged session: cannot read what vastcal expects there ({type(exc).__name__}: {first})"
+            f"vastcal: error: {session}: damaged session: cannot read what vastcal expects there "
+            f"({type(exc).__name__}: {first})"
         )
         return EXIT_DAMAGED
     where = f" on {session}" if session else ""
     _say(
-        f"vastcal: error: internal error{where} ({type(exc).__name__}: {first}); run again with -v for the traceback and report it"
+        f"vastcal: error: internal error{where} ({type(exc).__name__}: {first}); "
+        "run again with -v for the traceback and report it"
     )
     return EXIT_INTERNAL
 
@@ -1275,7 +1289,8 @@ def _say(line: str) -> None:
 
 
 def _stdout_to_devnull() -> None:
-    """Point stdout at /dev/null, so that the flush at exit raises no second BrokenPipeError (the Python docs' recipe)."""
+    """Point stdout at /dev/null, so that the flush at exit raises no second BrokenPipeError (the Python docs'
+    recipe)."""
     try:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     except (OSError, ValueError):

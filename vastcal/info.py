@@ -79,7 +79,8 @@ def session_summary(path: str | Path) -> dict[str, Any]:
 
 
 def _verdict(s: Session) -> dict[str, Any]:
-    """The QC verdict of the latest measurement: ``{"verdict", "reasons", "run"}`` (``not measured`` / ``not evaluated`` when absent)."""
+    """The QC verdict of the latest measurement: ``{"verdict", "reasons", "run"}`` (``not measured`` /
+    ``not evaluated`` when absent)."""
     meas = s.latest_result("measurement")
     if meas is None:
         return {"verdict": "not measured", "reasons": [], "run": None}
@@ -126,9 +127,11 @@ def format_summary(summary: dict[str, Any]) -> str:
             if a
             else "none"
         ),
-        f"masks        {'yes' if summary['masks'] else 'no'}; known cameras {'yes' if summary['known_cameras'] else 'no'}"
+        f"masks        {'yes' if summary['masks'] else 'no'}; "
+        f"known cameras {'yes' if summary['known_cameras'] else 'no'}"
         + (
-            f" (circular fit {summary['circular_fit_rms_px']:.2g} px RMS, world unit {summary.get('length_unit', 'um')})"
+            f" (circular fit {summary['circular_fit_rms_px']:.2g} px RMS, "
+            f"world unit {summary.get('length_unit', 'um')})"
             if "circular_fit_rms_px" in summary
             else f" (not circular motion: {summary['circular_fit_error']})"
             if "circular_fit_error" in summary
@@ -137,7 +140,8 @@ def format_summary(summary: dict[str, Any]) -> str:
     ]
     if "readback_max_error_usteps" in summary:
         lines.append(
-            f"stage        {summary['usteps_per_revolution']} usteps/rev, max read-back error {summary['readback_max_error_usteps']} usteps"
+            f"stage        {summary['usteps_per_revolution']} usteps/rev, "
+            f"max read-back error {summary['readback_max_error_usteps']} usteps"
         )
     v = summary.get("verdict") or {}
     if v:

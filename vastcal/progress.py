@@ -51,7 +51,8 @@ class PhaseEta:
     ETA is ``left`` × the time per unit measured over the recent half of the time since the phase's first report.
     Otherwise the rate is the fraction gained over that recent half. Either way a slow start (one-off set-up
     before the first report, a search that first explores) does not inflate the estimate once the phase runs
-    steadily, and the ETA is the raw estimate of the latest report (no smoothing that could freeze it). Before two reports with progress: unknown (NaN).
+    steadily, and the ETA is the raw estimate of the latest report (no smoothing that could freeze it). Before two
+    reports with progress: unknown (NaN).
     """
 
     def __init__(self, t0: float) -> None:
@@ -94,7 +95,8 @@ class PhaseEta:
                 return float("nan")
             left = left * (t - ref[0]) / (self.work[-1][1] - ref[1])
         else:
-            # From the first report on: the time before it (set-up, a first evaluation that pays one-off work) says nothing of the rate.
+            # From the first report on: the time before it (set-up, a first evaluation that pays one-off work) says
+            # nothing of the rate.
             if len(self.samples) < 3:  # fewer than two reports: no rate yet
                 return float("nan")
             ref = self._reference(self.samples[1:])
@@ -385,7 +387,8 @@ class CountProgress:
         )  # the task's time runs from here (its first item's set-up included in "elapsed", not in the rate)
 
     def phase(self, name: str) -> None:
-        """End the phase under way and start ``name`` (e.g. ``preparing the camera and stage``, ``acquiring 36 views``)."""
+        """End the phase under way and start ``name`` (e.g. ``preparing the camera and stage``,
+        ``acquiring 36 views``)."""
         self.bar.phase(name)
 
     def update(

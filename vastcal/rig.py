@@ -136,7 +136,8 @@ def _simulated_rig(cfg: RigConfig, stack: ExitStack, truth_path: Path | None) ->
     view_snaps: list[dict[str, Any]] = []
 
     def full_record() -> dict[str, Any]:
-        """The camera's whole truth record (phantom, hulls and frame cuts for the actual angles of every view, earlier runs' too)."""
+        """The camera's whole truth record (phantom, hulls and frame cuts for the actual angles of every view, earlier
+        runs' too)."""
         record = camera.truth_record((earlier or []) + view_snaps)
         record["actual_angles_deg"] = [s["actual_angle_deg"] for s in record["snaps"]]
         return record

@@ -293,8 +293,8 @@ class SimulatedCamera(Camera):
         unknown, ``None``, is left out of the hulls).
 
         Keys: ``schema``; ``phantom``, ``true_volume_mm3``, ``true_area_mm2``; ``yaw_deg``,
-        ``pitch_deg``, ``gamma_deg``, ``axis_offset_um``, ``distance_um``, ``specimen_offset_um`` (y, z); ``seed``; ``roi``
-        (x, y, w, h px); ``K`` (3×3 of the ROI frame); ``snaps`` — one
+        ``pitch_deg``, ``gamma_deg``, ``axis_offset_um``, ``distance_um``, ``specimen_offset_um`` (y, z); ``seed``;
+        ``roi`` (x, y, w, h px); ``K`` (3×3 of the ROI frame); ``snaps`` — one
         ``{"frame_id", "actual_angle_deg", "host_time_s"}`` per frame delivered; and
         ``hull_volume_mm3`` / ``hull_area_mm2`` — the exact orthographic visual hull of the
         phantom's BODY (fins, fin fold, debris, bubbles excluded; melanophores, eyes and yolk lie

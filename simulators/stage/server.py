@@ -7,6 +7,7 @@ that a stop request (SIGTERM/SIGINT) ends them promptly.
 from __future__ import annotations
 
 import errno
+import functools
 import logging
 import os
 import select
@@ -99,7 +100,7 @@ def serve_tcp(sim: StageSimulator, server: socket.socket, stop: threading.Event)
         sim.reconnect()
         link = sim.connect()
         try:
-            _pump(conn.fileno(), link, stop, lambda: conn.recv(4096), conn.sendall)
+            _pump(conn.fileno(), link, stop, functools.partial(conn.recv, 4096), conn.sendall)
         except OSError as exc:
             log.info("connection from %s ended: %s", peer, exc)
         finally:

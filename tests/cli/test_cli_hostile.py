@@ -55,8 +55,9 @@ def test_stop_signals_end_any_command_with_128_plus_signum(
         ),
         (
             RuntimeError(
-                "Can't flush cache (file write failed: time = Wed Nov 25 2026\n, filename = 'out/S.h5', file descriptor = 3, "
-                "errno = 28, error message = 'No space left on device', buf = 0x5, total write size = 4616)"
+                "Can't flush cache (file write failed: time = Wed Nov 25 2026\n, filename = 'out/S.h5', "
+                "file descriptor = 3, errno = 28, error message = 'No space left on device', buf = 0x5, "
+                "total write size = 4616)"
             ),
             "vastcal: error: no space left on the device writing out/S.h5",
         ),

@@ -335,7 +335,7 @@ def test_a_cma_level_reports_its_forecast_and_the_clock_turns_it_into_the_bar_fr
     pc = ProgressClock(CalibrationProgress(bar), budget=100)
     pc.name_phase(100, "level 1/1")
     assert all(math.isnan(left) for _, left in told[:7])  # fewer generations than the slope's window: unknown
-    for k, (d, left) in enumerate(told[10:15]):
+    for d, left in told[10:15]:
         clock.now += 0.5
         pc.forecast(d, left)
         pc.update(d, 1.0)

@@ -49,8 +49,10 @@ def _ome_xml(n: int, h: int, w: int, dtype: str, *, size: str = "", angles: list
         )
     return (
         '<?xml version="1.0" encoding="UTF-8"?><OME xmlns="http://www.openmicroscopy.org/Schemas/OME/2016-06">'
-        f'<Image ID="Image:0"><Pixels ID="Pixels:0" DimensionOrder="XYCZT" Type="{dtype}" SizeX="{w}" SizeY="{h}" SizeC="1" '
-        f'SizeZ="1" SizeT="{n}" {size}><Channel ID="Channel:0:0" SamplesPerPixel="1"/><TiffData IFD="0" PlaneCount="{n}"/>'
+        f'<Image ID="Image:0"><Pixels ID="Pixels:0" DimensionOrder="XYCZT" Type="{dtype}" '
+        f'SizeX="{w}" SizeY="{h}" SizeC="1" SizeZ="1" SizeT="{n}" {size}>'
+        '<Channel ID="Channel:0:0" SamplesPerPixel="1"/>'
+        f'<TiffData IFD="0" PlaneCount="{n}"/>'
         f"{planes}</Pixels></Image>{ann}</OME>"
     )
 

@@ -318,8 +318,10 @@ def test_view_overlay_outline_follows_the_hull_in_pixel_coordinates() -> None:
 PROBE = """<script>window.addEventListener('load',()=>{setTimeout(()=>{
 const rect=e=>{const r=e.getBoundingClientRect();return [r.left+scrollX,r.top+scrollY,r.width,r.height];};
 const im=[...document.images];
-const out={loaded:im.filter(i=>i.complete&&i.naturalWidth>0).length,total:im.length,height:document.documentElement.scrollHeight,
- plots:[...document.querySelectorAll('figure.plot img')].map(rect),views:[...document.querySelectorAll('.view img')].map(rect),
+const out={loaded:im.filter(i=>i.complete&&i.naturalWidth>0).length,total:im.length,\
+height:document.documentElement.scrollHeight,
+ plots:[...document.querySelectorAll('figure.plot img')].map(rect),\
+views:[...document.querySelectorAll('.view img')].map(rect),
  canvas:rect(document.getElementById('mesh-canvas')),drawn:document.getElementById('mesh-canvas').dataset.drawn||'',
  renderer:document.getElementById('mesh-canvas').dataset.renderer||'',
  flagged:[...document.querySelectorAll('.view.flagged')].map(rect)};
