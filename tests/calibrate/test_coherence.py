@@ -379,7 +379,7 @@ def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(
 def test_threads_give_the_same_costs_bit_for_bit(
     scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], per_candidate: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The views' slices of an evaluation run side by side (vastcal.calibrate.threads): the same numbers as one after
+    """The views' slices of an evaluation run side by side (vastcal.threads): the same numbers as one after
     the other."""
     theta, pf, obj = scene
     batch = theta[None] + np.random.default_rng(4).normal(0.0, 0.05, (6, theta.size)) * (np.arange(theta.size) != 3)

@@ -88,7 +88,7 @@ def test_the_drift_is_a_measurement_when_the_images_determine_most_rolls() -> No
 
 
 def test_a_calibration_stores_each_roll_s_sigma(session_path: Path) -> None:
-    from vastcal.calibrate import calibrate_session
+    from vastcal.calibration_session import calibrate_session
     from vastcal.session import Session
 
     r = calibrate_session(session_path, seed=0, free=["rolls"], levels=FAST.levels)

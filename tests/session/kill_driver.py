@@ -39,7 +39,7 @@ def _child(argv: list[str], stub: str | None) -> None:
     os.dup2(null, 2)
     os.kill(os.getpid(), signal.SIGSTOP)  # wait for strace to attach
     if stub:
-        import vastcal.calibrate.session_run as sr
+        import vastcal.calibration_session as sr
 
         with open(stub, "rb") as f:
             result = pickle.load(f)
@@ -92,7 +92,7 @@ def _run(argv: list[str], n: int | None, stub: str | None, inject: str = "signal
 
 def main() -> None:
     plan = json.loads(Path(sys.argv[1]).read_text())
-    import vastcal.calibrate.session_run  # noqa: F401
+    import vastcal.calibration_session  # noqa: F401
     import vastcal.cli  # noqa: F401
     import vastcal.reconstruct  # noqa: F401
     import vastcal.simulators.camera  # noqa: F401  (paid once, inherited by every child)

@@ -223,7 +223,7 @@ def _check_analysis_kills(tmp: Path, records: list[dict], pristine: dict, stage:
 
 @pytest.mark.timeout(1200)
 def test_calibrate_killed_at_every_write_of_its_run_keeps_images_and_earlier_runs(tmp_path: Path) -> None:
-    from vastcal.calibrate.session_run import calibrate_session
+    from vastcal.calibration_session import calibrate_session
 
     pristine_path = _analysis_fixture(tmp_path)
     # The search runs once here; the killed processes store its result (the storing is under test).

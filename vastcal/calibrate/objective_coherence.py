@@ -57,11 +57,11 @@ import numpy as np
 
 from vastcal.calibrate.objective import LevelMaps
 from vastcal.calibrate.sampling import Atlas
-from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.config import CalibrationSettings
 from vastcal.errors import AnalysisError
 from vastcal.geometry import axis_origin_in_camera, project, projection_matrices, rot_x, rot_y, rot_z
 from vastcal.segmentation import largest_region
+from vastcal.threads import compute_threads, run_slices
 
 log = logging.getLogger(__name__)
 

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from vastcal.calibrate.observer import ProgressCallback
 from vastcal.calibrate.parameters import normalise_free, parse_views
 from vastcal.calibrate.run import CalibrationResult, Marks, References, calibrate_views
+from vastcal.calibration_progress import ProgressCallback, ProgressClock
 from vastcal.config import RENAMED_KEYS, CalibrationSettings, RoiConfig, check_setting
 from vastcal.errors import ConfigError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import circular_fit_shortfall, decompose_circular, intrinsics_from_optics
@@ -184,7 +184,7 @@ def calibrate_session(
             theta0,
             settings=settings,
             marks=Marks(mask=mask, scribbles=scribbles, silhouettes=sil),
-            progress=progress,
+            progress=ProgressClock(progress),
             fixed_views=fixed,
             references=_references(notes if judge_imported_cameras else {}, score_thetas),
         )
