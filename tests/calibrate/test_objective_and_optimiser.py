@@ -183,11 +183,10 @@ def test_per_candidate_coherence_does_not_depend_on_the_batch() -> None:
     """With ``per_candidate`` every θ searches its own rays: the same θ costs the same in any population."""
     from vastcal.calibrate.objective_coherence import (
         CoherenceObjective,
-        axis_crossings,
         signed_distance_maps,
         silhouette_edges,
     )
-    from vastcal.geometry import projection_matrices
+    from vastcal.geometry import axis_crossings, projection_matrices
 
     theta = sy.truth_theta(n=8, seed=5)
     K, d = sy.camera()

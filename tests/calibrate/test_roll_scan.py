@@ -11,7 +11,6 @@ import pytest
 
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
-    axis_crossings,
     signed_distance_maps,
     silhouette_edges,
 )
@@ -29,7 +28,7 @@ from vastcal.calibrate.roll_scan import (
 from vastcal.calibrate.stage_polish import POLISH_REACH, polish_rolls
 from vastcal.calibrate.stage_roll_scan import roll_share
 from vastcal.config import CalibrationBounds
-from vastcal.geometry import projection_matrices
+from vastcal.geometry import axis_crossings, projection_matrices
 
 _spec = importlib.util.spec_from_file_location("synthetic_views", Path(__file__).with_name("synthetic.py"))
 synthetic = importlib.util.module_from_spec(_spec)

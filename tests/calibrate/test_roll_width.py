@@ -1,4 +1,4 @@
-"""How well the images pin each roll (vastcal.calibrate.roll_width) and what the report then says of the drift."""
+"""How well the images pin each roll (vastcal.roll_width) and what the report then says of the drift."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vastcal.calibrate.roll_width import roll_widths, rolls_determined
+from vastcal.roll_width import roll_widths, rolls_determined
 from vastcal.uncertainty import drift_status, open_directions_sigma
 
 _spec = importlib.util.spec_from_file_location("calibrate_test_helpers", Path(__file__).with_name("conftest.py"))

@@ -21,8 +21,7 @@ from vastcal.calibrate.coarse_to_fine import Start, coarse_to_fine
 from vastcal.calibrate.methods import objective_factory
 from vastcal.calibrate.optimise import RESTARTS
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
-from vastcal.calibrate.problem import Problem, colour_model_for
-from vastcal.calibrate.roll_width import RollWidths
+from vastcal.calibrate.problem import Problem
 from vastcal.calibrate.stage import Clock, LevelRun, Pose, QuietClock, Stage, StageContext
 from vastcal.calibrate.stage_offset_scan import CommonRollOffsetScan
 from vastcal.calibrate.stage_outlier_scan import OutlierScan
@@ -34,7 +33,8 @@ from vastcal.config import CalibrationSettings, check_setting
 from vastcal.errors import AnalysisError, UserInputError
 from vastcal.geometry import projection_matrices
 from vastcal.process_memory import peak_resident_mb
-from vastcal.segmentation import ColourModel, check_images
+from vastcal.roll_width import RollWidths
+from vastcal.segmentation import ColourModel, check_images, colour_model_for
 from vastcal.session_frames import SessionFrames
 from vastcal.uncertainty import drift_rms_deg
 
@@ -125,8 +125,8 @@ class CalibrationResult:
     """Judge costs of the ``score_thetas`` given to :func:`calibrate_views`."""
     fixed_views: tuple[int, ...] = ()
     roll_widths: RollWidths | None = None
-    """How well the images pin each free roll (:mod:`.roll_width`); None when no roll was free or there was no roll
-    prior."""
+    """How well the images pin each free roll (:mod:`vastcal.roll_width`); None when no roll was free or there was no
+    roll prior."""
 
     @property
     def delta_angle_deg(self) -> np.ndarray:
