@@ -71,7 +71,8 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
     pitch and γ come from them; otherwise K comes from the rig optics shifted by the stored ROI
     offset and d is the working distance. The rolls of θ0 are the commanded angles. With imported cameras,
     ``notes["imported_cameras_theta_deg"]`` is their own θ (their rolls, view 0 at its commanded angle): the
-    calibration's result is never costlier than they are (:func:`.run.calibrate_views`' ``reference_thetas``).
+    calibration's result is never costlier than they are (:func:`vastcal.calibrate.run.calibrate_views`'
+    ``references``).
 
     Raises:
         SessionIncompleteError: no rotation angles, or non-finite ones.
