@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vastcal.calibrate import calibrate_session
+from vastcal.calibration_session import calibrate_session
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import decompose_circular
 from vastcal.importer import CameraFile, import_folder, read_cameras

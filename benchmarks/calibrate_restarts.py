@@ -23,8 +23,7 @@ from pathlib import Path
 import numpy as np
 from compare_methods import DATA, _angle_errors, _truth_session
 
-from vastcal.calibrate import calibrate_session
-from vastcal.calibrate.session_run import session_camera_model
+from vastcal.calibration_session import calibrate_session, session_camera_model
 from vastcal.config import CalibrationBounds, CalibrationSettings
 from vastcal.session import Session
 

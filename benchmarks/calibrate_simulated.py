@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.acquire import acquire
-from vastcal.calibrate import calibrate_session
+from vastcal.calibration_session import calibrate_session
 from vastcal.config import load_config
 from vastcal.pipeline import score_against_truth
 from vastcal.rig import connect_rig

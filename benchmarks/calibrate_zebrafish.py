@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from vastcal.allocator import keep_large_blocks
-from vastcal.calibrate import calibrate_session
+from vastcal.calibration_session import calibrate_session
 from vastcal.config import load_config
 from vastcal.geometry import decompose_circular, shift_pixels
 from vastcal.importer import import_folder

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vastcal.calibrate import calibrate_session
+from vastcal.calibration_session import calibrate_session
 from vastcal.config import CalibrationBounds, load_config
 from vastcal.geometry import decompose_circular, shift_pixels
 from vastcal.importer import CameraFile, import_folder, read_cameras
@@ -222,7 +222,7 @@ def run_truth_set(
             tmp, name, folder, folder / "dinoR_par.txt", 48, [] if at_truth else offset, 0.0, "m"
         )
     fixed = [v for v in range(len(true_rolls)) if v not in offset] if fixed_unperturbed else []
-    from vastcal.calibrate.session_run import session_camera_model
+    from vastcal.calibration_session import session_camera_model
     from vastcal.session import Session
 
     with Session.open(s) as ss:

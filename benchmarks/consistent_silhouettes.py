@@ -35,7 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import compare_methods as cm  # noqa: E402  (benchmarks/ is not a package)
 
-from vastcal.calibrate.session_run import calibrate_session, session_camera_model  # noqa: E402
+from vastcal.calibration_session import calibrate_session, session_camera_model  # noqa: E402
 from vastcal.config import (  # noqa: E402
     CalibrationBounds,  # noqa: E402
     CalibrationSettings,

@@ -35,11 +35,10 @@ import numpy as np
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
     Penalty,
-    axis_crossings,
     signed_distance_maps,
     silhouette_edges,
 )
-from vastcal.geometry import decompose_circular, projection_matrices
+from vastcal.geometry import axis_crossings, decompose_circular, projection_matrices
 from vastcal.importer import read_cameras
 
 DATA = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_david").resolve()

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 from vastcal.acquire import acquire
-from vastcal.calibrate import calibrate_session
+from vastcal.calibration_session import calibrate_session
 from vastcal.pipeline import run_session, score_against_truth
 from vastcal.rig import connect_rig
 from vastcal.simulators.camera.battery import battery_config

@@ -85,7 +85,7 @@ def formats(tmp: Path) -> None:
 
 
 def measure_in_pixels(tmp: Path) -> None:
-    from vastcal.calibrate import calibrate_session
+    from vastcal.calibration_session import calibrate_session
     from vastcal.pipeline import acquire_simulated
     from vastcal.reconstruct import reconstruct_session
 

@@ -60,7 +60,7 @@ def second_half_errors(
 
 def one_run(views: int, starts: int, seed: int, sim_seed: int | None) -> list[dict]:
     """Acquire and calibrate one simulated revolution; print and return every phase's figures."""
-    from vastcal.calibrate import calibrate_session
+    from vastcal.calibration_session import calibrate_session
 
     cfg = load_config(None)
     if sim_seed is not None:

@@ -108,7 +108,7 @@ class _MemorySampler:
         return " < ".join(f"{Path(f.filename).stem}:{f.lineno} {f.name}" for f in reversed(stack[-5:]))
 
     def _run(self) -> None:
-        from vastcal.calibrate.view_budget import resident_mb
+        from vastcal.process_memory import resident_mb
 
         top = last = 0.0
         while not self._stop.wait(self.every_s):
@@ -154,7 +154,7 @@ def _step(
         tmp.rename(session)
         return {"acquire_s": time.perf_counter() - t}
     if step in ("calibrate", "calibrate_whole_frames"):
-        from vastcal.calibrate import calibrate_session
+        from vastcal.calibration_session import calibrate_session
         from vastcal.pipeline import score_against_truth
 
         if step == "calibrate_whole_frames":  # the path before the window: every objective's atlas over whole frames

@@ -61,15 +61,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vastcal.calibrate import calibrate_session
 from vastcal.calibrate import objective_coherence as oc
 from vastcal.calibrate.run import CalibrationResult
-from vastcal.calibrate.threads import ENV as THREADS_ENV
-from vastcal.calibrate.threads import compute_threads
+from vastcal.calibration_session import calibrate_session
 from vastcal.config import CalibrationBounds
 from vastcal.geometry import decompose_circular
 from vastcal.importer import import_folder
 from vastcal.progress import CalibrationProgress, PhaseProgress
+from vastcal.threads import ENV as THREADS_ENV
+from vastcal.threads import compute_threads
 
 RADIUS = 10.0  # camera centres' distance from the rotation axis (world units)
 CAMERA_HEIGHT = 0.9  # above the object's centre (~5° down-look)

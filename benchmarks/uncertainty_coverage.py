@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vastcal.calibrate import calibrate_session
+from vastcal.calibration_session import calibrate_session
 from vastcal.config import load_config
 from vastcal.pipeline import acquire_simulated
 from vastcal.reconstruct import reconstruct_session

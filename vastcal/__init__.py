@@ -30,7 +30,7 @@ __version__ = "0.1.0"
 _PUBLIC = {
     "Session": "vastcal.session",
     "SessionWriter": "vastcal.session",
-    "calibrate_session": "vastcal.calibrate",
+    "calibrate_session": "vastcal.calibration_session",
     "CalibrationResult": "vastcal.calibrate",
     "reconstruct_session": "vastcal.reconstruct",
     "visual_hull": "vastcal.hull",

@@ -158,8 +158,8 @@ def process_session(path: str, report_dir: str, settings: dict[str, Any]) -> dic
     ``_rig`` holds what :mod:`vastcal.rig_health` needs (not a table column).
     """
     from vastcal.allocator import keep_large_blocks
-    from vastcal.calibrate.view_budget import peak_resident_mb
     from vastcal.pipeline import RunOptions, run_session
+    from vastcal.process_memory import peak_resident_mb
 
     keep_large_blocks()  # as the vastcal command does: reuse the calibration's large temporaries
     t0, c0 = time.monotonic(), time.process_time()
@@ -378,7 +378,7 @@ def _client(scheduler: str | None, n_workers: int | None) -> tuple[Any, Any]:
     import dask
 
     with dask.config.set(LOCAL_WORKER_CONFIG):  # the nannies hand this configuration to their worker processes
-        # each worker's cost evaluations use its own threads only (vastcal.calibrate.threads), not every core
+        # each worker's cost evaluations use its own threads only (vastcal.threads), not every core
         cluster = LocalCluster(
             n_workers=workers,
             threads_per_worker=threads,

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 # The calibration's BLAS products are tiny (3 × 3K by 3 × M): OpenBLAS's own threads only contend with the cost's
-# slices (vastcal.calibrate.threads) and OpenCV's
+# slices (vastcal.threads) and OpenCV's
 # (docs/decisions/0010-threads-within-an-evaluation-processes-for-parallel-starts.md). Set before NumPy loads (nothing
 # above imports it); a value the user set is kept.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -392,7 +392,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """vastcal calibrate S.h5 [--method coherence|pi|vr] [--seed N] [--free …] [--fixed-views 10-35] [--starts S]"""
     _check_session_arg(args.session)
     _check_session_writable(args.session)  # before the work: a read-only folder or a writer at work
-    from vastcal.calibrate import calibrate_session
+    from vastcal.calibration_session import calibrate_session
 
     _check_units(args)
     mask, scribbles = _marks_args(args)

@@ -179,6 +179,47 @@ def project(P: np.ndarray, points: np.ndarray) -> np.ndarray:
     return x[..., :2] / x[..., 2:3]
 
 
+def axis_probe(P: np.ndarray) -> np.ndarray:
+    """Two world points (2, 3) on the rotation axis (world x), ±5 % of the camera distance from the origin.
+
+    Probes must stay well in front of every camera, whatever the units (µm on the rig, arbitrary
+    units on imported turntable data), so their length is scaled to the first camera's distance.
+    """
+    P0 = np.asarray(P, float).reshape(-1, 3, 4)[0]
+    length = 0.05 * float(np.linalg.norm(np.linalg.solve(P0[:, :3], -P0[:, 3])))  # |camera centre|
+    return np.array([[-length, 0.0, 0.0], [length, 0.0, 0.0]])
+
+
+def axis_direction_px(P0: np.ndarray) -> np.ndarray:
+    """Unit image direction (du, dv) of the rotation axis (world x) in view 0 of cameras P0."""
+    uv = project(P0[:1], axis_probe(P0))[0]
+    d = uv[1] - uv[0]
+    return d / np.linalg.norm(d)
+
+
+def axis_crossings(P0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N, L, 2): where the image of the axis crosses each scan line, for cameras P0 (N, 3, 4).
+
+    Scan lines are columns (L = W) when the axis is closer to horizontal in view 0, rows (L = H) otherwise.
+    """
+    h, w = shape
+    d = axis_direction_px(P0)
+    horizontal = abs(d[0]) >= abs(d[1])
+    pts = project(P0, axis_probe(P0))  # (N, 2, 2)
+    a, b = pts[:, 0], pts[:, 1]
+    out = []
+    for i in range(P0.shape[0]):
+        if horizontal:
+            u = np.arange(w, dtype=float)
+            v = a[i, 1] + (u - a[i, 0]) * (b[i, 1] - a[i, 1]) / (b[i, 0] - a[i, 0])
+            out.append(np.stack([u, v], 1))
+        else:
+            v = np.arange(h, dtype=float)
+            u = a[i, 0] + (v - a[i, 1]) * (b[i, 0] - a[i, 0]) / (b[i, 1] - a[i, 1])
+            out.append(np.stack([u, v], 1))
+    return np.asarray(out)
+
+
 def camera_centre(P: np.ndarray) -> np.ndarray:
     """Centre (3,) of a finite camera P (3, 4): its right null vector, dehomogenised (world units)."""
     _, _, vt = np.linalg.svd(np.asarray(P, float))

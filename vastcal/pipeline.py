@@ -302,7 +302,7 @@ def run_session(
 
 def _calibrate_step(path: Path, opts: RunOptions, quiet: bool, res: RunSummary) -> str | None:
     """Calibrate ``path`` as ``opts`` say, its timing and digest into ``res``; the run stored (None: the latest)."""
-    from vastcal.calibrate import calibrate_session
+    from vastcal.calibration_session import calibrate_session
 
     starts = opts.starts
     bar = PhaseProgress(

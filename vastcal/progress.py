@@ -314,7 +314,7 @@ class CalibrationProgress:
     """A calibration progress callback drawing named phases on a :class:`PhaseProgress`.
 
     Called as the optimiser's ``progress(evaluations, best cost, elapsed s, ETA s)``; the calibration's
-    :class:`~vastcal.calibrate.optimise.ProgressClock` also calls :meth:`phase` when a phase begins
+    :class:`~vastcal.calibration_progress.ProgressClock` also calls :meth:`phase` when a phase begins
     (a CMA-ES level, the per-view polish, the photometric yaw) and :meth:`phase_fraction` with the
     fraction of it done. The best silhouette cost is shown only in the phases that minimise it (the
     photometric yaw minimises a different quantity: its name is shown, not a "cost" that jumps).

@@ -493,7 +493,7 @@ def view_measures(
 ) -> tuple[list[FrameStats], list[float], list[float]]:
     """Per view: image statistics of the specimen part of the silhouette, IoU and mean boundary distance (px)
     against the reprojected mesh."""
-    shape = tuple(frames.shape[1:3])  # frames may be a lazy stack (view_budget.SessionFrames): read one view at a time
+    shape = tuple(frames.shape[1:3])  # frames may be a lazy stack (session_frames.SessionFrames): one view at a time
     stats, ious, dists = [], [], []
     for i in range(len(frames)):
         hm = mesh_mask_in_view(P[i], vertices, faces, shape)  # type: ignore[arg-type]

@@ -439,7 +439,7 @@ def open_directions_sigma(
     """σ (degrees, per θ entry) of the directions the images leave open, and a line saying why.
 
     Rolls (views 1 … N−1): each view's σ measured by the calibration (``roll_sigma``, (N,) degrees,
-    :mod:`vastcal.calibrate.roll_width`: the prior's width where the images leave the roll to it, less where
+    :mod:`vastcal.roll_width`: the prior's width where the images leave the roll to it, less where
     they pin it); for runs that did not measure it, the roll prior's width ``roll_prior_deg`` (default 1°) —
     the rig file's statement of how far the stage may drift, which decides them on near-orthographic optics
     (docs/calibration.md); when the rolls were fixed the same width (they sit at the commanded angles, the
@@ -620,7 +620,7 @@ def drift_status(
 
     ``status`` is ``measured`` (imported cameras: the given cameras' own rolls — as good as those
     cameras; or a calibration run whose images determine most free rolls: ``roll_rise``, the data cost's rise
-    over ±σ_p per view, above the prior's ``prior_rise`` for at least half of them, :mod:`vastcal.calibrate.roll_width`,
+    over ±σ_p per view, above the prior's ``prior_rise`` for at least half of them, :mod:`vastcal.roll_width`,
     with the median measured ``roll_sigma`` as the per-view uncertainty; or free rolls with no roll prior, which the
     images alone decide), ``undetermined`` (a calibration run with the
     rolls decided by the roll prior, which is the case on near-orthographic optics, docs/calibration.md — the values are
@@ -670,7 +670,7 @@ def drift_status(
     free_views = np.isfinite(rise)
     if roll_sigma is not None and prior_rise is not None and np.size(roll_sigma) == rise.size and free_views.any():
         # imported here: vastcal.calibrate (whose package imports its pipeline) uses this module
-        from vastcal.calibrate.roll_width import rolls_determined
+        from vastcal.roll_width import rolls_determined
 
         determined, n_free, most = rolls_determined(rise, float(prior_rise))
         u = float(np.median(np.asarray(roll_sigma, float)[free_views]))

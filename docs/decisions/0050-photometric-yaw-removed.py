@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from vastcal.calibrate import calibrate_session
+from vastcal.calibration_session import calibrate_session
 from vastcal.config import load_config
 from vastcal.pipeline import acquire_simulated, score_against_truth
 from vastcal.reconstruct import reconstruct_session

@@ -74,7 +74,7 @@ class _Seen(Exception):
 
 def _seed_of(session: Path, monkeypatch: pytest.MonkeyPatch, **kw: Any) -> np.ndarray:
     """θ0 the calibration would start from (calibrate_views replaced by a spy: no optimisation runs)."""
-    import vastcal.calibrate.session_run as sr
+    import vastcal.calibration_session as sr
 
     seen: list[np.ndarray] = []
 

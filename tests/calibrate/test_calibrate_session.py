@@ -18,7 +18,8 @@ _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's 
 FAST = _helpers.FAST
 write_session = _helpers.write_session
 
-from vastcal.calibrate import ColourModel, calibrate_session  # noqa: E402
+from vastcal.calibrate import ColourModel  # noqa: E402
+from vastcal.calibration_session import calibrate_session  # noqa: E402
 from vastcal.errors import ColourModelError, SessionIncompleteError, UserInputError  # noqa: E402
 from vastcal.session import Session, read_attrs  # noqa: E402
 
@@ -104,7 +105,7 @@ def test_bad_input_raises_one_clear_error_and_leaves_session_untouched(
 
 
 def test_offset_scan_option_reaches_the_settings(session_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import vastcal.calibrate as cal
+    import vastcal.calibration_session as cal
     from vastcal.cli import main
 
     seen: dict = {}
@@ -131,7 +132,7 @@ def test_offset_scan_option_reaches_the_settings(session_path: Path, monkeypatch
 
 
 def test_prior_and_scan_come_from_the_rig_config(session_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import vastcal.calibrate.session_run as sr
+    import vastcal.calibration_session as sr
 
     seen: dict = {}
 
@@ -168,7 +169,7 @@ def test_scribbles_option_passes_labels_and_refuses_other_values(
     cv2.imwrite(str(good), labels)
     cv2.imwrite(str(bad), labels * 120)
     seen: dict = {}
-    import vastcal.calibrate as cal
+    import vastcal.calibration_session as cal
 
     monkeypatch.setattr(cal, "calibrate_session", lambda path, **kw: seen.update(kw) or object())
     assert main(["calibrate", str(session_path), "--scribbles", f"0:{good}"]) == 0
@@ -195,7 +196,7 @@ def test_run_takes_a_mask_for_every_start_and_refuses_it_with_imported_cameras(
     exit 2."""
     import cv2
 
-    import vastcal.calibrate as cal
+    import vastcal.calibration_session as cal
     from vastcal.cli import main
 
     mask = tmp_path / "mask.png"

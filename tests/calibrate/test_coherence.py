@@ -12,12 +12,11 @@ from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
     Penalty,
     RaySearch,
-    axis_crossings,
     signed_distance_maps,
     silhouette_edges,
 )
 from vastcal.errors import AnalysisError
-from vastcal.geometry import projection_matrices
+from vastcal.geometry import axis_crossings, projection_matrices
 
 _spec = importlib.util.spec_from_file_location("synthetic_views", Path(__file__).with_name("synthetic.py"))
 synthetic = importlib.util.module_from_spec(_spec)
@@ -38,7 +37,7 @@ def scene() -> tuple[np.ndarray, np.ndarray, CoherenceObjective]:
 def test_edges_are_on_the_silhouette_boundary(scene: tuple[np.ndarray, np.ndarray, CoherenceObjective]) -> None:
     _, pf, obj = scene
     e = obj.edges
-    assert e.n_edges > 12 * 40
+    assert e.weight.sum() > 12 * 40  # real edge samples
     for i in range(pf.shape[0]):
         uv = e.uv[i][e.weight[i] > 0]
         u, v = np.rint(uv[:, 0]).astype(int), uv[:, 1]
@@ -379,7 +378,7 @@ def test_a_sweep_of_single_roll_moves_equals_every_candidate_searched_in_full(
 def test_threads_give_the_same_costs_bit_for_bit(
     scene: tuple[np.ndarray, np.ndarray, CoherenceObjective], per_candidate: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The views' slices of an evaluation run side by side (vastcal.calibrate.threads): the same numbers as one after
+    """The views' slices of an evaluation run side by side (vastcal.threads): the same numbers as one after
     the other."""
     theta, pf, obj = scene
     batch = theta[None] + np.random.default_rng(4).normal(0.0, 0.05, (6, theta.size)) * (np.arange(theta.size) != 3)

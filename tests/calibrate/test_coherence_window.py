@@ -10,12 +10,11 @@ import numpy as np
 
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
-    axis_crossings,
     coherence_atlas,
     signed_distance_maps,
     silhouette_edges,
 )
-from vastcal.geometry import projection_matrices
+from vastcal.geometry import axis_crossings, projection_matrices
 
 _spec = importlib.util.spec_from_file_location("synthetic_views", Path(__file__).with_name("synthetic.py"))
 synthetic = importlib.util.module_from_spec(_spec)

@@ -21,6 +21,7 @@ from vastcal.calibrate.objective_pi import PIObjective  # noqa: E402
 from vastcal.calibrate.objective_vr import VRObjective  # noqa: E402
 from vastcal.calibrate.region import specimen_region  # noqa: E402
 from vastcal.calibrate.sampling import Projector  # noqa: E402
+from vastcal.calibration_progress import ProgressClock  # noqa: E402
 from vastcal.config import CalibrationBounds  # noqa: E402
 
 
@@ -92,7 +93,7 @@ def test_progress_callback_reports_evaluations_and_eta(views: np.ndarray) -> Non
         d,
         np.r_[0.0, 0.0, 0.0, np.arange(n) * 30.0],
         dataclasses.replace(FAST, free=("pitch",)),
-        progress=lambda *a: calls.append(a),
+        progress=ProgressClock(lambda *a: calls.append(a)),
     )
     assert (
         calls and all(c[2] >= 0 for c in calls) and all(c[3] >= 0 for c in calls[1:])
@@ -106,7 +107,7 @@ def test_eta_is_measured_after_the_first_generation(monkeypatch: pytest.MonkeyPa
     import math
     import types
 
-    from vastcal.calibrate import observer
+    from vastcal import calibration_progress as observer
 
     now = [100.0]
     monkeypatch.setattr(observer, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
@@ -182,11 +183,10 @@ def test_per_candidate_coherence_does_not_depend_on_the_batch() -> None:
     """With ``per_candidate`` every θ searches its own rays: the same θ costs the same in any population."""
     from vastcal.calibrate.objective_coherence import (
         CoherenceObjective,
-        axis_crossings,
         signed_distance_maps,
         silhouette_edges,
     )
-    from vastcal.geometry import projection_matrices
+    from vastcal.geometry import axis_crossings, projection_matrices
 
     theta = sy.truth_theta(n=8, seed=5)
     K, d = sy.camera()

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vastcal.calibrate import CalibrationResult, CalibrationSettings
 from vastcal.calibrate.objective_coherence import (
     CoherenceObjective,
-    axis_crossings,
     signed_distance_maps,
     silhouette_edges,
 )
@@ -29,7 +29,7 @@ from vastcal.calibrate.roll_scan import (
 from vastcal.calibrate.stage_polish import POLISH_REACH, polish_rolls
 from vastcal.calibrate.stage_roll_scan import roll_share
 from vastcal.config import CalibrationBounds
-from vastcal.geometry import projection_matrices
+from vastcal.geometry import axis_crossings, projection_matrices
 
 _spec = importlib.util.spec_from_file_location("synthetic_views", Path(__file__).with_name("synthetic.py"))
 synthetic = importlib.util.module_from_spec(_spec)
@@ -292,33 +292,42 @@ def test_outlier_views_are_judged_by_the_median_and_its_absolute_deviation() -> 
     assert len(outlier_views(many, np.arange(1, 12))) == MAX_OUTLIER_VIEWS
 
 
+def _result(scan: dict, **kw: object) -> CalibrationResult:
+    """A small calibration result whose judge report holds ``scan`` as its outlier scan."""
+    th = np.zeros(3 + 4)
+    return CalibrationResult(
+        "coherence",
+        th,
+        th,
+        np.eye(3),
+        1.0,
+        np.zeros((4, 3, 4)),
+        None,
+        0,
+        ("rolls",),
+        {},
+        CalibrationSettings(),
+        10,
+        1.0,
+        0.1,
+        100,
+        50.0,
+        np.zeros((1, 2)),
+        level_reports=[{"judge": "…", "outlier_scan": scan}],
+        **kw,  # type: ignore[arg-type]
+    )
+
+
 def test_a_moved_outlier_view_is_named_in_the_calibration_summary() -> None:
-    from vastcal.calibrate import CalibrationResult, CalibrationSettings
-
-    def result(scan: dict) -> CalibrationResult:
-        th = np.zeros(3 + 4)
-        return CalibrationResult(
-            "coherence",
-            th,
-            th,
-            np.eye(3),
-            1.0,
-            np.zeros((4, 3, 4)),
-            None,
-            0,
-            ("rolls",),
-            {},
-            CalibrationSettings(),
-            10,
-            1.0,
-            0.1,
-            100,
-            50.0,
-            np.zeros((1, 2)),
-            level_reports=[{"judge": "…", "outlier_scan": scan}],
-        )
-
-    moved = result({"flagged": {"2": 77.2}, "moved": {"2": -17.04}})
+    moved = _result({"flagged": {"2": 77.2}, "moved": {"2": -17.04}})
     assert "outlier view(s) moved by a scan of their whole roll box: 2 (-17.04°, z 77)" in moved.summary()
-    assert "outlier" not in result({"flagged": {"2": 6.1}, "moved": {}}).summary()
-    assert "outlier" not in result({"ran": False}).summary()
+    assert "outlier" not in _result({"flagged": {"2": 6.1}, "moved": {}}).summary()
+    assert "outlier" not in _result({"ran": False}).summary()
+
+
+def test_a_run_that_did_not_converge_says_what_that_means() -> None:
+    """The summary's verdict: a run that did not converge stopped on its budget, not within its tolerance."""
+    reason = "per-view polish: a roll's minimum still lay beyond ± the smallest step"
+    text = _result({"ran": False}, converged=False, stop_reason=reason).summary()
+    assert "NOT converged (the search stopped on its budget, not within its tolerance; " in text and reason in text
+    assert "NOT converged" not in _result({"ran": False}, converged=True, stop_reason="…").summary()

@@ -1,4 +1,4 @@
-"""How well the images pin each roll (vastcal.calibrate.roll_width) and what the report then says of the drift."""
+"""How well the images pin each roll (vastcal.roll_width) and what the report then says of the drift."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vastcal.calibrate.roll_width import roll_widths, rolls_determined
+from vastcal.roll_width import roll_widths, rolls_determined
 from vastcal.uncertainty import drift_status, open_directions_sigma
 
 _spec = importlib.util.spec_from_file_location("calibrate_test_helpers", Path(__file__).with_name("conftest.py"))
@@ -88,7 +88,7 @@ def test_the_drift_is_a_measurement_when_the_images_determine_most_rolls() -> No
 
 
 def test_a_calibration_stores_each_roll_s_sigma(session_path: Path) -> None:
-    from vastcal.calibrate import calibrate_session
+    from vastcal.calibration_session import calibrate_session
     from vastcal.session import Session
 
     r = calibrate_session(session_path, seed=0, free=["rolls"], levels=FAST.levels)

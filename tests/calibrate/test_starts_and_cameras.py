@@ -15,9 +15,9 @@ _helpers = _importlib_util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's conftest, whatever pytest imported as "conftest"
 FAST = _helpers.FAST
 
-from vastcal.calibrate import calibrate_session  # noqa: E402
-from vastcal.calibrate.parameters import ParameterSpace, parse_views  # noqa: E402
+from vastcal.calibrate.parameters import ParameterSpace  # noqa: E402
 from vastcal.calibrate.stage_polish import polish_rolls  # noqa: E402
+from vastcal.calibration_session import calibrate_session, parse_views  # noqa: E402
 from vastcal.config import CalibrationBounds  # noqa: E402
 from vastcal.errors import ImportDataError, UserInputError  # noqa: E402
 from vastcal.geometry import CircularMotion, decompose_circular, project  # noqa: E402

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from vastcal.calibrate import threads
+from vastcal import threads
 
 
 def test_thread_count_comes_from_the_environment_or_the_cpus(

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from vastcal.calibrate.observer import ProgressClock
 from vastcal.calibrate.optimise import Generation
+from vastcal.calibration_progress import ProgressClock
 from vastcal.progress import CalibrationProgress, PhaseEta, PhaseProgress
 
 
@@ -239,7 +239,7 @@ def test_a_run_with_a_resolution_ends_at_its_planned_generation_with_its_step_ne
 
 
 def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_the_time_left() -> None:
-    from vastcal.calibrate.observer import GenerationTime
+    from vastcal.calibration_progress import GenerationTime
 
     research = np.array([0.01, 0.01, np.inf])  # the third coordinate is not watched
     gt = GenerationTime(research, popsize=10)
@@ -290,9 +290,8 @@ def test_generation_time_replays_the_full_searches_and_forecasts_their_share_of_
 
 
 def test_the_polish_runs_one_sweep_per_step_so_its_work_is_known_before_it_starts() -> None:
-    from vastcal.calibrate.observer import POLISH_TAIL_SWEEPS, polish_sweeps_left
     from vastcal.calibrate.parameters import CalibrationBounds, ParameterSpace
-    from vastcal.calibrate.stage_polish import polish_rolls
+    from vastcal.calibrate.stage_polish import POLISH_TAIL_SWEEPS, polish_rolls, polish_sweeps_left
 
     theta0 = np.zeros(3 + 5)
     space = ParameterSpace.build(theta0, ["rolls"], CalibrationBounds(), fixed_views=[0])
@@ -455,7 +454,7 @@ def test_cli_import_writes_named_phase_lines_with_an_eta_and_no_terminal_codes_t
 
 def test_a_frozen_plan_tells_the_generation_time_the_descent_it_plans() -> None:
     from vastcal.calibrate.forecast import CMAStopForecast
-    from vastcal.calibrate.observer import GenerationTime
+    from vastcal.calibration_progress import GenerationTime
 
     fc = CMAStopForecast(tolx=1.0, max_evaluations=10_000, popsize=10, planned=True)
     g = 0

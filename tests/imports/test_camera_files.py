@@ -191,7 +191,7 @@ def test_import_says_how_well_circular_motion_describes_the_cameras(
     """A ring fits to ~0 px; a view with its own focal length (2 % longer) or cameras that turn about no common axis
     are said at import (a warning) and by `vastcal info`, instead of being found out by a calibration that cannot reach
     them."""
-    from vastcal.calibrate.session_run import session_camera_model
+    from vastcal.calibration_session import session_camera_model
     from vastcal.geometry import CIRCULAR_FIT_WARN_PX
 
     P = _cameras(8)
@@ -215,7 +215,7 @@ def test_import_says_how_well_circular_motion_describes_the_cameras(
             assert "px RMS only" in warned
             assert float(line.split("circular fit ")[1].split()[0]) > CIRCULAR_FIT_WARN_PX
             caplog.clear()
-            with caplog.at_level("WARNING", logger="vastcal.calibrate.session_run"), Session.open(out) as s:
+            with caplog.at_level("WARNING", logger="vastcal.calibration_session"), Session.open(out) as s:
                 session_camera_model(s)  # what calibrate and run start from: they say it too
             assert "fit circular motion to" in caplog.text and "px RMS only" in caplog.text
         elif "not circular motion" in line:  # no common axis found at all

@@ -13,7 +13,7 @@ import pytest
 
 tifffile = pytest.importorskip("tifffile")
 
-from vastcal.calibrate.session_run import session_camera_model  # noqa: E402
+from vastcal.calibration_session import session_camera_model  # noqa: E402
 from vastcal.cli import main  # noqa: E402
 from vastcal.config import CONFIG_DIR, load_config  # noqa: E402
 from vastcal.errors import ImportDataError  # noqa: E402

@@ -230,10 +230,10 @@ def test_a_run_with_a_truth_file_puts_the_comparison_in_its_report(
 ) -> None:
     """What the demo does (pipeline.run_session with the simulator's truth file), calibration stubbed: the fixture's run
     stays."""
-    import vastcal.calibrate
+    import vastcal.calibration_session
     from vastcal.pipeline import run_session
 
-    monkeypatch.setattr(vastcal.calibrate, "calibrate_session", lambda *a, **k: object())
+    monkeypatch.setattr(vastcal.calibration_session, "calibrate_session", lambda *a, **k: object())
     with h5py.File(measured_session, "r") as f:
         vol = float(f["/entry/vastcal/measurement/run_000"].attrs["volume_mm3"])
     doc = {"hull_volume_mm3": vol / 1.02, "hull_area_mm2": 1.0}

@@ -9,8 +9,7 @@ import cv2
 import h5py
 import numpy as np
 
-from vastcal.calibrate.problem import colour_model_for
-from vastcal.segmentation import ColourModel, GaussianMixture, fit_from_mask, specimen_maps
+from vastcal.segmentation import ColourModel, GaussianMixture, colour_model_for, fit_from_mask, specimen_maps
 
 
 def _turntable_scene(views: int = 3, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

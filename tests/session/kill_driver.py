@@ -54,7 +54,7 @@ PRELOAD = (
     "vastcal.simulators.stage",
     "vastcal.simulators.camera",
     "vastcal.reconstruct",
-    "vastcal.calibrate.session_run",
+    "vastcal.calibration_session",
 )
 """Modules the commands under test import, loaded once here and inherited by every child (one that has moved is
 skipped: preloading saves time, it changes nothing the children do)."""
@@ -126,7 +126,7 @@ def _child(argv: list[str], stub: str | None, log: Path) -> None:
     os.dup2(out, 2)
     os.kill(os.getpid(), signal.SIGSTOP)  # wait for strace to attach
     if stub:
-        import vastcal.calibrate.session_run as sr
+        import vastcal.calibration_session as sr
 
         with open(stub, "rb") as f:
             result = pickle.load(f)

@@ -160,7 +160,7 @@ def _check_analysis_kills(tmp: Path, records: list[dict], pristine: dict, stage:
 def test_calibrate_killed_at_every_write_of_its_run_keeps_images_and_earlier_runs(
     tmp_path: Path, pristine_path: Path
 ) -> None:
-    from vastcal.calibrate.session_run import calibrate_session
+    from vastcal.calibration_session import calibrate_session
 
     # The search runs once here; the killed processes store its result (the storing is under test).
     scratch = Path(shutil.copy(pristine_path, tmp_path / "scratch.h5"))

@@ -223,13 +223,13 @@ def _no_work(*a: object, **k: object) -> None:
 def test_a_read_only_session_is_refused_before_any_work(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], command: str
 ) -> None:
-    import vastcal.calibrate
+    import vastcal.calibration_session
     import vastcal.pipeline
 
     (tmp_path / "sessions").mkdir()
     (tmp_path / "reports").mkdir()
     path = small_session(tmp_path / "sessions" / "S.h5")
-    monkeypatch.setattr(vastcal.calibrate, "calibrate_session", _no_work)
+    monkeypatch.setattr(vastcal.calibration_session, "calibrate_session", _no_work)
     monkeypatch.setattr(vastcal.pipeline, "run_session", _no_work)
     monkeypatch.setattr(os, "statvfs", _read_only(os.statvfs, tmp_path / "sessions"))
     args = [command, str(path), "-q"] + (["-o", str(tmp_path / "reports" / "S")] if command == "run" else [])

@@ -24,10 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from vastcal.calibrate.objective_coherence import CoherenceObjective
-from vastcal.calibrate.observer import LevelObserver, ProgressClock
 from vastcal.calibrate.optimise import CMAResult, SearchOptions, minimise, preload
 from vastcal.calibrate.problem import Problem
-from vastcal.calibrate.stage import LevelRun, Pose, Stage, StageContext
+from vastcal.calibrate.stage import Clock, LevelRun, Pose, Stage, StageContext
 from vastcal.config import Level
 
 log = logging.getLogger(__name__)
@@ -75,7 +74,7 @@ def _initial_steps(problem: Problem, run: LevelRun, lv: Level, x: np.ndarray, se
 
 
 def search_level(
-    problem: Problem, run: LevelRun, lv: Level, x: np.ndarray, seed: int, clock: ProgressClock, base: int
+    problem: Problem, run: LevelRun, lv: Level, x: np.ndarray, seed: int, clock: Clock, base: int
 ) -> tuple[np.ndarray, CMAResult]:
     """The per-level solver: CMA-ES over the level's groups from x; returns (x, the search's result)."""
     st, space = problem.settings, problem.space
@@ -93,8 +92,8 @@ def search_level(
     research = None
     if isinstance(data, CoherenceObjective) and not data.per_candidate:
         research = data.research_deg / space.half_width[space.free_mask][sel]
-    observer = LevelObserver(
-        clock, run.name, base, lv.max_evaluations, resolution is not None and st.restarts == "none", research
+    observer = clock.level(
+        run.name, base, lv.max_evaluations, resolution is not None and st.restarts == "none", research
     )
     options = SearchOptions(lv.max_evaluations, st.tolx, st.tolfun, st.popsize, st.restarts, resolution)
     res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed, options=options, observer=observer)
@@ -124,7 +123,7 @@ def _level_report(seed: int, run: LevelRun, lv: Level, res: CMAResult, dt: float
 def coarse_to_fine(
     problem: Problem,
     seed: int,
-    clock: ProgressClock,
+    clock: Clock,
     evals_before: int,
     stages: Sequence[Stage],
     level_factory: Callable[[Problem, int, np.ndarray, str], LevelRun] = make_level,

@@ -7,7 +7,6 @@ lower is better. Each method builds its objective for one resolution level from 
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -101,10 +100,6 @@ class Prior:
     def of(cls, theta0: np.ndarray, settings: CalibrationSettings) -> Prior:
         """The prior the settings ask for, centred on θ0."""
         return cls(np.asarray(theta0), settings.roll_prior_weight, settings.roll_prior_deg, settings.yaw_prior_deg)
-
-    def without_yaw(self) -> Prior:
-        """The same prior without its yaw term (a yaw measured by other means)."""
-        return dataclasses.replace(self, yaw_deg=0.0)
 
     def __call__(self, theta: np.ndarray) -> np.ndarray:
         """(B,) prior cost of θ (B, 3 + N) degrees."""

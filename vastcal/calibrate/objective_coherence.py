@@ -57,11 +57,11 @@ import numpy as np
 
 from vastcal.calibrate.objective import LevelMaps
 from vastcal.calibrate.sampling import Atlas
-from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.config import CalibrationSettings
 from vastcal.errors import AnalysisError
-from vastcal.geometry import axis_origin_in_camera, project, projection_matrices, rot_x, rot_y, rot_z
+from vastcal.geometry import axis_crossings, axis_origin_in_camera, projection_matrices, rot_x, rot_y, rot_z
 from vastcal.segmentation import largest_region
+from vastcal.threads import compute_threads, run_slices
 
 log = logging.getLogger(__name__)
 
@@ -77,29 +77,6 @@ class EdgeSamples:
 
     uv: np.ndarray
     weight: np.ndarray
-
-    @property
-    def n_edges(self) -> int:
-        """Number of real edge samples."""
-        return int(self.weight.sum())
-
-
-def axis_probe(P: np.ndarray) -> np.ndarray:
-    """Two world points (2, 3) on the rotation axis (world x), ±5 % of the camera distance from the origin.
-
-    Probes must stay well in front of every camera, whatever the units (µm on the rig, arbitrary
-    units on imported turntable data), so their length is scaled to the first camera's distance.
-    """
-    P0 = np.asarray(P, float).reshape(-1, 3, 4)[0]
-    length = 0.05 * float(np.linalg.norm(np.linalg.solve(P0[:, :3], -P0[:, 3])))  # |camera centre|
-    return np.array([[-length, 0.0, 0.0], [length, 0.0, 0.0]])
-
-
-def axis_direction_px(P0: np.ndarray) -> np.ndarray:
-    """Unit image direction (du, dv) of the rotation axis (world x) in view 0 of cameras P0."""
-    uv = project(P0[:1], axis_probe(P0))[0]
-    d = uv[1] - uv[0]
-    return d / np.linalg.norm(d)
 
 
 def _line_runs(inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -126,7 +103,6 @@ def silhouette_edges(
     max_lines: int = 64,
     level: float = 0.5,
     min_run_px: int = 3,
-    all_runs: bool = False,
     full_views: int = 41,
     min_lines: int = 8,
 ) -> EdgeSamples:
@@ -144,11 +120,9 @@ def silhouette_edges(
 
     Args:
         pf: (N, H, W) foreground posteriors.
-        axis_uv: (N, L, 2) where the axis crosses each scan line in each view (``axis_crossings``): it sets
-            the direction of the scan lines.
+        axis_uv: (N, L, 2) where the axis crosses each scan line in each view
+            (:func:`vastcal.geometry.axis_crossings`): it sets the direction of the scan lines.
         max_lines: at most this many scan lines per view (evenly chosen among the usable ones).
-        all_runs: take the edges of every run of every region, not only the specimen's outline (for
-            internal features such as the eyes, which appear as one or two runs depending on the angle).
         full_views, min_lines: up to ``full_views`` views every view gets ``max_lines`` scan lines; more
             views share the edge samples of ``full_views`` views (``max_lines`` × ``full_views`` / N lines
             each, at least ``min_lines``), so that an evaluation's cost stops growing with the views while
@@ -161,15 +135,12 @@ def silhouette_edges(
     per_view: list[np.ndarray] = []
     for i in range(n):
         inside = pf[i] > level
-        if not all_runs:
-            count, labels, big = largest_region(inside)
-            inside = labels == big if count > 2 else inside
+        count, labels, big = largest_region(inside)
+        inside = labels == big if count > 2 else inside
         profiles = pf[i] if horizontal else pf[i].T  # (length, lines): column c is scan line c
         length = profiles.shape[0]
         line, start, end = _line_runs(inside if horizontal else inside.T)
-        if (
-            not all_runs and line.size
-        ):  # per line, the region's first start and last end (runs are ordered by line, then start)
+        if line.size:  # per line, the region's first start and last end (runs are ordered by line, then start)
             first = np.r_[True, line[1:] != line[:-1]]
             last = np.r_[line[1:] != line[:-1], True]
             line, start, end = line[first], start[first], end[last]
@@ -200,29 +171,6 @@ def silhouette_edges(
         uv[i, len(arr) :] = arr[0]
         wt[i, : len(arr)] = 1.0
     return EdgeSamples(uv, wt)
-
-
-def axis_crossings(P0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(N, L, 2): where the image of the axis crosses each scan line, for cameras P0 (N, 3, 4).
-
-    Scan lines are columns (L = W) when the axis is closer to horizontal in view 0, rows (L = H) otherwise.
-    """
-    h, w = shape
-    d = axis_direction_px(P0)
-    horizontal = abs(d[0]) >= abs(d[1])
-    pts = project(P0, axis_probe(P0))  # (N, 2, 2)
-    a, b = pts[:, 0], pts[:, 1]
-    out = []
-    for i in range(P0.shape[0]):
-        if horizontal:
-            u = np.arange(w, dtype=float)
-            v = a[i, 1] + (u - a[i, 0]) * (b[i, 1] - a[i, 1]) / (b[i, 0] - a[i, 0])
-            out.append(np.stack([u, v], 1))
-        else:
-            v = np.arange(h, dtype=float)
-            u = a[i, 0] + (v - a[i, 1]) * (b[i, 0] - a[i, 0]) / (b[i, 1] - a[i, 1])
-            out.append(np.stack([u, v], 1))
-    return np.asarray(out)
 
 
 def signed_distance_maps(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6.0, upsample: int = 2) -> np.ndarray:

@@ -11,7 +11,7 @@ is where the speed comes from (no Python loop over candidates or views).
   ``resolution`` (a level that hands over to a finer one) the run ends at the generation its step's descent
   was planned to reach that resolution (:class:`.forecast.CMAStopForecast` with ``planned=True``).
 * Progress: none here. A :class:`SearchObserver` is told every generation (:class:`Generation`); the display's
-  forecasts and ETA live on the observer's side (:mod:`.observer`).
+  forecasts and ETA live on the observer's side (:mod:`vastcal.calibration_progress`).
 * Reproducibility: cma seeds NumPy's global generator from its ``seed`` option at
   construction; cma treats 0 as "seed from the clock", so seed s is passed as s + 1.
 """

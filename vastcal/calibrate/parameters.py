@@ -22,36 +22,6 @@ from vastcal.errors import UserInputError
 from vastcal.geometry import project, projection_matrices
 
 
-def parse_views(spec: str | Iterable[int] | None, n: int | None = None) -> tuple[int, ...]:
-    """View indices from ``"10-35"``, ``"0,3,5-7"`` (0-based, ranges inclusive) or an iterable of ints.
-
-    Raises:
-        UserInputError: malformed text, a reversed range, or (with ``n``) a view outside 0 … n − 1.
-    """
-    if spec is None:
-        return ()
-    out: list[int] = []
-    if isinstance(spec, str):
-        for part in spec.replace(" ", ",").split(","):
-            if not part:
-                continue
-            a, sep, b = part.partition("-")
-            try:
-                lo, hi = (int(a), int(b)) if sep else (int(a), int(a))
-            except ValueError:
-                raise UserInputError(f"views: expected indices or ranges like 10-35 or 0,3,5-7, got {spec!r}") from None
-            if hi < lo or lo < 0:
-                raise UserInputError(f"views: expected non-negative ranges low-high, got {part!r}")
-            out.extend(range(lo, hi + 1))
-    else:
-        out = [int(v) for v in spec]
-    if n is not None:
-        bad = [v for v in out if not 0 <= v < n]
-        if bad:
-            raise UserInputError(f"views {bad[:5]} do not exist (views 0–{n - 1})")
-    return tuple(sorted(set(out)))
-
-
 def normalise_free(free: Iterable[str] | str | None) -> tuple[str, ...]:
     """Validated, canonical tuple of free groups (``all`` expanded), in θ order.
 

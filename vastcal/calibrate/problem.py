@@ -1,8 +1,8 @@
 """What every start of a calibration shares: the specimen maps, the parameter space and the per-level objectives.
 
-The images enter once: the colour model (:func:`colour_model_for`), then the specimen posteriors at the finest
-level's size (:meth:`Problem.build`). Each level resizes those maps, carves the region where the specimen can be
-and builds the method's objective from them (:data:`.methods.OBJECTIVES`).
+The images enter once: the colour model (:func:`vastcal.segmentation.colour_model_for`), then the specimen
+posteriors at the finest level's size (:meth:`Problem.build`). Each level resizes those maps, carves the region
+where the specimen can be and builds the method's objective from them (:data:`.methods.OBJECTIVES`).
 """
 
 from __future__ import annotations
@@ -18,45 +18,10 @@ from vastcal.calibrate.parameters import ParameterSpace
 from vastcal.calibrate.region import Region, specimen_region
 from vastcal.calibrate.sampling import resize_stack
 from vastcal.config import CalibrationSettings
-from vastcal.errors import EmptyHullError, UserInputError
-from vastcal.segmentation import ColourModel, fit_automatic, fit_from_marks, mask_labels, specimen_maps_within
+from vastcal.errors import EmptyHullError
+from vastcal.segmentation import ColourModel, specimen_maps_within
 
 log = logging.getLogger(__name__)
-
-#: Other views, evenly spread over the turn, in which a marked background material must hold its place
-#: (:func:`vastcal.segmentation.fit_from_marks`).
-MARKS_OTHER_VIEWS = 6
-
-
-def colour_model_for(
-    images: np.ndarray,
-    mask: tuple[int, np.ndarray] | None,
-    scribbles: tuple[int, np.ndarray] | None,
-    seed: int,
-) -> ColourModel:
-    """The colour model from a (view, rough mask) or (view, scribbles) mark, else fitted automatically.
-
-    Raises:
-        UserInputError: a mark that is not (view index, image array) or names no view.
-    """
-    for name, spec in (("mask", mask), ("scribbles", scribbles)):
-        if spec is None:
-            continue
-        try:
-            view, arr = int(spec[0]), np.asarray(spec[1])
-        except (TypeError, ValueError, IndexError):
-            raise UserInputError(f"{name}: expected (view index, image array)") from None
-        if not 0 <= view < images.shape[0]:
-            raise UserInputError(f"{name}: view {view} does not exist (views 0–{images.shape[0] - 1})")
-        labels = mask_labels(images[view], arr, view=view) if name == "mask" else arr
-        n = images.shape[0]
-        others = [
-            images[int(j)]
-            for j in np.unique(np.round(view + np.arange(1, MARKS_OTHER_VIEWS + 1) * n / (MARKS_OTHER_VIEWS + 1)) % n)
-            if int(j) != view
-        ]
-        return fit_from_marks(images[view], labels, view=view, source=f"{name}:view {view}", others=others)
-    return fit_automatic(images, seed=seed)
 
 
 def _area_resize(images: np.ndarray, factor: float) -> np.ndarray:
@@ -190,6 +155,6 @@ class Problem:
         """The method's data objective of ``level`` (:class:`.objective.ObjectiveFactory`)."""
         return self.factory(level, self.settings, exact=exact, local_zooms=local_zooms)
 
-    def cost(self, data: Objective, *, yaw_prior: bool = True) -> WithPrior:
-        """``data`` plus the prior (``yaw_prior=False``: without its yaw term)."""
-        return WithPrior(data, self.prior if yaw_prior else self.prior.without_yaw())
+    def cost(self, data: Objective) -> WithPrior:
+        """``data`` plus the prior."""
+        return WithPrior(data, self.prior)

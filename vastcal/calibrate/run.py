@@ -19,23 +19,22 @@ import numpy as np
 
 from vastcal.calibrate.coarse_to_fine import Start, coarse_to_fine
 from vastcal.calibrate.methods import objective_factory
-from vastcal.calibrate.observer import ProgressCallback, ProgressClock
 from vastcal.calibrate.optimise import RESTARTS
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
-from vastcal.calibrate.problem import Problem, colour_model_for
-from vastcal.calibrate.roll_width import RollWidths
-from vastcal.calibrate.stage import LevelRun, Pose, Stage, StageContext
+from vastcal.calibrate.problem import Problem
+from vastcal.calibrate.stage import Clock, LevelRun, Pose, QuietClock, Stage, StageContext
 from vastcal.calibrate.stage_offset_scan import CommonRollOffsetScan
 from vastcal.calibrate.stage_outlier_scan import OutlierScan
 from vastcal.calibrate.stage_polish import Polish
 from vastcal.calibrate.stage_references import KeepReferences
 from vastcal.calibrate.stage_roll_scan import RollScan
 from vastcal.calibrate.stage_roll_widths import RollWidths as RollWidthsStage
-from vastcal.calibrate.view_budget import peak_resident_mb
 from vastcal.config import CalibrationSettings, check_setting
 from vastcal.errors import AnalysisError, UserInputError
 from vastcal.geometry import projection_matrices
-from vastcal.segmentation import ColourModel, check_images
+from vastcal.process_memory import peak_resident_mb
+from vastcal.roll_width import RollWidths
+from vastcal.segmentation import ColourModel, check_images, colour_model_for
 from vastcal.session_frames import SessionFrames
 from vastcal.uncertainty import drift_rms_deg
 
@@ -80,6 +79,11 @@ class References:
     score_thetas: Sequence[np.ndarray] = ()
 
 
+NOT_CONVERGED = "NOT converged (the search stopped on its budget, not within its tolerance; the pose is the best found)"
+"""What a summary says of a run that did not converge: the polish used its last, smallest step with some roll's
+minimum still beyond it (:func:`.stage_polish.polish_rolls`): that roll may lie more than the step from its minimum."""
+
+
 @dataclass
 class CalibrationResult:
     """A calibrated revolution and how it was obtained.
@@ -121,8 +125,8 @@ class CalibrationResult:
     """Judge costs of the ``score_thetas`` given to :func:`calibrate_views`."""
     fixed_views: tuple[int, ...] = ()
     roll_widths: RollWidths | None = None
-    """How well the images pin each free roll (:mod:`.roll_width`); None when no roll was free or there was no roll
-    prior."""
+    """How well the images pin each free roll (:mod:`vastcal.roll_width`); None when no roll was free or there was no
+    roll prior."""
 
     @property
     def delta_angle_deg(self) -> np.ndarray:
@@ -141,7 +145,7 @@ class CalibrationResult:
             f"{' - ' + self.roll_widths.describe() if self.roll_widths is not None else ''}\n"
             f"  cost {self.final_cost:.6g} (commanded angles: {self.theta0_cost:.6g}), "
             f"best of {0 if self.start_costs is None else len(self.start_costs)} "
-            f"start(s), {'converged' if self.converged else 'NOT converged'}: {self.stop_reason}\n"
+            f"start(s), {'converged' if self.converged else NOT_CONVERGED}: {self.stop_reason}\n"
             f"  {self.n_evaluations} evaluations, {1e3 * self.time_per_evaluation_s:.2f} ms each, "
             f"{self.n_voxels} voxels, "
             f"{self.wall_time_s:.2f} s, peak memory {self.peak_rss_mb:.0f} MB"
@@ -184,7 +188,7 @@ def _checked_space(
     return space
 
 
-def _judge_starts(problem: Problem, clock: ProgressClock, runs: list[Start], refs: References) -> tuple:
+def _judge_starts(problem: Problem, clock: Clock, runs: list[Start], refs: References) -> tuple:
     """The judge (the finest level's batch-independent cost, on a region around the first start's result) of the
     starts and of θ0 and the references; returns (context of the final stages, the best start's pose)."""
     space, last = problem.space, len(problem.settings.levels) - 1
@@ -240,20 +244,22 @@ def calibrate_views(
     settings: CalibrationSettings | None = None,
     *,
     marks: Marks | None = None,
-    progress: ProgressCallback | None = None,
+    progress: Clock | None = None,
     fixed_views: Sequence[int] = (),
     references: References | None = None,
 ) -> CalibrationResult:
     """Calibrate θ from the views themselves (pure function of arrays).
 
     Args:
-        images: (N, H, W[, 3]) views, as stored, or a session's :class:`.view_budget.SessionFrames` (read when needed).
+        images: (N, H, W[, 3]) views, as stored, or a session's :class:`vastcal.session_frames.SessionFrames`
+            (read when needed).
         K: 3×3 intrinsics, 0-based pixels of ``images``.
         distance: camera-to-axis distance d, world units (µm on the rig).
         theta0_deg: (3 + N,) start [yaw, pitch, γ, commanded rolls], degrees.
         settings: method, seed, free groups, bounds, starts and every numerical setting (default: the defaults).
         marks: what the colour model is learnt from, given silhouettes (:class:`Marks`; default automatic).
-        progress: callback (evaluations, best cost, elapsed s, ETA s).
+        progress: where progress goes (:class:`vastcal.calibration_progress.ProgressClock` turns it into a
+            callback's (evaluations, best cost, elapsed s, ETA s) and a display's phases; default: nowhere).
         fixed_views: views whose roll stays at its commanded angle (0-based).
         references: θ the result must not be costlier than, and θ only scored (:class:`References`).
 
@@ -268,7 +274,8 @@ def calibrate_views(
     space = _checked_space(images, theta0_deg, settings, marks, fixed_views)
     model = marks.colour_model or colour_model_for(images, marks.mask, marks.scribbles, settings.seed)
     problem = Problem.build(images, model, K, distance, space, settings, marks.silhouettes)
-    clock = ProgressClock(progress, settings.starts * sum(lv.max_evaluations for lv in settings.levels))
+    clock = progress if progress is not None else QuietClock()
+    clock.start_phase(settings.starts * sum(lv.max_evaluations for lv in settings.levels))
     runs: list[Start] = []
     for s in range(settings.starts):
         before = sum(r.evaluations for r in runs)

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vastcal.calibrate.threads import compute_threads, run_slices
 from vastcal.geometry import projection_matrices
+from vastcal.threads import compute_threads, run_slices
 
 
 def downsample_matrix(scale_x: float, scale_y: float) -> np.ndarray:

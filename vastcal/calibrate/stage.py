@@ -4,6 +4,9 @@ A stage is told the :class:`StageContext` (the problem, the level it works at, t
 the current :class:`Pose`; when it :meth:`~Stage.applies`, it returns the new pose and a report (stored with the
 run under the stage's ``name``). The stages run after every level and after the starts are listed in one place:
 :data:`.run.LEVEL_STAGES` and :data:`.run.FINAL_STAGES`.
+
+Progress goes out through the :class:`Clock` protocol only; how it is shown (phases, ETAs) is the display's
+(:class:`vastcal.calibration_progress.ProgressClock`). :class:`QuietClock` shows nothing.
 """
 
 from __future__ import annotations
@@ -15,9 +18,41 @@ from typing import Any, Protocol
 import numpy as np
 
 from vastcal.calibrate.objective import LevelMaps, Objective, WithPrior
-from vastcal.calibrate.observer import ProgressClock
+from vastcal.calibrate.optimise import SearchObserver
 from vastcal.calibrate.problem import Problem
 from vastcal.segmentation import ColourModel
+
+
+class Clock(Protocol):
+    """What a calibration tells a progress display: phases, their work done and left, evaluations and best cost."""
+
+    budget: int
+    """Evaluations the whole calibration may take (it grows when a level's budget is scaled)."""
+
+    def start_phase(self, evaluations: int, name: str | None = None) -> None:
+        """A phase of ``evaluations`` more evaluations at a rate of its own; the budget becomes done plus that."""
+
+    def name_phase(self, evaluations: int, name: str | None) -> None:
+        """A named part of up to ``evaluations`` evaluations within the budget."""
+
+    def forecast(self, done: float, left: float) -> None:
+        """The current phase's work done and forecast left, in units of about equal time (left NaN: unknown)."""
+
+    def update(self, evals_total: int, best: float) -> None:
+        """Evaluations so far (every level and start) and the best cost."""
+
+    def level(
+        self, name: str, base: int, max_evaluations: int, planned: bool, research: np.ndarray | None
+    ) -> SearchObserver | None:
+        """The observer of one CMA-ES level (phase ``name``, ``base`` evaluations before it, its budget; ``planned``:
+        it ends at a planned generation; ``research``: box units a batch mean moves before the cost searches anew)."""
+
+
+class QuietClock(Clock):
+    """A :class:`Clock` that shows nothing: every method is the protocol's own, which does nothing (``level``: no
+    observer, the search runs unwatched)."""
+
+    budget = 0
 
 
 @dataclass
@@ -76,7 +111,7 @@ class StageContext:
     """
 
     problem: Problem
-    clock: ProgressClock
+    clock: Clock
     level: LevelRun
     judge: WithPrior | None = None
     last: bool = True

@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from vastcal.calibrate.objective_coherence import CoherenceObjective
-from vastcal.calibrate.observer import polish_sweeps_left
 from vastcal.calibrate.parameters import ParameterSpace
 from vastcal.calibrate.stage import Pose, StageContext
 from vastcal.calibrate.stage_roll_scan import roll_share
@@ -25,6 +24,15 @@ log = logging.getLogger(__name__)
 #: How far a roll's parabola vertex may lie from the trials it is fitted to, in steps: an extrapolation that the
 #: scoring of the joint move checks. With the default steps (0.2, 0.1, 0.05, 0.025°) a roll can travel 0.75°.
 POLISH_REACH = 2.0
+
+#: the polish's work after its last sweep (its final evaluation and the judge's), in sweeps
+POLISH_TAIL_SWEEPS = 0.5
+
+
+def polish_sweeps_left(n_steps: int, done: int) -> float:
+    """Sweeps left in the per-view polish of ``n_steps`` step sizes after ``done`` sweeps, its tail included: one
+    sweep per step size, so the work is known before the polish starts (the progress display's forecast)."""
+    return max(int(n_steps) - int(done), 0) + POLISH_TAIL_SWEEPS
 
 
 def polish_rolls(

@@ -1,4 +1,4 @@
-"""Stage: how well the images pin each free roll (:mod:`.roll_width`), where there is a roll prior."""
+"""Stage: how well the images pin each free roll (:mod:`vastcal.roll_width`), where there is a roll prior."""
 
 from __future__ import annotations
 
@@ -7,15 +7,15 @@ from typing import Any
 
 import numpy as np
 
-from vastcal.calibrate.roll_width import roll_widths
 from vastcal.calibrate.stage import Pose, StageContext
+from vastcal.roll_width import roll_widths
 
 log = logging.getLogger(__name__)
 
 
 class RollWidths:
     """Each free roll's width from the data cost the polish set the rolls with (else the judge's), without a prior
-    the cost has no temperature (see :mod:`.roll_width`)."""
+    the cost has no temperature (see :mod:`vastcal.roll_width`)."""
 
     name = "roll_widths"
 

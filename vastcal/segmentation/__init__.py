@@ -29,7 +29,7 @@ from vastcal.segmentation.colour_models import (
     mask_labels,
 )
 from vastcal.segmentation.gaussians import Gaussian, GaussianMixture
-from vastcal.segmentation.marks import fit_from_marks
+from vastcal.segmentation.marks import colour_model_for, fit_from_marks
 from vastcal.segmentation.probability_maps import (
     grouped_specimen_maps,
     specimen_maps,
@@ -43,6 +43,7 @@ __all__ = [
     "Gaussian",
     "GaussianMixture",
     "check_images",
+    "colour_model_for",
     "contrast",
     "fit_automatic",
     "fit_from_marks",

@@ -1,4 +1,5 @@
-"""A user's marks of one view (a mask or scribbles) → the colour model that reproduces them best.
+"""A user's marks of one view (a mask or scribbles) → the colour model that reproduces them best
+(:func:`colour_model_for`: the marks given, else the automatic fit).
 
 Colour alone cannot tell whether a colour of the marked background that is neither the backdrop's nor the
 specimen's is a material of the scene (a grey turntable, the lit patches on it) or shared with the specimen
@@ -20,7 +21,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from vastcal.segmentation.colour_models import ColourModel, fit_from_scribbles
+from vastcal.errors import UserInputError
+from vastcal.segmentation.colour_models import ColourModel, fit_automatic, fit_from_scribbles, mask_labels
 from vastcal.segmentation.gaussians import GaussianMixture
 from vastcal.segmentation.probability_maps import specimen_maps
 
@@ -84,3 +86,39 @@ def fit_from_marks(
             [np.round(g.mean, 3).tolist() for g in bg.parts],
         )
     return best[1]
+
+
+#: Other views, evenly spread over the turn, in which a marked background material must hold its place
+#: (:func:`fit_from_marks`).
+MARKS_OTHER_VIEWS = 6
+
+
+def colour_model_for(
+    images: np.ndarray,
+    mask: tuple[int, np.ndarray] | None,
+    scribbles: tuple[int, np.ndarray] | None,
+    seed: int,
+) -> ColourModel:
+    """The colour model from a (view, rough mask) or (view, scribbles) mark, else fitted automatically.
+
+    Raises:
+        UserInputError: a mark that is not (view index, image array) or names no view.
+    """
+    for name, spec in (("mask", mask), ("scribbles", scribbles)):
+        if spec is None:
+            continue
+        try:
+            view, arr = int(spec[0]), np.asarray(spec[1])
+        except (TypeError, ValueError, IndexError):
+            raise UserInputError(f"{name}: expected (view index, image array)") from None
+        if not 0 <= view < images.shape[0]:
+            raise UserInputError(f"{name}: view {view} does not exist (views 0–{images.shape[0] - 1})")
+        labels = mask_labels(images[view], arr, view=view) if name == "mask" else arr
+        n = images.shape[0]
+        others = [
+            images[int(j)]
+            for j in np.unique(np.round(view + np.arange(1, MARKS_OTHER_VIEWS + 1) * n / (MARKS_OTHER_VIEWS + 1)) % n)
+            if int(j) != view
+        ]
+        return fit_from_marks(images[view], labels, view=view, source=f"{name}:view {view}", others=others)
+    return fit_automatic(images, seed=seed)

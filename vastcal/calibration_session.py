@@ -10,15 +10,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from vastcal.calibrate.observer import ProgressCallback
-from vastcal.calibrate.parameters import normalise_free, parse_views
+from vastcal.calibrate.parameters import normalise_free
 from vastcal.calibrate.run import CalibrationResult, Marks, References, calibrate_views
+from vastcal.calibration_progress import ProgressCallback, ProgressClock
 from vastcal.config import RENAMED_KEYS, CalibrationSettings, RoiConfig, check_setting
 from vastcal.errors import ConfigError, SessionIncompleteError, UserInputError, VastcalError
 from vastcal.geometry import circular_fit_shortfall, decompose_circular, intrinsics_from_optics
@@ -28,6 +28,36 @@ from vastcal.session import Session, software_versions, write_attrs
 from vastcal.session_frames import SessionFrames
 
 log = logging.getLogger(__name__)
+
+
+def parse_views(spec: str | Iterable[int] | None, n: int | None = None) -> tuple[int, ...]:
+    """View indices from ``"10-35"``, ``"0,3,5-7"`` (0-based, ranges inclusive) or an iterable of ints.
+
+    Raises:
+        UserInputError: malformed text, a reversed range, or (with ``n``) a view outside 0 … n − 1.
+    """
+    if spec is None:
+        return ()
+    out: list[int] = []
+    if isinstance(spec, str):
+        for part in spec.replace(" ", ",").split(","):
+            if not part:
+                continue
+            a, sep, b = part.partition("-")
+            try:
+                lo, hi = (int(a), int(b)) if sep else (int(a), int(a))
+            except ValueError:
+                raise UserInputError(f"views: expected indices or ranges like 10-35 or 0,3,5-7, got {spec!r}") from None
+            if hi < lo or lo < 0:
+                raise UserInputError(f"views: expected non-negative ranges low-high, got {part!r}")
+            out.extend(range(lo, hi + 1))
+    else:
+        out = [int(v) for v in spec]
+    if n is not None:
+        bad = [v for v in out if not 0 <= v < n]
+        if bad:
+            raise UserInputError(f"views {bad[:5]} do not exist (views 0–{n - 1})")
+    return tuple(sorted(set(out)))
 
 
 def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarray, dict[str, Any]]:
@@ -41,7 +71,8 @@ def session_camera_model(session: Session) -> tuple[np.ndarray, float, np.ndarra
     pitch and γ come from them; otherwise K comes from the rig optics shifted by the stored ROI
     offset and d is the working distance. The rolls of θ0 are the commanded angles. With imported cameras,
     ``notes["imported_cameras_theta_deg"]`` is their own θ (their rolls, view 0 at its commanded angle): the
-    calibration's result is never costlier than they are (:func:`.run.calibrate_views`' ``reference_thetas``).
+    calibration's result is never costlier than they are (:func:`vastcal.calibrate.run.calibrate_views`'
+    ``references``).
 
     Raises:
         SessionIncompleteError: no rotation angles, or non-finite ones.
@@ -184,7 +215,7 @@ def calibrate_session(
             theta0,
             settings=settings,
             marks=Marks(mask=mask, scribbles=scribbles, silhouettes=sil),
-            progress=progress,
+            progress=ProgressClock(progress),
             fixed_views=fixed,
             references=_references(notes if judge_imported_cameras else {}, score_thetas),
         )
@@ -286,7 +317,7 @@ def store_result(group: Any, r: CalibrationResult, notes: dict[str, Any], silhou
             w.sigma_deg,
             "degree",
             "per view: sigma of the roll, the calibration's cost read as a posterior whose prior is "
-            "the roll prior (vastcal.calibrate.roll_width); the prior's width where the roll was not free",
+            "the roll prior (vastcal.roll_width); the prior's width where the roll was not free",
         )
         ds(
             "roll_data_rise",

@@ -1,14 +1,14 @@
 """The progress display's side of a calibration: phases, forecasts of the work left and the ETA.
 
-The searches and stages report what they did (:class:`.optimise.Generation`, evaluations, sweeps); this module
-turns that into what a display shows: a named phase, the fraction of it done, and the ETA — the forecast work left
-times the time per unit of work measured in the phase itself (:class:`vastcal.progress.PhaseEta`).
+The searches and stages report what they did (:class:`vastcal.calibrate.optimise.Generation`, evaluations, sweeps)
+to a :class:`vastcal.calibrate.stage.Clock`; this module implements it, turning that into what a display shows: a
+named phase, the fraction of it done, and the ETA — the forecast work left times the time per unit of work measured
+in the phase itself (:class:`vastcal.progress.PhaseEta`).
 
 * :class:`ProgressClock` — (evaluations, best cost, elapsed s, ETA s) for a user callback, and named phases for a
   display that draws them (:class:`vastcal.progress.CalibrationProgress`).
-* :class:`LevelObserver` — one CMA-ES level's :class:`.optimise.SearchObserver`: the stop forecast's evaluations
-  left, or, for a cost whose generations differ in time, seconds left (:class:`GenerationTime`).
-* :func:`polish_sweeps_left` — the per-view polish runs one sweep per step size: its work is known before it starts.
+* :class:`LevelObserver` — one CMA-ES level's :class:`vastcal.calibrate.optimise.SearchObserver`: the stop
+  forecast's evaluations left, or, for a cost whose generations differ in time, seconds left (:class:`GenerationTime`).
 """
 
 from __future__ import annotations
@@ -31,15 +31,6 @@ ProgressCallback = Callable[[int, float, float, float], None]
 _erfc = np.vectorize(math.erfc, otypes=[float])
 """The complementary error function, elementwise: a forecast takes it of (generations ahead × coordinates) values,
 which ``math.erfc`` does in microseconds each — where importing SciPy's ufunc would cost ~0.1 s of every run."""
-
-
-#: the polish's work after its last sweep (its final evaluation and the judge's), in sweeps
-POLISH_TAIL_SWEEPS = 0.5
-
-
-def polish_sweeps_left(n_steps: int, done: int) -> float:
-    """Sweeps left in the per-view polish of ``n_steps`` step sizes after ``done`` sweeps, its tail included."""
-    return max(int(n_steps) - int(done), 0) + POLISH_TAIL_SWEEPS
 
 
 class GenerationTime:
@@ -191,7 +182,7 @@ class ProgressClock:
     colour model before it), which made the first ETA on ZF1 four minutes for a 7 s calibration.
     """
 
-    def __init__(self, callback: ProgressCallback | None, budget: int, every_s: float = 1.0) -> None:
+    def __init__(self, callback: ProgressCallback | None, budget: int = 1, every_s: float = 1.0) -> None:
         self.callback = callback
         self.budget = max(1, int(budget))
         self.t0 = time.monotonic()
@@ -205,7 +196,7 @@ class ProgressClock:
     def forecast(self, done: float, left: float) -> None:
         """The current phase's work done and forecast left, in units of about equal time each (a CMA-ES level's
         evaluations, or seconds of its search when its generations differ in cost; the polish's sweeps;
-        :mod:`.forecast`): the ETA is ``left`` × the time per unit measured in the phase
+        :mod:`vastcal.calibrate.forecast`): the ETA is ``left`` × the time per unit measured in the phase
         (``left`` NaN: unknown for now, no ETA shown)."""
         self._work = (float(done), max(float(left), 0.0) if left == left else float("nan"))  # NaN: unknown for now
 
@@ -254,6 +245,12 @@ class ProgressClock:
         self._work = None
         if name is not None and hasattr(self.callback, "phase"):
             self.callback.phase(name)
+
+    def level(
+        self, name: str, base: int, max_evaluations: int, planned: bool, research: np.ndarray | None
+    ) -> LevelObserver:
+        """The observer of one CMA-ES level's search (:class:`LevelObserver`: the arguments are its own)."""
+        return LevelObserver(self, name, base, max_evaluations, planned, research)
 
 
 class LevelObserver:

@@ -1,8 +1,8 @@
 """This process's memory, MB: what a calibration reports (``peak_rss_mb``) and the benchmarks watch.
 
 The silhouette cost streams its ray samples in bounded chunks and checks each edge ray against a bounded set of
-partner views (:func:`.objective_coherence.partner_views`), so its memory and time grow linearly with the number of
-views; the specimen maps are made a sub-revolution at a time within ``memory_mb``
+partner views (:func:`vastcal.calibrate.objective_coherence.partner_views`), so its memory and time grow linearly
+with the number of views; the specimen maps are made a sub-revolution at a time within ``memory_mb``
 (:func:`vastcal.segmentation.grouped_specimen_maps`).
 """
 
