@@ -10,9 +10,8 @@ level's generations left — forecast from its step's way down to ``tolx`` and i
 level that hands over to a finer one planned to end at — in seconds of the search, at the measured time of a
 generation with and without the coherence cost's full search and with the full searches still expected; the
 polish's sweeps; :mod:`vastcal.calibrate.forecast`),
-or else its remaining fraction over the rate of the recent half (the photometric yaw's share of its
-reconstructions at one map width or in one doubling of its last stage). One-off set-up before a phase's first
-report does not count in its rate.
+or else its remaining fraction over the rate of the recent half. One-off set-up before a phase's first report does
+not count in its rate.
 
 ``benchmarks/progress_eta.py`` measures the ETA's error at every update over the second half of every
 phase (its docstring states the criterion).
@@ -315,9 +314,8 @@ class CalibrationProgress:
 
     Called as the optimiser's ``progress(evaluations, best cost, elapsed s, ETA s)``; the calibration's
     :class:`~vastcal.calibration_progress.ProgressClock` also calls :meth:`phase` when a phase begins
-    (a CMA-ES level, the per-view polish, the photometric yaw) and :meth:`phase_fraction` with the
-    fraction of it done. The best silhouette cost is shown only in the phases that minimise it (the
-    photometric yaw minimises a different quantity: its name is shown, not a "cost" that jumps).
+    (a CMA-ES level, a scan, the per-view polish) and :meth:`phase_fraction` with the fraction of it done. The best
+    silhouette cost is shown only in the phases that minimise it.
     """
 
     def __init__(self, bar: PhaseProgress) -> None:

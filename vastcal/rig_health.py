@@ -14,7 +14,7 @@ What the data can and cannot determine — say it with every figure:
   sessions reduces the random part (standard error ∝ 1/√n) but not a bias of the calibration towards the
   commanded angles (the roll prior pulls there): a periodic stage error smaller than the per-session
   roll uncertainty shows up attenuated, never amplified.
-* Yaw from silhouettes is weak too (the photometric yaw recovers it when enabled); pitch is well determined.
+* The axis yaw is not determined by silhouettes on the microscope (it stays near its prior); pitch is.
 """
 
 from __future__ import annotations

@@ -21,10 +21,10 @@ The budget (standard uncertainties u, combined in quadrature, expanded U = k·u 
    starts (datasets ``starts/theta`` (S × P, degrees) and ``starts/cost`` (S,)), the hulls of the
    starts whose cost lies within :data:`START_COST_TOLERANCE` of the best are re-measured and
    their RMS deviation from the reported value is a component. (b) The directions the images leave
-   open (docs/calibration.md: per-view rolls of nearly orthographic views; the yaw without the
-   photometric refinement) are sampled: :data:`CAL_SAMPLES` poses θ̂ + N(0, σ²) with σ the
-   prior's width for those parameters (``roll_prior_deg``, ``yaw_prior_deg``; the photometric
-   yaw's measured error :data:`PHOTOMETRIC_YAW_SIGMA_DEG` when it ran) and the RMS change of
+   open (docs/method.md: per-view rolls of nearly orthographic views; the axis yaw) are sampled:
+   :data:`CAL_SAMPLES` poses θ̂ + N(0, σ²) with σ the prior's width for those parameters
+   (``roll_prior_deg``, ``yaw_prior_deg``; for runs stored by versions that measured the yaw from the grey
+   levels, that search's error :data:`PHOTOMETRIC_YAW_SIGMA_DEG`) and the RMS change of
    volume and area is the component. Both run on a grid of twice the voxel edge (the comparisons
    are between hulls on one grid, so the grid's own error cancels). Imported cameras: not
    evaluated (stated, never 0).
@@ -69,8 +69,9 @@ CAL_SAMPLES = 6
 START_COST_TOLERANCE = 0.01
 """Relative cost above the best start within which a start counts as 'of equal cost'."""
 PHOTOMETRIC_YAW_SIGMA_DEG = 0.05
-"""σ of the photometric yaw: its measured error over 8 simulated rigs, mean |error| 0.037°, max 0.074°
-(docs/calibration.md)."""
+"""σ of the yaw of runs stored by versions that measured it from the grey levels (a search since removed:
+docs/decisions/0050-photometric-yaw-removed.md): its measured error over 8 simulated rigs, mean |error| 0.037°,
+max 0.074°."""
 GRID_FACTOR = 2.0
 """The second grid's voxel edge, in voxel edges of the measurement grid."""
 UM3_PER_MM3 = 1e9
