@@ -36,10 +36,11 @@ def _open_h5_for_reading(p: Path) -> tuple[h5py.File, bool]:
         msg = str(exc)
         if "already open for write" in msg or "consistency flags" in msg or "SWMR" in msg:
             return h5py.File(p, "r", swmr=True), True
-        if "truncated file" not in msg:
+        if "truncated file" not in msg or writer_pid(p) is None:
             raise
-        # A writer in SWMR mode may have allocated space it has not written yet (the superblock's end of file lies
-        # beyond the file's size for a moment): a SWMR reader takes that; a file truly cut short still fails.
+        # A live writer may have allocated space it has not written yet (the superblock's end of file lies beyond
+        # the file's size for a moment): a SWMR reader takes that. Only then: HDF5's SWMR reader retries a file truly
+        # cut short for a long time before it gives up.
         try:
             return h5py.File(p, "r", swmr=True), True
         except OSError:
