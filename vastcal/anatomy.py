@@ -254,7 +254,15 @@ def measure_anatomy(
         feats += _organ_features(name, o, METHOD_SIGMA["eye_volume"])
         masks[name] = o.mask
     dist = float(np.linalg.norm(a.centroid_um - b.centroid_um))
-    feats.append(Feature("inter_eye_distance", "um", dist, K_COVERAGE * math.sqrt(2) * METHOD_SIGMA["centroid_um"]))
+    feats.append(
+        Feature(
+            "inter_eye_distance",
+            "um",
+            dist,
+            K_COVERAGE * math.sqrt(2) * METHOD_SIGMA["centroid_um"],
+            method="eye centroids",
+        )
+    )
     x_eyes = 0.5 * (a.centroid_um[0] + b.centroid_um[0])
     feats += list(head_size(occupancy, grid, x_eyes))
     xs = np.flatnonzero(occupancy.any(axis=(1, 2)))
@@ -268,3 +276,40 @@ def measure_anatomy(
     else:
         feats += [not_found(f"yolk_{q}", "", "no dark region behind the eyes") for q in eye_names[1:]]
     return Anatomy(tuple(feats), masks, mu_b, "x-" if head_low else "x+")
+
+
+TABLE_MEASURES = (
+    ("body_length", "body_length_um"),
+    ("eye_1_volume", "eye_1_volume_mm3"),
+    ("eye_2_volume", "eye_2_volume_mm3"),
+    ("eye_1_diameter", "eye_1_diameter_um"),
+    ("eye_2_diameter", "eye_2_diameter_um"),
+    ("inter_eye_distance", "inter_eye_distance_um"),
+    ("yolk_volume", "yolk_volume_mm3"),
+    ("head_height", "head_height_um"),
+    ("head_width", "head_width_um"),
+)
+"""(measure, column): the anatomy's columns of the screen table and ``report.csv``; each also has ``U_<column>``."""
+
+TABLE_COLUMNS: tuple[str, ...] = tuple(c for _, col in TABLE_MEASURES for c in (col, f"U_{col}")) + (
+    "anatomy_not_found",
+)
+"""Every anatomy column, in order."""
+
+
+def table_fields(record: dict[str, Any] | None) -> dict[str, Any]:
+    """The anatomy columns (:data:`TABLE_COLUMNS`) of one stored record (:meth:`Anatomy.as_dict`): value and U,
+    None (an empty cell) when not found, the reasons in ``anatomy_not_found``."""
+    out: dict[str, Any] = dict.fromkeys(TABLE_COLUMNS)
+    if not record:
+        return out
+    feats = {f["name"]: f for f in record.get("features", [])}
+    missing = []
+    for name, col in TABLE_MEASURES:
+        f = feats.get(name)
+        if f and f.get("found"):
+            out[col], out[f"U_{col}"] = f["value"], f["U"]
+        elif f:
+            missing.append(f"{name}: {f.get('reason', '')}")
+    out["anatomy_not_found"] = "; ".join(missing) or None
+    return out

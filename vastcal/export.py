@@ -4,9 +4,9 @@ The image is the latest ``anatomy/run_NNN`` tomogram's attenuation (float32, 1/�
 x = the rotation axis), as a multiscale pyramid (each level halves every axis by 2 × 2 × 2 block means, down to
 32 voxels on the shortest axis), every level's ``scale`` coordinate transformation in micrometres and its
 ``translation`` the world position of its first voxel's centre. The organ labels (0 none, 1 eye 1, 2 eye 2,
-3 yolk) are the ``labels/organs`` label image, at the same scales (block maxima). Written with ``ome-zarr``
-(``pip install "vastcal[ome-zarr]"``) into a hidden folder beside ``OUT`` that is renamed into place when
-complete: a crash leaves no half-written ``OUT``.
+3 yolk) are the ``labels/organs`` label image, at the same scales (block maxima). OME-NGFF 0.4 on zarr format 2,
+written with ``zarr`` (``pip install "vastcal[ome-zarr]"``) into a hidden folder beside ``OUT`` that is renamed into
+place when complete: a crash leaves no half-written ``OUT``.
 """
 
 from __future__ import annotations
@@ -24,6 +24,12 @@ log = logging.getLogger(__name__)
 
 MIN_LEVEL_VOXELS = 32
 """The pyramid stops before the shortest axis falls below this many voxels."""
+
+NGFF_VERSION = "0.4"
+"""The OME-NGFF version written (zarr format 2): what napari-ome-zarr, Fiji (MoBIE, n5-viewer) and ome-zarr read."""
+
+LABEL_NAMES = {1: "eye 1", 2: "eye 2", 3: "yolk"}
+LABEL_COLOURS = {1: [255, 127, 14, 255], 2: [44, 160, 44, 255], 3: [31, 119, 180, 255]}
 
 AXES = [
     {"name": "z", "type": "space", "unit": "micrometer"},
@@ -70,23 +76,39 @@ def _check_output(out: Path, force: bool) -> None:
         raise UserInputError(f"{out}: its folder {out.parent} does not exist")
 
 
+def _write_multiscale(group: Any, levels: list[np.ndarray], transforms: list[list[dict[str, Any]]], name: str) -> None:
+    """Arrays ``0``, ``1``, … of ``group`` and its OME-NGFF 0.4 ``multiscales`` metadata."""
+    for k, a in enumerate(levels):
+        group.create_array(str(k), data=a, chunks=tuple(min(64, n) for n in a.shape))
+    datasets = [{"path": str(k), "coordinateTransformations": t} for k, t in enumerate(transforms[: len(levels)])]
+    group.attrs["multiscales"] = [{"version": NGFF_VERSION, "name": name, "axes": AXES, "datasets": datasets}]
+
+
 def write_ome_zarr(
     out: Path, attenuation_xyz: np.ndarray, labels_xyz: np.ndarray | None, voxel_um: float, origin_xyz: np.ndarray
 ) -> None:
     """Write the tomogram (x, y, z indexed, 1/µm) and its labels to the OME-Zarr folder ``out`` (module docstring)."""
     try:
         import zarr
-        from ome_zarr.writer import write_multiscale, write_multiscale_labels
     except ImportError:
-        raise UserInputError('--ome-zarr needs the ome-zarr package: pip install "vastcal[ome-zarr]"') from None
+        raise UserInputError('--ome-zarr needs the zarr package: pip install "vastcal[ome-zarr]"') from None
     img = np.ascontiguousarray(np.transpose(attenuation_xyz, (2, 1, 0)), np.float32)
     levels = pyramid(img)
     tr = transformations(len(levels), voxel_um, np.asarray(origin_xyz, float)[::-1])
-    root = zarr.open_group(str(out), mode="w")
-    write_multiscale(levels, root, axes=AXES, coordinate_transformations=tr, name="tomogram")
+    root = zarr.open_group(str(out), mode="w", zarr_format=2)
+    _write_multiscale(root, levels, tr, "tomogram (attenuation, 1/um)")
     if labels_xyz is not None:
         lab = pyramid(np.ascontiguousarray(np.transpose(labels_xyz, (2, 1, 0))), reduce="max")[: len(levels)]
-        write_multiscale_labels(lab, root, "organs", axes=AXES, coordinate_transformations=tr[: len(lab)])
+        labels = root.create_group("labels")
+        labels.attrs["labels"] = ["organs"]
+        organs = labels.create_group("organs")
+        _write_multiscale(organs, lab, tr, "organs")
+        organs.attrs["image-label"] = {
+            "version": NGFF_VERSION,
+            "colors": [{"label-value": v, "rgba": c} for v, c in LABEL_COLOURS.items()],
+            "properties": [{"label-value": v, "name": n} for v, n in LABEL_NAMES.items()],
+            "source": {"image": "../../"},
+        }
 
 
 def export_ome_zarr(session: str | Path, out: str | Path | None = None, *, force: bool = False) -> Path:

@@ -40,7 +40,7 @@ from vastcal.voxels import VoxelGrid
 
 log = logging.getLogger(__name__)
 
-DEFAULT_ITERATIONS = 12
+DEFAULT_ITERATIONS = 8
 """Passes over all views (each pass updates once per subset)."""
 
 DEFAULT_SUBSETS = 7
