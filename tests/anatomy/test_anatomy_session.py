@@ -95,3 +95,14 @@ def test_export_refuses_an_existing_output_and_a_session_without_tomogram(organ_
         del f["/entry/vastcal/anatomy"]
     assert cli.main(["export", str(organ_session), "--ome-zarr", str(tmp_path / "y.ome.zarr")]) != 0
     assert "no tomogram" in capsys.readouterr().err
+
+
+def test_a_damaged_anatomy_run_is_left_out_of_the_report(organ_session: Path, tmp_path: Path):
+    import h5py
+
+    from vastcal.report import write_report
+
+    with h5py.File(organ_session, "a") as f:
+        del f["/entry/vastcal/anatomy/run_000/tomogram/attenuation"]
+    html = write_report(organ_session, tmp_path / "r").read_text()
+    assert 'id="anatomy"' not in html and "volume" in html

@@ -42,11 +42,14 @@ def anatomy_of_reconstruction(session: Any, reconstruction_run: str | None) -> t
 
     runs = session.stages_run().get("anatomy", [])
     for name in reversed(runs):
-        g = session.result("anatomy", name)
-        rec = load_anatomy(g)
-        if reconstruction_run is None or rec.get("reconstruction_run") == reconstruction_run:
-            rec["run"] = name
-            return rec, load_tomogram(g)
+        try:
+            g = session.result("anatomy", name)
+            rec = load_anatomy(g)
+            if reconstruction_run is None or rec.get("reconstruction_run") == reconstruction_run:
+                rec["run"] = name
+                return rec, load_tomogram(g)
+        except (OSError, KeyError, ValueError, TypeError) as exc:  # a damaged run never blocks the report
+            log.warning("%s: anatomy/%s unreadable (%s); left out of the report", session.path, name, exc)
     return None, None
 
 
