@@ -12,13 +12,15 @@ Method (docs/anatomy.md):
   the axis, smoothed, from the first to the last slice holding hull (each end adds half a voxel). Not found
   when the body touches the frame's edge in a view (the tip is not imaged).
 * **Organs** are where the attenuation stands out of the body tissue's: the tissue level μ_b is the median
-  attenuation inside the hull; voxels above μ_b + ¼·(μ₉₉.₅ − μ_b) group into 6-connected regions. The
+  attenuation inside the hull; voxels above μ_b + ¼·(μ₉₉.₅ − μ_b) group into 6-connected regions (after a
+  binary opening of 0, 1 or 2 voxels — the one whose eye pair scores highest: it cuts eyes from dark skin). The
   **eyes** are the two regions of most similar volume (ratio ≥ 0.5) side by side across the midline near
   one end of the body (that end is the head), eye 1 the one at the larger world z; the **yolk** is the
-  largest other region behind them. An organ's volume is its *excess attenuation* ∑ max(μ − μ_b, 0)·v over
-  the region grown by three voxels, divided by its plateau (the region's median attenuation) minus μ_b: blur
-  moves attenuation between voxels but keeps its sum, so this holds where a threshold would follow the blur.
-  Its centroid is the excess-weighted mean; its diameter the equivalent sphere's.
+  largest other region behind them, not touching them and at least as large as an eye. An organ's volume is
+  its *excess attenuation* ∑ max(μ − μ_b, 0)·v over the region grown by three voxels, divided by its plateau
+  (the region's median attenuation) minus μ_b: blur moves attenuation between voxels but keeps its sum, so this
+  holds where a threshold would follow the blur. Its centroid is the excess-weighted mean; its diameter the
+  equivalent sphere's.
 * **Head height and width** at the eyes: the hull's cross-section at the eyes' mean x, its extent along
   the section's principal axes (height the longer).
 """
@@ -159,13 +161,15 @@ def _organ(att: np.ndarray, region: np.ndarray, grid: VoxelGrid, mu_b: float) ->
     The plateau is the median attenuation of the region; its standard uncertainty is half the spread between the
     plateaus read as the mean over the half-maximum region and over that region eroded by a voxel.
     """
-    grown = ndimage.binary_dilation(region, iterations=3)
-    sl = ndimage.find_objects(grown.astype(np.uint8))[0]
+    box = ndimage.find_objects(region.astype(np.uint8))[0]
+    sl = tuple(slice(max(b.start - 4, 0), min(b.stop + 4, n)) for b, n in zip(box, region.shape))
+    inside = region[sl]
+    grown = ndimage.binary_dilation(inside, iterations=3)
     sub = att[sl]
-    excess = np.where(grown[sl], np.maximum(sub - mu_b, 0.0), 0.0)
+    excess = np.where(grown, np.maximum(sub - mu_b, 0.0), 0.0)
     mass = float(excess.sum()) * grid.voxel_volume
-    plateau = float(np.median(sub[region[sl]])) - mu_b
-    half = grown[sl] & (sub > mu_b + 0.5 * (float(np.percentile(sub[region[sl]], 95.0)) - mu_b))
+    plateau = float(np.median(sub[inside])) - mu_b
+    half = grown & (sub > mu_b + 0.5 * (float(np.percentile(sub[inside], 95.0)) - mu_b))
     core = ndimage.binary_erosion(half, iterations=1)
     alt = [float(sub[m].mean()) - mu_b for m in (half, core) if m.any()]
     vols = [mass / max(p, 1e-12) for p in alt] or [mass / max(plateau, 1e-12)]
@@ -175,19 +179,26 @@ def _organ(att: np.ndarray, region: np.ndarray, grid: VoxelGrid, mu_b: float) ->
     return Organ(region, mass / max(plateau, 1e-12), 0.5 * (max(vols) - min(vols)), centroid, plateau + mu_b)
 
 
-def dark_regions(att: np.ndarray, occupancy: np.ndarray, mu_b: float, min_voxels: int = 27) -> list[np.ndarray]:
-    """6-connected regions above μ_b + ¼·(μ₉₉.₅ − μ_b) inside the hull, largest first (module docstring)."""
+def dark_regions(
+    att: np.ndarray, occupancy: np.ndarray, mu_b: float, *, opening: int = 0, min_voxels: int = 27
+) -> list[np.ndarray]:
+    """6-connected regions above μ_b + ¼·(μ₉₉.₅ − μ_b) inside the hull, after a binary opening of ``opening``
+    voxels (0: none), the 8 largest first (module docstring)."""
     top = float(np.percentile(att[occupancy], 99.5)) if occupancy.any() else 0.0
     if top <= mu_b:
         return []
-    labels, n = ndimage.label((att > mu_b + 0.25 * (top - mu_b)) & occupancy)
+    dark = (att > mu_b + 0.25 * (top - mu_b)) & occupancy
+    if opening:
+        dark = ndimage.binary_opening(dark, iterations=opening)
+    labels, n = ndimage.label(dark)
     sizes = np.bincount(labels.ravel(), minlength=n + 1)
     order = [i for i in np.argsort(sizes[1:])[::-1] + 1 if sizes[i] >= min_voxels]
     return [labels == i for i in order[:8]]
 
 
-def _eye_pair(organs: list[Organ], grid: VoxelGrid) -> tuple[int, int] | None:
-    """Indices of the two organs that look like the eyes: similar volume, side by side (module docstring)."""
+def _eye_pair(organs: list[Organ], grid: VoxelGrid) -> tuple[tuple[int, int] | None, float]:
+    """Indices of the two organs that look like the eyes — similar volume, side by side (module docstring) — and
+    the pair's score (volume ratio × the smaller volume, µm³); (None, 0) when no pair qualifies."""
     best, best_score = None, 0.0
     for i in range(len(organs)):
         for j in range(i + 1, len(organs)):
@@ -200,7 +211,7 @@ def _eye_pair(organs: list[Organ], grid: VoxelGrid) -> tuple[int, int] | None:
             score = ratio * min(a.volume_um3, b.volume_um3)
             if score > best_score:
                 best, best_score = (i, j), score
-    return best
+    return best, best_score
 
 
 def _organ_features(prefix: str, organ: Organ, sigma_rel: float) -> list[Feature]:
@@ -233,14 +244,53 @@ def head_size(occupancy: np.ndarray, grid: VoxelGrid, x_um: float) -> tuple[Feat
     )
 
 
+OPENINGS = (0, 1, 2)
+"""Binary openings (voxels) tried on the dark regions: a real larva's eyes touch the dark skin and its pigment, and
+an opening of one or two voxels cuts them apart; the opening whose eye pair scores highest is kept."""
+
+
+def _organs_with_eyes(
+    att: np.ndarray, occupancy: np.ndarray, grid: VoxelGrid, mu_b: float
+) -> tuple[list[Organ], tuple[int, int] | None, list[Organ]]:
+    """The dark regions as organs and the eye pair among them, for the best of :data:`OPENINGS`; then the regions
+    of the other openings (yolk candidates, in the order of :data:`OPENINGS`)."""
+    tried = []
+    for opening in OPENINGS:
+        organs = [_organ(att, r, grid, mu_b) for r in dark_regions(att, occupancy, mu_b, opening=opening)]
+        pair, score = _eye_pair(organs, grid)
+        tried.append((score, organs, pair))
+    k = max(range(len(tried)), key=lambda i: tried[i][0])
+    others = [o for i, t in enumerate(tried) if i != k for o in t[1]]
+    return tried[k][1], tried[k][2], others
+
+
+def _yolk(organs: list[Organ], pair: tuple[int, int], others: list[Organ], head_low: bool) -> Organ | None:
+    """The largest region behind the eyes (centroid at least an eye's size further from the head), at least as large
+    as an eye, that does not touch them: among the eyes' own opening's regions first, else among the other
+    openings' (module docstring)."""
+    eyes = (organs[pair[0]], organs[pair[1]])
+    x_eyes = 0.5 * (eyes[0].centroid_um[0] + eyes[1].centroid_um[0])
+    size = float(np.cbrt(max(e.volume_um3 for e in eyes)))
+    for group in ([o for k, o in enumerate(organs) if k not in pair], others):
+        behind = [
+            o
+            for o in group
+            if (o.centroid_um[0] - x_eyes) * (1.0 if head_low else -1.0) >= size
+            and o.volume_um3 >= min(e.volume_um3 for e in eyes)
+            and not any((o.mask & e.mask).any() for e in eyes)
+        ]
+        if behind:
+            return max(behind, key=lambda o: o.volume_um3)
+    return None
+
+
 def measure_anatomy(
     attenuation: np.ndarray, occupancy: np.ndarray, grid: VoxelGrid, *, cut_views: list[int] | None = None
 ) -> Anatomy:
     """The anatomy of a larva from its tomogram (1/µm) and visual hull on ``grid`` (module docstring)."""
     feats = [body_length(occupancy, grid, list(cut_views or []))]
     mu_b = tissue_level(attenuation, occupancy)
-    organs = [_organ(attenuation, r, grid, mu_b) for r in dark_regions(attenuation, occupancy, mu_b)]
-    pair = _eye_pair(organs, grid)
+    organs, pair, others = _organs_with_eyes(attenuation, occupancy, grid, mu_b)
     masks: dict[str, np.ndarray] = {}
     eye_names = ("eye", "volume", "diameter", "centroid")
     if pair is None:
@@ -268,13 +318,14 @@ def measure_anatomy(
     xs = np.flatnonzero(occupancy.any(axis=(1, 2)))
     x_lo, x_hi = grid.origin[0] + xs[0] * grid.size, grid.origin[0] + xs[-1] * grid.size
     head_low = abs(x_eyes - x_lo) < abs(x_eyes - x_hi)
-    behind = [o for k, o in enumerate(organs) if k not in pair and ((o.centroid_um[0] > x_eyes) == head_low)]
-    if behind:
-        yolk = max(behind, key=lambda o: o.volume_um3)
+    yolk = _yolk(organs, pair, others, head_low)
+    if yolk is not None:
         feats += _organ_features("yolk", yolk, METHOD_SIGMA["yolk_volume"])
         masks["yolk"] = yolk.mask
     else:
-        feats += [not_found(f"yolk_{q}", "", "no dark region behind the eyes") for q in eye_names[1:]]
+        feats += [
+            not_found(f"yolk_{q}", "", "no dark region behind the eyes as large as an eye") for q in eye_names[1:]
+        ]
     return Anatomy(tuple(feats), masks, mu_b, "x-" if head_low else "x+")
 
 
