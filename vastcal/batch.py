@@ -38,6 +38,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from vastcal.anatomy import table_fields
 from vastcal.errors import OutputExistsError, SessionBusyError, UserInputError, VastcalError
 from vastcal.progress import CountProgress, format_duration
 from vastcal.screen_table import atomic_write_bytes, write_table
@@ -242,6 +243,7 @@ def _fields_from_report(report_json: Path) -> dict[str, Any]:
         "cal_drift_rms_deg": cal.get("drift_rms_deg"),
         "cal_drift_status": _get(cal, "drift", "status"),
         "vastcal_version": _get(rep, "provenance", "software_versions", "vastcal"),
+        **table_fields(m.get("anatomy")),
         "_rig": {
             "time": _get(rep, "session", "start_time"),
             "commanded_deg": _get(rep, "views", "commanded_angle_deg"),

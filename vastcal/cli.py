@@ -511,7 +511,12 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     check_camera_choice(args.session, run)
     _check_units(args, voxel_size_um=args.voxel_size)
     m = reconstruct_session(
-        args.session, calibration_run=run, voxel_size_um=args.voxel_size, use_masks=args.masks, mesh_path=args.mesh
+        args.session,
+        calibration_run=run,
+        voxel_size_um=args.voxel_size,
+        use_masks=args.masks,
+        mesh_path=args.mesh,
+        anatomy=args.anatomy,
     )
     print(m.summary() if hasattr(m, "summary") else m)
     return verdict_exit_code(str((getattr(m, "qc", None) or {}).get("verdict", "")), _qc_line(m))
@@ -568,10 +573,22 @@ def cmd_run(args: argparse.Namespace) -> int:
         scribbles=scribbles,
         voxel_size_um=args.voxel_size,
         mesh_path=args.mesh,
+        anatomy=not args.no_anatomy,
     )
     res = run_session(args.session, out, options, cameras=args.cameras, quiet=args.quiet, keep_runs=args.keep_runs)
     print(res.summary())
     return verdict_exit_code(res.verdict.split(":", 1)[0], res.verdict)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """vastcal export S.h5 --ome-zarr [OUT] [--force]: the latest tomogram as multiscale OME-Zarr (µm scales)."""
+    _check_session_arg(args.session)
+    _check_session_opens(args.session)
+    from vastcal.export import export_ome_zarr
+
+    out = export_ome_zarr(args.session, args.ome_zarr or None, force=args.force)
+    print(f"wrote {out}")
+    return 0
 
 
 def cmd_prune(args: argparse.Namespace) -> int:
@@ -812,6 +829,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_reconstruct,
         _add_report,
         _add_run,
+        _add_export,
         _add_prune,
         _add_batch,
         _add_annotate,
@@ -1025,6 +1043,7 @@ def _add_reconstruct(sub: Subparsers) -> None:
     s.add_argument("session", help=SESSION_HELP)
     _add_reconstruction_options(s, force_help="overwrite an existing --mesh file")
     s.add_argument("--masks", action="store_true", help="use the imported masks instead of the probability maps")
+    s.add_argument("--anatomy", action="store_true", help="also the tomogram and the anatomy (eyes, yolk, length)")
     _add_camera_choice(s)
     _add_accept_units(s)
     s.set_defaults(func=cmd_reconstruct)
@@ -1073,9 +1092,28 @@ def _add_run(sub: Subparsers) -> None:
         metavar="N",
         help="afterwards, delete all but the newest N runs of every stage from the session (default: keep all)",
     )
+    s.add_argument(
+        "--no-anatomy", action="store_true", help="skip the tomogram and the anatomy (eyes, yolk, body length)"
+    )
     _add_marks_options(s)
     _add_accept_units(s)
     s.set_defaults(func=cmd_run)
+
+
+def _add_export(sub: Subparsers) -> None:
+    s = sub.add_parser("export", help="write a session's tomogram for other tools (OME-Zarr: napari, Fiji)")
+    s.add_argument("session", help=SESSION_HELP + ", with a tomogram ('vastcal run')")
+    s.add_argument(
+        "--ome-zarr",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="OUT",
+        required=True,
+        help="the OME-Zarr folder to write (default: S.ome.zarr beside the session)",
+    )
+    s.add_argument("--force", action="store_true", help="replace an existing OME-Zarr folder")
+    s.set_defaults(func=cmd_export)
 
 
 def _add_prune(sub: Subparsers) -> None:

@@ -228,6 +228,7 @@ class RunOptions:
             --mask``/``--scribbles``; a scene with a turntable): every start uses them.
         voxel_size_um: the hull's voxel edge, µm (default: from the specimen extent, as ``vastcal reconstruct``).
         mesh_path: also write the measured surface there (.ply or .stl, µm).
+        anatomy: also reconstruct the tomogram and measure the anatomy (eyes, yolk, body length).
     """
 
     method: str | None = None
@@ -238,6 +239,7 @@ class RunOptions:
     scribbles: tuple[int, Any] | None = None
     voxel_size_um: float | None = None
     mesh_path: str | Path | None = None
+    anatomy: bool = True
 
 
 def run_session(
@@ -277,7 +279,11 @@ def run_session(
         t = time.monotonic()
         steps.phase("visual hull, volume and area")
         m = reconstruct_session(
-            path, calibration_run=calibration_run, voxel_size_um=opts.voxel_size_um, mesh_path=opts.mesh_path
+            path,
+            calibration_run=calibration_run,
+            voxel_size_um=opts.voxel_size_um,
+            mesh_path=opts.mesh_path,
+            anatomy=opts.anatomy,
         )
         res.timings_s["reconstruct"] = time.monotonic() - t
         res.volume_mm3, res.surface_area_mm2 = float(m.volume_mm3), float(m.surface_area_mm2)

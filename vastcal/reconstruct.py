@@ -191,6 +191,7 @@ def reconstruct_session(
     use_masks: bool = False,
     mesh_path: str | Path | None = None,
     target_voxels: int | None = None,
+    anatomy: bool = False,
 ) -> Measurement:
     """Reconstruct and measure a session; store both runs in it; return the measurement.
 
@@ -199,7 +200,8 @@ def reconstruct_session(
     ``reconstruction.voxel_size_um``, else it is chosen for ``reconstruction.target_voxels``
     (default 5 M) in a box around the specimen. Adds ``reconstruction/run_NNN`` and
     ``measurement/run_NNN`` groups; images are not rewritten. ``mesh_path`` (``.ply`` or
-    ``.stl``) also writes the smoothed mesh (µm).
+    ``.stl``) also writes the smoothed mesh (µm). ``anatomy``: also the tomogram and the anatomy
+    (``anatomy/run_NNN``, :mod:`vastcal.anatomy_session`); a failure there is logged and loses nothing else.
 
     Raises:
         MissingStageError: no cameras or no silhouettes (the message names the command to run).
@@ -257,11 +259,26 @@ def reconstruct_session(
         )
         meas = assess_session_measurement(s, inputs, hull, meas)
         store_measurement(s.new_result_group("measurement"), meas)
+        if anatomy:
+            _store_anatomy(s, inputs, hull, rec.name.rsplit("/", 1)[-1])
         s.flush()
     if mesh_path is not None:
         write_mesh(meas.mesh, mesh_path)
     log.info("%s: %s (%.2f s)", path, meas.summary().replace("\n", "; "), time.perf_counter() - t0)
     return meas
+
+
+def _store_anatomy(session: Any, inputs: ReconstructionInputs, hull: Any, reconstruction_run: str) -> None:
+    """The tomogram and anatomy of a reconstruction, stored beside it; a failure is a warning, never lost data."""
+    from vastcal.anatomy_session import store_session_anatomy
+
+    if inputs.length_unit in ("px", "unknown"):
+        log.warning("%s: anatomy not measured: the cameras' length unit is %s", session.path, inputs.length_unit)
+        return
+    try:
+        store_session_anatomy(session, inputs, hull, reconstruction_run)
+    except (VastcalError, ValueError, np.linalg.LinAlgError, cv2.error, MemoryError) as exc:
+        log.warning("%s: tomogram and anatomy not measured (%s)", session.path, exc)
 
 
 def assess_session_measurement(

@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from vastcal.anatomy import TABLE_COLUMNS
 from vastcal.csv_cells import spreadsheet_safe
 from vastcal.session import write_atomically
 
@@ -62,6 +63,7 @@ COLUMNS: tuple[str, ...] = (
     "report",
     "path",
     "length_unit",
+    *TABLE_COLUMNS,
 )
 """Columns of ``measurements.csv`` in order. ``length_unit``: the world's unit of the row (``um`` on a rig, a known unit
 of imported cameras); ``px`` or ``unknown`` when ``volume_mm3`` … hold pixels or the cameras' own units scaled as if
@@ -86,6 +88,7 @@ NUMERIC: frozenset[str] = frozenset(
         "t_total_s",
         "cpu_s",
         "worker_peak_mb",
+        *(c for c in TABLE_COLUMNS if c != "anatomy_not_found"),
     }
 )
 

@@ -6,7 +6,7 @@ What is drawn (each switched by a key of ``simulation:``, see ``config/simulated
   age A uniform in ``age_dpf``; length L = 3.0 mm + 0.75 mm/day ·
   (A − 3) (±4 %), so 3.0 mm at 3 dpf and 4.5 mm at 5 dpf; dorso-ventral height 0.50–0.58 mm; the
   yolk bump and the dark yolk (μ 0.006–0.012 /µm: nearly opaque) shrink with age (mostly absorbed
-  by 5 dpf); flattening (lateral/dorso-ventral)
+  by 5 dpf); from 4.5 dpf a swim bladder (:mod:`vastcal.simulators.camera.organs`); flattening (lateral/dorso-ventral)
   0.60–0.75; tissue contrast — the edge transmission 0.62–0.85 and the tissue attenuation
   2.5–7·10⁻⁴ /µm — i.e. a dim to a clear larva. This is the **measured body**: the truth file's
   volume, area and visual hull are its own (:class:`~vastcal.simulators.camera.phantom.Phantom`).
@@ -44,6 +44,7 @@ import numpy as np
 
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 from vastcal.errors import ConfigError
+from vastcal.simulators.camera.organs import SWIM_BLADDER_FROM_DPF, swim_bladder
 from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom, zebrafish_phantom
 from vastcal.simulators.camera.profiles import LarvaProfile
 
@@ -319,6 +320,13 @@ def _larva_body(sim: SimulationConfig, rng: np.random.Generator, x_centre: float
         )
 
     feats = _fit_inside(profile, lateral, eyes) + _fit_inside(profile, lateral, yolk)
+    if age >= SWIM_BLADDER_FROM_DPF:  # its own stream: the other draws do not change
+        bladder = swim_bladder(profile, lateral, age, _stream(sim, 0x5B1))
+
+        def scaled_bladder(k: float) -> tuple[EllipsoidFeature, ...]:
+            return (replace(bladder, semi_axes_um=tuple(k * a for a in bladder.semi_axes_um)),)
+
+        feats = feats + _fit_inside(profile, lateral, scaled_bladder)
     ph = Phantom(
         profile,
         feats,

@@ -22,6 +22,7 @@ from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 from vastcal.devices import Camera, CameraSettings, Frame
 from vastcal.errors import AcquisitionAborted, CameraError, DeviceTimeoutError
 from vastcal.simulators.camera.larva import Specimen, draw_specimen
+from vastcal.simulators.camera.organs import organ_truth
 from vastcal.simulators.camera.phantom import Phantom
 from vastcal.simulators.camera.render import OUTPUT_FORMATS, BrightfieldRenderer, Capillary, FrameConditions, Sensor
 from vastcal.simulators.camera.scene import draw_illumination, draw_particles
@@ -300,7 +301,8 @@ class SimulatedCamera(Camera):
         phantom's BODY (fins, fin fold, debris, bubbles excluded; melanophores, eyes and yolk lie
         inside it) from the actual angles (``None`` with fewer than two distinct directions);
         ``specimen`` — what was drawn (:func:`~vastcal.simulators.camera.larva.draw_specimen` features,
-        particle counts, lamp field, defocus); ``frame_cut_views`` — indices of the views whose
+        particle counts, lamp field, defocus); ``anatomy`` — the organs' exact volumes and centroids, the body
+        length (:func:`~vastcal.simulators.camera.organs.organ_truth`); ``frame_cut_views`` — indices of the views whose
         frame edge cuts the body; when there are any, ``frame_x_range_um`` (the axis interval every
         frame sees) and ``hull_in_frame_volume_mm3`` / ``hull_in_frame_area_mm2`` — the body's hull
         cut to it (cut faces included): what a hull carved by every frame can at most measure.
@@ -313,6 +315,7 @@ class SimulatedCamera(Camera):
         cut_views = [i for i, s in enumerate(snaps) if s.get("body_cut_by_frame")]
         extra: dict[str, Any] = {
             "specimen": {**self.specimen.features, **self._particles.describe(), **self._illumination_record},
+            "anatomy": organ_truth(self.phantom, self._truth.specimen_offset_um),
             "frame_cut_views": cut_views,
         }
         if cut_views and np.isfinite(hv):

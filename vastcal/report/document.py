@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from vastcal.anatomy import TABLE_COLUMNS as ANATOMY_COLUMNS
+from vastcal.anatomy import table_fields
 from vastcal.csv_cells import spreadsheet_safe
 from vastcal.errors import AnalysisError, MissingStageError, UserInputError
 from vastcal.geometry import decompose_circular
@@ -34,6 +36,7 @@ from vastcal.hull import cameras_in_um, hull_boundary
 from vastcal.measure import measurement_units, world_unit_words
 from vastcal.reconstruct import world_length_unit
 from vastcal.report import figures
+from vastcal.report.anatomy_section import anatomy_context, anatomy_of_reconstruction
 from vastcal.report.imported import comparison_rows
 from vastcal.report.words import (
     converged_text,
@@ -85,6 +88,7 @@ CSV_COLUMNS = (
     "measurement_run",
     "report_time",
     "length_unit",
+    *ANATOMY_COLUMNS,
 )
 """Columns of ``report.csv`` (one row per session, so reports of many specimens concatenate).
 
@@ -92,7 +96,8 @@ CSV_COLUMNS = (
 when the ``_mm3``/``_mm2``/``_um`` columns are what they say; ``px`` or ``unknown`` (cameras of unknown unit) when
 they hold 10⁻⁹ px³ / 10⁻⁹ (units of the cameras)³ and so on — the measurement in that unit, scaled as if it were µm.
 ``specimen_id`` … ``well``: the specimen metadata (:mod:`vastcal.specimen`; empty when not given), as in the batch's
-screen table."""
+screen table. ``body_length_um`` … ``anatomy_not_found``: the anatomy (:data:`vastcal.anatomy.TABLE_COLUMNS`; empty
+when not measured or not found, the reasons in ``anatomy_not_found``)."""
 
 
 @dataclass
@@ -158,6 +163,7 @@ class ReportData:
             "measurement_run": m.get("run", ""),
             "report_time": self.provenance.get("report_time", ""),
             "length_unit": m.get("length_unit", "um"),
+            **table_fields(m.get("anatomy")),
         }
 
 
@@ -400,6 +406,7 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
                 f"{path}: the reconstruction of {mrun} is missing: run 'vastcal reconstruct {path}' again"
             )
         hull = load_reconstruction(rec)
+        anatomy, tomogram = anatomy_of_reconstruction(s, rec_name)
         ra = read_attrs(rec)
         cal_run = prov.get("calibration_run") or None
         P = None
@@ -504,7 +511,10 @@ def collect(session_path: str | Path, *, measurement_run: str | None = None) -> 
         "delta": delta,
         "cost": cost,
         "commanded": commanded,
+        "tomogram": tomogram,
     }
+    if anatomy is not None:
+        data.measurement["anatomy"] = _plain(anatomy)
     return data, arrays
 
 
@@ -749,6 +759,7 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
         "converged_text": converged_text(c["converged"], c.get("stop_reason", "")) if "converged" in c else "",
         "wall_time_text": _num(c.get("wall_time_s"), ".1f"),
         "numbers": numbers,
+        "anatomy": anatomy_context(m.get("anatomy"), arrays.get("tomogram")),
         "per_view": rows,
         "thresholds": threshold_rows(thresholds),
         "provenance": provenance_rows(data.provenance),

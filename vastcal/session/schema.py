@@ -81,7 +81,7 @@ VASTCAL = "/entry/vastcal"
 NXTOMO_PATHS_VERSION = 1.5
 """NXtomo paths version (``/entry@version``, a float as the nxtomo package reads it): 1.5 is the first
 with both the detector pixel (``detector/x_pixel_size``) and the effective one (``sample/x_pixel_size``)."""
-STAGE_GROUPS = ("calibration", "reconstruction", "measurement")
+STAGE_GROUPS = ("calibration", "reconstruction", "measurement", "anatomy")
 STOP_RECORD_BYTES = 8192
 """Room reserved for the JSON stop record (it is rewritten in place while the file is in SWMR mode)."""
 
