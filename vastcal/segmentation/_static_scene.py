@@ -134,9 +134,9 @@ def clear_wall_lines(
     darkest (the glass, inside the line's half-contrast edge) or when the view is not darker than the
     static scene by a quarter of the specimen's mean contrast (Δt < ¼: a pixel the specimen half covers
     shows half its rim's contrast, and a thin rim's contrast is about half the mean), or when it belongs to
-    no vertical run of the view's map as long as the near zone is wide (a strip along the wall). What remains is a
-    specimen lying against the wall: its edge then ends at the wall's half-contrast edge. Returns the
-    number of walls.
+    no vertical run of the view's map that leaves the near zone (:func:`reaches_out`: a strip along the wall). What
+    remains is a specimen lying against the wall — a thin tail included: its run crosses the near zone's far edge
+    whatever its height — and its edge then ends at the wall's half-contrast edge. Returns the number of walls.
     """
     n, h, w = pf.shape
     static = (pf > level).mean(axis=0) >= views
@@ -160,13 +160,33 @@ def clear_wall_lines(
         sub = pf[:, near]
         sub[cleared] = 0.0
         pf[:, near] = sub
-        # What is left beside the wall must reach away from it like a body does: strips along the wall
-        # thinner than the near zone (the lumen there is dimmer than the line's profile at one end of
-        # the frame, say) are not a specimen against the wall.
-        k = int(2 * np.ceil(reach) + 1)
-        tall = cv2.getStructuringElement(cv2.MORPH_RECT, (1, k))
+        # What is left beside the wall must reach away from it like a body does: a strip along the wall
+        # that stays within the near zone (the lumen there dimmer than the line's profile at one end of
+        # the frame, say) is not a specimen against the wall; a body, however thin, crosses the zone's
+        # far edge in its column.
         for i in range(n):
-            keep = cv2.morphologyEx((pf[i] > level).astype(np.uint8), cv2.MORPH_OPEN, tall) > 0
-            pf[i][near & (pf[i] > level) & ~keep] = 0.0
+            inside = pf[i] > level
+            pf[i][near & inside & ~reaches_out(inside, near)] = 0.0
         log.info("capillary wall y = %.1f %+.4f x cleared (±%.1f px)", a, b, reach)
     return len(walls)
+
+
+def reaches_out(inside: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of ``inside`` joined along their column, through ``inside``, to a pixel of it outside
+    ``near``.
+
+    A column images one slice across the rotation axis, and a body lying against a wall is one run in that column
+    from the wall out into the lumen: its pixels near the wall are joined to pixels beyond the near zone. A strip
+    along the wall that never leaves the zone is not (whatever the height of the body beside it: a thin tail tip
+    against the wall keeps its full height).
+    """
+    keep = inside & ~near
+    step = np.zeros_like(keep)
+    for _ in range(inside.shape[0]):
+        step[1:] = keep[:-1]
+        step[:-1] |= keep[1:]
+        grown = keep | (step & inside)
+        if np.array_equal(grown, keep):
+            break
+        keep = grown
+    return keep
