@@ -113,9 +113,12 @@ def drop_translucent(
     level: float = 0.5,
     fraction: float = CORE_FRACTION,
     reach_px: float | None = None,
+    static: np.ndarray | None = None,
+    never: np.ndarray | None = None,
     copy: bool = True,
 ) -> np.ndarray:
-    """Posteriors (N, H, W) with the specimen's translucent sheets set to 0 (module docstring).
+    """Posteriors (N, H, W) with the specimen's translucent sheets set to 0 and the pale tissue the body encloses
+    set to 1 (module docstring).
 
     Args:
         pf: (N, H, W) specimen posteriors (walls and static blobs already cleared).
@@ -124,6 +127,9 @@ def drop_translucent(
         level: posterior level of the specimen.
         fraction: core threshold as a fraction of the body reference.
         reach_px: radius of the body reference, px (default :func:`body_reach_px`).
+        static: (H, W) contrast of the static scene (the capillary walls and their shadows,
+            :func:`._static_scene.clear_wall_lines`; default 0): the specimen's own contrast is what it adds to it.
+        never: (N, H, W) bool pixels the enclosed tissue never takes (the static scene cleared before).
         copy: False: drop them from ``pf`` itself when it is float32.
     """
     out = np.array(pf, dtype=np.float32, copy=copy)
@@ -136,18 +142,23 @@ def drop_translucent(
     )  # one pixel of the full frame: the core's edge is already at half contrast
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
     dropped = added = 0
-    for p, tt in zip(flat_p, flat_t):
+    base = np.zeros(flat_p.shape[-2:], np.float32) if static is None else np.asarray(static, np.float32)
+    flat_n = None if never is None else np.asarray(never, bool).reshape(flat_p.shape)
+    for k, (p, tt) in enumerate(zip(flat_p, flat_t)):
         inside = p > level
         if not inside.any():
             continue
-        ref = body_reference(tt, inside, reach, smooth)
-        ts = cv2.GaussianBlur(tt, (0, 0), max(smooth, 0.3))
+        own = tt - base  # the specimen's own contrast: a wall and its shadow are not tissue
+        ref = body_reference(own, inside, reach, smooth)
+        ts = cv2.GaussianBlur(own, (0, 0), max(smooth, 0.3))
         core = inside & (ts >= fraction * ref) & (ref > 0)
         keep = fill_holes((cv2.dilate(core.astype(np.uint8), kernel) > 0) | between_in_columns(core))
         gone = inside & ~keep
         dropped += int(gone.sum())
         p[gone] = 0.0
-        pale = enclosed_pale_tissue(keep, ts, ref, reach)
+        pale = enclosed_pale_tissue(keep, ts, ref, reach)  # a sheet dropped just above may be a gap of the rim
+        if flat_n is not None:
+            pale &= ~flat_n[k]
         added += int(pale.sum())
         p[pale] = np.maximum(p[pale], 1.0 - EPS_ADDED)
     log.info(
@@ -174,13 +185,23 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 
 
 def enclosed_pale_tissue(keep: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: float) -> np.ndarray:
-    """(H, W) bool: pale tissue the body's outline encloses, not in ``keep``."""
-    r = max(1, int(round(PALE_CLOSE * reach_px)))
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    """(H, W) bool: pale tissue in gaps of the body's outline (module docstring).
+
+    ``keep`` (H, W) bool is the body kept by the core rule (its holes and column spans filled), ``ts`` the smoothed
+    contrast above the static scene's (a wall's shadow in a corner between the body and the wall is not tissue),
+    ``ref`` the body reference (:func:`body_reference`), ``reach_px`` the body's half-height (:func:`body_reach_px`).
+    The body's outline — the largest part of ``keep``: a closing of several parts would bridge the body to a sheet
+    of fin cut off from it — is closed by a disc of radius ``PALE_CLOSE`` × ``reach_px``, which bridges a gap in the
+    pigmented rim narrower than the body's half-height, as where a tail's dorsal pigment line ends before its tip.
+    What the closing adds is tissue where its contrast reaches ``PALE_FRACTION`` of the body reference. The frame's
+    edge is not an outline.
+    """
     _, labels, big = largest_region(keep)
     if not big:
         return np.zeros_like(keep)
     k8 = (labels == big).astype(np.uint8)  # the body alone: a closing must not bridge it to a sheet of fin apart
+    r = max(1, int(round(PALE_CLOSE * reach_px)))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     closed = cv2.morphologyEx(cv2.copyMakeBorder(k8, r, r, r, r, cv2.BORDER_CONSTANT, 0), cv2.MORPH_CLOSE, disc)
-    closed = closed[r:-r, r:-r] > 0
-    return closed & ~keep & (ts >= PALE_FRACTION * ref) & (ref > 0)
+    bridge = (closed[r:-r, r:-r] > 0) & ~keep
+    return bridge & (ts >= PALE_FRACTION * ref) & (ref > 0)

@@ -77,8 +77,12 @@ def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 3.
     np.exp(pf, out=pf)  # the raw posteriors, float32, the stack every rule below clears in place
     if not (absorbing(model) and pf.ndim == 3):
         return half_contrast_edges(specimen_only(pf, copy=False), t, band_px=band_px, copy=False)
-    forbid = pf > 0.5  # what the colour model called specimen: the rules below may clear it, never add it
-    pf = drop_translucent(specimen_only(pf, t=t, copy=False), t, band_px=band_px, copy=False)
+    forbid = pf > 0.5  # what the colour model called specimen
+    scene = np.zeros(pf.shape[-2:], np.float32)  # the walls' own contrast, where they are
+    pf = specimen_only(pf, t=t, scene=scene, copy=False)
+    static = forbid & (pf <= 0.5)  # the static scene the colour model called specimen: no rule below adds it back
+    pf = drop_translucent(pf, t, band_px=band_px, static=scene, never=static, copy=False)
+    del static
     np.logical_and(forbid, pf <= 0.5, out=forbid)  # cleared by a rule: the soft rim must not grow back into it
     pf = half_contrast_edges(pf, t, band_px=band_px, soft=True, forbid=forbid, copy=False)
     del forbid, t
