@@ -35,13 +35,14 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
-sys.path[:0] = [str(REPO), str(REPO / "tests" / "reconstruct")]  # this tree's vastcal, not an installed one
+sys.path[:0] = [str(REPO), str(REPO / "tests" / "reconstruct"), str(REPO / "benchmarks")]  # this tree's vastcal
+from edge_profiles import profile, signed_distance  # noqa: E402
 from phantom_views import read_authors_cameras  # noqa: E402
 
 from vastcal.hull import visual_hull  # noqa: E402
 from vastcal.image_files import read_single  # noqa: E402
 from vastcal.measure import measure_hull  # noqa: E402
-from vastcal.segmentation import fit_automatic, specimen_maps  # noqa: E402
+from vastcal.segmentation import contrast, fit_automatic, specimen_maps  # noqa: E402
 from vastcal.segmentation._static_scene import wall_lines  # noqa: E402
 from vastcal.voxels import VoxelGrid  # noqa: E402
 
@@ -121,6 +122,30 @@ def _colour_static(larva: Larva) -> np.ndarray:
     return (g < 0.8 * bg).mean(axis=0) >= 0.9
 
 
+def edge_profiles(larva: Larva, model: object) -> None:
+    """Print the median contrast across the hand-made outline (½-px bins of signed distance, + inside) by zone, and
+    along the tail's last 120 px: where the hand edges sit in the image."""
+    t = contrast(model, model.features(larva.images))  # type: ignore[attr-defined]
+    walls = wall_lines(_colour_static(larva))
+    sd = np.stack([signed_distance(h) for h in larva.hand])
+    zones = np.stack([np.stack(where_masks(h, walls)) for h in larva.hand])  # (N, 2, H, W): ends, wall
+    print(f"\n{larva.name}: contrast across the hand outline (t: 0 background, 1 specimen mean), bins -2.0 ... +5.5 px")
+    for name, z in (("ends", zones[:, 0]), ("wall", zones[:, 1]), ("outline", ~(zones[:, 0] | zones[:, 1]))):
+        print(f"  {name:<8} {profile(t[z], sd[z], -2.0, 6.0)}")
+    cols = np.flatnonzero(larva.hand.any(axis=(0, 1)))
+    tail_right = larva.hand[:, :, cols[-1] - 60 : cols[-1]].sum() < larva.hand[:, :, cols[0] : cols[0] + 60].sum()
+    xs = np.arange(cols[-1] - 120, cols[-1] + 1) if tail_right else np.arange(cols[0] + 120, cols[0] - 1, -1)
+    print("  along the tail (every 10 px from 120 px before the tip): height px, median t inside, p10 t inside")
+    for x in xs[::10]:
+        inside = larva.hand[:, :, x]
+        vals = t[:, :, x][inside]
+        if vals.size:
+            print(
+                f"    {abs(int(x) - int(xs[-1])):>4} px from tip: height {inside.sum(axis=1).mean():5.1f}, "
+                f"t median {np.median(vals):.2f}, p10 {np.percentile(vals, 10):.2f}"
+            )
+
+
 def authors_grid() -> VoxelGrid:
     """The authors' grid: 5.07 M voxels over x ∈ [−2900, 2900], y, z ∈ [−800, 800] µm."""
     return VoxelGrid.with_voxel_count([-2900.0, -800.0, -800.0], [2900.0, 800.0, 800.0], 5_000_000)
@@ -169,6 +194,9 @@ def main() -> int:
     ap.add_argument("datasets", nargs="*", default=list(PUBLISHED))
     ap.add_argument("--published", nargs="*", default=[], help="NAME=V,A: a reference volume (mm³) and area (mm²)")
     ap.add_argument("--no-run", action="store_true", help="silhouettes and authors' cameras only")
+    ap.add_argument(
+        "--profiles", action="store_true", help="contrast profiles across the hand outline and along the tail"
+    )
     ap.add_argument("--workdir", type=Path, default=None, help="where the sessions and reports go (default: temporary)")
     args = ap.parse_args()
     published = dict(PUBLISHED)
@@ -186,6 +214,8 @@ def main() -> int:
         model = fit_automatic(larva.images)
         maps = specimen_maps(model, larva.images)
         sym = silhouette_table(larva, maps)
+        if args.profiles:
+            edge_profiles(larva, model)
         ok &= max(sym) <= SYMDIFF_MAX_PCT
         hand_v, hand_a = hull_values(larva.P, larva.hand)
         ref = published.get(larva.name, (hand_v, hand_a))

@@ -78,3 +78,14 @@ def test_a_view_with_a_band_along_its_edge_adds_a_region_the_others_reject(measu
 def test_consistent_silhouettes_have_no_region(measured: Measured) -> None:
     regions, rep, _ = _regions(measured, measured.silhouettes)
     assert regions == [] and rep.delta_volume_mm3 == 0.0
+
+
+def test_the_report_boxes_each_region_in_its_view() -> None:
+    from vastcal.report.document import _regions_by_view
+
+    r = qc.Region(3, "lost", 120, 120 * UM_PER_PX**2, (10, 20, 30, 4), 1e-4)
+    boxes = _regions_by_view({"details": {"view_regions": {"regions": [r.as_dict()]}}})
+    assert boxes == {
+        3: [{"kind": "lost", "x": 10, "y": 20, "width": 30, "height": 4, "title": "lost: 120 px (14,520 um^2)"}]
+    }
+    assert _regions_by_view({}) == {}
