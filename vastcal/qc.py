@@ -31,6 +31,12 @@ What is checked, per view, and why each threshold is what it is
   disagreement) plus what the comparison resolves, r = half a pixel of rasterisation + half a voxel's
   image. A view is flagged when its distance exceeds 3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
   silhouette and the hull overlap less than they differ → *fail*).
+* **A region one view loses or adds** (:func:`view_regions`, :mod:`vastcal.region_repair`): the voxels every
+  other view holds and this view alone rejects, projected into it (a tail tip cut short: *lost*), and the parts
+  of its silhouette outside the reprojected hull (a band along a wall: *added*), wider than the disagreement
+  threshold above — sized in px and µm². The silhouettes repaired as the other views imply are carved again;
+  the flags ask for a *check* when that moves volume or area by more than the stated uncertainty, and are
+  *notes* (verdict unchanged) otherwise (:func:`region_flags`).
 * **Calibration at its bounds** — a free parameter within 1 % of the box width of a bound of the
   search box: the optimum may lie outside it. → *check*.
 """

@@ -33,6 +33,10 @@ The budget (standard uncertainties u, combined in quadrature, expanded U = k·u 
    lattice-point error, p ≥ 1) takes p = 1, u = |V(h) − V(2h)|; the area of the smoothed mesh (the
    chord error of a piecewise-linear surface, p = 2) takes u = |A(h) − A(2h)| / 3.
 
+4. **Regions views lose or add** (:mod:`vastcal.region_repair`): the silhouettes repaired as the other views imply
+   are carved again on the measurement's grid; half the change of volume and area is a component (the k = 2
+   interval then reaches the repaired value), and those views' disagreement with the hull is left out of item 1.
+
 Not in the interval, stated beside it: the **visual hull's bias against the solid body** — the
 hull contains the body and equals it only where every surface point is seen on an outline; a
 concavity (a groove between yolk and trunk) is filled. A specimen cut by the frame edge makes
