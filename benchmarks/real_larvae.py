@@ -62,15 +62,18 @@ class Larva:
     name: str
     folder: Path
     images: np.ndarray
-    hand: np.ndarray
-    P: np.ndarray
+    hand: np.ndarray | None
+    P: np.ndarray | None
 
 
 def load(folder: Path) -> Larva:
-    """Frames, hand masks (WhiteIsZero masks read as displayed) and the authors' PI cameras of one larva."""
+    """Frames, hand masks (WhiteIsZero masks read as displayed; None without ``silhouettes/``) and the authors' PI
+    cameras (None without ``authors_par_pi.txt``) of one larva."""
     images = np.stack([read_single(f) for f in sorted((folder / "images").glob("*.tif"))])
-    hand = np.stack([read_single(f) for f in sorted((folder / "silhouettes").glob("*.tif"))]) > 0
-    return Larva(folder.name, folder, images, hand, read_authors_cameras(folder / "authors_par_pi.txt"))
+    masks = sorted((folder / "silhouettes").glob("*.tif"))
+    hand = np.stack([read_single(f) for f in masks]) > 0 if masks else None
+    cams = folder / "authors_par_pi.txt"
+    return Larva(folder.name, folder, images, hand, read_authors_cameras(cams) if cams.is_file() else None)
 
 
 def where_masks(hand: np.ndarray, walls: list[tuple[float, float, float]]) -> tuple[np.ndarray, np.ndarray]:
@@ -189,6 +192,45 @@ def line(label: str, value: float, U: float | None, ref: float, unit: str) -> tu
     return abs(dev) <= DEVIATION_MAX_PCT, inside, hw <= HALF_WIDTH_MAX_PCT
 
 
+def check_larva(larva: Larva, published: tuple[float, float] | None, args: argparse.Namespace) -> bool:
+    """Print the three parts of the module docstring for one larva; whether it meets the acceptance."""
+    ok = True
+    model = fit_automatic(larva.images)
+    maps = specimen_maps(model, larva.images)
+    ref = published
+    if larva.hand is not None:
+        ok &= max(silhouette_table(larva, maps)) <= SYMDIFF_MAX_PCT
+        if args.profiles:
+            edge_profiles(larva, model)
+    if larva.P is not None and larva.hand is not None:
+        hand_v, hand_a = hull_values(larva.P, larva.hand)
+        ref = ref or (hand_v, hand_a)
+    if ref is None:
+        print(f"{larva.name}: no reference (give --published {larva.name}=V,A, or hand masks and the authors' cameras)")
+        return False
+    src = "published" if published else "hand masks through the authors' PI cameras"
+    print(f"\n{larva.name}: reference {ref[0]:.4f} mm^3 / {ref[1]:.3f} mm^2 ({src})")
+    if larva.P is not None:
+        for label, sil in (("hand masks", larva.hand), ("automatic silhouettes", maps)):
+            if sil is not None:
+                v, a = hull_values(larva.P, sil)
+                print(f" authors' PI cameras + {label}:")
+                line("volume", v, None, ref[0], "mm^3")
+                line("area", a, None, ref[1], "mm^2")
+    if args.no_run:
+        return ok
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.workdir or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        m = end_to_end(larva, work)
+    print(f" end to end (vastcal import + run): verdict {m['verdict']}")
+    for reason in m.get("verdict_reasons", []):
+        print(f"    {reason}")
+    rv = line("volume", m["volume_mm3"], m["volume_U_mm3"], ref[0], "mm^3")
+    ra = line("area", m["surface_area_mm2"], m["surface_area_U_mm2"], ref[1], "mm^2")
+    return ok and all(rv) and all(ra)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("datasets", nargs="*", default=list(PUBLISHED))
@@ -210,36 +252,7 @@ def main() -> int:
         if not (folder / "images").is_dir():
             print(f"{d}: no images/ folder at {folder}")
             return 2
-        larva = load(folder)
-        model = fit_automatic(larva.images)
-        maps = specimen_maps(model, larva.images)
-        sym = silhouette_table(larva, maps)
-        if args.profiles:
-            edge_profiles(larva, model)
-        ok &= max(sym) <= SYMDIFF_MAX_PCT
-        hand_v, hand_a = hull_values(larva.P, larva.hand)
-        ref = published.get(larva.name, (hand_v, hand_a))
-        src = "Table 1 (PI)" if larva.name in published else "hand masks through the authors' PI cameras"
-        print(f"\n{larva.name}: reference {ref[0]:.4f} mm^3 / {ref[1]:.3f} mm^2 ({src})")
-        print(" authors' PI cameras + hand masks:")
-        line("volume", hand_v, None, ref[0], "mm^3")
-        line("area", hand_a, None, ref[1], "mm^2")
-        auto_v, auto_a = hull_values(larva.P, maps)
-        print(" authors' PI cameras + automatic silhouettes:")
-        line("volume", auto_v, None, ref[0], "mm^3")
-        line("area", auto_a, None, ref[1], "mm^2")
-        if args.no_run:
-            continue
-        with tempfile.TemporaryDirectory() as tmp:
-            work = args.workdir or Path(tmp)
-            work.mkdir(parents=True, exist_ok=True)
-            m = end_to_end(larva, work)
-        print(f" end to end (vastcal import + run): verdict {m['verdict']}")
-        for reason in m.get("verdict_reasons", []):
-            print(f"    {reason}")
-        rv = line("volume", m["volume_mm3"], m["volume_U_mm3"], ref[0], "mm^3")
-        ra = line("area", m["surface_area_mm2"], m["surface_area_U_mm2"], ref[1], "mm^2")
-        ok &= all(rv) and all(ra)
+        ok &= check_larva(load(folder), published.get(folder.name), args)
     print(f"\nacceptance: {'met' if ok else 'NOT met'}")
     return 0 if ok else 1
 
