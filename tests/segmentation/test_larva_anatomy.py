@@ -79,3 +79,19 @@ def test_a_pale_tail_tip_whose_pigment_line_ends_early_is_body_and_the_fold_past
         tip[:, :205] = False
         assert m[tip].mean() > 0.95, f"view {i}: {int((tip & ~m).sum())} px of the pale tip lost"
         assert not m[:, 275:].any(), f"view {i}: the fold past the tip is kept"
+
+
+def test_a_clear_inside_the_pigmented_rims_enclose_is_no_hole() -> None:
+    """A tail whose inside transmits 90 % (the colour model's background class) within closed dark rims: the
+    silhouette of a solid has no hole, so the inside is body (a hole would carve a tunnel through the hull)."""
+    n, h, w = 6, 120, 320
+    views, insides = [], []
+    for i in range(n):
+        yc = 40 + 16 * (i % 3)
+        a = _body(h, w, (150, yc), (120, 20), a_body=1.0)
+        cv2.ellipse(a, (150, yc), (110, 13), 0, 0, 360, 0.1, -1)
+        views.append(a)
+        insides.append(_body(h, w, (150, yc), (104, 10)) > 0)
+    maps = specimen_maps(_pale_background_model(), _render(np.stack(views))) > 0.5
+    for i, (m, inner) in enumerate(zip(maps, insides)):
+        assert m[inner].all(), f"view {i}: {int((inner & ~m).sum())} px of the clear inside left as a hole"
