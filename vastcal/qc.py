@@ -31,6 +31,12 @@ What is checked, per view, and why each threshold is what it is
   disagreement) plus what the comparison resolves, r = half a pixel of rasterisation + half a voxel's
   image. A view is flagged when its distance exceeds 3 (σ_edge + r) (→ *check*) or its IoU is below 0.5 (the
   silhouette and the hull overlap less than they differ → *fail*).
+* **A region one view loses or adds** (:func:`view_regions`, :mod:`vastcal.region_repair`): the voxels every
+  other view holds and this view alone rejects, projected into it (a tail tip cut short: *lost*), and the parts
+  of its silhouette outside the reprojected hull (a band along a wall: *added*), wider than the disagreement
+  threshold above — sized in px and µm². The silhouettes repaired as the other views imply are carved again;
+  the flags ask for a *check* when that moves volume or area by more than the stated uncertainty, and are
+  *notes* (verdict unchanged) otherwise (:func:`region_flags`).
 * **Calibration at its bounds** — a free parameter within 1 % of the box width of a bound of the
   search box: the optimum may lie outside it. → *check*.
 """
@@ -346,6 +352,124 @@ def hull_agreement(silhouette: np.ndarray, hull_mask: np.ndarray) -> tuple[float
 
 
 # ---------------------------------------------------------------------------------------------
+# Regions one view loses or adds
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Region:
+    """A part of the specimen one view's silhouette loses, or adds, against what the other views imply.
+
+    Attributes:
+        view: the view's index.
+        kind: ``lost`` (the other views' hull holds it, this view's silhouette does not: a truncated tip) or
+            ``added`` (this view's silhouette holds it, the other views' hull does not: a band along a wall).
+        pixels: its size in the view, px.
+        area_um2: its size in the specimen plane, µm² (px × the cameras' µm per px at the hull).
+        bbox: (x, y, width, height) in the view, px.
+        volume_mm3: the hull's volume the region decides (``lost``: the voxels only this view rejects there).
+        mask: (H, W) bool, its pixels (not stored).
+    """
+
+    view: int
+    kind: str
+    pixels: int
+    area_um2: float
+    bbox: tuple[int, int, int, int]
+    volume_mm3: float = 0.0
+    mask: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able."""
+        return {
+            "view": self.view,
+            "kind": self.kind,
+            "pixels": self.pixels,
+            "area_um2": self.area_um2,
+            "bbox": list(self.bbox),
+            "volume_mm3": self.volume_mm3,
+        }
+
+
+def _thick_parts(mask: np.ndarray, min_width_px: float) -> list[np.ndarray]:
+    """The 8-connected parts of ``mask`` (H, W) bool wider than ``min_width_px`` somewhere (twice the largest
+    distance from their outside)."""
+    m = mask.astype(np.uint8)
+    if not m.any():
+        return []
+    depth = cv2.distanceTransform(np.pad(m, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    n, lab = cv2.connectedComponents(m, connectivity=8)
+    out = []
+    for k in range(1, n):
+        part = lab == k
+        if 2.0 * float(depth[part].max()) > min_width_px:
+            out.append(part)
+    return out
+
+
+def _region(view: int, kind: str, part: np.ndarray, um_per_px: float, volume_mm3: float = 0.0) -> Region:
+    ys, xs = np.nonzero(part)
+    x0, y0 = int(xs.min()), int(ys.min())
+    bbox = (x0, y0, int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1)
+    return Region(view, kind, int(part.sum()), float(part.sum()) * um_per_px**2, bbox, volume_mm3, part)
+
+
+def view_regions(
+    silhouettes: Any,
+    hull_masks: Sequence[np.ndarray],
+    lost_points: Sequence[np.ndarray],
+    P: np.ndarray,
+    *,
+    um_per_px: float,
+    voxel_mm3: float,
+    min_width_px: float,
+) -> list[Region]:
+    """The regions each view loses or adds against what the other views imply (:class:`Region`).
+
+    * **lost** — the voxels every other view holds and view i alone rejects (``lost_points[i]``, µm, from
+      :func:`vastcal.region_repair.vetoed_by_one_view`), projected into view i: a part of them wider than
+      ``min_width_px`` is a region of the specimen this view's silhouette misses (a tail tip cut short, a pale
+      part left out). Its volume is the voxels that project into it.
+    * **added** — the parts of view i's silhouette outside the reprojected hull ``hull_masks[i]`` (the other views
+      reject them) wider than ``min_width_px``: a band along a wall, debris, a fin fold one view keeps.
+
+    ``min_width_px`` is what the comparison cannot resolve (the disagreement threshold of :func:`evaluate_qc`): a
+    silhouette and the hull differ by up to that much along every outline.
+    """
+    out: list[Region] = []
+    for i, hm in enumerate(hull_masks):
+        sil = np.asarray(silhouettes[i])
+        s = sil >= 0.5 if np.issubdtype(sil.dtype, np.floating) else sil != 0
+        h, w = s.shape
+        pts = np.asarray(lost_points[i], float)
+        if len(pts):
+            x = np.concatenate([pts, np.ones((len(pts), 1))], 1) @ np.asarray(P[i], float).T
+            u = np.rint(x[:, 0] / x[:, 2]).astype(np.int64)
+            v = np.rint(x[:, 1] / x[:, 2]).astype(np.int64)
+            ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            lost = np.zeros((h, w), bool)
+            lost[v[ok], u[ok]] = True
+            lost = cv2.morphologyEx(lost.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)) > 0
+            for part in _thick_parts(lost & ~s, min_width_px):
+                n_vox = int(part[v[ok], u[ok]].sum())
+                out.append(_region(i, "lost", part, um_per_px, n_vox * voxel_mm3))
+        for part in _thick_parts(s & ~np.asarray(hm, bool), min_width_px):
+            out.append(_region(i, "added", part, um_per_px))
+    return out
+
+
+def repaired_silhouette(silhouette: np.ndarray, regions: Sequence[Region]) -> np.ndarray:
+    """One view's silhouette (H, W) as float32 with its ``regions`` (of this view) repaired: lost ones set to 1,
+    added ones to 0 — what the other views imply there."""
+    s = np.asarray(silhouette)
+    out = s.astype(np.float32) if np.issubdtype(s.dtype, np.floating) else (s != 0).astype(np.float32)
+    for r in regions:
+        if r.mask is not None:
+            out[r.mask] = 1.0 if r.kind == "lost" else 0.0
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
 # Flags and verdict
 # ---------------------------------------------------------------------------------------------
 
@@ -436,10 +560,48 @@ def _views(idx: Sequence[int]) -> str:
 
 
 def verdict_of(flags: Sequence[Flag]) -> str:
-    """``fail`` if any flag fails, else ``check`` if any flag, else ``ok``."""
+    """``fail`` if any flag fails, else ``check`` if any flag asks for a check, else ``ok`` (``note`` flags say
+    what was found and changes nothing)."""
     if any(f.severity == "fail" for f in flags):
         return "fail"
-    return "check" if flags else "ok"
+    return "check" if any(f.severity == "check" for f in flags) else "ok"
+
+
+def region_flags(
+    regions: Sequence[Region], delta_volume_mm3: float | None, delta_area_mm2: float | None, stated: Any
+) -> list[Flag]:
+    """Flags ``view_loses_region`` and ``view_adds_region``, one line each with the views and the regions' sizes.
+
+    ``stated`` is the uncertainty budget without the regions' own line (``U_volume_mm3``, ``U_area_mm2``): the
+    flags ask for a check when repairing the regions moves the volume or the area by more than it (or when the
+    repair could not be measured), and are notes otherwise.
+    """
+    moved = (
+        delta_volume_mm3 is None
+        or delta_area_mm2 is None
+        or abs(delta_volume_mm3) > float(stated.U_volume_mm3 or 0.0)
+        or abs(delta_area_mm2) > float(stated.U_area_mm2 or 0.0)
+    )
+    change = (
+        "repair not measured"
+        if delta_volume_mm3 is None or delta_area_mm2 is None
+        else f"repaired as the other views imply: volume {delta_volume_mm3:+.4f} mm^3, area {delta_area_mm2:+.4f} mm^2"
+    )
+    out = []
+    for kind, code, verb in (("lost", "view_loses_region", "loses"), ("added", "view_adds_region", "adds")):
+        rs = [r for r in regions if r.kind == kind]
+        if not rs:
+            continue
+        views = tuple(sorted({r.view for r in rs}))
+        sizes = "; ".join(
+            f"view {r.view}: {r.pixels} px ({r.area_um2:,.0f} um^2) at x {r.bbox[0]}-{r.bbox[0] + r.bbox[2] - 1}, "
+            f"y {r.bbox[1]}-{r.bbox[1] + r.bbox[3] - 1}"
+            for r in sorted(rs, key=lambda r: -r.pixels)[:4]
+        )
+        what = "the other views hold" if kind == "lost" else "the other views reject"
+        msg = f"silhouette {verb} a region {what} in view(s) {_views(views)} ({sizes}); {change}"
+        out.append(Flag(code, "check" if moved else "note", msg, views))
+    return out
 
 
 def calibration_bound_flags(

@@ -148,8 +148,9 @@ def test_budget_has_every_component_and_covers_the_true_hull(
     _, m = assessed
     u = m.uncertainty  # type: ignore[attr-defined]
     names = [c["name"] for c in u["components"]]
-    assert names == ["edge", "calibration (open directions)", "grid"] and u["not_evaluated"] == []
-    assert all(c["u_volume_mm3"] > 0 and c["u_area_mm2"] > 0 for c in u["components"])
+    assert names == ["edge", "calibration (open directions)", "grid", "view regions"] and u["not_evaluated"] == []
+    assert all(c["u_volume_mm3"] > 0 and c["u_area_mm2"] > 0 for c in u["components"][:3])
+    assert u["components"][3]["u_volume_mm3"] == 0.0  # consistent silhouettes: no view loses or adds a region
     assert u["k"] == 2 and u["U_volume_mm3"] == pytest.approx(2 * u["u_volume_mm3"])
     # the true visual hull of the simulated views lies inside the k = 2 intervals
     assert abs(m.volume_mm3 - qc_views.hull_volume_mm3) <= u["U_volume_mm3"]  # type: ignore[attr-defined]

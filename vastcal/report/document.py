@@ -723,7 +723,7 @@ def page_context(data: ReportData, arrays: dict[str, Any], truth: dict[str, Any]
             flags_by_view[i] = ["disagrees with the hull"]
     u = m.get("uncertainty") or {}
     drift, drift_value, drift_label = _drift_context(c)
-    views, rows = _view_context(arrays, per_view, flags_by_view)
+    views, rows = _view_context(arrays, per_view, flags_by_view, _regions_by_view(u))
     thresholds = qc.get("thresholds") or {}
     flagged = [bool(flags_by_view.get(i)) for i in range(n)]
     volume_text, area_text, numbers = _numbers_context(m, c)
@@ -786,10 +786,30 @@ def _drift_context(c: dict[str, Any]) -> tuple[dict[str, Any], str, str]:
     return drift, drift_value, drift_label
 
 
+def _regions_by_view(uncertainty: dict[str, Any]) -> dict[int, list[dict[str, Any]]]:
+    """The regions views lose or add (:mod:`vastcal.region_repair`), by view: kind, box (px) and a one-line title."""
+    out: dict[int, list[dict[str, Any]]] = {}
+    found = ((uncertainty.get("details") or {}).get("view_regions") or {}).get("regions") or []
+    for r in found:
+        x, y, w, h = (int(v) for v in r.get("bbox", (0, 0, 0, 0)))
+        kind = str(r.get("kind", ""))
+        title = (
+            f"{'lost' if kind == 'lost' else 'added'}: {r.get('pixels')} px ({float(r.get('area_um2', 0)):,.0f} um^2)"
+        )
+        out.setdefault(int(r.get("view", -1)), []).append(
+            {"kind": kind, "x": x, "y": y, "width": w, "height": h, "title": title}
+        )
+    return out
+
+
 def _view_context(
-    arrays: dict[str, Any], per_view: dict[str, Any], flags_by_view: dict[int, list[str]]
+    arrays: dict[str, Any],
+    per_view: dict[str, Any],
+    flags_by_view: dict[int, list[str]],
+    regions_by_view: dict[int, list[dict[str, Any]]] | None = None,
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Per view: the overlay card (image, outline, caption, flags) and the table row, numbers formatted."""
+    """Per view: the overlay card (image, outline, regions lost or added, caption, flags) and the table row, numbers
+    formatted."""
     frames, delta, commanded = arrays["frames"], arrays["delta"], arrays["commanded"]
 
     def col(name: str, i: int) -> Any:
@@ -817,6 +837,7 @@ def _view_context(
                 "height": ov.height,
                 "caption": caption,
                 "flags": fl,
+                "regions": (regions_by_view or {}).get(i, []),
             }
         )
         cn, nz = col("contrast", i), col("noise", i)

@@ -48,6 +48,7 @@ def specimen_only(
     margin_px: int = 3,
     t: np.ndarray | None = None,
     *,
+    scene: np.ndarray | None = None,
     copy: bool = True,
 ) -> np.ndarray:
     """Posteriors (N, H, W) with static bands and the static blobs cut by the frame's edge set to 0.
@@ -61,7 +62,8 @@ def specimen_only(
     remaining region that touches the frame's edge is a static blob and is cleared (grown by ``margin_px``)
     — unless it is the largest region of its view: that is the specimen running out of the frame (a tail
     tip past the edge), which is kept (:func:`~vastcal.segmentation.probability_maps.touches_frame_edge`
-    reports it). Lengths are pixels of these maps.
+    reports it). Lengths are pixels of these maps. ``scene`` (H, W) float32, when given with ``t``, receives the
+    walls' static contrast profile beside them (:func:`clear_wall_lines`).
     ``copy=False``: clear ``pf`` itself when it is float32 (a stack's maps are then held once).
     """
     out = np.array(pf, dtype=np.float32, copy=copy)
@@ -75,7 +77,7 @@ def specimen_only(
                 out[:, rows, :] = 0.0
             log.info("static bands: %d rows, %d columns", int(rows.sum()), int(cols.sum()))
         if t is not None:
-            clear_wall_lines(out, np.asarray(t, np.float32), level=level, wall_px=wall_px)
+            clear_wall_lines(out, np.asarray(t, np.float32), level=level, wall_px=wall_px, scene=scene)
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (1, wall_px))
     grow = np.ones((2 * margin_px + 1,) * 2, np.uint8)
     for p in out.reshape((-1,) + out.shape[-2:]):
@@ -121,7 +123,13 @@ def wall_lines(static: np.ndarray, *, wall_px: int = 15, span: float = 0.5) -> l
 
 
 def clear_wall_lines(
-    pf: np.ndarray, t: np.ndarray, *, level: float = 0.5, wall_px: int = 15, views: float = STATIC_VIEWS
+    pf: np.ndarray,
+    t: np.ndarray,
+    *,
+    level: float = 0.5,
+    wall_px: int = 15,
+    views: float = STATIC_VIEWS,
+    scene: np.ndarray | None = None,
 ) -> int:
     """Clear the capillary's walls from ``pf`` (N, H, W, in place) where the static scene explains them.
 
@@ -134,9 +142,11 @@ def clear_wall_lines(
     darkest (the glass, inside the line's half-contrast edge) or when the view is not darker than the
     static scene by a quarter of the specimen's mean contrast (Δt < ¼: a pixel the specimen half covers
     shows half its rim's contrast, and a thin rim's contrast is about half the mean), or when it belongs to
-    no vertical run of the view's map as long as the near zone is wide (a strip along the wall). What remains is a
-    specimen lying against the wall: its edge then ends at the wall's half-contrast edge. Returns the
-    number of walls.
+    no vertical run of the view's map that leaves the near zone (:func:`reaches_out`: a strip along the wall). What
+    remains is a specimen lying against the wall — a thin tail included: its run crosses the near zone's far edge
+    whatever its height — and its edge then ends at the wall's half-contrast edge. ``scene`` (H, W), when given,
+    receives the static profile within each wall's near zone (the contrast the empty capillary shows there: what
+    the specimen's own contrast is measured from). Returns the number of walls.
     """
     n, h, w = pf.shape
     static = (pf > level).mean(axis=0) >= views
@@ -155,18 +165,40 @@ def clear_wall_lines(
             sel = bins == k
             profile[k - lo] = np.percentile(vals[:, sel], 25)
         prof = profile[bins - lo]
+        if scene is not None:
+            scene[near] = np.maximum(scene[near], prof)
         glass = prof >= 0.5 * float(np.nanmax(profile))
         cleared = glass[None, :] | ((vals - prof[None, :]) < 0.25)
         sub = pf[:, near]
         sub[cleared] = 0.0
         pf[:, near] = sub
-        # What is left beside the wall must reach away from it like a body does: strips along the wall
-        # thinner than the near zone (the lumen there is dimmer than the line's profile at one end of
-        # the frame, say) are not a specimen against the wall.
-        k = int(2 * np.ceil(reach) + 1)
-        tall = cv2.getStructuringElement(cv2.MORPH_RECT, (1, k))
+        # What is left beside the wall must reach away from it like a body does: a strip along the wall
+        # that stays within the near zone (the lumen there dimmer than the line's profile at one end of
+        # the frame, say) is not a specimen against the wall; a body, however thin, crosses the zone's
+        # far edge in its column.
         for i in range(n):
-            keep = cv2.morphologyEx((pf[i] > level).astype(np.uint8), cv2.MORPH_OPEN, tall) > 0
-            pf[i][near & (pf[i] > level) & ~keep] = 0.0
+            inside = pf[i] > level
+            pf[i][near & inside & ~reaches_out(inside, near)] = 0.0
         log.info("capillary wall y = %.1f %+.4f x cleared (±%.1f px)", a, b, reach)
     return len(walls)
+
+
+def reaches_out(inside: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of ``inside`` joined along their column, through ``inside``, to a pixel of it outside
+    ``near``.
+
+    A column images one slice across the rotation axis, and a body lying against a wall is one run in that column
+    from the wall out into the lumen: its pixels near the wall are joined to pixels beyond the near zone. A strip
+    along the wall that never leaves the zone is not (whatever the height of the body beside it: a thin tail tip
+    against the wall keeps its full height).
+    """
+    keep = inside & ~near
+    step = np.zeros_like(keep)
+    for _ in range(inside.shape[0]):
+        step[1:] = keep[:-1]
+        step[:-1] |= keep[1:]
+        grown = keep | (step & inside)
+        if np.array_equal(grown, keep):
+            break
+        keep = grown
+    return keep

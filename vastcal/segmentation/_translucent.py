@@ -18,6 +18,14 @@ is body). Specimen
 pixels farther than ``band_px`` from the core are dropped; the rim within the band is left to the
 half-contrast rule. A fin wider than the band is therefore dropped, the body's blurred rim is kept.
 
+The tail's tip is the opposite case: body tissue tens of µm thick whose pigment lines end before the tip, so
+its clear interior (t ≈ 0.2 on the rig's larvae, 40 noise σ; the fin fold beyond it t ≲ 0.1) falls below the
+colour model's specimen class and the core rule, and the outline there is open. **Pale tissue the body
+encloses** is added back (:func:`enclosed_pale_tissue`): the kept body's outline is closed over gaps narrower
+than its half-height, and what the closing adds is body where its contrast reaches a tenth of the body
+reference (the hand-made outlines of two larvae sit at t ≈ 0.1–0.2 there). A fin fold reaches out from the
+outline, not into a gap of it, and stays out; so does a region whose contrast is a noise-level fraction.
+
 ``reach`` is the body's own scale: the median half-height of the specimen over the columns where
 it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
 farther than that from the body is cut off from it and left as a separate part; see
@@ -33,10 +41,19 @@ import logging
 import cv2
 import numpy as np
 
+from vastcal.segmentation._specimen_parts import largest_region
+
 log = logging.getLogger(__name__)
 
 #: The core is where the contrast reaches this fraction of the body reference (the half-contrast point).
 CORE_FRACTION = 0.5
+#: Pale tissue the body encloses is kept where its contrast reaches this fraction of the body reference (module
+#: docstring): ten times thinner tissue than the body's pigmented rims, still ≥ 20 noise σ on the rig's frames.
+PALE_FRACTION = 0.1
+#: Gaps of the body's outline shorter than this fraction of the body's height (twice its reach) are bridged.
+PALE_CLOSE = 0.5
+#: Posterior given to enclosed pale tissue the colour model called background.
+EPS_ADDED = 1e-3
 
 
 def body_reach_px(inside: np.ndarray, *, minimum: float = 6.0) -> float:
@@ -96,9 +113,12 @@ def drop_translucent(
     level: float = 0.5,
     fraction: float = CORE_FRACTION,
     reach_px: float | None = None,
+    static: np.ndarray | None = None,
+    never: np.ndarray | None = None,
     copy: bool = True,
 ) -> np.ndarray:
-    """Posteriors (N, H, W) with the specimen's translucent sheets set to 0 (module docstring).
+    """Posteriors (N, H, W) with the specimen's translucent sheets set to 0 and the pale tissue the body encloses
+    set to 1 (module docstring).
 
     Args:
         pf: (N, H, W) specimen posteriors (walls and static blobs already cleared).
@@ -107,6 +127,9 @@ def drop_translucent(
         level: posterior level of the specimen.
         fraction: core threshold as a fraction of the body reference.
         reach_px: radius of the body reference, px (default :func:`body_reach_px`).
+        static: (H, W) contrast of the static scene (the capillary walls and their shadows,
+            :func:`._static_scene.clear_wall_lines`; default 0): the specimen's own contrast is what it adds to it.
+        never: (N, H, W) bool pixels the enclosed tissue never takes (the static scene cleared before).
         copy: False: drop them from ``pf`` itself when it is float32.
     """
     out = np.array(pf, dtype=np.float32, copy=copy)
@@ -118,19 +141,33 @@ def drop_translucent(
         1, int(np.ceil(band_px / 3.0))
     )  # one pixel of the full frame: the core's edge is already at half contrast
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
-    dropped = 0
-    for p, tt in zip(flat_p, flat_t):
+    dropped = added = 0
+    base = np.zeros(flat_p.shape[-2:], np.float32) if static is None else np.asarray(static, np.float32)
+    flat_n = None if never is None else np.asarray(never, bool).reshape(flat_p.shape)
+    for k, (p, tt) in enumerate(zip(flat_p, flat_t)):
         inside = p > level
         if not inside.any():
             continue
-        ref = body_reference(tt, inside, reach, smooth)
-        ts = cv2.GaussianBlur(tt, (0, 0), max(smooth, 0.3))
+        own = tt - base  # the specimen's own contrast: a wall and its shadow are not tissue
+        ref = body_reference(own, inside, reach, smooth)
+        ts = cv2.GaussianBlur(own, (0, 0), max(smooth, 0.3))
         core = inside & (ts >= fraction * ref) & (ref > 0)
         keep = fill_holes((cv2.dilate(core.astype(np.uint8), kernel) > 0) | between_in_columns(core))
         gone = inside & ~keep
         dropped += int(gone.sum())
         p[gone] = 0.0
-    log.info("translucent parts dropped: %d px over %d views (body reach %.1f px)", dropped, flat_p.shape[0], reach)
+        pale = enclosed_pale_tissue(keep, ts, ref, reach)  # a sheet dropped just above may be a gap of the rim
+        if flat_n is not None:
+            pale &= ~flat_n[k]
+        added += int(pale.sum())
+        p[pale] = np.maximum(p[pale], 1.0 - EPS_ADDED)
+    log.info(
+        "translucent parts dropped: %d px, enclosed pale tissue added: %d px, over %d views (body reach %.1f px)",
+        dropped,
+        added,
+        flat_p.shape[0],
+        reach,
+    )
     return out
 
 
@@ -145,3 +182,26 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
     outside[1:-1, 1:-1] = mask  # 1 inside the mask, 0 elsewhere, and a frame of 0 all round
     cv2.floodFill(outside, None, (0, 0), 2, flags=4)  # the outside and the background connected to it become 2
     return outside[1:-1, 1:-1] != 2
+
+
+def enclosed_pale_tissue(keep: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: float) -> np.ndarray:
+    """(H, W) bool: pale tissue in gaps of the body's outline (module docstring).
+
+    ``keep`` (H, W) bool is the body kept by the core rule (its holes and column spans filled), ``ts`` the smoothed
+    contrast above the static scene's (a wall's shadow in a corner between the body and the wall is not tissue),
+    ``ref`` the body reference (:func:`body_reference`), ``reach_px`` the body's half-height (:func:`body_reach_px`).
+    The body's outline — the largest part of ``keep``: a closing of several parts would bridge the body to a sheet
+    of fin cut off from it — is closed by a disc of radius ``PALE_CLOSE`` × ``reach_px``, which bridges a gap in the
+    pigmented rim narrower than the body's half-height, as where a tail's dorsal pigment line ends before its tip.
+    What the closing adds is tissue where its contrast reaches ``PALE_FRACTION`` of the body reference. The frame's
+    edge is not an outline.
+    """
+    _, labels, big = largest_region(keep)
+    if not big:
+        return np.zeros_like(keep)
+    k8 = (labels == big).astype(np.uint8)  # the body alone: a closing must not bridge it to a sheet of fin apart
+    r = max(1, int(round(PALE_CLOSE * reach_px)))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    closed = cv2.morphologyEx(cv2.copyMakeBorder(k8, r, r, r, r, cv2.BORDER_CONSTANT, 0), cv2.MORPH_CLOSE, disc)
+    bridge = (closed[r:-r, r:-r] > 0) & ~keep
+    return bridge & (ts >= PALE_FRACTION * ref) & (ref > 0)

@@ -45,7 +45,7 @@ from vastcal.segmentation._edges import contrast, half_contrast_edges
 from vastcal.segmentation._pixel_features import FrameStack, as_stack
 from vastcal.segmentation._specimen_parts import single_specimen
 from vastcal.segmentation._static_scene import specimen_only
-from vastcal.segmentation._translucent import drop_translucent
+from vastcal.segmentation._translucent import drop_translucent, fill_holes
 from vastcal.segmentation.colour_models import ColourModel
 
 log = logging.getLogger(__name__)
@@ -77,12 +77,30 @@ def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 3.
     np.exp(pf, out=pf)  # the raw posteriors, float32, the stack every rule below clears in place
     if not (absorbing(model) and pf.ndim == 3):
         return half_contrast_edges(specimen_only(pf, copy=False), t, band_px=band_px, copy=False)
-    forbid = pf > 0.5  # what the colour model called specimen: the rules below may clear it, never add it
-    pf = drop_translucent(specimen_only(pf, t=t, copy=False), t, band_px=band_px, copy=False)
+    forbid = pf > 0.5  # what the colour model called specimen
+    scene = np.zeros(pf.shape[-2:], np.float32)  # the walls' own contrast, where they are
+    pf = specimen_only(pf, t=t, scene=scene, copy=False)
+    static = forbid & (pf <= 0.5)  # the static scene the colour model called specimen: no rule below adds it back
+    pf = drop_translucent(pf, t, band_px=band_px, static=scene, never=static, copy=False)
+    del static
     np.logical_and(forbid, pf <= 0.5, out=forbid)  # cleared by a rule: the soft rim must not grow back into it
     pf = half_contrast_edges(pf, t, band_px=band_px, soft=True, forbid=forbid, copy=False)
     del forbid, t
-    return single_specimen(pf, tol_px=2.0 * band_px / 3.0, copy=False)
+    return fill_silhouette_holes(single_specimen(pf, tol_px=2.0 * band_px / 3.0, copy=False))
+
+
+def fill_silhouette_holes(pf: np.ndarray, level: float = 0.5) -> np.ndarray:
+    """``pf`` (N, H, W) with every hole of each view's silhouette set to 1, in place.
+
+    A larva is a solid without through-holes: its projection has none. A hole is pale tissue the body encloses
+    (the clear inside of a tail whose pigment lines are its only dark parts) that the colour model left in the
+    background class; left open, it would carve a tunnel through the hull of every view.
+    """
+    for p in pf.reshape((-1,) + pf.shape[-2:]):
+        inside = p > level
+        if inside.any():
+            p[fill_holes(inside) & ~inside] = 1.0
+    return pf
 
 
 def touches_frame_edge(maps: np.ndarray, level: float = 0.5) -> np.ndarray:
