@@ -2,13 +2,13 @@
 
 A view whose roll barely changes its silhouette (a statue seen face on) has a cost that is flat over a degree or
 more, and rough on the scale of single edges: one edge ray's penalty changing moves the cost by up to its cap over
-the number of edges. A search in many dimensions walks such views along their flat, rough valleys, and the pose it
-ends at is lower than the truth's by the sum of what each view gained from roughness alone. So, after the starts:
+the number of edges. A search in many dimensions can leave such views anywhere along their flat valleys, and a move
+that the cost pays for no more than its own noise carries no information. So, after the starts:
 
 1. **The cost's own noise** σ_n is measured on the judge at the kept pose: every free roll alone at ±h and ±2h
-   (h half the polish's first step), a parabola through each roll's five costs, and σ_n the median over the rolls
-   of the RMS residual (two degrees of freedom per roll). It is the change in cost that no smooth dependence on θ
-   explains.
+   (h half the polish's first step; at most :data:`NOISE_ROLLS` rolls spread evenly over the views), a parabola
+   through each roll's five costs, and σ_n the median over the rolls of the RMS residual (two degrees of freedom
+   per roll): the change in cost that no smooth dependence on θ explains.
 2. **Each view's net move**, from its start to where the search left it, is tested: the view alone put back at its
    start, the others held. Where the cost rises by no more than what a difference of two noisy costs reaches at
    2σ (2√2·σ_n), the data do not support the move, and those views go back together when the judged cost of the
@@ -34,6 +34,8 @@ from vastcal.calibrate.stage import Pose, StageContext
 
 log = logging.getLogger(__name__)
 
+#: Free rolls the noise is measured on at most, spread evenly over the views (4 judged costs each).
+NOISE_ROLLS = 12
 #: A cost difference counts when it exceeds this many noise σ of a difference of two costs (√2·σ_n): 2σ, the usual
 #: two-sided 95 % bound of a Gaussian.
 SIGNIFICANCE = 2.0
@@ -97,7 +99,8 @@ class NoiseGuard:
         views = np.flatnonzero(space.free_mask[3:])
         theta = pose.theta
         h = 0.5 * float(st.polish_steps_deg[0]) if st.polish_steps_deg else 0.1
-        sigma, n_noise = cost_noise(judge, theta, views, h)
+        probe = views[np.unique(np.linspace(0, views.size - 1, min(NOISE_ROLLS, views.size)).round().astype(int))]
+        sigma, n_noise = cost_noise(judge, theta, probe, h)
         threshold = SIGNIFICANCE * np.sqrt(2.0) * sigma
         ctx.extra["noise_threshold"] = threshold
         gauge = bool(np.all(space.free_mask[4:])) and st.roll_prior_weight <= 0
