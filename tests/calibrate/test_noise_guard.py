@@ -50,3 +50,18 @@ def test_a_common_rotation_of_every_view_is_no_move_where_the_cost_is_gauge_free
     theta = np.concatenate([[0.0, 0.0, 0.0], [0.0, 10.0, 10.0, 10.5, 10.0, 10.0]])
     assert np.allclose(view_starts(space, theta, gauge=True), 10.0)
     assert np.allclose(view_starts(space, theta, gauge=False), 0.0)
+
+
+def test_the_polish_holds_the_views_put_back_and_moves_no_roll_for_a_gain_within_the_noise() -> None:
+    from vastcal.calibrate.stage_polish import _holding, polish_rolls
+
+    space = ParameterSpace.build(np.zeros(3 + N), ["rolls"], CalibrationBounds(0.0, 0.0, 0.0, 5.0))
+    centre = np.array([0.0, 0.3, -0.2, 0.1, 0.25, -0.15])
+    cost = _rough_cost(0.0, np.full(N, 1e-3), centre)  # each roll's gain from its move: 1e-3 · d² ≤ 9e-5
+    theta = np.zeros(3 + N)
+    held = _holding(space, theta, np.array([1, 4]))
+    x, _, _, _ = polish_rolls(cost, held, held.x(theta))
+    moved = held.theta(x)[0][3:]
+    assert moved[1] == 0.0 and moved[4] == 0.0 and abs(moved[2] - centre[2]) < 0.03
+    x_noisy, _, _, _ = polish_rolls(cost, space, space.x(theta), min_gain=1e-4)
+    assert np.allclose(space.theta(x_noisy)[0], theta)  # no roll's gain beats the noise
