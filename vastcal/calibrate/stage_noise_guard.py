@@ -12,7 +12,7 @@ that the cost pays for no more than its own noise carries no information. So, af
 2. **Each view's net move**, from its start to where the search left it, is tested: the view alone put back at its
    start, the others held. Where the cost rises by no more than what a difference of two noisy costs reaches at
    2σ (2√2·σ_n), the data do not support the move, and those views go back together when the judged cost of the
-   joint return rises by no more than 2√2·σ_n·√k for k views. Where a common rotation of every view leaves the cost
+   joint return, one move, rises by no more than that too. Where a common rotation of every view leaves the cost
    unchanged (every other roll free, no roll prior), a view's start is its commanded angle plus the median move of
    all free views (the gauge): only a move relative to the others is a move.
 
@@ -114,7 +114,7 @@ class NoiseGuard:
             th[3 + back] = starts[back]
             fb = float(judge(th[None])[0])
             evals += 1
-            allowed = threshold * np.sqrt(back.size)
+            allowed = threshold
             report.update({"candidates": back.tolist(), "joint_rise": fb - pose.f, "joint_allowed": allowed})
             if fb - pose.f <= allowed:
                 log.info(
