@@ -95,11 +95,12 @@ class NoiseGuard:
     def run(self, ctx: StageContext, pose: Pose) -> tuple[Pose, dict[str, Any] | None]:
         problem, space, st, judge = ctx.problem, ctx.problem.space, ctx.problem.settings, ctx.judge
         assert judge is not None
-        ctx.clock.name_phase(1, "noise of the cost")
         views = np.flatnonzero(space.free_mask[3:])
         theta = pose.theta
         h = 0.5 * float(st.polish_steps_deg[0]) if st.polish_steps_deg else 0.1
         probe = views[np.unique(np.linspace(0, views.size - 1, min(NOISE_ROLLS, views.size)).round().astype(int))]
+        # its evaluations: x and 4 per probed roll, one return per free view, the joint return
+        ctx.clock.name_phase(2 + 4 * probe.size + views.size, "noise of the cost")
         sigma, n_noise = cost_noise(judge, theta, probe, h)
         threshold = SIGNIFICANCE * np.sqrt(2.0) * sigma
         ctx.extra["noise_threshold"] = threshold
