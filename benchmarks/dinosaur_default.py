@@ -119,6 +119,12 @@ def main() -> None:
                 flush=True,
             )
             farther = np.flatnonzero(np.abs(e) > np.abs(e0) + FARTHER_DEG)
+            guard = next((rep["noise_guard"] for rep in r.level_reports if "noise_guard" in rep), None)
+            if guard:
+                print(
+                    f"  cost noise σ {guard['noise']:.3g}, a move must gain > {guard['threshold']:.3g}; "
+                    f"put back at their start: {guard['put_back']}"
+                )
             print(f"  per view {np.round(e, 2).tolist()}")
             print(
                 f"  views > 1°: {np.flatnonzero(np.abs(e) > 1).tolist()}; "

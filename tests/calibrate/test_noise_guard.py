@@ -65,3 +65,10 @@ def test_the_polish_holds_the_views_put_back_and_moves_no_roll_for_a_gain_within
     assert moved[1] == 0.0 and moved[4] == 0.0 and abs(moved[2] - centre[2]) < 0.03
     x_noisy, _, _, _ = polish_rolls(cost, space, space.x(theta), min_gain=1e-4)
     assert np.allclose(space.theta(x_noisy)[0], theta)  # no roll's gain beats the noise
+
+
+def test_the_common_rotation_comes_from_the_views_left_at_their_start() -> None:
+    space = ParameterSpace.build(np.zeros(3 + N), ["rolls"], CalibrationBounds(0.0, 0.0, 0.0, 15.0))
+    theta = np.concatenate([[0.0, 0.0, 0.0], [0.0, 0.5, 0.6, 10.2, 10.4, 10.6]])  # views 1-2: a different group
+    assert np.allclose(view_starts(space, theta, gauge=True), 10.2)  # the median of all five moves
+    assert np.allclose(view_starts(space, theta, gauge=True, among=np.array([3, 4, 5])), 10.4)
