@@ -326,8 +326,8 @@ def test_a_moved_outlier_view_is_named_in_the_calibration_summary() -> None:
 
 
 def test_a_run_that_did_not_converge_says_what_that_means() -> None:
-    """The summary's verdict: a run that did not converge stopped on its budget, not within its tolerance."""
-    reason = "per-view polish: a roll's minimum still lay beyond ± the smallest step"
+    """The summary's verdict: a run that did not converge says its last step missed its own test, and why."""
+    reason = "per-view polish: some roll's own minimum still lay beyond ±0.025° after its last step"
     text = _result({"ran": False}, converged=False, stop_reason=reason).summary()
-    assert "NOT converged (the search stopped on its budget, not within its tolerance; " in text and reason in text
+    assert "NOT converged (its last search step did not meet its own test; " in text and reason in text
     assert "NOT converged" not in _result({"ran": False}, converged=True, stop_reason="…").summary()

@@ -23,12 +23,14 @@ from vastcal.calibrate.optimise import RESTARTS
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.problem import Problem
 from vastcal.calibrate.stage import Clock, LevelRun, Pose, QuietClock, Stage, StageContext
+from vastcal.calibrate.stage_noise_guard import NoiseGuard
 from vastcal.calibrate.stage_offset_scan import CommonRollOffsetScan
 from vastcal.calibrate.stage_outlier_scan import OutlierScan
 from vastcal.calibrate.stage_polish import Polish
 from vastcal.calibrate.stage_references import KeepReferences
 from vastcal.calibrate.stage_roll_scan import RollScan
 from vastcal.calibrate.stage_roll_widths import RollWidths as RollWidthsStage
+from vastcal.calibrate.stop_reasons import run_verdict, stop_condition
 from vastcal.config import CalibrationSettings, check_setting
 from vastcal.errors import AnalysisError, UserInputError
 from vastcal.geometry import projection_matrices
@@ -42,7 +44,7 @@ log = logging.getLogger(__name__)
 
 LEVEL_STAGES: tuple[Stage, ...] = (CommonRollOffsetScan(), RollScan())
 """The stages after every level's search, in order (each decides whether it applies to the level)."""
-FINAL_STAGES: tuple[Stage, ...] = (OutlierScan(), Polish(), KeepReferences(), RollWidthsStage())
+FINAL_STAGES: tuple[Stage, ...] = (OutlierScan(), NoiseGuard(), Polish(), KeepReferences(), RollWidthsStage())
 """The stages after the starts, in order, from the best start as the judge rates it."""
 
 
@@ -79,9 +81,10 @@ class References:
     score_thetas: Sequence[np.ndarray] = ()
 
 
-NOT_CONVERGED = "NOT converged (the search stopped on its budget, not within its tolerance; the pose is the best found)"
-"""What a summary says of a run that did not converge: the polish used its last, smallest step with some roll's
-minimum still beyond it (:func:`.stage_polish.polish_rolls`): that roll may lie more than the step from its minimum."""
+NOT_CONVERGED = "NOT converged (its last search step did not meet its own test; the pose is the best found)"
+"""What a summary says of a run that did not converge (:func:`.stop_reasons.run_verdict`); the stop reason that follows
+says which step and why: a CMA-ES level cut off on its budget, or a roll whose own minimum the polish left beyond its
+smallest step."""
 
 
 @dataclass
@@ -217,23 +220,19 @@ def _judge_starts(problem: Problem, clock: Clock, runs: list[Start], refs: Refer
     evaluations = sum(r.evaluations for r in runs) + len(X) + len(cands)
     kept = f"start {best} (seed {problem.settings.seed + 10 * best})"
     pose = Pose(X[best].copy(), space.theta(X[best])[0], float(start_costs[best]), evaluations, kept)
-    ctx.extra["start_costs"] = start_costs
+    ctx.extra["start_costs"], ctx.extra["best_start"] = start_costs, best
     return ctx, pose
 
 
-def _stop(settings: CalibrationSettings, runs: list[Start], report: dict[str, Any]) -> tuple[bool, str]:
-    """(converged, why) of a calibration: the polish's verdict, or CMA-ES's stops without a polish."""
+def _stop(runs: list[Start], report: dict[str, Any], best: int, axis_free: bool) -> tuple[bool, str]:
+    """(converged, why) of a calibration (:func:`.stop_reasons.run_verdict`): the kept start's levels' CMA-ES stops and
+    the polish's verdict, where the polish ran."""
     cma_stops = [rep["stop"] for r in runs for rep in r.reports]
-    # "run k (...): reason" with restarts
-    report["cma_levels_converged"] = all(
-        not any(k.rsplit(": ", 1)[-1] in ("maxfevals", "maxiter") for k in st) for st in cma_stops
-    )
-    converged = bool(report["polish"]["converged"])
-    if not settings.polish:
-        return converged, "no polish; CMA-ES stops " + "; ".join(",".join(s) for s in cma_stops)
-    if converged:
-        return converged, "per-view polish: every roll's minimum lies within ± the smallest step"
-    return converged, "per-view polish: a roll's minimum still lay beyond ± the smallest step"
+    report["cma_levels_converged"] = all(stop_condition(s) != "budget" for s in cma_stops)
+    kept = runs[best].reports
+    names = [f"level {rep['level'] + 1} ({rep['map_shape'][1]} px)" for rep in kept]
+    polish = report["polish"] if "judged_after" in report["polish"] else None
+    return run_verdict([rep["stop"] for rep in kept], names, polish, axis_free)
 
 
 def calibrate_views(
@@ -303,7 +302,7 @@ def _result(
 ) -> CalibrationResult:
     """The :class:`CalibrationResult` of the stages' final pose."""
     space, theta = ctx.problem.space, pose.theta
-    converged, why = _stop(settings, runs, ctx.report)
+    converged, why = _stop(runs, ctx.report, int(ctx.extra["best_start"]), bool(np.any(space.free_mask[:3])))
     ctx.report.update({"converged": converged, "stop_reason": why})
     reports = [rep for r in runs for rep in r.reports] + [ctx.report]
     trace = [t for r in runs for t in r.trace] + ctx.extra.get("trace", [])

@@ -6,6 +6,7 @@ rays searched at θ and zoomed (``polish_zooms``); its result is kept when the j
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -45,6 +46,7 @@ def polish_rolls(
     share: float = 1.0,
     on_sweep: Callable[[int], None] | None = None,
     gauge: bool = False,
+    min_gain: float = 0.0,
 ) -> tuple[np.ndarray, float, int, bool]:
     """Per-view polish of every free roll: one parabolic sweep per step size, all views' trials in one batch.
 
@@ -53,7 +55,7 @@ def polish_rolls(
     batch mean, so the trials are scored on the same footing as x). The three costs of a roll give its
     parabola along that roll; its move is the vertex when the parabola is convex (up to :data:`POLISH_REACH` steps
     away), else the lower of ± h. A move counts when the gain its parabola predicts exceeds ``rtol`` × ``share`` ×
-    cost,
+    cost (and ``min_gain``, the cost's own noise where it was measured: :mod:`.stage_noise_guard`),
     ``share`` being the fraction of the cost one roll can change (:func:`.stage_roll_scan.roll_share`): a fixed
     fraction of the whole
     cost would ask a roll of 360 views, whose move changes ~21 of them, for a gain 17× that of a roll of 21 views.
@@ -97,7 +99,7 @@ def polish_rolls(
         evals += len(TH)
         f = float(fs[0])
         plus, minus = fs[1 : 1 + n_moves], fs[1 + n_moves :]
-        threshold = rtol * share * max(abs(f), 1e-12)
+        threshold = max(rtol * share * max(abs(f), 1e-12), float(min_gain))
         curv, slope = (
             plus + minus - 2.0 * f,
             0.5 * (plus - minus),
@@ -164,8 +166,9 @@ class Polish:
         return ctx.problem.settings.polish and ctx.free_rolls
 
     def run(self, ctx: StageContext, pose: Pose) -> tuple[Pose, dict[str, Any] | None]:
-        problem, clock, st, space = ctx.problem, ctx.clock, ctx.problem.settings, ctx.problem.space
+        problem, clock, st, full = ctx.problem, ctx.clock, ctx.problem.settings, ctx.problem.space
         assert pose.x is not None and ctx.judge is not None
+        space = _holding(full, pose.theta, ctx.extra.get("held_views"))
         coherent = isinstance(ctx.level.data, CoherenceObjective)
         gauge = st.roll_scan and coherent and bool(np.all(space.free_mask[4:])) and st.roll_prior_weight <= 0
         n_rolls = int(np.sum(space.free_mask[4:])) + int(gauge)
@@ -186,18 +189,36 @@ class Polish:
             clock.forecast(done, polish_sweeps_left(n_steps, done))
             clock.update(seen[0], pose.f)
 
-        share = roll_share(fast, space.theta0.size - 3)
-        xp, _, n_pol, conv = polish_rolls(
-            counted, space, pose.x, steps_deg=st.polish_steps_deg, share=share, on_sweep=swept, gauge=gauge
+        share = roll_share(fast, full.theta0.size - 3)
+        min_gain = float(ctx.extra.get("noise_threshold", 0.0))
+        xs, _, n_pol, conv = polish_rolls(
+            counted,
+            space,
+            space.x(pose.theta),
+            steps_deg=st.polish_steps_deg,
+            share=share,
+            on_sweep=swept,
+            gauge=gauge,
+            min_gain=min_gain,
         )
-        fp = float(ctx.judge(space.theta(xp))[0])
+        xp = np.clip(full.x(space.theta(xs)[0]), -1.0, 1.0)
+        fp = float(ctx.judge(full.theta(xp))[0])
         clock.forecast(n_steps, 0.0)
         clock.update(pose.evaluations + n_pol + 1, min(pose.f, fp))
         report = {"converged": bool(conv), "evaluations": n_pol, "judged_before": pose.f, "judged_after": fp}
-        report["gauge"] = gauge
+        report.update({"gauge": gauge, "smallest_step_deg": float(st.polish_steps_deg[-1]), "min_gain": min_gain})
         if fp <= pose.f:
             return pose.moved(problem, xp, fp, n_pol + 1), report
         log.info(
             "the per-view polish did not lower the judged cost (%.6g -> %.6g); kept the start's result", pose.f, fp
         )
         return pose.moved(problem, pose.x, pose.f, n_pol + 1), report
+
+
+def _holding(space: ParameterSpace, theta: np.ndarray, held: np.ndarray | None) -> ParameterSpace:
+    """``space``, or, with ``held`` views, the space around θ (degrees) in which those views' rolls are not free."""
+    if held is None or not len(held):
+        return space
+    mask = space.free_mask.copy()
+    mask[3 + np.asarray(held, np.intp)] = False
+    return dataclasses.replace(space, theta0=np.asarray(theta, float).copy(), free_mask=mask)
