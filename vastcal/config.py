@@ -244,6 +244,7 @@ REMOVED_KEYS = {
     "calibration.photometric_yaw": "docs/decisions/0050-photometric-yaw-removed.md",
     "calibration.photometric_sirt_iterations": "docs/decisions/0050-photometric-yaw-removed.md",
     "calibration.vr_blur_px": "docs/decisions/0016-the-papers-costs-as-published.md",
+    "calibration.eps": "docs/decisions/0016-the-papers-costs-as-published.md",
 }
 """Rig-file keys of settings that no longer exist, with the record of why: read and ignored."""
 
@@ -276,8 +277,6 @@ class CalibrationSettings:
     level_handover: float = field(default=0.1, metadata=_range(0.0, 1.0))
     """Every level but the last ends when its step moves the image by less than this share of the smallest initial
     step the next level starts with (0: on ``tolx`` only; docs/calibration.md, "Where a coarse level hands over")."""
-    eps: float = field(default=1e-4, metadata=_range(0.0, 0.5, lo_open=True))
-    """Clamp of the posteriors: p in [eps, 1 - eps]."""
     threshold: float = field(default=0.5, metadata=_range(0.0, 1.0))
     """p_f above which a pixel belongs to a rough silhouette (the region, VR)."""
     pi_form: Literal["voxel_count", "log_likelihood"] = "voxel_count"

@@ -112,3 +112,14 @@ def test_the_voxel_box_holds_the_dinosaur_seen_steeply_by_projective_cameras() -
     m = decompose_circular(P).motion
     lower, upper = viewing_box(projection_matrices(m.K, m.distance, m.theta()[None])[0], (576, 720), m.distance)
     assert lower[0] < -0.68 and upper[0] > -0.49
+
+
+def test_rig_files_with_the_former_pi_forms_and_vr_settings_still_read() -> None:
+    from vastcal.config import ConfigError, parse_config
+
+    old = parse_config({"calibration": {"method": "pi", "pi_form": "loglik", "vr_blur_px": 0.7, "eps": 1e-4}})
+    assert old.calibration.pi_form == "log_likelihood"
+    assert parse_config({"calibration": {"pi_form": "count"}}).calibration.pi_form == "voxel_count"
+    assert parse_config({}).calibration.pi_form == "voxel_count"
+    with pytest.raises(ConfigError, match="pi_form"):
+        parse_config({"calibration": {"pi_form": "smooth"}})
