@@ -134,9 +134,10 @@ def viewing_box(
     ryz = np.sum(rays[:, 1:] ** 2, axis=1)
     t = -(rays[:, 1:] @ C[1:]) / np.maximum(ryz, 1e-12)
     near = (C + rays * t[:, None])[(t > 0) & (ryz > 1e-12), 0]
-    if near.size:
+    if near.size:  # only where those points leave the box centred on the origin: other rigs keep their box exactly
         margin = 0.05 * float(np.ptp(near))
-        lo, hi = min(lo, float(near.min()) - margin), max(hi, float(near.max()) + margin)
+        lo = lo if near.min() >= lo else float(near.min()) - margin
+        hi = hi if near.max() <= hi else float(near.max()) + margin
     return np.array([lo, -yz, -yz]), np.array([hi, yz, yz])
 
 
