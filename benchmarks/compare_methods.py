@@ -1,7 +1,8 @@
 """Compare the calibration methods side by side on ZF1, ETH David and Middlebury dinoRing.
 
-Methods: ``coherence`` (vastcal's own silhouette-coherence cost, the default), ``pi`` (the paper's objective
-as published: Σ_j log P_f − log P_b over a voxel set, bilinear sub-pixel sampling) and ``vr`` (voxel residual).
+Methods: ``coherence`` (vastcal's own silhouette-coherence cost, the default), ``pi`` (the paper's probabilistic
+inference as its authors coded it: the share of a voxel grid whose colour densities agree on the specimen) and ``vr``
+(the hull's share of the grid). The paper's own tables: ``benchmarks/paper_tables.py``.
 
 * ZF1 (``../shared/data/zf_3dpf_s001``, no truth): all of θ free as in the rig file; per seed the final
   cost, θ, and the RMS spread of the rolls over the seeds. VR uses the authors' hand masks.

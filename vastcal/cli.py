@@ -988,8 +988,8 @@ def _add_calibrate(sub: Subparsers) -> None:
         "--method",
         choices=METHOD_CHOICES,
         default=None,
-        help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's objective "
-        "as published; vr: voxel residual baseline",
+        help="coherence: vastcal's silhouette coherence (the default, from the rig config); pi: the paper's "
+        "probabilistic inference as its authors coded it (rig file pi_form); vr: the paper's voxel-residual baseline",
     )
     s.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=None, metavar="N", help=SEED_HELP)
     s.add_argument(

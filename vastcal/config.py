@@ -237,8 +237,16 @@ RENAMED_KEYS = {
 }
 """Rig-file keys read under their current name (sessions store the rig file they were made with)."""
 
-REMOVED_KEYS = frozenset({"calibration.photometric_yaw", "calibration.photometric_sirt_iterations"})
-"""Rig-file keys of settings that no longer exist: read and ignored (docs/decisions/0050-photometric-yaw-removed.md)."""
+RENAMED_VALUES = {"calibration.pi_form": {"loglik": "log_likelihood", "count": "voxel_count"}}
+"""Rig-file values read under their current name (the PI forms' former short names)."""
+
+REMOVED_KEYS = {
+    "calibration.photometric_yaw": "docs/decisions/0050-photometric-yaw-removed.md",
+    "calibration.photometric_sirt_iterations": "docs/decisions/0050-photometric-yaw-removed.md",
+    "calibration.vr_blur_px": "docs/decisions/0016-the-papers-costs-as-published.md",
+    "calibration.eps": "docs/decisions/0016-the-papers-costs-as-published.md",
+}
+"""Rig-file keys of settings that no longer exist, with the record of why: read and ignored."""
 
 
 @dataclass(frozen=True)
@@ -269,14 +277,11 @@ class CalibrationSettings:
     level_handover: float = field(default=0.1, metadata=_range(0.0, 1.0))
     """Every level but the last ends when its step moves the image by less than this share of the smallest initial
     step the next level starts with (0: on ``tolx`` only; docs/calibration.md, "Where a coarse level hands over")."""
-    eps: float = field(default=1e-4, metadata=_range(0.0, 0.5, lo_open=True))
-    """Clamp of the posteriors: p in [eps, 1 - eps]."""
     threshold: float = field(default=0.5, metadata=_range(0.0, 1.0))
     """p_f above which a pixel belongs to a rough silhouette (the region, VR)."""
-    vr_blur_px: float = field(default=0.7, metadata=_range(0.0, 100.0, lo_open=True))
-    """Gaussian blur (sigma) of the VR silhouettes, so that bilinear sampling is smooth."""
-    pi_form: Literal["loglik", "count"] = "loglik"
-    """``method: pi``'s voxel sum: loglik (the paper's log-ratios) or count (the authors' code's count, smoothed)."""
+    pi_form: Literal["voxel_count", "log_likelihood"] = "voxel_count"
+    """``method: pi``'s cost over the voxels: voxel_count (the share of voxels whose log-ratio is positive, as the
+    authors coded it) or log_likelihood (the mean log-ratio, the paper's equation): vastcal.calibrate.objective_pi."""
     coherence_sigma_px: float = field(default=0.1, metadata=_range(0.0, 100.0, lo_open=True))
     """Softness of the coherence penalty."""
     coherence_trim: int = field(default=1, metadata=_range(0, 100))
@@ -485,8 +490,10 @@ def _build(cls: Any, data: Any, where: str, fail: typing.Callable[[str, str], Co
         path = f"{where}.{key}" if where else str(key)
         if path in REMOVED_KEYS:
             if value:
-                log.warning("%s is no longer a setting (docs/decisions/0050-photometric-yaw-removed.md); ignored", path)
+                log.warning("%s is no longer a setting (%s); ignored", path, REMOVED_KEYS[path])
             continue
+        if path in RENAMED_VALUES and isinstance(value, str):
+            value = RENAMED_VALUES[path].get(value, value)
         if path in RENAMED_KEYS:
             former, key = path, RENAMED_KEYS[path]
             path = f"{where}.{key}"

@@ -111,8 +111,9 @@ def viewing_box(
 ) -> tuple[np.ndarray, np.ndarray]:
     """A generous world box (µm) holding everything the views can see around the axis.
 
-    x spans the widest image footprint at the axis; y and z span the largest image half-extent
-    at the axis in any direction (the specimen rotates, so y and z share one bound).
+    x spans the widest image footprint at the axis (and the span of the axis the image corners' rays pass nearest);
+    y and z span the largest image half-extent at the axis in any direction (the specimen rotates, so y and z share
+    one bound).
     """
     h, w = image_shape
     # Back-project image corners to the depth of the world origin in view 0.
@@ -126,7 +127,18 @@ def viewing_box(
     pts = C + rays * depth
     xr = float(np.max(np.abs(pts[:, 0]))) * 1.05
     yz = float(np.max(np.linalg.norm(pts[:, 1:], axis=1))) * 1.05
-    return np.array([-xr, -yz, -yz]), np.array([xr, yz, yz])
+    lo, hi = -xr, xr
+    # A camera that looks steeply along the axis, or whose principal point lies far outside the frame (projective
+    # cameras), sees the axis well away from the origin: the corner rays' points nearest the axis bound what it sees.
+    rays *= np.sign(rays @ -C)[:, None]
+    ryz = np.sum(rays[:, 1:] ** 2, axis=1)
+    t = -(rays[:, 1:] @ C[1:]) / np.maximum(ryz, 1e-12)
+    near = (C + rays * t[:, None])[(t > 0) & (ryz > 1e-12), 0]
+    if near.size:  # only where those points leave the box centred on the origin: other rigs keep their box exactly
+        margin = 0.05 * float(np.ptp(near))
+        lo = lo if near.min() >= lo else float(near.min()) - margin
+        hi = hi if near.max() <= hi else float(near.max()) + margin
+    return np.array([lo, -yz, -yz]), np.array([hi, yz, yz])
 
 
 def grid_around_specimen(

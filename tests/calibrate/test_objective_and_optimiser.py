@@ -1,4 +1,4 @@
-"""The objectives are smooth in θ; CMA-ES runs are reproducible; axis parameters are recovered."""
+"""The paper's costs do not depend on the batch; CMA-ES runs are reproducible; axis parameters are recovered."""
 
 from __future__ import annotations
 
@@ -17,57 +17,52 @@ _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's 
 FAST = _helpers.FAST
 
 from vastcal.calibrate import calibrate_views, fit_automatic  # noqa: E402
+from vastcal.calibrate.colour_densities import log_colour_densities  # noqa: E402
+from vastcal.calibrate.objective import pad_voxels  # noqa: E402
 from vastcal.calibrate.objective_pi import PIObjective  # noqa: E402
 from vastcal.calibrate.objective_vr import VRObjective  # noqa: E402
 from vastcal.calibrate.region import specimen_region  # noqa: E402
 from vastcal.calibrate.sampling import Projector  # noqa: E402
 from vastcal.calibration_progress import ProgressClock  # noqa: E402
 from vastcal.config import CalibrationBounds  # noqa: E402
+from vastcal.voxels import VoxelGrid  # noqa: E402
 
 
 def _objectives(views: np.ndarray, truth: np.ndarray):
     K, d = sy.camera()
-    pf = fit_automatic(views).foreground_probability(views)
+    model = fit_automatic(views)
+    pf = model.foreground_probability(views)
     n = len(views)
     region = specimen_region(K, d, truth, np.full(n + 3, 1.0), np.zeros(n + 3, bool), pf > 0.5, 4000, extra_px=2.0)
-    proj = Projector(K, d, region.voxels)
-    logp = np.log(np.clip(pf, 1e-4, 1 - 1e-4)).astype(np.float32)
+    vox, weights = pad_voxels(VoxelGrid.from_bounds(region.lower, region.upper, region.voxel_size).centres())
+    proj = Projector(K, d, vox, nearest=True)
+    dens = log_colour_densities(model, views)
     return {
-        "pi-count": PIObjective(logp, proj, form="count"),
-        "pi-loglik": PIObjective(logp, proj),
-        "vr": VRObjective((pf > 0.5).astype(np.float32), proj),
+        "pi-count": PIObjective(dens, proj, weights, form="voxel_count"),
+        "pi-loglik": PIObjective(dens, proj, weights, form="log_likelihood"),
+        "vr": VRObjective((pf > 0.5).astype(np.float32), proj, weights),
     }
 
 
-@pytest.mark.parametrize("name", ["pi-count", "pi-loglik", "vr"])
-@pytest.mark.parametrize("k", [1, 5], ids=["pitch", "roll5"])
-def test_cost_changes_continuously_without_plateaus(views: np.ndarray, truth: np.ndarray, name: str, k: int) -> None:
-    obj = _objectives(views, truth)[name]
-    steps = np.linspace(-0.05, 0.05, 41)  # 0.0025° apart: far below a pixel
-    thetas = truth[None] + np.outer(steps, np.eye(len(truth))[k])
-    c = obj(thetas)
-    diffs = np.diff(c)
-    assert np.all(diffs != 0.0), "a plateau: equal costs for different θ"
-    # Continuity: no jump much larger than the typical step.
-    assert np.max(np.abs(diffs)) < 20 * np.median(np.abs(diffs)) + 1e-12
-
-
 def test_vr_cannot_win_by_moving_the_specimen_out_of_view(views: np.ndarray, truth: np.ndarray) -> None:
-    """Unnormalised, the voxel residual is 0 when no voxel projects into any silhouette; on ZF1 the
-    axis-only coarse level found that (γ pushing the larva out of view). The fraction of the cones'
-    union the hull does not explain makes it the worst case instead."""
+    """The hull share is largest where the views agree on a specimen; moving every voxel out of view empties it."""
     obj = _objectives(views, truth)["vr"]
     away = truth.copy()
     away[2] += 5.0  # γ: the axis, and every voxel with it, far outside the frames
     cost_truth, cost_away = obj(np.stack([truth, away]))
-    assert cost_away == 1.0 and cost_truth < 0.5
+    assert cost_away == 0.0 and cost_truth < -0.01
 
 
-def test_population_batch_equals_one_by_one(views: np.ndarray, truth: np.ndarray) -> None:
-    obj = _objectives(views, truth)["pi-count"]
+@pytest.mark.parametrize("name", ["pi-count", "pi-loglik", "vr"])
+def test_population_batch_equals_one_by_one(views: np.ndarray, truth: np.ndarray, name: str) -> None:
+    """A batch's cost does not depend on the batch, also when some views' cameras are the same in all of it."""
+    obj = _objectives(views, truth)[name]
     rng = np.random.default_rng(1)
     thetas = truth[None] + rng.normal(0, 0.3, (7, len(truth)))
-    np.testing.assert_allclose(obj(thetas), np.concatenate([obj(t[None]) for t in thetas]), rtol=1e-5)
+    held = truth[None] + np.zeros((7, len(truth)))
+    held[:, 5] += rng.normal(0, 0.3, 7)  # one view moves, the rest are read once for the batch
+    for th in (thetas, held):
+        np.testing.assert_allclose(obj(th), np.concatenate([obj(t[None]) for t in th]), rtol=1e-4, atol=1e-9)
 
 
 def test_same_seed_same_result_and_bounds_respected(views: np.ndarray) -> None:

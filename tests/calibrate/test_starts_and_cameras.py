@@ -34,9 +34,10 @@ def test_parse_views_and_fixed_views() -> None:
     with pytest.raises(UserInputError):
         parse_views("0-12", n=12)
     sp = ParameterSpace.build(np.zeros(3 + 6), ["rolls"], CalibrationBounds(0, 0, 0, 5.0), fixed_views=(2, 3))
-    assert sp.free_mask[3:].tolist() == [False, True, False, False, True, True]
+    assert sp.free_mask[3:].tolist() == [True, True, False, False, True, True]  # held views fix the common roll
+    assert ParameterSpace.build(np.zeros(3 + 6), ["rolls"], CalibrationBounds(0, 0, 0, 5.0)).free_mask[3] == False  # noqa: E712
     with pytest.raises(UserInputError):
-        ParameterSpace.build(np.zeros(3 + 3), ["rolls"], CalibrationBounds(0, 0, 0, 5.0), fixed_views=(1, 2))
+        ParameterSpace.build(np.zeros(3 + 3), ["rolls"], CalibrationBounds(0, 0, 0, 5.0), fixed_views=(0, 1, 2))
 
 
 def test_polish_reaches_the_minimum_of_each_roll() -> None:

@@ -1,8 +1,9 @@
 """The calibration methods by name: each a factory of its per-level :class:`.objective.Objective`.
 
 ``coherence`` (vastcal's silhouette coherence of the posteriors, :mod:`.objective_coherence`, the default), ``pi``
-(the paper's probabilistic-inference objective as published, :mod:`.objective_pi`) and ``vr`` (the voxel-residual
-baseline, :mod:`.objective_vr`).
+(the paper's probabilistic inference as its authors coded it — a voxel count of the colour densities — or as its
+equation, :mod:`.objective_pi`) and ``vr`` (the paper's voxel-residual baseline, the hull's volume,
+:mod:`.objective_vr`).
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ import numpy as np
 
 from vastcal.calibrate.region import Region
 from vastcal.config import CalibrationSettings
+from vastcal.voxels import VoxelGrid
 
 
 class Objective(Protocol):
@@ -37,6 +38,10 @@ class LevelMaps:
         theta: (3 + N,) θ (degrees) the level starts from: the coherence cost finds its edges under it.
         edge_lines: lines across the axis image along which the coherence cost finds each view's edges.
         shared: what the level's objectives share (e.g. the coherence cost's signed-distance atlas).
+        densities: makes the (2, N, h, w) log colour densities of the specimen and the background at the level
+            (:mod:`.colour_densities`; the PI cost), on demand; None when the problem has none.
+        box: (lower, upper, voxel edge), world units: the box where the specimen can be for any θ in the search box
+            (the first level's region's bounds, the same at every level) and the level's voxel edge in it.
     """
 
     index: int
@@ -48,6 +53,8 @@ class LevelMaps:
     theta: np.ndarray
     edge_lines: int
     shared: dict[str, Any] = field(default_factory=dict)
+    densities: Callable[[], np.ndarray] | None = None
+    box: tuple[np.ndarray, np.ndarray, float] | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -56,10 +63,21 @@ class LevelMaps:
 
     def padded_voxels(self) -> tuple[np.ndarray, np.ndarray]:
         """The region's voxels padded to a multiple of 1024 (repeats of the first) and their weights (0 on padding)."""
-        vox = self.region.voxels
-        pad = (-len(vox)) % 1024
-        weights = np.concatenate([np.ones(len(vox)), np.zeros(pad)])
-        return (np.concatenate([vox, np.repeat(vox[:1], pad, axis=0)]) if pad else vox), weights
+        return pad_voxels(self.region.voxels)
+
+    def box_voxels(self) -> tuple[np.ndarray, np.ndarray]:
+        """A regular grid of voxels (world units) over :attr:`box` with its voxel edge, not carved: the voxel set of the
+        paper's costs, padded as :meth:`padded_voxels` (the region's own voxels when there is no box)."""
+        if self.box is None:
+            return self.padded_voxels()
+        return pad_voxels(VoxelGrid.from_bounds(*self.box).centres())
+
+
+def pad_voxels(vox: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Voxels (M, 3) padded to a multiple of 1024 (repeats of the first) and their weights (1, 0 on padding)."""
+    pad = (-len(vox)) % 1024
+    weights = np.concatenate([np.ones(len(vox)), np.zeros(pad)])
+    return (np.concatenate([vox, np.repeat(vox[:1], pad, axis=0)]) if pad else vox), weights
 
 
 class ObjectiveFactory(Protocol):

@@ -1,90 +1,102 @@
-"""The probabilistic-inference (PI) objective of Guo, Verbeek & Yang, made smooth.
+"""The probabilistic-inference (PI) objective of Guo, Verbeek & Yang, as published and as its authors coded it.
 
-For voxel Q_j and views i = 0 … N−1 with per-view foreground posteriors p_f,i (colour models,
-:mod:`.colour_model`) sampled bilinearly at the voxel's sub-pixel projection:
+For voxel Q_j of a fixed regular grid and views i = 0 … N−1, with the colour models' densities of the pixel nearest
+the voxel's projection — pdf_f,i of the specimen's Gaussian, pdf_b,i of the background's (:mod:`.colour_densities`,
+per 8-bit level of colour) —
 
-    P_f(Q_j) = Π_i p_f,i^(1/N)                      (geometric mean: every view must agree)
-    P_b(Q_j) = 1 − Π_i (1 − p_b,i)^(1/N) = 1 − P_f(Q_j)   since p_b = 1 − p_f
-    J(θ)     = (1/M) Σ_j [log P_f(Q_j) − log P_b(Q_j)]     (maximised)
+    P_1(Q_j) = Π_i pdf_f,i^(1/N)                       (every view must see specimen colour)
+    P_2(Q_j) = 1 − Π_i (1 − pdf_b,i)^(1/N)            (some view sees background colour)
+    r_j      = log(P_1 + ε) − log(P_2 + ε),   ε = 2·10⁻¹⁶ (the authors' constant)
 
-In the log domain with a_j = (1/N) Σ_i log p_f,i (≤ log(1 − ε) < 0 by the clamp),
-log P_b = log(−expm1(a_j)), so each term is a_j − log(−expm1(a_j)) = logit P_f(Q_j): finite,
-smooth, and computed without cancellation. This is the paper's equation, not its code: the
-authors counted voxels with a positive log-ratio at rounded projections, a piecewise-constant
-cost with wide plateaus. Here the value changes continuously with θ (bilinear maps, no rounding)
-and a voxel near the decision boundary contributes a graded amount.
+Two forms, ``pi_form``:
 
-Two forms, ``form=``:
+* ``"voxel_count"`` (the default; the authors' code, with which the paper's tables were made): the share of the grid's
+  voxels with r_j > 0, maximised — the volume of the hull the densities agree on. It is piecewise constant (whole
+  pixels, whole voxels); CMA-ES searches it without gradients, as the authors did.
+* ``"log_likelihood"`` (the paper's equation): the mean of r_j over the voxels, maximised.
 
-* ``"count"``: J_c = (1/M) Σ_j σ(logit P_f(Q_j)) = (1/M) Σ_j P_f(Q_j). The authors' code
-  counts the voxels whose log-ratio log P_f − log P_b is positive, Σ_j H(logit P_f); replacing the
-  step H by the logistic σ is the smooth version of exactly that count — a soft visual-hull
-  volume, largest when all views agree. A voxel that some view calls background contributes
-  P_f ≈ e^(k·log ε / N) → 0, so background voxels neither help nor hurt.
-* ``"loglik"`` (the settings' default, ``pi_form``): J_l = (1/M) Σ_j logit P_f(Q_j), the sum of log-ratios as the
-equation is written.
-  Measured on the real zebrafish: for a voxel that several views call background,
-  logit P_f ≈ (1/N) Σ_i log p_f,i is *linear* in the per-view terms, so J_l decouples into one
-  term per view — "cover as much foreground as possible with the voxel cloud's projection" —
-  and static foreground-coloured structures (the capillary walls) drag the views to the bounds.
-  The paper's form, hence the default.
+Measured on the VGG dinosaur with its true cameras (docs/decisions/0016): the count is lowest at the true rolls; the
+log-likelihood is not (its terms outside the hull reward covering more specimen colour per view), so it is selectable
+but not the default.
 
-The voxels are fixed before optimisation (the region where the specimen can be, :mod:`.region`);
-the cost returned for minimisation is −J.
+The voxels fill the box where the specimen can be for any θ of the search box (:meth:`.objective.LevelMaps.box_voxels`),
+not carved: a voxel outside the hull at one pose may be inside at another. A voxel projecting outside a view reads the
+view's nearest edge pixel. The cost returned for minimisation is −(count share) or −(mean r).
 """
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from vastcal.calibrate.objective import LevelMaps
-from vastcal.calibrate.sampling import Atlas, Projector
+from vastcal.calibrate.sampling import Projector
+from vastcal.calibrate.view_sums import ViewSums
 from vastcal.config import CalibrationSettings
+from vastcal.errors import AnalysisError
+
+PIForm = Literal["voxel_count", "log_likelihood"]
+PI_FORMS: tuple[str, ...] = ("voxel_count", "log_likelihood")
+
+EPS = 2e-16
+"""The authors' ε inside both logarithms: bounds each voxel's log-ratio to about ±36."""
 
 
 class PIObjective:
-    """−J(θ) for a population of θ, on one resolution level.
+    """The PI cost for a population of θ, on one resolution level.
 
     Args:
-        log_pf: (N, H, W) float32 clamped log foreground posteriors of the (resized) views.
-        projector: the level's voxels and intrinsics.
-        weights: (M,) voxel weights (0 for padding voxels), default 1.
-        form: ``"count"`` (smoothed voxel count) or ``"loglik"`` (sum of log-ratios, the settings' default).
+        log_densities: (2, N, H, W) log densities of the specimen's and the background's colour model per pixel.
+        projector: the level's voxels and intrinsics (read at the nearest pixel).
+        weights: (M,) voxel weights (1, 0 for padding voxels), default 1.
+        form: ``"voxel_count"`` or ``"log_likelihood"`` (module docstring).
     """
 
     name = "pi"
 
     def __init__(
-        self, log_pf: np.ndarray, projector: Projector, weights: np.ndarray | None = None, form: str = "loglik"
+        self,
+        log_densities: np.ndarray,
+        projector: Projector,
+        weights: np.ndarray | None = None,
+        form: PIForm = "voxel_count",
     ) -> None:
-        if form not in ("count", "loglik"):
-            raise ValueError(f"unknown PI objective form {form!r}")
+        if form not in PI_FORMS:
+            raise ValueError(f"unknown PI objective form {form!r}; choose {', '.join(PI_FORMS)}")
+        dens = np.asarray(log_densities, np.float32)
+        n = dens.shape[1]
         self.form = form
-        self.atlas = Atlas.from_stack(np.asarray(log_pf, np.float32))
+        # per view: log pdf_f / N and log(1 − pdf_b) / N, summed over the views at each voxel
+        self.log_p1 = ViewSums(dens[0] / n, projector)
+        self.log_1m_p2 = ViewSums((np.log1p(-np.exp(dens[1].astype(np.float64))) / n).astype(np.float32), projector)
         self.projector = projector
-        m = projector.n_voxels
-        w = np.ones(m, np.float32) if weights is None else np.asarray(weights, np.float32)
+        w = np.ones(projector.n_voxels, np.float32) if weights is None else np.asarray(weights, np.float32)
         self.weights = w / max(float(w.sum()), 1.0)
         self.n_evaluations = 0
 
+    def log_ratios(self, theta_deg: np.ndarray) -> np.ndarray:
+        """r (B, M) of every voxel for θ (B, 3 + N) degrees."""
+        th = np.atleast_2d(theta_deg)
+        return np.log(np.exp(self.log_p1(th)) + EPS) - np.log(-np.expm1(self.log_1m_p2(th)) + EPS)
+
     def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
         """Costs (B,) for θ (B, 3 + N) degrees (lower is better)."""
-        th = np.atleast_2d(theta_deg)
-        L = self.projector.sample(self.atlas, th)  # (B, N, M) log p_f
-        a = L.mean(axis=1)  # log P_f, (B, M)
-        if self.form == "count":
-            term = np.exp(a)  # σ(logit P_f) = P_f
-        else:
-            a = np.minimum(a, np.float32(-1e-7))
-            term = a - np.log(-np.expm1(a))  # log P_f − log P_b
-        self.n_evaluations += th.shape[0]
-        return -(term @ self.weights).astype(np.float64)
+        r = self.log_ratios(theta_deg)
+        self.n_evaluations += r.shape[0]
+        term = (r > 0).astype(np.float64) if self.form == "voxel_count" else r
+        return -(term @ self.weights.astype(np.float64))
 
 
 def pi_objective(level: LevelMaps, settings: CalibrationSettings, *, exact: bool, local_zooms: int) -> PIObjective:
-    """The PI objective of one level over the region's voxels (batch-independent: ``exact`` and ``local_zooms`` do
-    not apply)."""
-    eps = settings.eps
-    lmap = np.clip(np.log(np.clip(level.pf, eps, 1 - eps)), np.log(eps), np.log1p(-eps))
-    vox, weights = level.padded_voxels()
-    return PIObjective(lmap.astype(np.float32), Projector(level.K, level.distance, vox), weights, settings.pi_form)
+    """The PI objective of one level over the box's voxels (batch-independent: ``exact`` and ``local_zooms`` do
+    not apply).
+
+    Raises:
+        AnalysisError: the level has no colour densities (a problem built for another method).
+    """
+    if level.densities is None:
+        raise AnalysisError("the PI objective needs the colour models' densities; the problem was built without them")
+    vox, weights = level.box_voxels()
+    projector = Projector(level.K, level.distance, vox, nearest=True)
+    return PIObjective(level.densities(), projector, weights, settings.pi_form)

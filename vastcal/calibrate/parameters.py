@@ -1,8 +1,10 @@
 """The calibration parameter vector θ: which entries are free, their bounds and scaling.
 
-θ = [yaw, pitch, γ, ω_0 … ω_{N−1}] in degrees (see :mod:`vastcal.geometry`). ω_0 is always held
-fixed: view 0 defines the specimen's orientation about the axis, and a common roll of every
-view is unobservable (it only rotates the reconstruction).
+θ = [yaw, pitch, γ, ω_0 … ω_{N−1}] in degrees (see :mod:`vastcal.geometry`). ω_0 is held fixed:
+view 0 defines the specimen's orientation about the axis, and a common roll of every view is
+unobservable (it only rotates the reconstruction) — unless other views are held at their commanded
+rolls (``fixed_views``, the paper's protocol): they define the orientation, and ω_0 is free like any
+other roll.
 
 The optimiser works in normalised coordinates x ∈ [−1, 1] per free entry,
 θ_k = θ0_k + h_k · x_k, with h_k the half-width of the search box (from
@@ -49,7 +51,7 @@ class ParameterSpace:
 
     Attributes:
         theta0: (3 + N,) initial θ, degrees.
-        free_mask: (3 + N,) bool, True where θ is optimised (never ω_0).
+        free_mask: (3 + N,) bool, True where θ is optimised (ω_0 only when some other view is fixed).
         half_width: (3 + N,) search half-width per entry, degrees.
         free: the free groups as given (``("yaw", "pitch", "gamma", "rolls")``).
     """
@@ -84,6 +86,8 @@ class ParameterSpace:
         bad = [v for v in fixed if not 0 <= v < n]
         if bad:
             raise UserInputError(f"fixed views {bad} do not exist (views 0–{n - 1})")
+        if "rolls" in groups and fixed and 0 not in fixed:
+            mask[3] = True  # the fixed views hold the common roll: view 0 is no longer the gauge
         mask[[3 + v for v in fixed]] = False
         hw = np.concatenate([[bounds.yaw_deg, bounds.pitch_deg, bounds.gamma_deg], np.full(n, bounds.roll_deg)])
         mask &= hw > 0
@@ -128,7 +132,7 @@ class ParameterSpace:
         entry = np.zeros(self.theta0.size, bool)
         entry[0], entry[1], entry[2] = "yaw" in names, "pitch" in names, "gamma" in names
         if "rolls" in names:
-            entry[4:] = True
+            entry[3:] = True
         sel = entry[self.free_mask]
         return sel if sel.any() else np.ones(self.n_free, bool)
 

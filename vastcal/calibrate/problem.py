@@ -12,6 +12,7 @@ import logging
 import cv2
 import numpy as np
 
+from vastcal.calibrate.colour_densities import log_colour_densities
 from vastcal.calibrate.methods import objective_factory
 from vastcal.calibrate.objective import LevelMaps, Objective, Prior, WithPrior
 from vastcal.calibrate.parameters import ParameterSpace
@@ -32,6 +33,19 @@ def _area_resize(images: np.ndarray, factor: float) -> np.ndarray:
     return np.stack([cv2.resize(im, size, interpolation=cv2.INTER_AREA) for im in images])
 
 
+DENSITY_METHODS = ("pi",)
+"""The methods whose objective reads the colour densities (:attr:`.objective.LevelMaps.densities`)."""
+
+
+def _resized_log_densities(log_dens: np.ndarray, factor: float) -> np.ndarray:
+    """(2, N, h, w) log densities area-averaged by ``factor`` (in the log domain: a density of the area's mean log)."""
+    if factor <= 1.0:
+        return log_dens
+    two, n = log_dens.shape[:2]
+    small, _ = resize_stack(log_dens.reshape(two * n, *log_dens.shape[2:]), factor)
+    return small.reshape(two, n, *small.shape[1:])
+
+
 class Problem:
     """The maps every start shares, the parameter space and the settings; builds each level's objectives.
 
@@ -39,6 +53,8 @@ class Problem:
         pf: (N, h, w) specimen posteriors at the finest level's size; sil_src: the rough silhouettes made from them
             (or from given masks), 0/1.
         K_small: intrinsics of ``pf``'s pixels.
+        log_densities: (2, N, h, w) log colour densities of the specimen and the background at ``pf``'s size
+            (:func:`.colour_densities.log_colour_densities`), for the methods that read them; else None.
     """
 
     def __init__(
@@ -49,8 +65,9 @@ class Problem:
         distance: float,
         space: ParameterSpace,
         settings: CalibrationSettings,
+        log_densities: np.ndarray | None = None,
     ) -> None:
-        self.pf, self.sil_src, self.K_small = pf, sil_src, K_small
+        self.pf, self.sil_src, self.K_small, self.log_densities = pf, sil_src, K_small, log_densities
         self.distance, self.space, self.settings = distance, space, settings
         self.factory = objective_factory(settings.method)
         self.prior = Prior.of(space.theta0, settings)
@@ -75,6 +92,7 @@ class Problem:
         finest = max(1.0, w_full / max(lv.width_px for lv in settings.levels))
         small = _area_resize(images, finest)
         pf = specimen_maps_within(model, small, settings.memory_mb, band_px=max(1.0, 3.0 / finest))  # 3 px rim band
+        dens = log_colour_densities(model, small) if settings.method in DENSITY_METHODS else None
         del small  # the maps are all that is kept of the resized frames
         if silhouettes is not None:
             sil_full = (np.asarray(silhouettes) > 0).astype(np.float32)
@@ -84,7 +102,7 @@ class Problem:
             sil_src = (pf > settings.threshold).astype(np.uint8)
         S_small = np.diag([pf.shape[2] / w_full, pf.shape[1] / images.shape[1], 1.0])
         S_small[:2, 2] = 0.5 * np.diag(S_small)[:2] - 0.5
-        return cls(pf, sil_src, S_small @ np.asarray(K, float), float(distance), space, settings)
+        return cls(pf, sil_src, S_small @ np.asarray(K, float), float(distance), space, settings, dens)
 
     def _first_region(self) -> tuple[Region, np.ndarray, np.ndarray]:
         """The region carved from the coarsest rough silhouettes under θ0 with the box's displacement bound."""
@@ -149,7 +167,17 @@ class Problem:
             theta,
             lv.edge_lines,
             self._shared[1],
+            None if self.log_densities is None else lambda: _resized_log_densities(self.log_densities, factor),
+            self._box(li),
         )
+
+    def _box(self, li: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """The first level's region's bounds and level ``li``'s voxel edge in them: the first region's edge scaled by
+        the levels' voxel counts (the same grid for every θ of the level, its judge's too)."""
+        region0 = self._first_region()[0]
+        levels = self.settings.levels
+        size = region0.voxel_size * (levels[0].voxels / levels[li].voxels) ** (1.0 / 3.0)
+        return region0.lower, region0.upper, float(size)
 
     def objective(self, level: LevelMaps, *, exact: bool = False, local_zooms: int = 0) -> Objective:
         """The method's data objective of ``level`` (:class:`.objective.ObjectiveFactory`)."""

@@ -131,9 +131,20 @@ class Projector:
         distance: axis distance d, µm.
         voxels: (M, 3) world points, µm.
         max_samples: upper bound of B·N·M values held at once (memory: ~24 bytes each).
+        nearest: read the pixel nearest each projection (a value that changes in whole pixels, as a voxel count
+            reads its maps) instead of sampling bilinearly.
     """
 
-    def __init__(self, K: np.ndarray, distance: float, voxels: np.ndarray, max_samples: int = 6_000_000) -> None:
+    def __init__(
+        self,
+        K: np.ndarray,
+        distance: float,
+        voxels: np.ndarray,
+        max_samples: int = 6_000_000,
+        *,
+        nearest: bool = False,
+    ) -> None:
+        self.interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
         self.K = np.asarray(K, float)
         self.distance = float(distance)
         self.voxels = np.ascontiguousarray(np.asarray(voxels, np.float32).T)  # (3, M)
@@ -150,7 +161,7 @@ class Projector:
         return P / P[..., 2:3, 3:4]
 
     def sample(self, atlas: Atlas, theta_deg: np.ndarray) -> np.ndarray:
-        """Bilinear samples (B, N, M) float32 of ``atlas`` at every voxel's projection."""
+        """Samples (B, N, M) float32 (bilinear, or of the nearest pixel) of ``atlas`` at every voxel's projection."""
         th = np.atleast_2d(theta_deg)
         b, n, m = th.shape[0], atlas.n, self.n_voxels
         out = np.empty((b, n, m), np.float32)
@@ -185,6 +196,6 @@ class Projector:
         total = u.size
         cols = 4096 if total % 4096 == 0 else (1024 if total % 1024 == 0 else m)
         vals = cv2.remap(
-            atlas.image, u.reshape(-1, cols), v.reshape(-1, cols), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+            atlas.image, u.reshape(-1, cols), v.reshape(-1, cols), self.interpolation, borderMode=cv2.BORDER_REPLICATE
         )
         return vals.reshape(b, n, m)
