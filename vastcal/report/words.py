@@ -169,7 +169,7 @@ def converged_text(converged: Any, stop_reason: Any = "") -> str:
     if converged:
         return "converged" + why
     return (
-        "not converged" + why + ": the optimiser stopped before its convergence test was met (usually at its "
-        "evaluation budget); the pose kept "
-        "is the best found, usable when the verdict is ok; a run with more starts (--starts) shows whether it moves"
+        "not converged" + why + ": the search stopped before its convergence test was met (the reason says which "
+        "step); the pose kept is the best found, usable when the verdict is ok; a run with more starts (--starts) "
+        "shows whether it moves"
     )
