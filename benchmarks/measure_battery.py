@@ -4,8 +4,8 @@
                                          [--views V] [--reuse] [--true-cameras]
 
 For every larva k = S … S+n−1 (``simulators.camera.battery.battery_config(k)``: 3–5 dpf, fin fold,
-pectoral fins, melanophores, wall contact, tail out of frame, debris, bubbles, lamp gradient,
-vignetting, defocus, all drawn from the seed) it acquires a session with
+pectoral fins, melanophores, wall contact and its pale band, a pale tail tip, tail out of frame, debris,
+bubbles, lamp gradient, vignetting, defocus, all drawn from the seed) it acquires a session with
 ``benchmarks/make_battery.py``'s library path, then runs ``vastcal run SESSION -o REPORT -q`` in a
 subprocess (``--jobs`` at a time; each costs ~40 s of CPU or more) and reads ``report.json``. Prints
 one row per larva: volume and area, their deviation from the exact visual hull of the *body* for the
