@@ -68,9 +68,13 @@ def flags_of(truth: dict) -> str:
     return " ".join(out)
 
 
-def make_one(seed: int, outdir: Path, views: int | None, force: bool) -> dict:
-    """Acquire larva ``seed`` into ``outdir``; return its table row."""
-    cfg = battery_config(seed)
+def make_one(seed: int, outdir: Path, views: int | None, force: bool, overrides: dict | None = None) -> dict:
+    """Acquire larva ``seed`` into ``outdir``; return its table row. ``overrides`` replace ``simulation`` keys of
+    the battery (e.g. ``{"pale_tail_tip_probability": 0.0}``)."""
+    try:
+        cfg = battery_config(seed, **(overrides or {}))
+    except TypeError as exc:
+        raise SystemExit(f"make_battery: {exc}") from None
     session = outdir / f"larva_{seed:03d}.h5"
     t = time.monotonic()
     try:
