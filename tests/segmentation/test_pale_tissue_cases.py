@@ -11,7 +11,20 @@ from vastcal.segmentation import fit_automatic, specimen_maps
 from vastcal.simulators.camera import SimulatedCamera
 from vastcal.simulators.camera.battery import battery_config
 
-N_VIEWS = 8
+CLEAN = {"debris": 0.0, "bubbles": 0.0, "fin_fold": False, "pectoral_fins": False}
+"""The clean scene: the larva alone in the capillary (lamp field, defocus and melanophores kept)."""
+SCENES = {
+    "clean scene, 8 views": (CLEAN, 8),
+    "battery scene, 21 views": ({}, 21),
+}
+"""(simulation overrides, views) of each scene; the battery scene is the battery's own (fin fold, fins, debris,
+bubbles) at its rig file's 21 views."""
+BATTERY_CUTS = pytest.mark.xfail(
+    strict=True,
+    reason="in the battery's scene at 21 views the automatic silhouettes cut the pale tissue: larva 9 keeps 83 % of "
+    "its tail's last 60 px in a view (its battery session: the silhouette ends ~165 px short in 14 of 21 views); "
+    "larva 4's edge lies a median 2 px inside the true one at the wall (its band is 2.7 px deep)",
+)
 PALE_TIP_SEED = 9
 """A battery larva with a pale tail tip (contrast 0.17 of the body's at the tip), not against the wall."""
 WALL_BAND_SEED = 4
@@ -25,17 +38,18 @@ class _Angle:
         return self.deg
 
 
-def _segmented(seed: int) -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.ndarray]:
-    """(camera, truth coverage ≥ ½, automatic silhouettes, capillary-axis distance µm) of N_VIEWS views."""
-    cfg = battery_config(seed, debris=0.0, bubbles=0.0, fin_fold=False, pectoral_fins=False)
+def _segmented(seed: int, scene: str) -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.ndarray]:
+    """(camera, truth coverage ≥ ½, automatic silhouettes, capillary-axis distance µm) of a scene's views."""
+    overrides, n_views = SCENES[scene]
+    cfg = battery_config(seed, **overrides)
     assert cfg.simulation is not None
     src = _Angle()
     cam = SimulatedCamera(cfg.optics, cfg.camera, cfg.simulation, src)
     frames, truth, rho = [], [], []
     with cam:
         cam.start()
-        for k in range(N_VIEWS):
-            src.deg = 360.0 * k / N_VIEWS
+        for k in range(n_views):
+            src.deg = 360.0 * k / n_views
             frames.append(cam.snap(2.0).pixels)
             geom = cam._renderer.last_geometry
             assert geom is not None
@@ -45,18 +59,27 @@ def _segmented(seed: int) -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.n
     return cam, np.stack(truth), specimen_maps(fit_automatic(stack), stack) > 0.5, np.stack(rho)
 
 
-@pytest.fixture(scope="module")
-def pale_tip() -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.ndarray]:
-    return _segmented(PALE_TIP_SEED)
+SCENE_PARAMS = [
+    pytest.param("clean scene, 8 views", id="clean"),
+    pytest.param("battery scene, 21 views", id="battery", marks=BATTERY_CUTS),
+]
 
 
-@pytest.fixture(scope="module")
-def wall_band() -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.ndarray]:
-    return _segmented(WALL_BAND_SEED)
+@pytest.fixture(scope="module", params=SCENE_PARAMS)
+def pale_tip(request: pytest.FixtureRequest) -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.ndarray]:
+    return _segmented(PALE_TIP_SEED, request.param)
 
 
-def test_the_cases_are_drawn_and_the_pale_tissue_is_fainter_than_the_body(pale_tip, wall_band) -> None:
-    cam_tip, cam_band = pale_tip[0], wall_band[0]
+@pytest.fixture(scope="module", params=SCENE_PARAMS)
+def wall_band(request: pytest.FixtureRequest) -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.ndarray]:
+    return _segmented(WALL_BAND_SEED, request.param)
+
+
+def test_the_cases_are_drawn_and_the_pale_tissue_is_fainter_than_the_body() -> None:
+    cam_tip, cam_band = (
+        SimulatedCamera(c.optics, c.camera, c.simulation, _Angle())  # type: ignore[arg-type]
+        for c in (battery_config(PALE_TIP_SEED), battery_config(WALL_BAND_SEED))
+    )
     assert cam_tip.specimen.features["pale_tail_tip"] and not cam_tip.specimen.features["wall_contact"]
     assert cam_band.specimen.features["wall_band"] and cam_band.specimen.features["wall_contact"]
     pale = cam_tip.specimen.pale
@@ -68,7 +91,7 @@ def test_the_cases_are_drawn_and_the_pale_tissue_is_fainter_than_the_body(pale_t
 
 def test_the_silhouette_keeps_the_pale_tail_tip(pale_tip) -> None:
     _, truth, sil, _ = pale_tip
-    for k in range(N_VIEWS):
+    for k in range(truth.shape[0]):
         cols = np.nonzero(truth[k].any(axis=0))[0]
         tip = cols.max()
         assert np.nonzero(sil[k].any(axis=0))[0].max() >= tip - 3, f"view {k}: the silhouette ends short of the tip"
@@ -82,7 +105,7 @@ def test_the_silhouette_keeps_the_band_up_to_the_wall_but_not_the_walls_line(wal
     R = cam._renderer.capillary.inner_radius_um
     band = cam.specimen.pale.band_depth_um if cam.specimen.pale is not None else 0.0
     contact_views = 0
-    for k in range(N_VIEWS):
+    for k in range(truth.shape[0]):
         near_wall = truth[k] & (rho[k] > R - 25.0)
         if near_wall.sum() < 50:
             continue
