@@ -339,13 +339,18 @@ class BrightfieldRenderer:
         if self.phantom.refractive_index != 1.0:
             collected = np.ones((height, width), np.float32)
             collected[iy, ix] = self._collected_over_pixel(m, q, delta, grad_m)
-        if contrast is not None and self.pale is not None:
-            # the ray's deepest point: its depth below the surface and its direction (scaled frame)
-            py, pz = C[1] + s * dy_, C[2] + s * dz_ * lat
-            depth = np.sqrt(np.maximum(q, 0.0)) - np.sqrt(np.maximum(q + m, 0.0))
-            dorsal = -py / np.maximum(np.hypot(py, pz), 1e-9)
-            contrast[iy, ix] = self.pale.contrast(x, depth, dorsal)
+        if contrast is not None:
+            contrast[iy, ix] = self._pale_contrast(C[1] + s * dy_, C[2] + s * dz_ * lat, x, q, m)
         return coverage, tau_body, tau_feat, collected, contrast
+
+    def _pale_contrast(self, py: np.ndarray, pz: np.ndarray, x: np.ndarray, q: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """The pale tissue's contrast factor of rays whose deepest point in the body is (x, py, pz) (phantom frame,
+        z scaled by 1/s, µm), with q = r(x)² and m = ρ² − q there (µm²): its depth below the surface r − ρ and its
+        direction against the dorsal −y decide (:meth:`PaleTissue.contrast`)."""
+        assert self.pale is not None
+        depth = np.sqrt(np.maximum(q, 0.0)) - np.sqrt(np.maximum(q + m, 0.0))
+        dorsal = -py / np.maximum(np.hypot(py, pz), 1e-9)
+        return self.pale.contrast(x, depth, dorsal)
 
     def _feature_depth(
         self,
