@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 
 from vastcal.config import CameraConfig, OpticsConfig, RoiConfig, SimulationConfig
+from vastcal.simulators.camera.battery import battery_config
 from vastcal.simulators.camera.larva import draw_specimen
 from vastcal.simulators.camera.render import BrightfieldRenderer, Capillary
 from vastcal.simulators.camera.truth_geometry import PinholeIntrinsics, RigTruth, camera_pose
@@ -65,3 +66,15 @@ def test_the_pale_tip_is_fainter_than_the_same_tip_at_full_contrast_and_the_body
     ratio_tip = a_pale[:, tip][inside[:, tip]].mean() / a_plain[:, tip][inside[:, tip]].mean()
     ratio_mid = a_pale[:, mid][inside[:, mid]].mean() / a_plain[:, mid][inside[:, mid]].mean()
     assert ratio_mid == 1.0 and abs(ratio_tip - pale.pale.tip_contrast) < 0.05  # type: ignore[union-attr]
+
+
+def test_a_battery_of_30_holds_both_cases() -> None:
+    feats = []
+    for seed in range(30):
+        cfg = battery_config(seed)
+        assert cfg.simulation is not None
+        feats.append(draw_specimen(cfg.simulation, cfg.optics, cfg.camera).features)
+    tips = [f["pale_tail_tip"] for f in feats]
+    bands = [f["wall_band"] for f in feats]
+    assert 4 <= sum(tips) <= 15 and 4 <= sum(bands) <= 12
+    assert all(f["wall_contact"] for f in feats if f["wall_band"])
