@@ -2,9 +2,10 @@
 
 Each larva k = S, S+1, … S+N−1 is acquired from the simulated rig of
 ``simulators.camera.battery.battery_config(k)`` — ``config/simulated.yaml`` with every realism
-feature on (age 3–5 dpf, size, contrast, fin fold, pectoral fins, melanophores, wall contact, tail
-out of frame, debris, bubbles, lamp gradient, vignetting, defocus), all drawn from the seed k —
-through the same library path as ``vastcal acquire --simulate`` (``vastcal.pipeline.acquire_simulated``).
+feature on (age 3–5 dpf, size, contrast, fin fold, pectoral fins, melanophores, wall contact and its
+pale band, a pale tail tip, tail out of frame, debris, bubbles, lamp gradient, vignetting, defocus),
+all drawn from the seed k — through the same library path as ``vastcal acquire --simulate``
+(``vastcal.pipeline.acquire_simulated``).
 Writes ``OUTDIR/larva_KKK.h5`` and ``OUTDIR/larva_KKK.truth.json``
 (the body's exact visual hull for the actual angles, the solid body, the drawn features) and
 ``OUTDIR/battery.csv`` (one row per larva), and prints the same table.
@@ -52,6 +53,10 @@ def flags_of(truth: dict) -> str:
         out.append(f"mel{sp['melanophores']}")
     if sp.get("wall_contact"):
         out.append("wall")
+    if sp.get("wall_band"):
+        out.append("band")
+    if sp.get("pale_tail_tip"):
+        out.append(f"paletip{sp.get('pale_tip_contrast', 0):.2f}")
     if truth.get("frame_cut_views"):
         out.append(f"cut{len(truth['frame_cut_views'])}v")
     if sp.get("debris"):
@@ -63,9 +68,13 @@ def flags_of(truth: dict) -> str:
     return " ".join(out)
 
 
-def make_one(seed: int, outdir: Path, views: int | None, force: bool) -> dict:
-    """Acquire larva ``seed`` into ``outdir``; return its table row."""
-    cfg = battery_config(seed)
+def make_one(seed: int, outdir: Path, views: int | None, force: bool, overrides: dict | None = None) -> dict:
+    """Acquire larva ``seed`` into ``outdir``; return its table row. ``overrides`` replace ``simulation`` keys of
+    the battery (e.g. ``{"pale_tail_tip_probability": 0.0}``)."""
+    try:
+        cfg = battery_config(seed, **(overrides or {}))
+    except TypeError as exc:
+        raise SystemExit(f"make_battery: {exc}") from None
     session = outdir / f"larva_{seed:03d}.h5"
     t = time.monotonic()
     try:

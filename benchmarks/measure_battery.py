@@ -4,8 +4,8 @@
                                          [--views V] [--reuse] [--true-cameras]
 
 For every larva k = S … S+n−1 (``simulators.camera.battery.battery_config(k)``: 3–5 dpf, fin fold,
-pectoral fins, melanophores, wall contact, tail out of frame, debris, bubbles, lamp gradient,
-vignetting, defocus, all drawn from the seed) it acquires a session with
+pectoral fins, melanophores, wall contact and its pale band, a pale tail tip, tail out of frame, debris,
+bubbles, lamp gradient, vignetting, defocus, all drawn from the seed) it acquires a session with
 ``benchmarks/make_battery.py``'s library path, then runs ``vastcal run SESSION -o REPORT -q`` in a
 subprocess (``--jobs`` at a time; each costs ~40 s of CPU or more) and reads ``report.json``. Prints
 one row per larva: volume and area, their deviation from the exact visual hull of the *body* for the
@@ -21,7 +21,9 @@ this process — the silhouettes' own share of the error, in ~10 s per larva. ``
 sessions already in ``--dir`` (a session that has been run holds its calibrations; ``vastcal run``
 adds new runs and reports the latest). Each finished larva is appended to
 ``DIR/results-end-to-end.jsonl`` (or ``results-true-cameras.jsonl``); ``--summary`` prints the table
-and summary of what is there without running anything (e.g. of a run stopped early).
+and summary of what is there without running anything (e.g. of a run stopped early). ``--set KEY=NUMBER``
+replaces a numeric ``simulation`` key of the battery (e.g. ``--set pale_tail_tip_probability=0
+--set wall_band_probability=0``: the same larvae without the pale cases).
 
 The summary compares with these bounds: volume within 1 % and area within 2 % of the body hull on ≥ 28 of 30,
 none beyond 3 %; the hull inside the k = 2 interval on ≥ 27 of 30.
@@ -182,6 +184,13 @@ def main(argv: list[str] | None = None) -> int:
         "--true-cameras", action="store_true", help="silhouettes only: carve with the true cameras, no calibration"
     )
     ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=NUMBER",
+        help="replace a numeric simulation key of the battery, e.g. --set wall_band_probability=0 (repeatable)",
+    )
+    ap.add_argument(
         "--summary",
         action="store_true",
         help="print the table and summary of the results already in --dir, run nothing",
@@ -189,6 +198,13 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.n < 1 or a.jobs < 1:
         ap.error("--n and --jobs must be >= 1")
+    overrides: dict[str, float] = {}
+    for item in a.set:
+        key, _, value = item.partition("=")
+        try:
+            overrides[key.strip()] = float(value)
+        except ValueError:
+            ap.error(f"--set {item}: expected KEY=NUMBER")
     a.dir.mkdir(parents=True, exist_ok=True)
     if a.summary:
         a.reuse = True
@@ -199,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     def one(seed: int) -> dict[str, Any]:
         session = a.dir / f"larva_{seed:03d}.h5"
         if not (a.reuse and session.is_file() and session.with_suffix(".truth.json").is_file()):
-            make_one(seed, a.dir, a.views, True)
+            make_one(seed, a.dir, a.views, True, overrides)
         res = run_true_cameras(session) if a.true_cameras else run_end_to_end(session)
         tr = truth_of(session)
         v_ref, a_ref, cut = reference(tr)

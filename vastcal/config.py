@@ -373,6 +373,12 @@ class SimulationConfig:
     """Chance that the larva lies against the capillary wall (its edge 0.5-3 µm from the wall)."""
     tail_out_of_frame_probability: float = field(default=0.0, metadata=_range(0.0, 1.0))
     """Chance that the larva is shifted along the axis so that its tail runs out of the frame."""
+    pale_tail_tip_probability: float = field(default=0.0, metadata=_range(0.0, 1.0))
+    """Chance that the larva's tail tip is pale: its contrast falls over the last 15-25 % of the length to
+    0.15-0.4 of the body's (still part of the measured body)."""
+    wall_band_probability: float = field(default=0.0, metadata=_range(0.0, 1.0))
+    """Chance that a larva lying against the wall touches it with its dorsal side and shows a pale band
+    there: tissue 8-20 µm deep at 0.3-0.6 of the body's contrast, the dorsal pigment below it."""
     debris: float = field(default=0.0, metadata=_range(0.0, 100.0))
     """Mean number of dark debris particles floating in the capillary (Poisson); they drift between views."""
     bubbles: float = field(default=0.0, metadata=_range(0.0, 100.0))

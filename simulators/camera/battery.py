@@ -23,6 +23,8 @@ BATTERY_SIMULATION: dict[str, Any] = {
     "melanophores": 120.0,
     "wall_contact_probability": 0.4,
     "tail_out_of_frame_probability": 0.15,
+    "pale_tail_tip_probability": 0.3,
+    "wall_band_probability": 0.5,
     "debris": 3.0,
     "bubbles": 1.0,
     "illumination_gradient": 0.08,

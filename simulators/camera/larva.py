@@ -27,6 +27,12 @@ What is drawn (each switched by a key of ``simulation:``, see ``config/simulated
   axis is offset in a random direction so that its widest section is 0.5–3 µm from the wall.
 * **tail out of frame** (``tail_out_of_frame_probability``): the larva is shifted along the axis so
   that its tail tip lies 20–250 µm beyond the frame's edge (the fin fold further).
+* **pale tail tip** (``pale_tail_tip_probability``): the body's contrast falls (smoothstep) from u = 0.75–0.85
+  of the length to 0.15–0.40 of itself at u + 0.05–0.10 and stays there to the tip
+  (:mod:`vastcal.simulators.camera.pale_tissue`); the tip stays part of the measured body.
+* **wall band** (``wall_band_probability``, of the larvae against the wall): the larva touches the wall with
+  its dorsal side (direction −y ± 10°) and the tissue within 8–20 µm of its dorsal surface has 0.3–0.6 of the
+  body's contrast; the dorsal melanophores (the pigment line) lie below that band.
 
 Each draw uses its own stream ``SeedSequence([seed, tag])`` so switching one feature on does not
 change the others.
@@ -45,6 +51,7 @@ import numpy as np
 from vastcal.config import CameraConfig, OpticsConfig, SimulationConfig
 from vastcal.errors import ConfigError
 from vastcal.simulators.camera.organs import SWIM_BLADDER_FROM_DPF, swim_bladder
+from vastcal.simulators.camera.pale_tissue import PaleTissue, smoothstep
 from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom, zebrafish_phantom
 from vastcal.simulators.camera.profiles import LarvaProfile
 
@@ -52,11 +59,6 @@ log = logging.getLogger(__name__)
 
 CAPILLARY_INNER_RADIUS_UM = 330.0
 """Inner radius of the simulated capillary, µm (:class:`vastcal.simulators.camera.render.Capillary`)."""
-
-
-def _smoothstep(t: np.ndarray) -> np.ndarray:
-    t = np.clip(t, 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
 
 
 @dataclass(frozen=True)
@@ -116,7 +118,7 @@ class FinFold:
         e = self.tail_extension_um / L
         cap = np.where(u <= 1.0, 1.0, np.sqrt(np.clip(1.0 - ((u - 1.0) / e) ** 2, 0.0, 1.0)))
         start = np.where(y < 0.0, self.dorsal_start, self.ventral_start)
-        outer = r + self.height_um * _smoothstep((u - start) / 0.2) * cap
+        outer = r + self.height_um * smoothstep((u - start) / 0.2) * cap
         ay = np.abs(y)
         return (ay >= r) & (ay <= outer) & (u >= start)
 
@@ -193,6 +195,7 @@ class Specimen:
         pectoral_fins: thin ellipsoids outside the body (not measured).
         wall_offset_um: (y, z) of the body's axis off the rotation axis when it lies against the
             capillary wall, µm; ``None``: the rig truth's own draw.
+        pale: where the body's tissue is pale (tail tip, band along the wall), or ``None``.
         features: what was drawn, JSON-able (for the truth file's ``features`` record).
     """
 
@@ -201,6 +204,7 @@ class Specimen:
     pectoral_fins: tuple[EllipsoidFeature, ...] = ()
     wall_offset_um: tuple[float, float] | None = None
     features: dict[str, Any] = field(default_factory=dict)
+    pale: PaleTissue | None = None
 
     @property
     def extra_reach_um(self) -> float:
@@ -359,9 +363,10 @@ def _inside(profile: LarvaProfile, lateral: float, f: EllipsoidFeature, margin_u
 
 
 def _melanophores(
-    profile: LarvaProfile, lateral: float, mean: float, rng: np.random.Generator
+    profile: LarvaProfile, lateral: float, mean: float, rng: np.random.Generator, dorsal_depth_um: float = 0.0
 ) -> list[EllipsoidFeature]:
-    """Flat dark specks just under the skin (module docstring); those that do not fit are dropped."""
+    """Flat dark specks just under the skin (module docstring); those that do not fit are dropped.
+    The dorsal ones lie ``dorsal_depth_um`` µm deeper (below a pale band)."""
     n = int(rng.poisson(mean)) if mean > 0 else 0
     out: list[EllipsoidFeature] = []
     L = profile.length
@@ -375,9 +380,11 @@ def _melanophores(
         wide = float(rng.uniform(4.0, 8.0))
         mu = float(rng.uniform(0.05, 0.1))
         for depth_margin in (1.5, 4.0, 8.0):
+            depth = depth_margin
             if side == 0 or side == 1:  # dorsal (−y) / ventral (+y) midline
                 sign = -1.0 if side == 0 else 1.0
-                y = sign * (r - flat - depth_margin)
+                depth += dorsal_depth_um if side == 0 else 0.0
+                y = sign * (r - flat - depth)
                 z = float(rng.uniform(-0.3, 0.3)) * lateral * r
                 z = z * math.sqrt(max(1.0 - (y / max(r, 1e-9)) ** 2, 0.0))
                 feat = EllipsoidFeature(f"melanophore {i}", (x, y, z), (length, flat, wide), mu)
@@ -385,7 +392,7 @@ def _melanophores(
                 sign = float(rng.choice([-1.0, 1.0]))
                 z = sign * (lateral * r - flat - depth_margin)
                 feat = EllipsoidFeature(f"melanophore {i}", (x, 0.0, z), (length, wide, flat), mu)
-            if r > 3.0 * (flat + depth_margin) and _inside(profile, lateral, feat, 0.5):
+            if r > 3.0 * (flat + depth) and _inside(profile, lateral, feat, 0.5):
                 out.append(feat)
                 break
     return out
@@ -445,7 +452,12 @@ def draw_specimen(
         profile = phantom.profile
         assert isinstance(profile, LarvaProfile)
 
-    mel = _melanophores(profile, phantom.lateral_scale, sim.melanophores, _stream(sim, 0x3E1))
+    pale, pale_info = _pale_tissue(sim, profile, wall)
+    features.update(pale_info)
+    if pale is not None and pale.band_depth_um > 0.0:
+        wall_phi = math.pi + math.radians(pale_info["wall_band_direction_jitter_deg"])
+    band = pale.band_depth_um if pale is not None else 0.0
+    mel = _melanophores(profile, phantom.lateral_scale, sim.melanophores, _stream(sim, 0x3E1), band)
     if mel:
         phantom = replace(phantom, features=phantom.features + tuple(mel))
     features["melanophores"] = len(mel)
@@ -488,7 +500,27 @@ def draw_specimen(
         wall_offset = (dist * math.cos(wall_phi), dist * math.sin(wall_phi))
         features.update(wall_gap_um=wall_gap, wall_direction_deg=math.degrees(wall_phi))
         pecs = tuple(_fold_against_wall(f, wall_offset, lumen_radius_um) for f in pecs)
-    return Specimen(phantom, fold, pecs, wall_offset, features)
+    return Specimen(phantom, fold, pecs, wall_offset, features, pale)
+
+
+def _pale_tissue(sim: SimulationConfig, profile: LarvaProfile, wall: bool) -> tuple[PaleTissue | None, dict[str, Any]]:
+    """The pale tail tip and wall band of the larva (module docstring), each from its own stream."""
+    rng_tip, rng_band = _stream(sim, 0x71B), _stream(sim, 0xBA4)
+    tip = bool(rng_tip.uniform() < sim.pale_tail_tip_probability)
+    start, fade, tip_c = (float(v) for v in rng_tip.uniform([0.75, 0.05, 0.15], [0.85, 0.10, 0.40]))
+    band = bool(wall and rng_band.uniform() < sim.wall_band_probability)
+    depth, band_c, jitter = (float(v) for v in rng_band.uniform([8.0, 0.3, -10.0], [20.0, 0.6, 10.0]))
+    info: dict[str, Any] = {"pale_tail_tip": tip, "wall_band": band}
+    if not (tip or band):
+        return None, info
+    pale = PaleTissue(profile.x_head, profile.length)
+    if tip:
+        pale = replace(pale, tip_start=start, tip_end=start + fade, tip_contrast=tip_c)
+        info.update(pale_tip_from=start, pale_tip_full_at=start + fade, pale_tip_contrast=tip_c)
+    if band:
+        pale = replace(pale, band_depth_um=depth, band_contrast=band_c)
+        info.update(wall_band_depth_um=depth, wall_band_contrast=band_c, wall_band_direction_jitter_deg=jitter)
+    return pale, info
 
 
 def _fold_against_wall(fin: EllipsoidFeature, offset: tuple[float, float], lumen_radius_um: float) -> EllipsoidFeature:

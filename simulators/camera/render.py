@@ -42,6 +42,7 @@ from scipy.ndimage import gaussian_filter
 
 from vastcal.errors import CameraError
 from vastcal.simulators.camera.larva import FinFold, ellipsoid_depth
+from vastcal.simulators.camera.pale_tissue import PaleTissue
 from vastcal.simulators.camera.phantom import EllipsoidFeature, Phantom
 from vastcal.simulators.camera.scene import Illumination, Particle, paint_particles
 
@@ -130,6 +131,9 @@ class RayGeometry:
     """Fraction of the light through the body that refraction leaves inside the objective's aperture
     (:func:`refraction_collected`), averaged over the part of the pixel the body covers; ``None``
     without refraction."""
+    contrast: np.ndarray | None = None
+    """Factor (0–1] on the body's absorption where its tissue is pale
+    (:class:`~vastcal.simulators.camera.pale_tissue.PaleTissue`); ``None`` without pale tissue."""
 
 
 @dataclass(frozen=True)
@@ -178,6 +182,7 @@ class BrightfieldRenderer:
         sensor: photometric and noise model.
         fin_fold: the median fin fold (not measured), or ``None``.
         fins: thin ellipsoids outside the body (pectoral fins; not measured).
+        pale: where the body's tissue is pale (tail tip, band along the wall), or ``None``.
     """
 
     def __init__(
@@ -189,8 +194,10 @@ class BrightfieldRenderer:
         fin_fold: FinFold | None = None,
         fins: tuple[EllipsoidFeature, ...] = (),
         acceptance_half_angle_rad: float = DEFAULT_ACCEPTANCE_RAD,
+        pale: PaleTissue | None = None,
     ) -> None:
         self.phantom = phantom
+        self.pale = pale
         self.acceptance_half_angle_rad = float(acceptance_half_angle_rad)
         self.capillary = capillary or Capillary()
         self.sensor = sensor or Sensor()
@@ -241,13 +248,15 @@ class BrightfieldRenderer:
         dz_w = (R[0, 2] * du)[None, :] + (R[1, 2] * dv + R[2, 2])[:, None]
         rho0_capillary = np.abs(C_world[1] * dz_w - C_world[2] * dy_w) / np.sqrt(dy_w * dy_w + dz_w * dz_w)
         footprint_um = float(np.linalg.norm(t)) / f  # one pixel at the axis, µm
-        coverage, tau_body, tau_feat, collected = self._body_rays(
+        coverage, tau_body, tau_feat, collected, contrast = self._body_rays(
             _Rays(R, f, C_phantom, du, dv, dy_w, dz_w, footprint_um)
         )
         tau_extra = None
         if self.fin_fold is not None or self.fins:
             tau_extra = self._extra_depth(C_phantom, R, du, dv, dy_w, dz_w, body_offset_um, footprint_um)
-        return RayGeometry(rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra, collected)
+        return RayGeometry(
+            rho0_capillary.astype(np.float32), coverage, tau_body, tau_feat, tau_extra, collected, contrast
+        )
 
     def _check_fits(self, body_offset_um: tuple[float, float]) -> None:
         """Refuse a phantom that, this far off the axis, would cross the capillary's wall."""
@@ -262,8 +271,11 @@ class BrightfieldRenderer:
                 f"in the capillary (inner radius {self.capillary.inner_radius_um:.0f} µm)"
             )
 
-    def _body_rays(self, rays: _Rays) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """Coverage, body and feature optical depths and the refraction's collected fraction of every pixel.
+    def _body_rays(
+        self, rays: _Rays
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Coverage, body and feature optical depths, the refraction's collected fraction and the pale
+        tissue's contrast factor of every pixel.
 
         Elliptic cross-sections y² + (z/s)² ≤ r²: in coordinates with z divided by s the body is one
         of revolution and rays stay lines with the same parameter s, so everything here runs there
@@ -287,8 +299,9 @@ class BrightfieldRenderer:
         lo, hi = self.phantom.profile.x_range
         margin = 3.0 * rays.footprint_um
         cand_rows, cand_cols = np.nonzero(rho0 < self._r_max + margin)
+        contrast = None if self.pale is None else np.ones((height, width), np.float32)
         if not cand_rows.size:
-            return coverage, tau_body, tau_feat, collected
+            return coverage, tau_body, tau_feat, collected, contrast
         dxf = (R[0, 0] * du)[None, :] + (R[1, 0] * dv + R[2, 0])[:, None]
         iy, ix = cand_rows, cand_cols
         dx_, dy_, dz_ = dxf[iy, ix], dy[iy, ix], dz[iy, ix]
@@ -326,7 +339,18 @@ class BrightfieldRenderer:
         if self.phantom.refractive_index != 1.0:
             collected = np.ones((height, width), np.float32)
             collected[iy, ix] = self._collected_over_pixel(m, q, delta, grad_m)
-        return coverage, tau_body, tau_feat, collected
+        if contrast is not None:
+            contrast[iy, ix] = self._pale_contrast(C[1] + s * dy_, C[2] + s * dz_ * lat, x, q, m)
+        return coverage, tau_body, tau_feat, collected, contrast
+
+    def _pale_contrast(self, py: np.ndarray, pz: np.ndarray, x: np.ndarray, q: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """The pale tissue's contrast factor of rays whose deepest point in the body is (x, py, pz) (phantom frame,
+        z scaled by 1/s, µm), with q = r(x)² and m = ρ² − q there (µm²): its depth below the surface r − ρ and its
+        direction against the dorsal −y decide (:meth:`PaleTissue.contrast`)."""
+        assert self.pale is not None
+        depth = np.sqrt(np.maximum(q, 0.0)) - np.sqrt(np.maximum(q + m, 0.0))
+        dorsal = -py / np.maximum(np.hypot(py, pz), 1e-9)
+        return self.pale.contrast(x, depth, dorsal)
 
     def _feature_depth(
         self,
@@ -440,6 +464,8 @@ class BrightfieldRenderer:
         body = np.float32(ph.edge_transmission) * np.exp(-(channel_scale * geom.tau_body + geom.tau_features))
         if geom.collected is not None:
             body = body * geom.collected
+        if geom.contrast is not None:
+            body = 1.0 - geom.contrast * (1.0 - body)
         T = 1.0 - geom.coverage * (1.0 - body)
         if geom.tau_extra is not None:
             T = T * np.exp(-channel_scale * geom.tau_extra)

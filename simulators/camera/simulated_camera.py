@@ -80,7 +80,12 @@ class SimulatedCamera(Camera):
         if truth is None and self.specimen.wall_offset_um is not None:
             self._truth = dataclasses.replace(self._truth, specimen_offset_um=self.specimen.wall_offset_um)
         self._renderer = BrightfieldRenderer(
-            self.phantom, capillary, sensor, fin_fold=self.specimen.fin_fold, fins=self.specimen.pectoral_fins
+            self.phantom,
+            capillary,
+            sensor,
+            fin_fold=self.specimen.fin_fold,
+            fins=self.specimen.pectoral_fins,
+            pale=self.specimen.pale,
         )
         self._particles = draw_particles(
             simulation, self.specimen, self._truth.specimen_offset_um, optics, camera, capillary.inner_radius_um
