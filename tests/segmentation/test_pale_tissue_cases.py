@@ -11,6 +11,8 @@ from vastcal.segmentation import fit_automatic, specimen_maps
 from vastcal.simulators.camera import SimulatedCamera
 from vastcal.simulators.camera.battery import battery_config
 
+pytestmark = pytest.mark.slow  # five full revolutions rendered and segmented
+
 CLEAN = {"debris": 0.0, "bubbles": 0.0, "fin_fold": False, "pectoral_fins": False}
 """The clean scene: the larva alone in the capillary (lamp field, defocus and melanophores kept)."""
 SCENES = {
