@@ -22,7 +22,7 @@ def _anchor(heading: str) -> str:
 
 def test_ci_command_is_in_the_readme_verbatim() -> None:
     ci = (ROOT / ".ci" / "run").read_text()
-    line = 'pip install -e ".[test]" && python -m pytest -n auto'
+    line = 'pip install -e ".[test]" && python -m pytest -n auto --dist worksteal'
     assert line in ci and line in README
 
 
