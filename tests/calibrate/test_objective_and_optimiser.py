@@ -17,7 +17,6 @@ _spec.loader.exec_module(_helpers)  # type: ignore[union-attr]  # this folder's 
 FAST = _helpers.FAST
 
 from vastcal.calibrate import calibrate_views, fit_automatic  # noqa: E402
-from vastcal.calibrate.colour_densities import log_colour_densities  # noqa: E402
 from vastcal.calibrate.objective import pad_voxels  # noqa: E402
 from vastcal.calibrate.objective_pi import PIObjective  # noqa: E402
 from vastcal.calibrate.objective_vr import VRObjective  # noqa: E402
@@ -25,6 +24,7 @@ from vastcal.calibrate.region import specimen_region  # noqa: E402
 from vastcal.calibrate.sampling import Projector  # noqa: E402
 from vastcal.calibration_progress import ProgressClock  # noqa: E402
 from vastcal.config import CalibrationBounds  # noqa: E402
+from vastcal.segmentation.colour_densities import log_colour_densities  # noqa: E402
 from vastcal.voxels import VoxelGrid  # noqa: E402
 
 

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vastcal.calibrate.colour_densities import log_colour_densities
 from vastcal.calibrate.objective import pad_voxels
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
@@ -23,6 +22,7 @@ from vastcal.calibrate.sampling import Projector
 from vastcal.geometry import decompose_circular, projection_matrices
 from vastcal.importer import read_cameras
 from vastcal.segmentation import ColourModel, Gaussian
+from vastcal.segmentation.colour_densities import log_colour_densities
 from vastcal.voxels import VoxelGrid, viewing_box
 
 H, W, N, D = 240, 320, 36, 10.0

@@ -39,7 +39,7 @@ class LevelMaps:
         edge_lines: lines across the axis image along which the coherence cost finds each view's edges.
         shared: what the level's objectives share (e.g. the coherence cost's signed-distance atlas).
         densities: makes the (2, N, h, w) log colour densities of the specimen and the background at the level
-            (:mod:`.colour_densities`; the PI cost), on demand; None when the problem has none.
+            (:mod:`vastcal.segmentation.colour_densities`; the PI cost), on demand; None when the problem has none.
         box: (lower, upper, voxel edge), world units: the box where the specimen can be for any θ in the search box
             (the first level's region's bounds, the same at every level) and the level's voxel edge in it.
     """

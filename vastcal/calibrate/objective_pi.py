@@ -1,8 +1,8 @@
 """The probabilistic-inference (PI) objective of Guo, Verbeek & Yang, as published and as its authors coded it.
 
 For voxel Q_j of a fixed regular grid and views i = 0 … N−1, with the colour models' densities of the pixel nearest
-the voxel's projection — pdf_f,i of the specimen's Gaussian, pdf_b,i of the background's (:mod:`.colour_densities`,
-per 8-bit level of colour) —
+the voxel's projection — pdf_f,i of the specimen's Gaussian, pdf_b,i of the background's
+(:mod:`vastcal.segmentation.colour_densities`, per 8-bit level of colour) —
 
     P_1(Q_j) = Π_i pdf_f,i^(1/N)                       (every view must see specimen colour)
     P_2(Q_j) = 1 − Π_i (1 − pdf_b,i)^(1/N)            (some view sees background colour)

@@ -12,7 +12,6 @@ import logging
 import cv2
 import numpy as np
 
-from vastcal.calibrate.colour_densities import log_colour_densities
 from vastcal.calibrate.methods import objective_factory
 from vastcal.calibrate.objective import LevelMaps, Objective, Prior, WithPrior
 from vastcal.calibrate.parameters import ParameterSpace
@@ -21,6 +20,7 @@ from vastcal.calibrate.sampling import resize_stack
 from vastcal.config import CalibrationSettings
 from vastcal.errors import EmptyHullError
 from vastcal.segmentation import ColourModel, specimen_maps_within
+from vastcal.segmentation.colour_densities import log_colour_densities
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,8 @@ class Problem:
             (or from given masks), 0/1.
         K_small: intrinsics of ``pf``'s pixels.
         log_densities: (2, N, h, w) log colour densities of the specimen and the background at ``pf``'s size
-            (:func:`.colour_densities.log_colour_densities`), for the methods that read them; else None.
+            (:func:`vastcal.segmentation.colour_densities.log_colour_densities`), for the methods that read them;
+            else None.
     """
 
     def __init__(

@@ -12,6 +12,8 @@ Images → colour models → probability maps, used alike by calibration and rec
   one view → the colour model that reproduces them best.
 * :mod:`.probability_maps` — :func:`specimen_maps` and its sub-revolution driver within a memory budget
   (:func:`grouped_specimen_maps`); the rules it applies live in private modules.
+* :mod:`.silhouette_edges` — the maps' sub-pixel boundary samples and signed-distance maps (the silhouette-coherence
+  cost reads them); :mod:`.colour_densities` — the colour models' densities per pixel (the paper's PI cost reads them).
 
 Images are (N, H, W) grey or (N, H, W, 3) RGB stacks of any integer or float pixel type, or a lazy
 :class:`FrameStack` of them; pixel coordinates are the frames' (row = y, column = x), the rotation axis

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vastcal.segmentation import ColourModel, GaussianMixture
+from vastcal.segmentation.colour_models import ColourModel
+from vastcal.segmentation.gaussians import GaussianMixture
 
 LEVELS = 255.0
 """The colour unit of the densities: 1/255 of full scale per channel (the paper's 8-bit levels)."""
