@@ -266,5 +266,33 @@ def strace_cannot_inject() -> str | None:
     return None
 
 
+def small_rig(path: Path, views: int, side_px: int, pixel_format: str | None = None) -> Path:
+    """The simulated rig with a ``side_px`` square ROI at the sensor's centre, ``views`` views and, when given, the
+    camera's ``pixel_format``, written as a rig file at ``path``: a revolution small enough to kill at every write."""
+    import dataclasses
+
+    from vastcal.config import dump_config, load_config
+
+    cfg = load_config(None)
+    corner = (cfg.optics.sensor_width_px - side_px) // 2, (cfg.optics.sensor_height_px - side_px) // 2
+    roi = dataclasses.replace(cfg.camera.roi, x=corner[0], y=corner[1], width=side_px, height=side_px)
+    camera = dataclasses.replace(cfg.camera, roi=roi, pixel_format=pixel_format or cfg.camera.pixel_format)
+    cfg = dataclasses.replace(cfg, camera=camera, acquisition=dataclasses.replace(cfg.acquisition, views=views))
+    path.write_text(dump_config(cfg))
+    return path
+
+
+def acquire_reference(rig: Path, out: Path) -> Path:
+    """An unkilled ``vastcal acquire`` of ``rig`` into ``out``: what every killed run's committed views must equal."""
+    run = subprocess.run(
+        [sys.executable, "-m", "vastcal.cli", "-q", "acquire", "--config", str(rig), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr
+    return out
+
+
 if __name__ == "__main__":
     main()

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import pickle
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -26,7 +25,7 @@ from vastcal.session import Session
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))  # kill_driver
 sys.path.insert(0, str(HERE.parent / "reconstruct"))  # phantom_views
-from kill_driver import kill_at_every_write, strace_cannot_inject  # noqa: E402
+from kill_driver import acquire_reference, kill_at_every_write, small_rig, strace_cannot_inject  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -38,35 +37,11 @@ def _need_strace() -> None:
         pytest.skip(reason)
 
 
-def _small_rig(path: Path, views: int) -> Path:
-    """The simulated rig with a 128 x 128 ROI and ``views`` views, as a rig file."""
-    import dataclasses
-
-    from vastcal.config import dump_config, load_config
-
-    cfg = load_config(None)
-    roi = dataclasses.replace(cfg.camera.roi, x=448, y=448, width=128, height=128)
-    cfg = dataclasses.replace(
-        cfg,
-        camera=dataclasses.replace(cfg.camera, roi=roi),
-        acquisition=dataclasses.replace(cfg.acquisition, views=views),
-    )
-    path.write_text(dump_config(cfg))
-    return path
-
-
 @pytest.mark.timeout(1500)
 def test_acquire_killed_at_every_write_loses_at_most_the_view_in_flight_and_resume_completes_it(tmp_path: Path) -> None:
     views = 3
-    rig = _small_rig(tmp_path / "rig.yaml", views)
-    ref = tmp_path / "ref.h5"
-    run = subprocess.run(
-        [sys.executable, "-m", "vastcal.cli", "-q", "acquire", "--config", str(rig), "-o", str(ref)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert run.returncode == 0, run.stderr
+    rig = small_rig(tmp_path / "rig.yaml", views, 128)
+    ref = acquire_reference(rig, tmp_path / "ref.h5")
     with Session.open(ref) as s:
         frames, angles, usteps = s.projections(), s.angles_deg, s.view_table()["commanded_usteps"]
 
@@ -200,7 +175,7 @@ def test_a_full_disk_at_any_write_of_a_reconstruction_is_one_error_and_loses_not
 def test_a_full_disk_during_acquisition_keeps_the_committed_views_and_resume_completes_them(tmp_path: Path) -> None:
     """ENOSPC injected at every write of a 3-view acquisition (the disk is freed before --resume)."""
     views = 3
-    rig = _small_rig(tmp_path / "rig.yaml", views)
+    rig = small_rig(tmp_path / "rig.yaml", views, 128)
     records = kill_at_every_write(
         tmp_path,
         ["-q", "acquire", "--config", str(rig), "-o", "{out}"],

@@ -5,8 +5,6 @@ tests/session/test_kill_at_every_write.py; both use the fork server tests/sessio
 
 from __future__ import annotations
 
-import dataclasses
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,7 +14,7 @@ import pytest
 from vastcal.session import Session
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kill_driver import kill_at_every_write, strace_cannot_inject  # noqa: E402
+from kill_driver import acquire_reference, kill_at_every_write, small_rig, strace_cannot_inject  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -26,26 +24,9 @@ def test_rgb_acquire_killed_at_every_write_keeps_committed_views_and_resume_comp
     reason = strace_cannot_inject()
     if reason:
         pytest.skip(reason)
-    from vastcal.config import dump_config, load_config
-
     views = 3  # the fewest a rig file allows
-    cfg = load_config(None)
-    roi = dataclasses.replace(cfg.camera.roi, x=480, y=480, width=64, height=64)
-    cfg = dataclasses.replace(
-        cfg,
-        camera=dataclasses.replace(cfg.camera, roi=roi, pixel_format="RGB8"),
-        acquisition=dataclasses.replace(cfg.acquisition, views=views),
-    )
-    rig = tmp_path / "rig.yaml"
-    rig.write_text(dump_config(cfg))
-    ref = tmp_path / "ref.h5"
-    run = subprocess.run(
-        [sys.executable, "-m", "vastcal.cli", "-q", "acquire", "--config", str(rig), "-o", str(ref)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert run.returncode == 0, run.stderr
+    rig = small_rig(tmp_path / "rig.yaml", views, 64, pixel_format="RGB8")
+    ref = acquire_reference(rig, tmp_path / "ref.h5")
     with Session.open(ref) as s:
         frames = s.projections()
         assert frames.shape == (views, 64, 64, 3) and s.colour_planes is not None

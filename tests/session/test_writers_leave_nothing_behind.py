@@ -27,6 +27,9 @@ from vastcal.config import RigConfig, dump_config
 from vastcal.errors import SessionBusyError, SessionIncompleteError, UserInputError
 from vastcal.session import PathLock, Session, SessionWriter, remove_stale_copies, write_atomically, writer_pid
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # kill_driver (--import-mode=importlib)
+from kill_driver import strace_cannot_inject  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[2]
 STORE_A_RUN = textwrap.dedent(
     """
@@ -69,22 +72,11 @@ def dead_pid() -> int:
     return p.pid
 
 
-def _strace_can_inject() -> str | None:
-    if shutil.which("strace") is None:
-        return "strace is not installed (Debian package 'strace'; .ci/run installs it)"
-    probe = subprocess.run(
-        ["strace", "-qq", "-o", "/dev/null", "-e", "inject=pwrite64:retval=0", "true"], capture_output=True, timeout=30
-    )
-    if probe.returncode != 0:
-        return f"strace cannot trace here: {probe.stderr.decode(errors='replace').strip()[:120]}"
-    return None
-
-
 # -- copies left by killed writers -------------------------------------------------------------------------
 
 
 def test_a_store_killed_at_a_write_leaves_a_copy_that_the_next_store_removes(tmp_path: Path) -> None:
-    reason = _strace_can_inject()
+    reason = strace_cannot_inject()
     if reason:
         pytest.skip(reason)
     path = small_session(tmp_path / "S.h5")
