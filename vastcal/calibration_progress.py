@@ -291,7 +291,7 @@ class LevelObserver:
             self.shown = True
             self.clock.name_phase(self.max_evaluations, self.name)
         now = time.monotonic()
-        if self.research is not None and not g.spend_budget:
+        if self.research is not None:
             if self.timing is None:  # a one-coordinate search runs with an inert second coordinate: not watched
                 pad = np.full(g.step.size - self.research.size, np.inf)
                 self.timing = GenerationTime(np.r_[self.research, pad], g.popsize)

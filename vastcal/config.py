@@ -272,8 +272,6 @@ class CalibrationSettings:
     """CMA-ES stops when the cost varies less than this."""
     popsize: int | None = None
     """CMA-ES population (null: cma's default 4 + 3 ln F)."""
-    restarts: Literal["none", "ipop", "bipop"] = "none"
-    """CMA-ES restarts within every level; with restarts a level spends its whole ``max_evaluations``."""
     level_handover: float = field(default=0.1, metadata=_range(0.0, 1.0))
     """Every level but the last ends when its step moves the image by less than this share of the smallest initial
     step the next level starts with (0: on ``tolx`` only; docs/calibration.md, "Where a coarse level hands over")."""

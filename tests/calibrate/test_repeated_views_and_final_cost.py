@@ -1,9 +1,8 @@
 """A view at the position of another a turn later is imported (Middlebury dinoRing's 48th view is its 2nd camera
-again); CMA-ES restarts spend their budget and keep the best run."""
+again)."""
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.util as _importlib_util
 from pathlib import Path
 
@@ -11,7 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-from vastcal.calibrate import calibrate_views
 from vastcal.errors import ImportDataError
 from vastcal.geometry import decompose_circular, shift_pixels
 from vastcal.importer import CameraFile, import_folder, read_cameras
@@ -64,40 +62,3 @@ def test_dino_ring_imports_all_48_views_with_its_true_angles(tmp_path: Path) -> 
         np.testing.assert_allclose(ss.known_cameras, shift_pixels(P, 0, 0))
 
 
-def _rastrigin(X: np.ndarray) -> np.ndarray:
-    """A multimodal cost on [−1, 1]^F (box units), global minimum 0 at x = 0.3."""
-    Z = 5.0 * (np.asarray(X) - 0.3)
-    return np.sum(Z * Z - 10.0 * np.cos(2 * np.pi * Z) + 10.0, axis=1)
-
-
-@pytest.mark.parametrize("restarts", ["ipop", "bipop"])
-def test_restarts_spend_the_budget_and_keep_the_best_run(restarts: str) -> None:
-    from vastcal.calibrate.optimise import SearchOptions, minimise
-
-    kw = dict(sigma0=0.3, stds=np.ones(4))
-    options = SearchOptions(6000, 1e-6, 1e-9)
-    wins = 0
-    for seed in range(4):
-        one = minimise(_rastrigin, np.full(4, -0.8), seed=seed, options=options, **kw)  # type: ignore[arg-type]
-        r = minimise(
-            _rastrigin, np.full(4, -0.8), seed=seed, options=dataclasses.replace(options, restarts=restarts), **kw
-        )  # type: ignore[arg-type]
-        runs = {k.split(":")[0] for k in r.stop}
-        assert len(runs) >= 2 and 6000 <= r.n_evaluations <= 6000 + 64 + 2 * len(
-            runs
-        )  # cma ends a generation; 2 re-scorings a run
-        assert r.f_best == pytest.approx(float(_rastrigin(r.x_best[None])[0]))
-        assert r.f_best <= min(r.trace_best) + 1e-12 and all(np.diff(r.trace_evals) > 0)
-        wins += r.f_best < one.f_best - 1e-9
-        assert r.f_best <= one.f_best + 1e-9 or wins  # never worse than one run unless it already won elsewhere
-    assert wins >= 2
-
-
-def test_unknown_restart_strategy_is_one_clear_error(views: np.ndarray, truth: np.ndarray) -> None:
-    import synthetic as sy
-
-    from vastcal.errors import UserInputError
-
-    K, d = sy.camera()
-    with pytest.raises(UserInputError, match="restarts: expected one of none, ipop, bipop"):
-        calibrate_views(views, K, d, truth, settings=dataclasses.replace(FAST, restarts="lbfgs"))

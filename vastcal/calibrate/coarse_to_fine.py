@@ -4,13 +4,10 @@ Each level (:class:`vastcal.config.Level`) resizes the specimen maps to its widt
 specimen can be with about ``voxels`` voxels, and builds the method's objective there (:meth:`.problem.Problem.level`,
 the objective factory); :func:`search_level` runs CMA-ES on it from the previous level's best θ with a smaller step;
 then the level stages that apply (:data:`.run.LEVEL_STAGES`) move it. By default the first level (¼ width) moves only
-the axis (yaw, pitch, γ) with the rolls at their commanded angles, and the last moves everything on sharper maps.
-Measured on ZF1 (3 seeds): letting the first level's wide search move the rolls too left them 2° RMS apart between
-seeds and at a *higher* final cost than the commanded angles have; axis first, with the weak prior, 0.28° apart.
-
-Conditioning: in box units one step of γ moves the specimen's image ~50 px, one of a roll ~0.4 px (RMS over the
-views). The last level therefore starts with per-coordinate steps inversely proportional to each coordinate's image
-motion (:meth:`.parameters.ParameterSpace.image_sensitivity`): on ZF1 0.06° apart over 5 seeds instead of 0.24°.
+the axis (yaw, pitch, γ) with the rolls at their commanded angles, and the last moves everything on sharper maps,
+starting with per-coordinate steps inversely proportional to each coordinate's image motion
+(:meth:`.parameters.ParameterSpace.image_sensitivity`): in box units one step of γ moves the specimen's image ~50 px,
+one of a roll ~0.4 px. Why, with measurements: decision 0002.
 """
 
 from __future__ import annotations
@@ -92,10 +89,8 @@ def search_level(
     research = None
     if isinstance(data, CoherenceObjective) and not data.per_candidate:
         research = data.research_deg / space.half_width[space.free_mask][sel]
-    observer = clock.level(
-        run.name, base, lv.max_evaluations, resolution is not None and st.restarts == "none", research
-    )
-    options = SearchOptions(lv.max_evaluations, st.tolx, st.tolfun, st.popsize, st.restarts, resolution)
+    observer = clock.level(run.name, base, lv.max_evaluations, resolution is not None, research)
+    options = SearchOptions(lv.max_evaluations, st.tolx, st.tolfun, st.popsize, resolution)
     res = minimise(batch, x[sel], lv.sigma0, stds, seed=seed, options=options, observer=observer)
     x = x.copy()
     x[sel] = res.x_best

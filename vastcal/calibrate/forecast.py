@@ -1,27 +1,16 @@
 """When a CMA-ES run will stop: the forecast that plans a coarse level's end (and that the progress display reads).
 
-* :class:`CMAStopForecast` — evaluations left in one CMA-ES run. The run stops on ``tolx`` (every coordinate's
-  step, σ·√diag C, and its evolution path below the tolerance), on ``maxfevals``, or later on other criteria.
-  Once a run converges, the step shrinks about geometrically per generation, so the logarithm of the ``tolx``
-  quantity falls about linearly: the generations left are the distance from its recent low (the criterion fires
-  on a dip) to log ``tolx``, over the slope of the step's logarithm fitted to the recent half of the run (the
-  first generations explore and say nothing of the convergence rate), bounded by the evaluations the budget
-  still allows — the whole budget when even the fastest descent the fit allows (slope less twice its standard
-  error) would not reach ``tolx`` first. While the recent half shows no descent (a slope within twice its
-  standard error of zero: the search explores, at first or again after finding a new basin) and the budget is
-  not sure to end it first, the forecast is unknown and the ETA shows "?": the budget alone is an upper bound
-  several times the truth there, and a near-flat slope's extrapolation is noise (measured: ETAs of 3-5 s for
-  0.5 s left on simulated rig 4).
-  Measured limit (``benchmarks/progress_eta.py``): on the simulated rig the step often settles on the
-  cost's noise floor a few times above ``tolx`` and the run ends when it happens to dip below; that moment
-  is random and no forecast from the run's history gets it to within 30 % near the end.
-  With ``planned=True`` (a level that hands over to a finer one, :func:`vastcal.calibrate.optimise.minimise`'s
-  ``resolution``) the forecast is also the stopping rule: it is revised every generation until the generations
-  run reach a third (:attr:`CMAStopForecast.PLAN_AT`) of the forecast run's length, then frozen, and the run ends
-  at the frozen generation (:meth:`CMAStopForecast.planned_end`). The end is then known over the whole second
-  half of the run. Why not stop on the crossing itself: the step's way down is a noisy random walk with a drift,
-  and its first passage below any tolerance is random near the end, so no forecast of it holds near the end
-  (measured: docs/calibration.md, "Where a coarse level hands over").
+:class:`CMAStopForecast` — evaluations left in one CMA-ES run, which stops on ``tolx`` (every coordinate's step,
+σ·√diag C, and its evolution path below the tolerance), on ``maxfevals``, or later on other criteria. Once a run
+converges the step shrinks about geometrically per generation, so the logarithm of the ``tolx`` quantity falls
+about linearly: the generations left are the distance from its recent low to log ``tolx`` over the slope fitted to
+the recent half of the run, bounded by the evaluations the budget still allows. While that half shows no descent
+(a slope within twice its standard error of zero) and the budget is not sure to end the run first, the forecast
+is unknown (the ETA shows "?"). With ``planned=True`` (a level that hands over to a finer one) the forecast is
+also the stopping rule: revised every generation until a third (:attr:`CMAStopForecast.PLAN_AT`) of the forecast
+length, then frozen, and the run ends at the frozen generation (:meth:`CMAStopForecast.planned_end`), so the end
+is known over the whole second half of the run. Why, and how right it is: docs/calibration.md ("Where a coarse
+level hands over"), ``benchmarks/progress_eta.py``.
 """
 
 from __future__ import annotations
@@ -38,7 +27,6 @@ class CMAStopForecast:
         tolx: the run's ``tolx`` (box units).
         max_evaluations: the run's evaluation budget (``maxfevals``).
         popsize: evaluations per generation (λ).
-        spend_budget: the caller restarts until the budget is spent (IPOP/BIPOP): the budget left is the forecast.
     """
 
     #: fewest generations the slope is fitted over (the slope's error grows as w^-1.5 with the window w)
@@ -50,14 +38,11 @@ class CMAStopForecast:
     #: up to 2x the last ones), so the half of its wall time comes before the half of its generations
     PLAN_AT = 1.0 / 3.0
 
-    def __init__(
-        self, tolx: float, max_evaluations: float, popsize: int, *, spend_budget: bool = False, planned: bool = False
-    ) -> None:
+    def __init__(self, tolx: float, max_evaluations: float, popsize: int, *, planned: bool = False) -> None:
         self.log_tolx = math.log(float(tolx))
         self.max_evaluations = float(max_evaluations) if max_evaluations else math.inf
         self.popsize = max(1, int(popsize))
-        self.spend_budget = spend_budget
-        self.planned = planned and not spend_budget
+        self.planned = planned
         self.logs: list[float] = []  # log of the tolx quantity (what the criterion compares)
         self.trend: list[float] = []  # log of the step alone (its trend, with less noise than the evolution path's)
         self.plan: int | None = None  # planned: the generation (1-based count) the run ends at, once frozen
@@ -92,7 +77,7 @@ class CMAStopForecast:
         if self.plan is not None:  # frozen: the run ends at the planned generation
             gens: float = max(self.plan - n, 0)
         else:
-            gens = math.inf if self.spend_budget else self.generations_to_tolx(budget_left / self.popsize)
+            gens = self.generations_to_tolx(budget_left / self.popsize)
             if self.planned and gens == gens and gens * self.popsize < budget_left:
                 end = n + max(1, math.ceil(gens))  # the end the forecast sees now, in generations run
                 if n >= self.PLAN_AT * end:  # that share run: the plan is frozen (the second half's end is then known)

@@ -1,50 +1,27 @@
 """Silhouette coherence of the probability maps: the objective that is stationary at the truth.
 
-Why not the voxel sum alone
----------------------------
-The paper's joint likelihood Σ_j [log P_f(Q_j) − log P_b(Q_j)] over a fixed voxel set is, in
-effect, a soft visual-hull *volume* (:mod:`.objective_pi`). Nothing makes that volume largest at
-the true cameras: measured on the ETH turntable with its ground-truth cameras, it grows
-monotonically with yaw and with some views' rolls through the truth, and on exact synthetic views
-it has no stationary point at the true rolls. A criterion that *is* optimal at the truth is
-silhouette coherence (Hernández, Schmitt & Cipolla, 2007): the visual hull of all views projects
-onto every silhouette exactly when — and only when — the cameras agree with the images.
+The derivation is in docs/method.md ("vastcal's silhouette-coherence cost"); in short (Hernández, Schmitt &
+Cipolla, 2007): the visual hull of all views projects onto every silhouette exactly when the cameras agree with
+the images. For an edge of view i — a sub-pixel point where p_f crosses ½ on a scan line across the axis image,
+whose back-projected ray grazes the specimen — the residual
 
-The residual of one silhouette edge
------------------------------------
-Take view i and a pixel on its silhouette boundary, where the foreground posterior p_f crosses ½
-(sub-pixel, along scan lines perpendicular to the projected rotation axis). Its back-projected ray
-is tangent to the specimen. With consistent cameras, the hull of the *other* views reaches that
-ray: some point of the ray lies inside every other silhouette. So
+    r = max_s  min′_{j ≠ i}  sd_j( P_j · X_i(s) )          (pixels)
 
-    r = max_s  min_{j ≠ i}  sd_j( P_j · X_i(s) )          (pixels)
+is ≥ 0 for coherent cameras and < 0 where silhouette i sticks out of the others' hull. X_i(s) samples the ray
+over the depths where the specimen can be, sd_j is the signed distance to silhouette j's boundary (positive
+inside, at twice the map resolution, clamped), min′ the second smallest over the partner views
+(:func:`partner_views`). The cost C(θ) = Σ_edges w · c · tanh(σ · softplus(−r/σ) / c) is ≈ 0 when every edge ray
+touches the others' hull and grows with the gap; the empty hull is the *worst* case, so the cost cannot be gamed
+by pulling the views apart.
 
-where X_i(s) samples the ray over the depths where the specimen can be, and sd_j is the signed
-distance to the boundary of silhouette j (positive inside, from the posterior's ½ level at twice
-the map resolution, clamped to ±``clamp_px``), is ≥ 0 for coherent cameras and < 0 where silhouette
-i sticks out of the others' hull. The cost is the smooth one-sided penalty
-
-    C(θ) = Σ_edges  softplus(−r / σ) · σ          (σ ≈ ⅓ pixel; minimised)
-
-which is ≈ 0 when every edge ray touches the others' hull and grows linearly with the gap. The
-empty hull is the *worst* case here (every r < 0), so, unlike a volume, the cost cannot be gamed
-by pulling the views apart. The maximum along the ray is searched over the ray's chord through
-the cylinder where the specimen can be, about one pixel per step as seen from the other views (a
-coarser grid steps over thin parts, such as a statue's limbs; on long chords only the samples a
-Lipschitz bound cannot rule out are read, with the same maximum), then refined by zooming and a
-parabola through the best three samples, so its error is a small fraction of a pixel.
-
-What it cannot see: with a nearly orthographic camera looking perpendicular to the axis, every view
-images the same slices, epipolar lines are perpendicular to the axis and the frontier points only
-constrain positions along it — the per-view rolls and a tilt of the axis towards the camera are then
-nearly free (see the README, "What it does and does not recover"); the calibration's prior decides them.
-
-Everything is batched over the CMA-ES population: (B, N, R, S) ray points are projected into all
-N views at once and the N signed-distance maps are sampled with one ``cv2.remap`` on an atlas. By
-default the depth search is done once for the population's mean θ and every candidate reads a small
-window around those depths, slid along its own ray where its maximum lies beyond (fast, but a
-candidate's cost still depends slightly on its population); ``per_candidate=True`` searches every
-candidate's own rays in full.
+The maximum along a ray is searched over its chord through the cylinder where the specimen can be, about one
+pixel per step as seen from the other views (a coarser grid steps over thin parts; on long chords only the samples
+a Lipschitz bound cannot rule out are read, with the same maximum), then refined by zooming and a parabola through
+the best three samples. Everything is batched over the CMA-ES population: (B, N, R, S) ray points are projected
+into the partner views and the signed-distance maps sampled with one ``cv2.remap`` on an atlas. By default the
+depth search is done once for the population's mean θ and every candidate reads a small window around those
+depths, slid along its own ray where its maximum lies beyond; ``per_candidate=True`` searches every candidate's
+own rays in full (its cost then does not depend on its batch).
 """
 
 from __future__ import annotations
@@ -56,7 +33,7 @@ import cv2
 import numpy as np
 
 from vastcal.calibrate.objective import LevelMaps
-from vastcal.calibrate.sampling import Atlas
+from vastcal.calibrate.sampling import REMAP_LIMIT, Atlas
 from vastcal.config import CalibrationSettings
 from vastcal.geometry import axis_crossings, axis_origin_in_camera, projection_matrices, rot_x, rot_y, rot_z
 from vastcal.segmentation.silhouette_edges import EdgeSamples, signed_distance_maps, silhouette_edges
@@ -68,10 +45,8 @@ log = logging.getLogger(__name__)
 #: The chord search's first pass reads every this many samples (:meth:`CoherenceObjective._chord_profiles`).
 CHORD_STRIDE = 4
 
-#: Chords of fewer samples are searched at every sample: the bound leaves about half of a short chord's samples to read
-#: (ZF1: 48 %), in two passes whose fixed costs then outweigh what it saves. Measured per full search (mean over a
-#: calibration, dense against bounded): 36-view turntable (`benchmarks/turntable_speed.py --chords`), 256 samples
-#: 97–99 → 48–59 ms, 152 samples 28–30 → 26–29 ms; ZF1, 55 samples 10–11 → 12–13 ms, 72 samples 15 → 16–17 ms.
+#: Chords of fewer samples are searched at every sample: on short chords the bound leaves about half the samples to
+#: read, in two passes whose fixed costs outweigh what it saves (`benchmarks/turntable_speed.py --chords`).
 CHORD_BOUND_MIN_SAMPLES = 192
 
 #: Bound on how fast a ray's profile can change per pixel its samples move in a partner view: √2 (the bilinear
@@ -107,14 +82,10 @@ def coherence_atlas(pf: np.ndarray, level: float = 0.5, clamp_px: float = 6.0, u
 def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
     """(N, K) the views against which each view's edge rays are checked, K = min(N − 1, ``max_partners``).
 
-    The residual of an edge ray of view i needs the visual hull of *other* views, not of all of them:
-    the hull of a revolution of K + 1 evenly spread views already pins the ray down to a fraction of a
-    pixel (a view at φ from i sees the ray as a line ∝ |sin φ| long; views near 0° or 180° see it
-    nearly end-on). With all N − 1 others the cost would grow as N² (every ray against every view);
-    with K fixed it grows as N, and more views add more edge rays (more information) instead of a
-    tighter hull for each. With N − 1 ≤ K every other view is used (in index order). Otherwise the
-    other views are sorted by their angle from view i, (ω_j − ω_i) mod 360°, and K of them are taken
-    evenly spread in that order (a regular revolution: evenly spread in angle, as a K + 1-view one).
+    The hull of K + 1 views spread around the revolution already pins an edge ray down to a fraction of a pixel (a
+    view at φ from i sees the ray as a line ∝ |sin φ| long), so with K fixed the cost grows as N instead of N², and
+    more views add edge rays instead of a tighter hull for each. With N − 1 ≤ K every other view is used (in index
+    order); otherwise the others, sorted by their angle from view i, (ω_j − ω_i) mod 360°, are taken K evenly spread.
 
     Args:
         angles_deg: (N,) roll angles of the views, degrees (commanded or current).
@@ -128,9 +99,8 @@ def partner_views(angles_deg: np.ndarray, max_partners: int) -> np.ndarray:
     rel = np.mod(a[None, :] - a[:, None], 360.0)  # (N, N): angle of view j seen from view i
     rel[np.arange(n), np.arange(n)] = np.inf  # own view last
     order = np.argsort(rel, axis=1, kind="stable")[:, : n - 1]
-    pos = np.clip(np.rint(np.arange(1, k + 1) * n / (k + 1) - 1), 0, n - 2).astype(
-        np.intp
-    )  # the m-th of K + 1 even steps
+    # the m-th of K + 1 even steps
+    pos = np.clip(np.rint(np.arange(1, k + 1) * n / (k + 1) - 1), 0, n - 2).astype(np.intp)
     return np.ascontiguousarray(order[:, pos])
 
 
@@ -139,19 +109,16 @@ class RaySearch:
     """How the coherence cost searches each edge ray for the others' hull.
 
     Attributes:
-        stages: samples of each zoom stage after the first (each spans ±1 step of the previous stage around its best
-            sample). The first stage samples the ray's chord through the cylinder of the specimen's radius about the
-            axis at about one pixel of the level per step (as seen from the other views), so that no thin part of the
-            specimen falls between samples; at most ``max_first_stage`` samples.
+        stages: samples of each zoom stage after the first (each over ±1 step of the previous one around its best).
+            The first samples the ray's chord through the specimen's cylinder at about one level pixel per step (as
+            seen from the other views), at most ``max_first_stage`` samples.
         window, window_px: samples and half-width of the per-candidate window around the peaks; the half-width is
             ``window_px`` pixels of the level at the axis distance.
-        max_slides: how often a ray's window may slide to bracket its maximum
-        (:meth:`CoherenceObjective._follow_rising_ends`).
+        max_slides: how often a ray's window may slide to bracket its maximum (:meth:`~CoherenceObjective._local_max`).
         research_deg: repeat the full search along the rays when the population mean has moved more than this
             (degrees, any entry) since the last one.
         max_points: bound of the ray samples × partner views held at once (memory ~40 bytes each).
-        max_partners: each edge ray is checked against at most this many other views (:func:`partner_views`); time
-            and memory then grow linearly with the number of views.
+        max_partners: each edge ray is checked against at most this many other views (:func:`partner_views`).
     """
 
     stages: tuple[int, ...] = (7, 7, 7)
@@ -186,13 +153,9 @@ class CoherenceObjective:
         radius_um: the specimen lies within this distance of the axis (sets the depth range of the rays).
         per_candidate: every candidate searches its own rays in full (its cost does not depend on its batch).
         angles_deg: (N,) roll angles that choose the partners (default: the first θ evaluated).
-        local_zooms: zoom stages (``window`` samples over ± one step of the last, around the best) that refine
-            every ray's maximum, so that a candidate's maximum is read as finely as the batch mean's own, found by
-            the full search (:meth:`_local_max`).
+        local_zooms: zoom stages that read each candidate's ray maxima as finely as the mean's (:meth:`_local_max`).
         penalty, search: :class:`Penalty` and :class:`RaySearch`.
     """
-
-    name = "pi-coherence"
 
     def __init__(
         self,
@@ -208,39 +171,29 @@ class CoherenceObjective:
         penalty: Penalty = Penalty(),
         search: RaySearch = RaySearch(),
     ) -> None:
-        stages, window, window_px, max_slides = search.stages, search.window, search.window_px, search.max_slides
-        max_first_stage, research_deg, max_points = search.max_first_stage, search.research_deg, search.max_points
-        sigma_px, trim, cap_px, max_partners = penalty.sigma_px, penalty.trim, penalty.cap_px, search.max_partners
         self.atlas = sd if isinstance(sd, Atlas) else Atlas.from_stack(np.asarray(sd, np.float32))
         self.edges = edges
         self.K = np.asarray(K, float)
         self.Kinv = np.linalg.inv(self.K).astype(np.float32)
         self.distance = float(distance)
         self.radius = float(radius_um)
-        self.stages = tuple(int(c) for c in stages)
-        self.window = int(window)
+        self.stages = tuple(int(c) for c in search.stages)
+        self.window, self.max_slides, self.research_deg = search.window, search.max_slides, search.research_deg
+        self.max_points, self.max_partners = search.max_points, search.max_partners
+        self.sigma, self.trim, self.cap_px = float(penalty.sigma_px), int(penalty.trim), float(penalty.cap_px)
         self.local_zooms = int(local_zooms)
-        self.max_slides = int(max_slides)
-        self.footprint_um = self.distance / float(
-            np.sqrt(abs(np.linalg.det(self.K[:2, :2])))
-        )  # one pixel at the axis, µm
-        self.window_um = float(window_px) * self.footprint_um
-        self.first_stage = int(np.clip(np.ceil(2.0 * self.radius / self.footprint_um) + 1, 12, max_first_stage))
+        self.per_candidate = bool(per_candidate)
+        # one pixel at the axis, µm
+        self.footprint_um = self.distance / float(np.sqrt(abs(np.linalg.det(self.K[:2, :2]))))
+        self.window_um = float(search.window_px) * self.footprint_um
+        self.first_stage = int(np.clip(np.ceil(2.0 * self.radius / self.footprint_um) + 1, 12, search.max_first_stage))
         self.z_peak = np.zeros(edges.weight.shape, np.float32)
         self._searched_at: np.ndarray | None = None
-        self.research_deg = float(research_deg)
-        self.per_candidate = bool(per_candidate)
-        self.trim = int(trim)
-        self.cap_px = float(cap_px)
-        self.sigma = float(sigma_px)
-        self.max_points = int(max_points)
-        self.max_partners = int(max_partners)
         self.partners: np.ndarray | None = None if angles_deg is None else partner_views(angles_deg, self.max_partners)
         n, r, _ = edges.uv.shape
         homog = np.concatenate([edges.uv, np.ones((n, r, 1), np.float32)], -1)
-        self.rays_cam = np.einsum("ij,nrj->nri", self.Kinv, homog).astype(
-            np.float32
-        )  # (N, R, 3) camera-frame directions, z = 1
+        # (N, R, 3) camera-frame directions of the edge rays, z = 1
+        self.rays_cam = np.einsum("ij,nrj->nri", self.Kinv, homog).astype(np.float32)
         self.weight = edges.weight / max(float(edges.weight.sum()), 1.0)
         self.n_evaluations = 0
 
@@ -253,13 +206,10 @@ class CoherenceObjective:
     def residuals(self, theta_deg: np.ndarray) -> np.ndarray:
         """r (B, N, R) in pixels: how far the others' hull reaches beyond each edge ray (≥ 0 coherent).
 
-        The depth of each ray's maximum is searched in full (successive zooms) for the population's
-        mean θ; every candidate is then evaluated on a small window around those depths, with a
-        parabolic fit through the best three samples. Candidates of one CMA-ES generation differ by
-        a fraction of a degree, which moves the maximum by a few µm, well inside the window.
-        The full search along the whole chord is repeated only when the mean has moved by more than
-        ``research_deg`` in some entry since the last one; otherwise the zoom stages start from the
-        previous peaks (a few pixels either side), which is all a converging CMA-ES needs.
+        Each ray's maximum is searched in full for the population's mean θ (again only when the mean has moved more
+        than ``research_deg`` in some entry; otherwise zoomed around the previous peaks); every candidate is then read
+        on a small window around those depths (:meth:`_local_max`). Candidates of one CMA-ES generation differ by a
+        fraction of a degree, which moves the maximum by a few µm, well inside the window.
         """
         th = np.atleast_2d(np.asarray(theta_deg, float))
         out = np.empty((th.shape[0],) + self.edges.weight.shape, np.float32)
@@ -362,9 +312,8 @@ class CoherenceObjective:
         k = J.shape[1]
         out = np.empty((b, n, r, s), np.float32)
         threads = compute_threads()
-        step = max(
-            1, self.max_points // max(1, b * r * s * k * threads)
-        )  # the memory bound holds with every thread busy
+        # the memory bound holds with every thread busy
+        step = max(1, self.max_points // max(1, b * r * s * k * threads))
         step = min(step, -(-n // threads))  # at least one slice per thread
 
         def views_slice(a: int) -> None:
@@ -427,8 +376,7 @@ class CoherenceObjective:
         """Like :meth:`_sample_min_others` for an irregular set of M rays: homogeneous points pts4 (M, 4, S) µm
         (:meth:`_ray_points`), all cameras P (B, N, 3, 4), each ray's candidate (M,) and its own view ``own`` (M,);
         returns (M, S)."""
-        assert self.partners is not None
-        J = self.partners[own]  # (M, K)
+        J = self._partner_table(P.shape[1])[own]  # (M, K)
         Pj = P[candidate[:, None], J]  # (M, K, 3, 4): each ray's partners
         vals = self._project_sample(Pj, pts4, J)  # (M, K, S)
         return self._robust_min(vals)
@@ -440,24 +388,17 @@ class CoherenceObjective:
         (padded) and remapped in blocks of rows.
         """
         rows, cols = u.shape
-        if cols < 32767 and rows < 32767:
-            return cv2.remap(self.atlas.image, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+        def remap(uu: np.ndarray, vv: np.ndarray) -> np.ndarray:
+            return cv2.remap(self.atlas.image, uu, vv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+        if cols < REMAP_LIMIT and rows < REMAP_LIMIT:
+            return remap(u, v)
         m, width, block = u.size, 1024, 16384  # rows of the re-cut maps per remap call (< 32767)
         pad = (-m) % width
         uf = np.concatenate([u.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
         vf = np.concatenate([v.ravel(), np.zeros(pad, np.float32)]).reshape(-1, width)
-        out = np.concatenate(
-            [
-                cv2.remap(
-                    self.atlas.image,
-                    uf[k : k + block],
-                    vf[k : k + block],
-                    cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE,
-                )
-                for k in range(0, uf.shape[0], block)
-            ]
-        )
+        out = np.concatenate([remap(uf[k : k + block], vf[k : k + block]) for k in range(0, uf.shape[0], block)])
         return out.ravel()[:m].reshape(rows, cols)
 
     def _search_peaks(
@@ -511,9 +452,8 @@ class CoherenceObjective:
         if s < CHORD_BOUND_MIN_SAMPLES:
             return self._sample_min_others(R, t, Z, P, views)
         coarse = np.unique(np.r_[np.arange(0, s, CHORD_STRIDE), s - 1])
-        per_sample = self._chord_image_speed(R, t, P, Z[..., 0], Z[..., -1], views) * (
-            Z[..., 1] - Z[..., 0]
-        )  # px a sample (B, n, R)
+        # px a sample (B, n, R)
+        per_sample = self._chord_image_speed(R, t, P, Z[..., 0], Z[..., -1], views) * (Z[..., 1] - Z[..., 0])
         vc = self._sample_min_others(R, t, np.ascontiguousarray(Z[..., coarse]), P, views)
         out = np.full(Z.shape, -np.inf, np.float32)
         out[..., coarse] = vc
@@ -521,9 +461,8 @@ class CoherenceObjective:
         bound = 0.5 * (
             vc[..., :-1] + vc[..., 1:] + np.float32(CHORD_LIPSCHITZ) * per_sample[..., None] * gaps.astype(np.float32)
         )
-        open_gap = (bound >= vc.max(axis=-1, keepdims=True)) & (
-            gaps > 1
-        )  # (B, n, R, G); a NaN bound (no finite speed) stays open
+        # (B, n, R, G); a NaN bound (no finite speed) stays open
+        open_gap = (bound >= vc.max(axis=-1, keepdims=True)) & (gaps > 1)
         open_gap |= np.isnan(bound) & (gaps > 1)
         counts = open_gap.sum(axis=(2, 3))  # (B, n)
         width = int(counts.max())
@@ -532,15 +471,13 @@ class CoherenceObjective:
         # Each (candidate, view)'s open gaps in order, padded by repeating its first (or gap 0 of ray 0: read, not
         # kept).
         bi, ii, ri, gi = np.nonzero(open_gap)
-        slot = np.arange(bi.size) - np.repeat(
-            np.cumsum(counts.ravel()) - counts.ravel(), counts.ravel()
-        )  # rank within its (b, i)
+        # rank within its (b, i)
+        slot = np.arange(bi.size) - np.repeat(np.cumsum(counts.ravel()) - counts.ravel(), counts.ravel())
         ray_of, gap_of = np.zeros((b, n, width), np.intp), np.zeros((b, n, width), np.intp)
         ray_of[bi, ii, slot], gap_of[bi, ii, slot] = ri, gi
         valid = np.arange(width) < counts[..., None]  # (B, n, width)
-        inner = np.minimum(
-            coarse[gap_of][..., None] + np.arange(1, CHORD_STRIDE), (coarse[gap_of + 1] - 1)[..., None]
-        )  # (B, n, width, stride − 1)
+        # (B, n, width, stride − 1)
+        inner = np.minimum(coarse[gap_of][..., None] + np.arange(1, CHORD_STRIDE), (coarse[gap_of + 1] - 1)[..., None])
         bb, nn = np.arange(b)[:, None, None, None], np.arange(n)[None, :, None, None]
         zr = Z[bb, nn, ray_of[..., None], inner]
         own = np.arange(n) if views is None else np.asarray(views)
@@ -616,17 +553,12 @@ class CoherenceObjective:
     def _local_max(self, th: np.ndarray, z_peak: np.ndarray, views: np.ndarray | None = None) -> np.ndarray:
         """Residuals (B, N, R): each ray's maximum near ``z_peak`` (B, N, R), parabola-refined.
 
-        A window of ``window`` samples over ±``window_um`` around the given depths, slid along the ray
-        where its best sample is at an end (:meth:`_follow_rising_ends`), then a parabola through the
-        best sample and its neighbours. The maximum of a minimum over views is usually a kink, which
-        a parabola through samples straddling it under-estimates by up to ~¼ step × slope (measured
-        on ZF1: moving the 0.5 px grid by half a step changes the cost by ~10 %). The batch mean's own rays
-        are spared: their window is centred on the maxima its full search found, so every other candidate
-        pays that under-estimate and the mean does not — a pull towards the mean of the batch that ends a
-        search short of the minimum (a per-view polish whose trials ± h all look costlier than θ, though
-        searched alone they are not). ``local_zooms`` stages of ``window`` samples over ± one step around the
-        best sample (each a third of the step before: 0.5 → 0.06 px with two) put every candidate on the
-        mean's footing, at one window's sampling per stage.
+        A window of ``window`` samples over ±``window_um`` around the given depths, slid along the ray where its best
+        sample is at an end (:meth:`_follow_rising_ends`), then a parabola through the best sample and its
+        neighbours. The maximum of a minimum over views is usually a kink, which a parabola through samples straddling
+        it under-estimates by up to ~¼ step × slope — except for the batch mean, whose windows are centred on its own
+        maxima: a pull towards the batch mean. ``local_zooms`` stages of ``window`` samples over ± one step around the
+        best sample (each a third of the step before) put every candidate on the mean's footing.
         """
         R, t = self._poses(th)
         R, t = R.astype(np.float32), t.astype(np.float32)
@@ -668,12 +600,10 @@ class CoherenceObjective:
     ) -> None:
         """Slide the window of every ray whose profile rises to an end of it, until its maximum is bracketed.
 
-        The window sits at the population's peaks; a candidate far from the population mean may have
-        its own peak outside it. Its residual would then be under-estimated (the end sample), which
-        penalises exploration. Such rays — usually a few — get their window re-centred on that end
-        sample (half a window towards the rising end), up to ``max_slides`` times. Flat profiles (a
-        ray clamped outside or inside every view) stay. ``Z``, ``vals`` and ``best`` (B, N, R[, S])
-        are updated in place.
+        A candidate far from the population mean may have its peak outside the window at the population's peaks, and
+        its end sample would under-rate it (penalising exploration): such rays get their window re-centred half a
+        window towards the rising end, up to ``max_slides`` times. Flat profiles (a ray clamped outside or inside every
+        view) stay. ``Z``, ``vals`` and ``best`` (B, N, R[, S]) are updated in place.
         """
         count = Z.shape[-1]
         for _ in range(self.max_slides):
@@ -684,16 +614,13 @@ class CoherenceObjective:
                 return
             b, i, r = np.nonzero(ends)
             direction = np.where(best[b, i, r] == 0, -1.0, 1.0).astype(np.float32)
-            zr = (
-                Z[b, i, r] + (direction * 0.5 * (Z[b, i, r, -1] - Z[b, i, r, 0]))[:, None]
-            )  # (M, S): centred on the old best
+            # (M, S): centred on the old best
+            zr = Z[b, i, r] + (direction * 0.5 * (Z[b, i, r, -1] - Z[b, i, r, 0]))[:, None]
             zr = np.maximum(zr, np.float32(1e-3 * self.distance))
             own = i if views is None else views[i]
             pts4 = self._ray_points(self.rays_cam[own, r][:, None], R[b, i], t[b], zr[:, None])[:, :, 0]  # (M, 4, S)
-            assert self.partners is not None
-            step = max(
-                1, self.max_points // (self.partners.shape[1] * count)
-            )  # rays per chunk: memory as in the batched path
+            # rays per chunk: memory as in the batched path
+            step = max(1, self.max_points // (self._partner_table(Pm.shape[1]).shape[1] * count))
             v = np.concatenate(
                 [
                     self._min_others_of_rays(pts4[c : c + step], Pm, b[c : c + step], own[c : c + step])

@@ -7,7 +7,8 @@ is where the speed comes from (no Python loop over candidates or views).
 * Search space: x ∈ [−1, 1]^F (see :mod:`.parameters`), enforced by cma's ``bounds`` option
   (its boundary transformation keeps every evaluated point inside the box).
 * Step sizes: a global σ0 in box units times per-parameter ``CMA_stds``.
-* Stopping: cma's ``tolx`` (in box units) and ``tolfun``, plus ``maxfevals``; with a per-coordinate
+* One run, no restarts (decision 0051). Stopping: cma's ``tolx`` (in box units) and ``tolfun``, plus ``maxfevals``;
+  with a per-coordinate
   ``resolution`` (a level that hands over to a finer one) the run ends at the generation its step's descent
   was planned to reach that resolution (:class:`.forecast.CMAStopForecast` with ``planned=True``).
 * Progress: none here. A :class:`SearchObserver` is told every generation (:class:`Generation`); the display's
@@ -78,32 +79,24 @@ class CMAResult:
     popsize: int = 0
 
 
-RESTARTS = ("none", "ipop", "bipop")
-
-
 @dataclass(frozen=True)
 class SearchOptions:
     """How one :func:`minimise` searches and stops.
 
     Attributes:
-        max_evaluations: budget of objective evaluations (of all restarts together).
+        max_evaluations: budget of objective evaluations.
         tolx, tolfun: cma stopping tolerances (box units, cost units).
         popsize: λ (None: cma's default 4 + 3 ln F).
-        restarts: ``"none"`` (one run), ``"ipop"`` (Auger & Hansen 2005: whenever a run stops on its own criteria
-            while budget remains, restart from x0 with twice the population) or ``"bipop"`` (Hansen 2009: IPOP's
-            large-population regime interleaved with short local runs of small random populations and
-            σ0 × 10^(−2u), u ~ U(0, 1), while the small regime has used less budget than the large).
         resolution: (F,) per-coordinate step (box units) fine enough for the caller (a coarse level's: the step that
-            moves the image less than the next level starts its search with); None: off. Without restarts the run
-            ends at the generation its step's descent, fitted and frozen a third of the way, reaches it (stop
-            ``resolution``; it replaces ``tolx``), or earlier on cma's other criteria or the budget.
+            moves the image less than the next level starts its search with); None: off. The run then ends at the
+            generation its step's descent, fitted and frozen a third of the way, reaches it (stop ``resolution``; it
+            replaces ``tolx``), or earlier on cma's other criteria or the budget.
     """
 
     max_evaluations: int
     tolx: float
     tolfun: float
     popsize: int | None = None
-    restarts: str = "none"
     resolution: np.ndarray | None = None
 
 
@@ -112,12 +105,11 @@ class Generation:
     """What an observer is told after every CMA-ES generation (box units).
 
     Attributes:
-        evaluations: evaluations so far in this :func:`minimise` (every restart).
-        best: the lowest cost of the current run so far.
+        evaluations: evaluations so far in this :func:`minimise`.
+        best: the lowest cost so far.
         left: the evaluations :class:`.forecast.CMAStopForecast` expects the run to have left (NaN: unknown).
         planned_slope: the planned descent of the log step per generation, once frozen (else None).
         plan_frozen: True in the one generation whose forecast froze the run's planned end.
-        spend_budget: restarts follow until the budget is spent (the budget left is the forecast).
         popsize: λ of the run.
         batch_mean, mean, step: the evaluated candidates' mean, the distribution's mean after the generation and
             every coordinate's step σ·√diag C.
@@ -128,7 +120,6 @@ class Generation:
     left: float
     planned_slope: float | None
     plan_frozen: bool
-    spend_budget: bool
     popsize: int
     batch_mean: np.ndarray
     mean: np.ndarray
@@ -151,7 +142,6 @@ def _generation(
         left=left,
         planned_slope=forecast.planned_slope(),
         plan_frozen=False,
-        spend_budget=forecast.spend_budget,
         popsize=int(es.popsize),
         batch_mean=X.mean(axis=0),
         mean=np.clip(np.asarray(es.mean, float), -1.0, 1.0),
@@ -165,16 +155,13 @@ def _one_run(
     x0: np.ndarray,
     sigma0: float,
     opts: dict[str, Any],
-    evals_before: int,
     observer: SearchObserver | None,
-    spend_budget: bool,
     resolution: np.ndarray | None,
 ) -> CMAResult:
     """One CMA-ES run; its best sample and its distribution mean are re-scored alone and the lower kept.
 
     ``resolution`` (F,) box units: the run ends at the generation planned for its step to fall below it in every
-    coordinate (stop reason ``resolution``). ``observer`` is told every generation, its evaluations counting
-    ``evals_before``."""
+    coordinate (stop reason ``resolution``). ``observer`` is told every generation."""
     res = CMAResult(x0.copy(), float("inf"), 0, 0, {})
     if resolution is not None:  # the resolution replaces tolx: one stopping rule, whose moment the plan knows
         opts = dict(opts, tolx=0.0)
@@ -184,7 +171,6 @@ def _one_run(
         float(opts["tolx"]) if per_unit is None else 1.0,
         float(opts.get("maxfevals", 0)),
         int(es.popsize),
-        spend_budget=spend_budget,
         planned=per_unit is not None,
     )
     planned_end, plan_told = False, False
@@ -197,7 +183,7 @@ def _one_run(
         i = int(np.argmin(f))
         if f[i] < res.f_best:
             res.f_best, res.x_best = float(f[i]), X[i].copy()
-        res.trace_evals.append(evals_before + res.n_evaluations)
+        res.trace_evals.append(res.n_evaluations)
         res.trace_best.append(res.f_best)
         if observer is None and per_unit is None:
             continue
@@ -205,7 +191,7 @@ def _one_run(
         left = forecast.add(quantity, res.n_evaluations, step)
         planned_end = forecast.planned_end()
         if observer is not None:
-            g = _generation(es, X, res, evals_before + res.n_evaluations, forecast, left)
+            g = _generation(es, X, res, res.n_evaluations, forecast, left)
             frozen = forecast.plan is not None and not plan_told
             plan_told = plan_told or frozen
             observer.generation(g if not frozen else dataclasses.replace(g, plan_frozen=True))
@@ -241,44 +227,6 @@ def _cma_options(stds: np.ndarray, options: SearchOptions) -> dict[str, Any]:
     }
 
 
-@dataclass
-class _Restarts:
-    """The restart schedule's state (:class:`SearchOptions`' ``restarts``)."""
-
-    kind: str
-    sigma0: float
-    seed: int
-    lam0: int | None
-    lam_large: int | None = None
-    used: dict[str, int] = field(default_factory=lambda: {"large": 0, "small": 0})
-
-    def __post_init__(self) -> None:
-        self.lam_large = self.lam0
-        self.rng = np.random.default_rng(int(self.seed) + 7919)
-
-    def next(self, k: int, opts: dict[str, Any]) -> tuple[float, str]:
-        """Run k's σ0 and regime; sets its population in ``opts``."""
-        sig, regime = float(self.sigma0), "large"
-        if k > 0 and self.kind == "bipop" and self.used["small"] < self.used["large"]:
-            u = self.rng.uniform()
-            regime, sig = "small", float(self.sigma0) * 10.0 ** (-2.0 * u)
-            ratio = self.lam_large / self.lam0  # type: ignore[operator]
-            lam = max(2, int(self.lam0 * ratio ** (self.rng.uniform() ** 2)))  # type: ignore[operator]
-            opts["popsize"] = lam
-            opts["maxfevals"] = int(min(opts["maxfevals"], max(lam, 0.5 * self.used["large"])))
-        elif k > 0:
-            self.lam_large = 2 * self.lam_large  # type: ignore[operator]
-            opts["popsize"] = self.lam_large
-        elif self.lam0:
-            opts["popsize"] = self.lam0
-        return sig, regime
-
-    def ran(self, k: int, regime: str, r: CMAResult) -> None:
-        if k == 0:
-            self.lam0 = self.lam_large = r.popsize
-        self.used[regime] += r.n_evaluations
-
-
 def minimise(
     objective: Callable[[np.ndarray], np.ndarray],
     x0: np.ndarray,
@@ -296,14 +244,10 @@ def minimise(
         x0: start (F,), inside [−1, 1].
         sigma0: initial step in box units; per-parameter steps are ``sigma0 · stds``.
         seed: reproducible seed (≥ 0).
-        options: budget, tolerances, population, restarts and resolution (:class:`SearchOptions`). With restarts the
-            best run (re-scored alone) is returned and ``stop`` holds every run's reasons; the resolution is then
-            ignored (restarts spend the budget).
+        options: budget, tolerances, population and resolution (:class:`SearchOptions`).
         observer: told every generation (:class:`Generation`).
     """
     cma = _cma()
-    if options.restarts not in RESTARTS:
-        raise ValueError(f"restarts: expected one of {RESTARTS}, got {options.restarts!r}")
     if np.size(x0) == 1:  # cma needs at least two dimensions: add an inert one
         res = options.resolution
         r = minimise(
@@ -317,42 +261,12 @@ def minimise(
         )
         r.x_best = r.x_best[:1]
         return r
-    base = _cma_options(stds, options)
+    opts = dict(_cma_options(stds, options), seed=int(seed) + 1, maxfevals=int(options.max_evaluations))
+    if options.popsize:
+        opts["popsize"] = int(options.popsize)
     x0 = np.clip(np.asarray(x0, float), -0.99, 0.99)
-    best: CMAResult | None = None
-    total, gens, k = 0, 0, 0
-    trace_e: list[int] = []
-    trace_f: list[float] = []
-    stops: dict[str, object] = {}
-    one = options.restarts == "none"
-    schedule = _Restarts(options.restarts, sigma0, seed, int(options.popsize) if options.popsize else None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # cma warns on flat fitness and such; we log its stop reasons instead
-        while total < options.max_evaluations:
-            opts = dict(base, seed=int(seed) + 1 + 1000 * k, maxfevals=int(options.max_evaluations - total))
-            sig, regime = schedule.next(k, opts)
-            r = _one_run(cma, objective, x0, sig, opts, total, observer, not one, options.resolution if one else None)
-            schedule.ran(k, regime, r)
-            total += r.n_evaluations
-            gens += r.n_generations
-            trace_e += r.trace_evals
-            trace_f += [min(f, best.f_best) if best else f for f in r.trace_best]
-            run = "" if one else f"run {k} ({regime}, popsize {r.popsize}): "
-            stops.update({run + key: v for key, v in r.stop.items()})
-            log.debug(
-                "CMA-ES run %d (%s, popsize %d): %d evaluations, f=%.6g",
-                k,
-                regime,
-                r.popsize,
-                r.n_evaluations,
-                r.f_best,
-            )
-            if best is None or r.f_best < best.f_best:
-                best = r
-            k += 1
-            if one or total >= options.max_evaluations:
-                break
-    assert best is not None
-    out = CMAResult(best.x_best, best.f_best, total, gens, stops, trace_e, trace_f)
-    log.debug("CMA-ES: %d evaluations in %d run(s), f=%.6g, stop %s", total, k, out.f_best, out.stop)
-    return out
+        r = _one_run(cma, objective, x0, sigma0, opts, observer, options.resolution)
+    log.debug("CMA-ES: %d evaluations, popsize %d, f=%.6g, stop %s", r.n_evaluations, r.popsize, r.f_best, r.stop)
+    return r

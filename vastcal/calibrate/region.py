@@ -1,18 +1,13 @@
-"""Where the specimen can be: the voxels that calibration evaluates.
+"""Where the specimen can be: the voxels whose extent sets the coherence cost's ray depths and the roll scans' image
+motion (the paper's PI and VR costs read a regular grid over the whole viewing box instead: :mod:`.objective_pi`).
 
-The PI and VR costs are sums over a *fixed* set of voxels. Voxels that no θ in the search box can
-bring inside every silhouette carry no information and, worse, voxels far from the axis can be
-"explained" by static dark structures — the two capillary walls are horizontal lines at the same
-image rows in every view; a bright ceiling corner behind a turntable is fixed too. No voxel near
-the axis projects onto such a line in *all* views (a rotating point sweeps rows), so a visual
-hull of the rough silhouettes carves them away — provided it is computed under θ0 with a
-tolerance that covers the whole search box.
-
-Tolerance: for each view i, τ_i (pixels) = max over candidate voxels of Σ_k |Δ_k uv| where Δ_k is
-the image displacement when free parameter k moves to either end of its box (θ0 ± h_k). The
-silhouettes are dilated by τ_i, the hull is carved on a coarse grid over the viewing box, τ is
-re-estimated on the survivors (tighter), carved again, and the survivors' bounding box is filled
-with a grid whose carved size is about the requested voxel count.
+Voxels far from the axis can be "explained" by static dark structures — the capillary walls image at the same rows
+in every view — but no voxel near the axis projects onto such a line in *all* views (a rotating point sweeps rows),
+so a visual hull of the rough silhouettes under θ0 carves them away, with a tolerance that covers the whole search
+box: per view, τ_i (pixels) = max over candidate voxels of Σ_k |Δ_k uv|, Δ_k the image displacement when free
+parameter k moves to either end of its box. The silhouettes are dilated by τ_i, the hull carved on a coarse grid over
+the viewing box, τ re-estimated on the survivors, carved again, and the survivors' bounding box filled with a grid
+whose carved size is about the requested voxel count.
 """
 
 from __future__ import annotations

@@ -1,19 +1,10 @@
 """The per-view roll scan: every free roll's cost over its whole box, the others held, to find views left in another
-basin (docs/calibration.md, "The per-view roll scan", for the reasoning and the measurements).
+basin; and the outlier views' scan on the judge. The reasoning and the measurements: docs/calibration.md ("The
+per-view roll scan", "Outlier views, scanned on the judge") and decision 0012.
 
-CMA-ES in many dimensions can leave single views in the wrong basin, and what follows it is local. So every free roll
-is scored over its whole box on a grid, the others held at x; the views whose scan finds a lower cost beyond what the
-next level's first steps reach are candidates; their joint move, the better half's and the best single move are
-judged on a batch-independent cost and the lowest is kept when it lowers that cost; rounds repeat while one keeps a
-move. View 0 (fixed, it defines 0°) is scanned through the gauge when every other roll is free: a common rotation
-about the axis leaves the coherence cost unchanged, so view 0 by d is every free roll by −d.
-
-The grid step is half of view v's narrowest basin half-width w_v = cap_px / max(m_v, m̄) (degrees): one edge's
-penalty saturates at ``cap_px`` level pixels, m_v is the RMS image motion (level pixels per degree) of the specimen
-region under v's roll, m̄ the RMS over the views (v's partners see its rays turn). A roll whose box range is no wider
-than w_v has room for one basin and is not scanned: a microscope's rolls barely move its image, so there nothing is.
-Each batch holds x and every scanned view's pair x ± j·s_v, so its mean is x and the fast cost's ray search (around
-the batch mean) is done once at x; far trials are somewhat over-rated, so every move is judged before it is kept.
+Grid steps are half of view v's narrowest basin half-width w_v = cap_px / max(m_v, m̄) degrees
+(:func:`basin_half_widths_deg`); a roll whose box range is no wider than w_v is not scanned. View 0 (fixed: it
+defines 0°) is scanned through the gauge when every other roll is free: view 0 by d is every free roll by −d.
 """
 
 from __future__ import annotations
@@ -265,16 +256,12 @@ def roll_scan(
     """Rounds of the per-view roll scan from x (judged cost ``f_judged``); returns (x, its judged cost, evaluations,
     report).
 
-    Each round plans the grid at x (``half_width_deg`` maps θ (3 + N,) degrees to every view's narrowest basin
-    half-width w_v, degrees: :func:`basin_half_widths_deg`), scans (:func:`scan_views`), and takes as candidates the
-    views whose best move lies beyond ``reach_deg`` (what the per-view polish that follows reaches on its own)
-    with a predicted gain above :data:`GAIN_RTOL` × ``share`` × the cost (``share``: the part of the cost one roll
-    enters, :func:`.stage_roll_scan.roll_share`). The joint move of all candidates, of the better half by gain and the
-    best
-    single move are scored on ``judge`` (batch-independent, with the prior); the lowest is kept if it is lower
-    than x's judged cost. A round that keeps nothing, or finds no candidate, ends the scan; at most
-    :data:`MAX_ROUNDS` rounds. ``on_round(r, evaluations)`` is told each round's planned evaluations before it
-    starts, ``on_batch(evaluations)`` the scan's evaluations so far (all rounds).
+    Each round plans the grid at x (:class:`ScanRule`), scans (:func:`scan_views`), and takes as candidates the
+    views whose best move lies beyond ``rule.reach_deg`` with a predicted gain above :data:`GAIN_RTOL` ×
+    ``rule.share`` × the cost. The joint move of all candidates, of the better half by gain and the best single
+    move are scored on ``judge`` (batch-independent, with the prior); the lowest is kept if it is lower than x's.
+    A round that keeps nothing ends the scan; at most :data:`MAX_ROUNDS` rounds. ``on_round(r, evaluations)`` is
+    told each round's planned evaluations, ``on_batch(evaluations)`` the scan's evaluations so far (all rounds).
     """
     half_width_deg, gauge, reach_deg, share = rule.half_width_deg, rule.gauge, rule.reach_deg, rule.share
     evals, rounds = 0, []
@@ -321,24 +308,14 @@ def roll_scan(
         best = int(np.argmin(fj))
         if fj[best] < f:
             moved = [c.view for c in unique[best]]
+            moves = ", ".join(f"{c.move_deg:+.2f}°" for c in unique[best])
             log.info(
-                "roll scan round %d: moved view(s) %s (%s), judged cost %.6g -> %.6g",
-                r + 1,
-                moved,
-                ", ".join(f"{c.move_deg:+.2f}°" for c in unique[best]),
-                f,
-                fj[best],
+                "roll scan round %d: moved view(s) %s (%s), judged cost %.6g -> %.6g", r + 1, moved, moves, f, fj[best]
             )
             x, f = X[best].copy(), float(fj[best])
             entry.update({"moved": moved, "moves_deg": [float(c.move_deg) for c in unique[best]], "judged_after": f})
         else:
-            log.info(
-                "roll scan round %d: no move of %d candidate view(s) lowered the judged cost %.6g (best %.6g)",
-                r + 1,
-                len(cand),
-                f,
-                float(fj[best]),
-            )
+            log.info("roll scan round %d: no move of %d candidate(s) lowered the judged cost %.6g", r + 1, len(cand), f)
             entry.update({"moved": [], "judged_after": f, "judged_candidates": fj.tolist()})
             break
     report = {
@@ -381,17 +358,12 @@ def scan_outlier_views(
     on_view: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, float, int, dict[str, Any]]:
     """A last look for views left in another basin: each outlier view's roll (:func:`outlier_views` of its own edge
-    rays'
-    cost at x) scored over its whole box on the batch-independent ``judge`` (with the prior), the others held.
+    rays' cost at x) scored over its whole box on the batch-independent ``judge`` (with the prior), the others held.
 
-    The per-view roll scan (:func:`roll_scan`) runs on a level's fast cost, whose far trials are read in windows
-    around x's ray depths: a view 17° off the truth (dinoRing's geometry with exactly consistent silhouettes) saw
-    no lower basin there, and every later step is local. Such a view's own rays stick out of the others' hull,
-    so its share of the cost stands out (z = 77 there; the other views' z < 2). Its roll is scored on a grid of
-    :data:`STEP_FRACTION` × its narrowest basin half-width (``half_width_deg`` (N,)) — one batch of single-roll moves,
-    each searched in full — and moved to the grid's best point when that lowers the judged cost (the per-view
-    polish that follows refines it). Views whose box range lies within one basin are not scanned; when no free view's
-    does (a microscope), nothing is evaluated. ``on_view(k, evaluations)`` is told each scanned view's planned
+    The grid is :data:`STEP_FRACTION` × the view's narrowest basin half-width (``half_width_deg`` (N,) degrees), one
+    batch of single-roll moves; the view moves to the grid's best point when that lowers the judged cost (the polish
+    that follows refines it). Views whose box range lies within one basin are not scanned; when no free view's does
+    (a microscope), nothing is evaluated. ``on_view(k, evaluations)`` is told each scanned view's planned
     evaluations. Returns (x, judged cost, evaluations, report).
     """
     th = space.theta(x)[0]
@@ -401,18 +373,8 @@ def scan_outlier_views(
     scannable = np.isfinite(w) & (span > w)
     f = float(f_judged)
     if not scannable[free_views].any():
-        return (
-            x,
-            f,
-            0,
-            {
-                "flagged": {},
-                "moved": {},
-                "evaluations": 0,
-                "judged_after": f,
-                "why": "every free roll's box lies within one basin of its cost",
-            },
-        )
+        why = "every free roll's box lies within one basin of its cost"
+        return x, f, 0, {"flagged": {}, "moved": {}, "evaluations": 0, "judged_after": f, "why": why}
     costs = np.asarray(view_costs(th[None]), float)[0]
     evals = 1
     flagged = outlier_views(costs, free_views)
@@ -431,7 +393,7 @@ def scan_outlier_views(
         best = 1 + int(np.argmin(fs[1:]))
         if fs[best] < f:
             log.info(
-                "outlier view %d: roll %+.2f° -> %+.2f° lowers the judged cost %.6g -> %.6g",
+                "outlier view %d: roll %+.2f° -> %+.2f°, judged cost %.6g -> %.6g",
                 v,
                 th[3 + v],
                 TH[best, 3 + v],

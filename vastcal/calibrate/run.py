@@ -19,7 +19,6 @@ import numpy as np
 
 from vastcal.calibrate.coarse_to_fine import Start, coarse_to_fine
 from vastcal.calibrate.methods import objective_factory
-from vastcal.calibrate.optimise import RESTARTS
 from vastcal.calibrate.parameters import ParameterSpace, normalise_free
 from vastcal.calibrate.problem import Problem
 from vastcal.calibrate.stage import Clock, LevelRun, Pose, QuietClock, Stage, StageContext
@@ -182,8 +181,6 @@ def _checked_space(
     check_setting(CalibrationSettings, "seed", settings.seed, "seed")  # cma needs ≥ 0
     if int(settings.starts) < 1:
         raise UserInputError(f"starts: expected at least 1, got {settings.starts}")
-    if settings.restarts not in RESTARTS:
-        raise UserInputError(f"restarts: expected one of {', '.join(RESTARTS)}, got {settings.restarts!r}")
     if marks.silhouettes is not None and np.asarray(marks.silhouettes).shape != images.shape[:3]:
         raise UserInputError(f"silhouettes are {np.asarray(marks.silhouettes).shape}, the images {images.shape[:3]}")
     space = ParameterSpace.build(theta0, normalise_free(settings.free), settings.bounds, fixed_views)

@@ -167,9 +167,8 @@ class Projector:
         out = np.empty((b, n, m), np.float32)
         threads = compute_threads()
         chunk = max(1, self.max_samples // max(1, n * m * threads))  # the memory bound holds with every thread busy
-        chunk = min(
-            chunk, -(-b // threads)
-        )  # candidates shared among the threads (bit-identical to one after the other)
+        # candidates shared among the threads (bit-identical to one after the other)
+        chunk = min(chunk, -(-b // threads))
 
         def candidates(s: int) -> None:
             out[s : s + chunk] = self._sample_chunk(atlas, th[s : s + chunk])

@@ -1,25 +1,20 @@
 """Stage: no view keeps a move that the judged cost does not pay for beyond its own noise (``roll_scan``; free rolls).
 
-A view whose roll barely changes its silhouette (a statue seen face on) has a cost that is flat over a degree or
-more, and rough on the scale of single edges: one edge ray's penalty changing moves the cost by up to its cap over
-the number of edges. A search in many dimensions can leave such views anywhere along their flat valleys, and a move
-that the cost pays for no more than its own noise carries no information. So, after the starts:
+A view whose roll barely changes its silhouette (a statue seen face on) has a cost flat over a degree or more and
+rough on the scale of single edges, and a move the cost pays for no more than its own noise carries no information.
+After the starts:
 
-1. **The cost's own noise** σ_n is measured on the judge at the kept pose: every free roll alone at ±h and ±2h
-   (h half the polish's first step; at most :data:`NOISE_ROLLS` rolls spread evenly over the views), a parabola
-   through each roll's five costs, and σ_n the median over the rolls of the RMS residual (two degrees of freedom
-   per roll): the change in cost that no smooth dependence on θ explains.
-2. **Each view's net move**, from its start to where the search left it, is tested: the view alone put back at its
-   start, the others held. Where the cost rises by no more than what a difference of two noisy costs reaches at
-   2σ (2√2·σ_n), the data do not support the move, and those views go back together when the judged cost of the
-   joint return, one move, rises by no more than that too. Where a common rotation of every view leaves the cost
-   unchanged (every other roll free, no roll prior), a view's start is its commanded angle plus a common rotation
-   (the gauge: only a move relative to the others is a move): the median move of the views that the test, first
-   run with the median move of every free view, leaves at their start (with 10 of 35 views commanded 10° off, the
-   median of all lies in the tail of the other 25's moves).
+1. **The cost's own noise** σ_n: every free roll alone at ±h and ±2h on the judge at the kept pose (h half the
+   polish's first step; at most :data:`NOISE_ROLLS` rolls spread over the views), a parabola through each roll's
+   five costs, σ_n the median over the rolls of the RMS residual.
+2. **Each view's net move** from its start is tested by putting the view alone back at its start, the others held.
+   Where the cost rises by no more than 2√2·σ_n (2σ of a difference of two costs), those views go back together
+   when the joint return rises by no more than that too. Where a common rotation of every view leaves the cost
+   unchanged (every other roll free, no roll prior), a view's start is its commanded angle plus the median move of
+   the views that a first test leaves at their start (the gauge).
 
-The views put back are held there by the per-view polish that follows, whose moves must also gain more than
-2√2·σ_n (``ctx.extra["noise_threshold"]``). Nothing is put back when no view qualifies.
+The polish that follows holds the views put back and moves a roll only for a gain above 2√2·σ_n
+(``ctx.extra["noise_threshold"]``). Reasoning and measurements: docs/calibration.md ("The noise guard"), decision 0018.
 """
 
 from __future__ import annotations

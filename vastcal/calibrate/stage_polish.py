@@ -50,29 +50,19 @@ def polish_rolls(
 ) -> tuple[np.ndarray, float, int, bool]:
     """Per-view polish of every free roll: one parabolic sweep per step size, all views' trials in one batch.
 
-    For each step h (degrees, largest first) every free roll is tried at ω ± h with the others fixed, in one
-    batch together with x itself (the batch's mean is x: the coherence cost's rays are searched around the
-    batch mean, so the trials are scored on the same footing as x). The three costs of a roll give its
-    parabola along that roll; its move is the vertex when the parabola is convex (up to :data:`POLISH_REACH` steps
-    away), else the lower of ± h. A move counts when the gain its parabola predicts exceeds ``rtol`` × ``share`` ×
-    cost (and ``min_gain``, the cost's own noise where it was measured: :mod:`.stage_noise_guard`),
-    ``share`` being the fraction of the cost one roll can change (:func:`.stage_roll_scan.roll_share`): a fixed
-    fraction of the whole
-    cost would ask a roll of 360 views, whose move changes ~21 of them, for a gain 17× that of a roll of 21 views.
-    All counted moves together, the same at half length (the rolls' parabolas are coupled through the views they
-    share) and the best single one are then scored, and the lowest is kept when it lowers the cost.
+    For each step h (degrees, largest first) every free roll is tried at ω ± h with the others fixed, in one batch
+    with x itself (whose mean is x, so the coherence cost scores the trials on x's footing). A roll's three costs give
+    its parabola; its move is the vertex when convex (up to :data:`POLISH_REACH` steps away), else the lower of ± h. A
+    move counts when its predicted gain exceeds ``rtol`` × ``share`` × cost and ``min_gain`` (the cost's own noise,
+    :mod:`.stage_noise_guard`); ``share`` is the fraction of the cost one roll can change
+    (:func:`.stage_roll_scan.roll_share`). All counted moves together, the same at half length (the parabolas are
+    coupled through shared views) and the best single one are scored; the lowest is kept when it lowers the cost.
 
-    ``gauge``: view 0, held fixed, is polished too, through the gauge of a cost that a common rotation of every view
-    about the axis leaves unchanged (the coherence cost without a roll prior, every other roll free: see
-    :mod:`.roll_scan`): its trials move θ's view 0 alone, and its move is applied as the opposite move of every
-    free roll. No single free roll can move the others' common offset from view 0.
-
-    One sweep per step, so the work is known before it starts (``len(steps_deg)`` batches of 2F + 1 trials and at
-    most as many of 3, F free rolls, + 1 with the gauge): what lets a progress bar's ETA hold. ``cost`` maps θ
-    (B, 3 + N) degrees to (B,). Returns (x, cost of x, evaluations, converged): converged when, at the smallest step,
-    every roll that moved had its parabola's vertex within ± that step (its minimum bracketed there).
-    ``on_sweep`` is told the sweeps done: 0 once x itself is scored (that first call may pay the cost's one-off search
-    along the rays, which is no sweep's time), then after every sweep.
+    ``gauge``: view 0, held fixed, is polished too, through the gauge (:mod:`.roll_scan`): its move is applied as the
+    opposite move of every free roll. One sweep per step, so the work is known before it starts (what lets a
+    progress ETA hold). ``cost`` maps θ (B, 3 + N) degrees to (B,). Returns (x, cost of x, evaluations, converged):
+    converged when, at the smallest step, every roll that moved had its vertex within ± that step. ``on_sweep`` is
+    told the sweeps done: 0 once x itself is scored, then after every sweep.
     """
     rolls = np.flatnonzero(np.flatnonzero(space.free_mask) >= 4)  # positions of the free rolls in x
     f = float(cost(space.theta(x))[0])
@@ -100,10 +90,11 @@ def polish_rolls(
         f = float(fs[0])
         plus, minus = fs[1 : 1 + n_moves], fs[1 + n_moves :]
         threshold = max(rtol * share * max(abs(f), 1e-12), float(min_gain))
+        # the parabola f + slope·t + curv/2·t², t in units of h
         curv, slope = (
             plus + minus - 2.0 * f,
             0.5 * (plus - minus),
-        )  # the parabola f + slope·t + curv/2·t², t in units of h
+        )
         t = np.where(
             curv > 0,
             np.clip(-slope / np.where(curv > 0, curv, 1.0), -POLISH_REACH, POLISH_REACH),

@@ -36,20 +36,14 @@ _WORDS = {
 
 
 def cma_stop_words(stop: Mapping[str, Any]) -> str:
-    """One CMA-ES level's stop (cma's ``{condition: value}``; with restarts ``"run k (…): condition"`` keys) in
-    words; "" when empty."""
-    parts = []
-    for key, value in stop.items():
-        run, _, cond = str(key).rpartition(": ")
-        words = _WORDS.get(cond, f"stopped on cma's condition {cond} ({{v}})").format(v=value)
-        parts.append(f"{run}: {words}" if run else words)
-    return "; ".join(parts)
+    """One CMA-ES level's stop (cma's ``{condition: value}``) in words; "" when empty."""
+    return "; ".join(_WORDS.get(c, f"stopped on cma's condition {c} ({{v}})").format(v=v) for c, v in stop.items())
 
 
 def stop_condition(stop: Mapping[str, Any]) -> str:
     """The kind of a level's stop: ``converged`` (a tolerance met), ``budget`` (evaluations or generations spent),
-    ``other`` (stagnation, a flat cost, a numerical limit) or ``none``; with restarts, the best of its runs'."""
-    conds = {str(k).rpartition(": ")[2] for k in stop}
+    ``other`` (stagnation, a flat cost, a numerical limit) or ``none``."""
+    conds = {str(k) for k in stop}
     if conds & CONVERGED_STOPS:
         return "converged"
     if conds & BUDGET_STOPS:
