@@ -66,6 +66,7 @@ def measure_one(session: Path) -> dict[str, Any]:
     from vastcal.anatomy_session import frame_edge_views
     from vastcal.hull import choose_grid, visual_hull_in_grid
     from vastcal.measure import MeasureSettings
+    from vastcal.organ_hull import choose_organ_measures
     from vastcal.segmentation import fit_automatic, specimen_maps
     from vastcal.tomogram import reconstruct_tomogram
 
@@ -78,12 +79,14 @@ def measure_one(session: Path) -> dict[str, Any]:
     t = time.perf_counter()
     tomo = reconstruct_tomogram(P, lambda i: images[i], lambda i: maps[i], hull.grid, hull.occupancy)
     anat = measure_anatomy(tomo.attenuation, hull.occupancy, hull.grid, cut_views=frame_edge_views(maps))
+    anat = choose_organ_measures(anat, P, lambda i: images[i], lambda i: maps[i], hull.grid)
     seconds = time.perf_counter() - t
     idx = np.argwhere(tomo.support)
     mu = truth_attenuation(truth, np.asarray(tomo.grid.origin) + idx * tomo.grid.size)
     corr = float(np.corrcoef(tomo.attenuation[tomo.support], mu)[0, 1])
     hulls = organ_hull_errors(P, images, maps, anat, hull.grid, truth["anatomy"])
     return {
+        "saturation": dict(anat.organ_saturation),
         "seed": truth["seed"],
         "seconds": seconds,
         "correlation": corr,
@@ -180,6 +183,8 @@ def summarise(rows: list[dict[str, Any]]) -> None:
             if not r[m]["found"]:
                 print(f"    seed {r['seed']}: not found: {r[m]['reason']}")
     summarise_hulls(rows)
+    sat = [v for r in rows for v in r["saturation"].values()]
+    print(f"organs' saturated share (footprint at the OD clip, median over views): max {max(sat, default=0.0):.3f}")
     corr = [r["correlation"] for r in rows]
     print(f"truth inside the k = 2 interval: {inside_all}/{total} ({100.0 * inside_all / max(total, 1):.1f} %)")
     print(f"tomogram correlation with the phantom: min {min(corr):.3f}, median {statistics.median(corr):.3f}")

@@ -102,17 +102,22 @@ class Anatomy:
     organ_masks: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     tissue_attenuation_per_um: float = 0.0
     head_end: str = ""
+    organ_saturation: dict[str, float] = field(default_factory=dict)
+    """Per organ: the share of its projected footprint whose transmission is below the optical density's clip,
+    median over the views (:mod:`vastcal.organ_hull`); empty when not measured."""
 
     def feature(self, name: str) -> Feature | None:
         """The measure called ``name``, or None."""
         return next((f for f in self.features if f.name == name), None)
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-able record: every feature, the tissue level and which end is the head."""
+        """JSON-able record: every feature, the tissue level, which end is the head and each organ's saturated
+        share."""
         return {
             "features": [f.as_dict() for f in self.features],
             "tissue_attenuation_per_um": self.tissue_attenuation_per_um,
             "head_end": self.head_end,
+            "organ_saturation": {k: float(v) for k, v in self.organ_saturation.items()},
         }
 
 

@@ -13,23 +13,47 @@ radius), kept where it is connected to the footprint. Where two organs overlap i
 views), their dark regions join and each organ's region in that view holds both: a region larger than the organ
 carves less, never cuts the organ; the views in which they stand apart carve each one.
 
+**Which measure an organ gets** (:func:`choose_organ_measures`): the tomogram's excess attenuation
+(:mod:`vastcal.anatomy`), unless the organ's footprint is **saturated** — more than :data:`SATURATED_SHARE` of its
+pixels, median over the views, transmit less than the optical density's clip
+(:data:`~vastcal.tomogram.MIN_TRANSMISSION`) — when its volume and diameter come from its visual hull at
+f = :data:`HULL_FRACTION`. Clipped line integrals make the tomogram's organ volume grow with the saturated share
+(+3 % unsaturated, +6 % at 3 %, +10 % at 28 %, +19 % at 48 % on the organ phantom), while the hull's stays within
+−5 to −6 % (docs/anatomy.md). The centroid stays the tomogram's.
+
 Frames and units: world = specimen frame in µm (rotation axis = world x); P (3, 4) maps world µm to 0-based
 pixels; volumes in µm³.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy import ndimage
 
+from vastcal.anatomy import K_COVERAGE, Anatomy, Feature
 from vastcal.tomogram import MIN_TRANSMISSION
 from vastcal.voxels import VoxelGrid
 
 MARGIN_VOXELS = 6
 """The hull is sought within the tomogram's region grown by this many voxels."""
+
+SATURATED_SHARE = 0.25
+"""An organ is saturated when more than this share of its footprint is at the optical density's clip (median over
+the views): its volume and diameter then come from its visual hull."""
+
+HULL_FRACTION = 0.1
+"""f of the dark region's threshold for the hull the anatomy uses; f = 0.05 gives the threshold term of its
+uncertainty."""
+
+HULL_METHOD_SIGMA = 0.035
+"""Relative standard uncertainty of the hull's volume: its error on the simulated battery and the saturated organ
+phantom (−3 to −6 % at f = 0.1) within k = 2."""
 
 
 @dataclass(frozen=True)
@@ -125,3 +149,55 @@ def organ_hull(
     mask[sl] = sub
     edge = cand & ~ndimage.binary_erosion(cand)
     return OrganHull(mask, float(keep.sum()) * grid.voxel_volume, bool((sub & edge).any()))
+
+
+def saturated_share(P: np.ndarray, od: list[np.ndarray], region: np.ndarray, grid: VoxelGrid) -> float:
+    """Median over the views of the share of the organ's footprint at the optical density's clip."""
+    clip = -math.log(MIN_TRANSMISSION) - 1e-3
+    pts = np.asarray(grid.origin, float) + np.argwhere(region) * grid.size
+    shares = []
+    for i in range(len(P)):
+        fp = _footprint(P[i], pts, od[i].shape)
+        if fp.any():
+            shares.append(float((od[i][fp] >= clip).mean()))
+    return float(np.median(shares)) if shares else 0.0
+
+
+def _hull_features(prefix: str, hull: OrganHull, other: OrganHull, share: float) -> list[Feature]:
+    """Volume (mm³) and equal-volume diameter (µm) of an organ from its hull; U from :data:`HULL_METHOD_SIGMA` and
+    the hull's change between f = :data:`HULL_FRACTION` and 0.05 (``other``)."""
+    v = hull.volume_um3 * 1e-9
+    U_v = K_COVERAGE * math.hypot(HULL_METHOD_SIGMA * v, 0.5 * abs(other.volume_um3 - hull.volume_um3) * 1e-9)
+    d = (6.0 * hull.volume_um3 / math.pi) ** (1.0 / 3.0)
+    how = f"visual hull of its dark region ({share:.0%} of its footprint saturated)"
+    return [
+        Feature(f"{prefix}_volume", "mm3", v, U_v, method=how),
+        Feature(f"{prefix}_diameter", "um", d, d * U_v / (3.0 * v), method=how),
+    ]
+
+
+def choose_organ_measures(
+    anat: Anatomy,
+    P: np.ndarray,
+    read_frame: Callable[[int], np.ndarray],
+    silhouette: Callable[[int], np.ndarray],
+    grid: VoxelGrid,
+) -> Anatomy:
+    """The anatomy with each organ's saturated share, and the hull's volume and diameter for the saturated organs
+    (module docstring). ``read_frame`` and ``silhouette``: view index → frame and silhouette (probability or mask)."""
+    if not anat.organ_masks:
+        return anat
+    inside = [np.asarray(silhouette(i)) >= 0.5 for i in range(len(P))]
+    od = [frame_optical_density(read_frame(i), inside[i]) for i in range(len(P))]
+    feats = {f.name: f for f in anat.features}
+    shares = {}
+    for name, region in anat.organ_masks.items():
+        shares[name] = saturated_share(P, od, region, grid)
+        if shares[name] <= SATURATED_SHARE:
+            continue
+        hull = organ_hull(P, od, inside, region, grid, HULL_FRACTION)
+        if hull.volume_um3 <= 0.0:
+            continue
+        other = organ_hull(P, od, inside, region, grid, 0.05)
+        feats.update({f.name: f for f in _hull_features(name, hull, other, shares[name])})
+    return dataclasses.replace(anat, features=tuple(feats.values()), organ_saturation=shares)
