@@ -45,6 +45,24 @@ def organ_outline(P: np.ndarray, points_um: np.ndarray, shape: tuple[int, int], 
     return ndimage.binary_closing(ndimage.binary_dilation(out, iterations=r), iterations=r).astype(float)
 
 
+def organ_hulls(inputs: Any, frames: Any, grid: Any, labels: np.ndarray, saturation: dict[str, float]) -> dict:
+    """Voxel indices (M, 3) of the visual hull of each saturated organ (the measure the anatomy uses for it), by
+    label value."""
+    from vastcal.anatomy_session import ORGAN_LABELS
+    from vastcal.organ_hull import HULL_FRACTION, SATURATED_SHARE, frame_optical_density, organ_hull
+
+    n = len(inputs.P)
+    inside = [np.asarray(inputs.silhouettes[i]) >= 0.5 for i in range(n)]
+    od = [frame_optical_density(np.asarray(frames[i]), inside[i]) for i in range(n)]
+    out = {}
+    for name, share in saturation.items():
+        value = ORGAN_LABELS[name]
+        if share > SATURATED_SHARE and (labels == value).any():
+            h = organ_hull(inputs.P, od, inside, labels == value, grid, HULL_FRACTION)
+            out[value] = np.argwhere(h.mask)
+    return out
+
+
 def views_figure(session: Path, views: list[int], out: Path) -> None:
     """``NAME-views.png`` (module docstring)."""
     from matplotlib.figure import Figure
@@ -63,6 +81,7 @@ def views_figure(session: Path, views: list[int], out: Path) -> None:
         frames = SessionFrames(s)
         imgs = [np.asarray(frames[v]) for v in views]
         sils = [np.asarray(inputs.silhouettes[v]) >= 0.5 for v in views]
+        hulls = organ_hulls(inputs, frames, grid, labels, load_anatomy(g).get("organ_saturation", {}))
     fig = Figure(figsize=(7.2, 1.5 * len(views)), dpi=110, layout="constrained")
     for row, (v, img, sil) in enumerate(zip(views, imgs, sils)):
         ax = fig.add_subplot(len(views), 1, row + 1)
@@ -79,7 +98,14 @@ def views_figure(session: Path, views: list[int], out: Path) -> None:
             if len(pts):
                 m = organ_outline(P, pts, grey.shape, px)[r0:r1, c0:c1]
                 ax.contour(m, levels=[0.5], colors=colour, linewidths=0.9)
-        ax.set_title(f"view {v}: the tomogram's organs projected (eye 1 orange, eye 2 green, yolk blue)", fontsize=7)
+            if value in hulls:
+                m = organ_outline(P, np.asarray(grid.origin) + hulls[value] * grid.size, grey.shape, px)[r0:r1, c0:c1]
+                ax.contour(m, levels=[0.5], colors=colour, linewidths=0.9, linestyles="dashed")
+        ax.set_title(
+            f"view {v}: organs projected: the tomogram's regions (solid; eye 1 orange, eye 2 green, yolk blue)"
+            + (", the saturated organs' hulls (dashed)" if hulls else ""),
+            fontsize=7,
+        )
         ax.set_axis_off()
     _save_png(fig, out)
 
