@@ -19,7 +19,7 @@ pixels, median over the views, transmit less than the optical density's clip
 (:data:`~vastcal.tomogram.MIN_TRANSMISSION`) — when its volume and diameter come from its visual hull at
 f = :data:`HULL_FRACTION`. Clipped line integrals make the tomogram's organ volume grow with the saturated share
 (+3 % unsaturated, +6 % at 3 %, +10 % at 28 %, +19 % at 48 % on the organ phantom), while the hull's stays within
-−5 to −6 % (docs/anatomy.md). The centroid stays the tomogram's.
+−5 to −8 % (docs/anatomy.md). The centroid stays the tomogram's.
 
 Frames and units: world = specimen frame in µm (rotation axis = world x); P (3, 4) maps world µm to 0-based
 pixels; volumes in µm³.
@@ -51,9 +51,9 @@ HULL_FRACTION = 0.1
 """f of the dark region's threshold for the hull the anatomy uses; f = 0.05 gives the threshold term of its
 uncertainty."""
 
-HULL_METHOD_SIGMA = 0.035
-"""Relative standard uncertainty of the hull's volume: its error on the simulated battery and the saturated organ
-phantom (−3 to −6 % at f = 0.1) within k = 2."""
+HULL_METHOD_SIGMA = 0.04
+"""Relative standard uncertainty of the hull's volume: its error at f = 0.1 on the simulated battery and the organ
+phantom, saturated or not (−3 to −8 %), within k = 2."""
 
 
 @dataclass(frozen=True)
