@@ -8,7 +8,9 @@ contact, tail out of frame, debris, lamp gradient, defocus; a swim bladder from 
 with the simulator's **true cameras** (the anatomy's own error, without the calibration's), measures the anatomy
 and scores it against the truth file's ``anatomy``: body length (2 %), each eye's volume (10 %) and centroid
 (10 µm), the yolk's volume (10 %), whether the truth lies inside each stated k = 2 interval, and the tomogram's
-correlation with the phantom's attenuation inside the hull. A measure reported "not found" is counted as such
+correlation with the phantom's attenuation inside the hull. Beside each organ's tomogram volume it scores the
+visual hull of that organ's own dark region in every view (``vastcal.organ_hull``) at several threshold fractions
+f, the alternative measure for organs whose optical density saturates. A measure reported "not found" is counted as such
 (a larva whose tail leaves the frame has no length), never as a pass.
 
 ``--timing K`` then runs ``vastcal run`` on the first K sessions twice, side by side — with ``--no-anatomy`` and
@@ -64,6 +66,7 @@ def measure_one(session: Path) -> dict[str, Any]:
     from vastcal.anatomy_session import frame_edge_views
     from vastcal.hull import choose_grid, visual_hull_in_grid
     from vastcal.measure import MeasureSettings
+    from vastcal.organ_hull import choose_organ_measures
     from vastcal.segmentation import fit_automatic, specimen_maps
     from vastcal.tomogram import reconstruct_tomogram
 
@@ -76,11 +79,46 @@ def measure_one(session: Path) -> dict[str, Any]:
     t = time.perf_counter()
     tomo = reconstruct_tomogram(P, lambda i: images[i], lambda i: maps[i], hull.grid, hull.occupancy)
     anat = measure_anatomy(tomo.attenuation, hull.occupancy, hull.grid, cut_views=frame_edge_views(maps))
+    anat = choose_organ_measures(anat, P, lambda i: images[i], lambda i: maps[i], hull.grid)
     seconds = time.perf_counter() - t
     idx = np.argwhere(tomo.support)
     mu = truth_attenuation(truth, np.asarray(tomo.grid.origin) + idx * tomo.grid.size)
     corr = float(np.corrcoef(tomo.attenuation[tomo.support], mu)[0, 1])
-    return {"seed": truth["seed"], "seconds": seconds, "correlation": corr, **score(anat, truth["anatomy"])}
+    hulls = organ_hull_errors(P, images, maps, anat, hull.grid, truth["anatomy"])
+    return {
+        "saturation": dict(anat.organ_saturation),
+        "seed": truth["seed"],
+        "seconds": seconds,
+        "correlation": corr,
+        "hulls": hulls,
+        **score(anat, truth["anatomy"]),
+    }
+
+
+HULL_FRACTIONS = (0.05, 0.1, 0.25, 0.5)
+"""f of the organ hull's dark-region threshold (vastcal.organ_hull) scored beside the tomogram's measure."""
+
+
+def organ_hull_errors(
+    P: np.ndarray, images: np.ndarray, maps: Any, anat: Any, grid: Any, truth: dict[str, Any]
+) -> dict[str, dict[str, Any]]:
+    """Per organ the tomogram found: the relative volume error of its visual hull (vastcal.organ_hull) at each of
+    HULL_FRACTIONS, and whether the hull reached the margin searched."""
+    from vastcal.organ_hull import frame_optical_density, organ_hull
+
+    org = truth["organs"]
+    eyes = sorted(("left eye", "right eye"), key=lambda k: -org[k]["centroid_um"][2])
+    keys = {"eye_1": eyes[0], "eye_2": eyes[1], "yolk": "yolk"}
+    inside = [np.asarray(maps[i]) >= 0.5 for i in range(len(P))]
+    od = [frame_optical_density(images[i], inside[i]) for i in range(len(P))]
+    out: dict[str, dict[str, Any]] = {}
+    for name, region in anat.organ_masks.items():
+        true_um3 = org[keys[name]]["volume_mm3"] * 1e9
+        res = {f: organ_hull(P, od, inside, region, grid, f) for f in HULL_FRACTIONS}
+        out[name] = {
+            str(f): {"error": h.volume_um3 / true_um3 - 1.0, "margin": h.reached_margin} for f, h in res.items()
+        }
+    return out
 
 
 def _check(anat: Any, name: str, true: Any, kind: str) -> dict[str, Any]:
@@ -144,10 +182,31 @@ def summarise(rows: list[dict[str, Any]]) -> None:
         for r in rows:
             if not r[m]["found"]:
                 print(f"    seed {r['seed']}: not found: {r[m]['reason']}")
+    summarise_hulls(rows)
+    sat = [v for r in rows for v in r["saturation"].values()]
+    print(f"organs' saturated share (footprint at the OD clip, median over views): max {max(sat, default=0.0):.3f}")
     corr = [r["correlation"] for r in rows]
     print(f"truth inside the k = 2 interval: {inside_all}/{total} ({100.0 * inside_all / max(total, 1):.1f} %)")
     print(f"tomogram correlation with the phantom: min {min(corr):.3f}, median {statistics.median(corr):.3f}")
     print(f"tomogram + anatomy time (true cameras): median {statistics.median(r['seconds'] for r in rows):.1f} s")
+
+
+def summarise_hulls(rows: list[dict[str, Any]]) -> None:
+    """Per organ: the tomogram's volume error beside its visual hull's at each threshold fraction f."""
+    print("\norgan volume, tomogram vs visual hull of its dark region (f: threshold fraction)")
+    print("organ   measure          n  within-10%  error min / median / max %   reached margin")
+    for organ, key in (("eye_1", "eye_1_volume"), ("eye_2", "eye_2_volume"), ("yolk", "yolk_volume")):
+        errs = [r[key]["error"] * 100.0 for r in rows if r[key]["found"]]
+        variants = [("tomogram", errs, 0)]
+        for f in HULL_FRACTIONS:
+            hs = [r["hulls"][organ][str(f)] for r in rows if organ in r["hulls"]]
+            variants.append((f"hull f={f}", [h["error"] * 100.0 for h in hs], sum(h["margin"] for h in hs)))
+        for name, e, margin in variants:
+            if not e:
+                continue
+            ok = sum(abs(x) <= 100.0 * VOLUME_TOL for x in e)
+            rng = f"{min(e):+7.2f} / {statistics.median(e):+7.2f} / {max(e):+7.2f}"
+            print(f"{organ:7} {name:14} {len(e):>3} {ok:>6}/{len(e):<4}  {rng}   {margin}")
 
 
 def timed_run(session: Path, anatomy: bool) -> tuple[float, float, str]:

@@ -16,7 +16,9 @@ Method (docs/anatomy.md):
   binary opening of 0, 1 or 2 voxels — the one whose eye pair scores highest: it cuts eyes from dark skin). The
   **eyes** are the two regions of most similar volume (ratio ≥ 0.5) side by side across the midline near
   one end of the body (that end is the head), eye 1 the one at the larger world z; the **yolk** is the
-  largest other region behind them, not touching them and at least as large as an eye. An organ's volume is
+  largest other region behind them, not touching them, at least as large as an eye and not lying along the body's
+  surface (over half its voxels within two voxels of the hull's surface: the surface's dark rim of refraction and
+  skin pigment, which a real larva's tomogram shows where its yolk is pale). An organ's volume is
   its *excess attenuation* ∑ max(μ − μ_b, 0)·v over the region grown by three voxels, divided by its plateau
   (the region's median attenuation) minus μ_b: blur moves attenuation between voxels but keeps its sum, so this
   holds where a threshold would follow the blur. Its centroid is the excess-weighted mean; its diameter the
@@ -102,17 +104,22 @@ class Anatomy:
     organ_masks: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     tissue_attenuation_per_um: float = 0.0
     head_end: str = ""
+    organ_saturation: dict[str, float] = field(default_factory=dict)
+    """Per organ: the share of its projected footprint whose transmission is below the optical density's clip,
+    median over the views (:mod:`vastcal.organ_hull`); empty when not measured."""
 
     def feature(self, name: str) -> Feature | None:
         """The measure called ``name``, or None."""
         return next((f for f in self.features if f.name == name), None)
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-able record: every feature, the tissue level and which end is the head."""
+        """JSON-able record: every feature, the tissue level, which end is the head and each organ's saturated
+        share."""
         return {
             "features": [f.as_dict() for f in self.features],
             "tissue_attenuation_per_um": self.tissue_attenuation_per_um,
             "head_end": self.head_end,
+            "organ_saturation": {k: float(v) for k, v in self.organ_saturation.items()},
         }
 
 
@@ -264,13 +271,24 @@ def _organs_with_eyes(
     return tried[k][1], tried[k][2], others
 
 
-def _yolk(organs: list[Organ], pair: tuple[int, int], others: list[Organ], head_low: bool) -> Organ | None:
+RIM_VOXELS = 2
+"""Depth (voxels) of the body's surface layer: a dark region lying mostly in it is the surface's dark rim."""
+
+RIM_SHARE = 0.5
+"""A yolk candidate with more than this share of its voxels in the surface layer (:data:`RIM_VOXELS`) is the body's
+dark rim — refraction at the surface, skin pigment — not the yolk, which lies inside the body."""
+
+
+def _yolk(
+    organs: list[Organ], pair: tuple[int, int], others: list[Organ], head_low: bool, occupancy: np.ndarray
+) -> Organ | None:
     """The largest region behind the eyes (centroid at least an eye's size further from the head), at least as large
-    as an eye, that does not touch them: among the eyes' own opening's regions first, else among the other
-    openings' (module docstring)."""
+    as an eye, that does not touch them and does not lie along the body's surface (:data:`RIM_SHARE`): among the
+    eyes' own opening's regions first, else among the other openings' (module docstring)."""
     eyes = (organs[pair[0]], organs[pair[1]])
     x_eyes = 0.5 * (eyes[0].centroid_um[0] + eyes[1].centroid_um[0])
     size = float(np.cbrt(max(e.volume_um3 for e in eyes)))
+    rim = occupancy & ~ndimage.binary_erosion(occupancy, iterations=RIM_VOXELS)
     for group in ([o for k, o in enumerate(organs) if k not in pair], others):
         behind = [
             o
@@ -278,10 +296,15 @@ def _yolk(organs: list[Organ], pair: tuple[int, int], others: list[Organ], head_
             if (o.centroid_um[0] - x_eyes) * (1.0 if head_low else -1.0) >= size
             and o.volume_um3 >= min(e.volume_um3 for e in eyes)
             and not any((o.mask & e.mask).any() for e in eyes)
+            and np.count_nonzero(o.mask & rim) <= RIM_SHARE * np.count_nonzero(o.mask)
         ]
         if behind:
             return max(behind, key=lambda o: o.volume_um3)
     return None
+
+
+NO_YOLK = "no dark region behind the eyes as large as an eye and inside the body (not along its surface)"
+"""Why a yolk is not found."""
 
 
 def measure_anatomy(
@@ -318,14 +341,12 @@ def measure_anatomy(
     xs = np.flatnonzero(occupancy.any(axis=(1, 2)))
     x_lo, x_hi = grid.origin[0] + xs[0] * grid.size, grid.origin[0] + xs[-1] * grid.size
     head_low = abs(x_eyes - x_lo) < abs(x_eyes - x_hi)
-    yolk = _yolk(organs, pair, others, head_low)
+    yolk = _yolk(organs, pair, others, head_low, occupancy)
     if yolk is not None:
         feats += _organ_features("yolk", yolk, METHOD_SIGMA["yolk_volume"])
         masks["yolk"] = yolk.mask
     else:
-        feats += [
-            not_found(f"yolk_{q}", "", "no dark region behind the eyes as large as an eye") for q in eye_names[1:]
-        ]
+        feats += [not_found(f"yolk_{q}", "", NO_YOLK) for q in eye_names[1:]]
     return Anatomy(tuple(feats), masks, mu_b, "x-" if head_low else "x+")
 
 

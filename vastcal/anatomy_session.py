@@ -5,9 +5,9 @@ leaves it absent or complete):
 
 * ``tomogram``: an NXdata of ``attenuation`` (float32, 1/µm, indexed x, y, z) on voxel-centre axes ``x``, ``y``,
   ``z`` in µm, with ``organs`` (uint8 labels of the same shape: 0 none, 1 eye 1, 2 eye 2, 3 yolk) beside it;
-* attributes: ``anatomy`` (JSON: every measure with its k = 2 uncertainty, or not found with the reason, see
-  :mod:`vastcal.anatomy`), the tomogram's iterations, residuals, slice-model error and time, and the
-  reconstruction and calibration runs it came from.
+* attributes: ``anatomy`` (JSON: every measure with its k = 2 uncertainty, or not found with the reason, and each
+  organ's saturated share, see :mod:`vastcal.anatomy` and :mod:`vastcal.organ_hull`), the tomogram's iterations,
+  residuals, slice-model error and time, and the reconstruction and calibration runs it came from.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import h5py
 import numpy as np
 
 from vastcal.anatomy import Anatomy, measure_anatomy
+from vastcal.organ_hull import choose_organ_measures
 from vastcal.session import read_attrs, write_attrs
 from vastcal.session.nexus import describe_hull
 from vastcal.session_frames import SessionFrames
@@ -51,6 +52,9 @@ def session_anatomy(session: Any, inputs: Any, hull: Any) -> tuple[Tomogram, Ana
         inputs.P, lambda i: frames[i], lambda i: np.asarray(sil[i], np.float32), hull.grid, hull.occupancy
     )
     anat = measure_anatomy(tomo.attenuation, hull.occupancy, hull.grid, cut_views=frame_edge_views(sil))
+    anat = choose_organ_measures(
+        anat, inputs.P, lambda i: frames[i], lambda i: np.asarray(sil[i], np.float32), hull.grid
+    )
     return tomo, anat
 
 

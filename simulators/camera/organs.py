@@ -91,11 +91,15 @@ def organ_truth(phantom: Phantom, specimen_offset_um: tuple[float, float] = (0.0
     return out
 
 
-def organ_phantom(length_um: float = 2400.0, diameter_um: float = 480.0, lateral_scale: float = 0.75) -> Phantom:
+def organ_phantom(
+    length_um: float = 2400.0, diameter_um: float = 480.0, lateral_scale: float = 0.75, eye_attenuation: float = 0.02
+) -> Phantom:
     """An analytic test phantom: a prolate spheroid body with two eyes and a yolk (ellipsoids).
 
     Body: semi-axes length/2 along x and diameter/2 (y) × lateral·diameter/2 (z), attenuation 4·10⁻⁴ /µm. Eyes:
-    semi-axes 90 × 60 × 45 µm, μ 0.02 /µm, at 20 % of the length from the head tip, z = ±0.42·lateral·r.
+    semi-axes 90 × 60 × 45 µm, μ ``eye_attenuation`` /µm (0.02: an eye's centre transmits a sixth of the light;
+    0.2: pigmented eyes that transmit nothing measurable), at 20 % of the length from the head tip,
+    z = ±0.42·lateral·r.
     Yolk: 260 × 140 × 110 µm, μ 0.008 /µm, at 38 % of the length, slightly ventral. Volumes: eye 1.018e-3 mm³,
     yolk 1.677e-2 mm³.
     """
@@ -104,7 +108,9 @@ def organ_phantom(length_um: float = 2400.0, diameter_um: float = 480.0, lateral
     xe = x_head + 0.2 * length_um
     re = float(prof.radius_um(np.array([xe]))[0])
     eyes = tuple(
-        EllipsoidFeature(f"{side} eye", (xe, 0.0, sign * 0.42 * lateral_scale * re), (90.0, 60.0, 45.0), 0.02)
+        EllipsoidFeature(
+            f"{side} eye", (xe, 0.0, sign * 0.42 * lateral_scale * re), (90.0, 60.0, 45.0), eye_attenuation
+        )
         for side, sign in (("left", 1.0), ("right", -1.0))
     )
     xy = x_head + 0.38 * length_um

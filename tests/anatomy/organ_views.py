@@ -25,11 +25,13 @@ class OrganViews:
 
 
 def render_organ_views(
-    n_views: int = 21, *, width: int = 480, height: int = 128, pixel_um: float = 6.0, seed: int = 3
+    n_views: int = 21, *, width: int = 480, height: int = 128, pixel_um: float = 6.0, seed: int = 3, **organs: float
 ) -> OrganViews:
-    """``n_views`` noisy Mono12 views of the organ phantom through a tilted (±0.5°), offset axis, 65 mm away."""
+    """``n_views`` noisy Mono12 views of the organ phantom through a tilted (±0.5°), offset axis, 65 mm away
+    (``organs``: keyword arguments of :func:`~vastcal.simulators.camera.organs.organ_phantom`, such as
+    ``eye_attenuation``)."""
     rng = np.random.default_rng(seed)
-    ph = organ_phantom()
+    ph = organ_phantom(**organs)
     angles = np.arange(n_views) * 360.0 / n_views + rng.uniform(-1.0, 1.0, n_views)
     truth = RigTruth(float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-0.5, 0.5)), 30.0, 65000.0)
     intr = PinholeIntrinsics(65000.0 / pixel_um, (width - 1) / 2, (height - 1) / 2)

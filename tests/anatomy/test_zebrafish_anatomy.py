@@ -1,6 +1,7 @@
 """The anatomy of the real larvae ZF1 and ZF2 (authors' cameras and hand masks) against measurements made by hand
 on their frames (docs/anatomy.md): ZF1's dorsal view 8, each eye 314 × 204 µm, their centres 363 µm apart, the body
-3399 µm along the axis; ZF2's dorsal view 0, each eye about 320 × 205 µm, 349 µm apart, the body 3647 µm."""
+3399 µm along the axis; ZF2's dorsal view 0, each eye about 320 × 205 µm, 349 µm apart, the body 3647 µm, and 253 µm
+high in its lateral view 15. Neither yolk is found: both are pale in the tomogram (docs/anatomy.md)."""
 
 from __future__ import annotations
 
@@ -32,3 +33,16 @@ def test_eyes_and_length_agree_with_the_hand_measurements(name: str, tmp_path: P
     for eye in ("eye_1", "eye_2"):
         assert 230.0 < feats[f"{eye}_diameter"]["value"] < 300.0  # between the eye's width and length by hand
     assert feats["inter_eye_distance"]["value"] == pytest.approx(between, rel=0.08)
+    saturation = load_anatomy_saturation(s)
+    for eye in ("eye_1", "eye_2"):  # pigmented eyes: most of their footprint transmits under 0.5 %
+        assert saturation[eye] > 0.5 and feats[f"{eye}_volume"]["method"].startswith("visual hull")
+    if name == "zebrafish2_dir":  # the ellipsoid of ZF2's hand-read axes (319-330 x 204-209 x 253 µm): 256 µm
+        assert all(feats[f"{e}_diameter"]["value"] == pytest.approx(256.0, rel=0.05) for e in ("eye_1", "eye_2"))
+    # ZF1's yolk is pale in the tomogram; its darkest part lies along the body's surface, which is not the yolk
+    assert not feats["yolk_volume"]["found"] and "surface" in feats["yolk_volume"]["reason"]
+
+
+def load_anatomy_saturation(session: Path) -> dict[str, float]:
+    """Each organ's saturated share in the latest anatomy run."""
+    with Session.open(session) as f:
+        return dict(load_anatomy(f.latest_result("anatomy"))["organ_saturation"])
