@@ -1,7 +1,7 @@
-"""Measurements behind decision 0021: an organ's volume by the tomogram or by the visual hull of its dark region,
+"""Measurements behind decision 0023: an organ's volume by the tomogram or by the visual hull of its dark region,
 as its optical density saturates.
 
-    PYTHONPATH=. python docs/decisions/0021-organ-volume-by-saturation.py
+    PYTHONPATH=. python docs/decisions/0023-organ-volume-by-saturation.py
 
 The organ phantom (tests/anatomy/organ_views.py: 21 noisy Mono12 views, 6 µm pixels, a tilted and offset axis) with
 eyes of 0.02 to 0.06 /µm: per organ, its saturated share (vastcal.organ_hull.saturated_share), the tomogram's volume
