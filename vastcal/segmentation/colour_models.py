@@ -29,7 +29,6 @@ Where the models come from
      the background Gaussian, over all views, give the initial foreground Gaussian and prior;
      a few EM rounds of the two-Gaussian mixture over all views then refine both (the border's
      background may be brighter or more uniform than the field's: vignetting, saturation).
-
   4. The colours alone say whether the specimen is seen in transmitted light (:attr:`ColourModel.absorbing`):
      absorption only removes light, so an absorbing specimen is in no channel brighter than its background.
      A white part of a reflecting specimen is far from a blue backdrop in chroma even where its brightness is
