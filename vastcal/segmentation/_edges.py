@@ -21,16 +21,25 @@ def contrast(model: ColourModel, f: np.ndarray) -> np.ndarray:
 
     t = (x − μ_b)·(μ_f − μ_b) / |μ_f − μ_b|²: 0 at the background's colour, 1 at the specimen's
     mean colour, for features f (…, H, W, C) of :meth:`.ColourModel.features` (flattened like the
-    posteriors).
+    posteriors). For a specimen that reflects light (not :attr:`.ColourModel.absorbing`), t = |x − μ_b| /
+    |μ_f − μ_b|: a rim pixel blends the specimen's local colour x_s with the background's, x = a·x_s + (1 − a)·μ_b,
+    so |x − μ_b| = a·|x_s − μ_b| grows with the covered fraction a whatever that colour is, where the projection
+    puts a white part of an orange specimen on a blue backdrop at t ≤ 0 (white is as blue as it is red).
     """
     mb = np.asarray(model.bg.mean, np.float32).reshape(-1)
     d = np.asarray(model.fg.mean, np.float32).reshape(-1) - mb
     dd = max(float(d @ d), 1e-12)
+    reflecting = not model.absorbing
+
+    def of(fi: np.ndarray) -> np.ndarray:
+        """t of features (…, C)."""
+        return np.linalg.norm(fi - mb, axis=-1) / np.sqrt(dd) if reflecting else ((fi - mb) @ d) / dd
+
     if f.ndim < 4:
-        return (((f - mb) @ d) / dd).astype(np.float32)
+        return of(f).astype(np.float32)
     out = np.empty(f.shape[:-1], np.float32)
     for i, fi in enumerate(f):  # one view at a time: its temporaries are a view's, not the stack's
-        out[i] = ((fi - mb) @ d) / dd
+        out[i] = of(fi)
     return out
 
 

@@ -29,6 +29,11 @@ Where the models come from
      the background Gaussian, over all views, give the initial foreground Gaussian and prior;
      a few EM rounds of the two-Gaussian mixture over all views then refine both (the border's
      background may be brighter or more uniform than the field's: vignetting, saturation).
+  4. The colours alone say whether the specimen is seen in transmitted light (:attr:`ColourModel.absorbing`):
+     absorption only removes light, so an absorbing specimen is in no channel brighter than its background.
+     A white part of a reflecting specimen is far from a blue backdrop in chroma even where its brightness is
+     close, and the two Gaussians keep it specimen; only the rules of transmitted light, applied to a specimen
+     that merely looked darker on the whole, would drop it (docs/decisions/0022).
 
   When the two clusters do not separate (Bhattacharyya distance below ``min_separation``),
   when almost nothing differs from the background, or when the images are blank or saturated,
@@ -97,6 +102,22 @@ class ColourModel:
     space: Space
     source: str = "automatic"
     eps: float = 1e-4
+
+    @property
+    def absorbing(self) -> bool:
+        """True when the specimen is seen in transmitted light, i.e. it absorbs what the background passes.
+
+        Absorption only removes light (Beer–Lambert: a transmittance ≤ 1 in every channel), so an absorbing
+        specimen is darker than its background on the whole and in no channel brighter than the background's
+        own spread (its mean plus one standard deviation of that channel). A specimen brighter than that in any
+        channel reflects or scatters light of its own: a statue on a dark turntable, and equally an orange toy
+        whose mean is darker than a brightly lit blue backdrop on the whole. The rules of transmitted light
+        (translucent sheets, enclosed pale tissue, soft rims: :func:`.probability_maps.specimen_maps`) apply
+        only to an absorbing specimen.
+        """
+        fg, bg = np.asarray(self.fg.mean, float), np.asarray(self.bg.mean, float)
+        spread = np.sqrt(np.diag(np.asarray(self.bg.cov, float)))
+        return bool(fg.sum() < bg.sum() and np.all(fg <= bg + spread))
 
     @property
     def separation(self) -> float:

@@ -52,8 +52,8 @@ log = logging.getLogger(__name__)
 
 
 def absorbing(model: ColourModel) -> bool:
-    """True when the specimen is darker than its background (transmitted light: Beer–Lambert contrast)."""
-    return float(np.sum(model.fg.mean)) < float(np.sum(model.bg.mean))
+    """True when the specimen is seen in transmitted light (:attr:`.ColourModel.absorbing`)."""
+    return model.absorbing
 
 
 def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 3.0) -> np.ndarray:
