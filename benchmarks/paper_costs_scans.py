@@ -1,20 +1,26 @@
-"""Where the paper's costs (``pi``, ``vr``) put one view's roll when every roll is free: 1-D scans on a ring.
+"""Where the paper's costs (``pi``, ``vr``) are lowest: roll scans on a ring with every roll free, and ZF2's yaw.
 
-On ETH David or Middlebury dinoRing with ``compare_methods.py``'s protocol (ten views commanded +10°, every roll free in
-±15°, no prior), builds the method's judge (the finest level's batch-independent cost over the box of voxels the run
-uses) and scans each view's roll over ±15° around its true angle, in three settings of the other views:
+``--data david`` (or ``dino``): ``compare_methods.py``'s protocol (ten views commanded +10°, every roll free in ±15°,
+no prior). Builds the method's judge (the finest level's batch-independent cost over the run's box of voxels), runs
+the protocol (seed 0) and scans each view's roll over ±15° around its true angle with the other views
 
-* ``truth``: every other view at its true roll;
-* ``start``: every other view at its commanded roll (ten of them 10° off);
-* ``end``: every other view where a calibration of the same protocol ended (``compare_methods.py``'s run, seed 0).
+* at the truth;
+* at their commanded rolls (ten of them 10° off);
+* where the run ended (a common roll removed: it changes no cost but the grid's sampling).
 
-Per view it prints the roll (from the truth) where the scan is lowest, and what the cost gains there against the
-view's own place in that setting. It then scores the truth and the run's end on the same voxels and on a grid cut to
-the true hull's bounding box (+3 voxels; the authors' boxes are set by hand around the object), and the ends of runs
-whose rolls are bounded to ±``--authors-bound`` around commanded angles at the truth (the authors' zebrafish runs:
-every roll free in ±0.018 rad). Usage (CPU-heavy: one calibration per method and setting):
+Per view it prints where the scan is lowest (degrees from the view's truth) and the cost gained there against the
+view's place in that setting; then the count's own noise (the truth turned by a common roll, which changes no image),
+the cost of the truth, the start and the end on the run's box and on a grid over the bounding box of the voxels the
+truth counts (+3 voxels), the pair of neighbouring views that ended closest together, and a run with every roll free
+in ±0.018 rad (the authors' own bound for a run with every roll free, camera_optimizer_zf.py) around commanded angles
+at the truth.
 
-    python benchmarks/paper_costs_roll_scan.py [--data david|dino] [--methods pi,vr] [--step 0.5]
+``--data zf2``: ZF2's ``pi`` count (voxels with r > 0 on the judge's grid) along the axis yaw, every other angle kept,
+around vastcal's ``pi`` pose (seed 0) and around the authors' PI cameras.
+
+Usage (CPU-heavy: two calibrations per method on a ring, one on ZF2):
+
+    python benchmarks/paper_costs_scans.py [--data david|dino|zf2] [--methods pi,vr] [--step 0.5]
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ import numpy as np
 from compare_methods import DATA, OFFSET_VIEWS, _gauge_free, _truth_session
 from paper_tables import vastcal
 
-from vastcal.calibrate.objective import pad_voxels
+from vastcal.calibrate.objective import LevelMaps, Objective, pad_voxels
 from vastcal.calibrate.objective_pi import PIObjective
 from vastcal.calibrate.objective_vr import VRObjective
 from vastcal.calibrate.parameters import ParameterSpace
@@ -62,7 +68,7 @@ def _run_args(method: str, bound: float) -> dict:
     return dict(method=method, seed=0, free=["rolls"], bounds=CalibrationBounds(0.0, 0.0, 0.0, bound))
 
 
-def judge(session: Path, method: str, bound: float) -> tuple[Problem, object]:
+def judge(session: Path, method: str, bound: float) -> tuple[Problem, Objective]:
     """The problem and the judge (finest level, batch-independent, no prior) of a run of ``method``."""
     with Session.open(session) as ss:
         K, d, theta0, _ = session_camera_model(ss)
@@ -74,7 +80,7 @@ def judge(session: Path, method: str, bound: float) -> tuple[Problem, object]:
     return problem, problem.objective(level, exact=True)
 
 
-def _objective(method: str, level: object, voxels: np.ndarray) -> PIObjective | VRObjective:
+def _objective(method: str, level: LevelMaps, voxels: np.ndarray) -> PIObjective | VRObjective:
     """``method``'s cost of ``level`` over ``voxels`` (M, 3), world units."""
     vox, w = pad_voxels(voxels)
     projector = Projector(level.K, level.distance, vox, nearest=True)
@@ -108,9 +114,9 @@ def _tight(problem: Problem, truth: np.ndarray, method: str) -> PIObjective | VR
 COMMON_ROLLS_DEG = np.array([-5.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 5.0])
 
 
-def common_roll_spread(cost: object, truth: np.ndarray) -> tuple[float, float]:
+def common_roll_spread(cost: Objective, truth: np.ndarray) -> tuple[float, float]:
     """(max |cost change|, its RMS) when every roll of the truth turns by the same angle (COMMON_ROLLS_DEG): the
-    images are the same, only the hull turns against the voxel grid, so this is the count's own grid noise."""
+    images are the same, only the hull turns against the voxel grid and its box: the count's own noise."""
     th = np.repeat(truth[None], len(COMMON_ROLLS_DEG) + 1, axis=0)
     th[1:, 3:] += COMMON_ROLLS_DEG[:, None]
     c = cost(th)
@@ -118,7 +124,7 @@ def common_roll_spread(cost: object, truth: np.ndarray) -> tuple[float, float]:
     return float(np.abs(d).max()), float(np.sqrt(np.mean(d**2)))
 
 
-def scan(cost: object, others: np.ndarray, truth: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def scan(cost: Objective, others: np.ndarray, truth: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per view: the roll (degrees from its truth) where its scan is lowest, and the cost there − at its own place."""
     best, gain = [], []
     for v in range(truth.size - 3):
