@@ -157,11 +157,6 @@ def drop_translucent(
         dropped += int(gone.sum())
         p[gone] = 0.0
         pale = enclosed_pale_tissue(keep, ts, ref, reach)  # a sheet dropped just above may be a gap of the rim
-        body = tapered_ends(keep | pale, ts, ref, reach, base > 0)
-        cut = inside & keep & ~body
-        dropped += int(cut.sum())
-        p[cut] = 0.0
-        pale = body & ~keep
         if flat_n is not None:
             pale &= ~flat_n[k]
         added += int(pale.sum())
@@ -210,75 +205,3 @@ def enclosed_pale_tissue(keep: np.ndarray, ts: np.ndarray, ref: np.ndarray, reac
     closed = cv2.morphologyEx(cv2.copyMakeBorder(k8, r, r, r, r, cv2.BORDER_CONSTANT, 0), cv2.MORPH_CLOSE, disc)
     bridge = (closed[r:-r, r:-r] > 0) & ~keep
     return bridge & (ts >= PALE_FRACTION * ref) & (ref > 0)
-
-
-def background_level(
-    ts: np.ndarray, body: np.ndarray, exclude: np.ndarray, reach_px: float
-) -> tuple[np.ndarray, float]:
-    """(W,) the background's smoothed contrast in each column, and its noise σ (same units).
-
-    The background of a column is the median of ``ts`` (H, W) over its pixels farther than ``reach_px`` from
-    ``body`` (H, W) bool and outside ``exclude`` (H, W) bool (the static scene: walls and their shadows); it follows
-    slow changes of the lamp's field along the capillary that the flattening of the colour features leaves. σ is
-    1.4826 × the median absolute deviation of those pixels from their column's level. Columns with fewer than 8
-    such pixels take the level of their neighbours.
-    """
-    r = max(1, int(round(reach_px)))
-    far = ~(cv2.dilate(body.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0)
-    far &= ~exclude
-    vals = np.where(far, ts, np.nan)
-    enough = far.sum(axis=0) >= 8
-    if not enough.any():
-        return np.zeros(ts.shape[1], np.float32), 0.0
-    level = np.full(ts.shape[1], np.nan)
-    level[enough] = np.nanmedian(vals[:, enough], axis=0)
-    x = np.arange(ts.shape[1])
-    level = np.interp(x, x[enough], level[enough])
-    sigma = 1.4826 * float(np.nanmedian(np.abs(vals[:, enough] - level[enough][None, :])))
-    return level.astype(np.float32), sigma
-
-
-def tapered_ends(body: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: float, exclude: np.ndarray) -> np.ndarray:
-    """(H, W) bool: ``body`` with each of its ends along the axis (the image rows) redrawn as a tapering end.
-
-    A larva's tail runs out in a thin end whose contrast falls to a fraction of the body's (the pale tail tip), below
-    what the colour model calls specimen: the body kept by the other rules then ends in a cut across the tail, or in
-    the thin dark line of a fin fold seen edge-on, not at the tip; and what the colour model does take there may be
-    joined to something of the lumen beyond (a patch of the lamp's field). Physics that holds for any larva: past
-    the last column where the body is still as tall as its half-height (``reach_px``), an end only tapers — each
-    column's slice is one interval no taller than the previous one's — and it is tissue, so it absorbs: its smoothed
-    contrast ``ts`` stands above the background of its column (:func:`background_level`) by ``PALE_FRACTION`` of
-    the body reference ``ref`` there and by five noise σ. Column by column outward from there, the end spans such
-    pixels from the first to the last within the previous column's span (a slice is one interval: a paler pixel
-    between two of tissue is tissue too); the walk stops where no pixel qualifies or at the frame's edge. Pixels of
-    the largest part of ``body`` past that column outside the spans are not the body. ``exclude`` (H, W) bool: the
-    static scene, never taken.
-    """
-    out = body.copy()
-    _, labels, big = largest_region(body)
-    if not big:
-        return out
-    part = labels == big
-    count = part.sum(axis=0)
-    thick = np.flatnonzero(count >= reach_px)
-    if thick.size == 0:
-        return out
-    level, sigma = background_level(ts, body, exclude, reach_px)
-    w = body.shape[1]
-    ok = ~exclude & (ts - level[None, :] >= 5.0 * sigma)
-    for start, step in ((int(thick[-1]), 1), (int(thick[0]), -1)):
-        rows = np.flatnonzero(part[:, start])
-        lo, hi = int(rows[0]), int(rows[-1])
-        floor = PALE_FRACTION * float(np.median(ref[rows, start]))
-        c = start + step
-        while 0 <= c < w:
-            tissue = np.flatnonzero(ok[lo : hi + 1, c] & (ts[lo : hi + 1, c] - level[c] >= floor))
-            out[:, c] &= ~part[:, c]
-            if tissue.size == 0:
-                break
-            lo, hi = lo + int(tissue[0]), lo + int(tissue[-1])
-            out[lo : hi + 1, c] = True
-            c += step
-        far = np.arange(w) * step > c * step  # past where the walk stopped
-        out[:, far] &= ~part[:, far]
-    return out
