@@ -25,6 +25,10 @@ encloses** is added back (:func:`enclosed_pale_tissue`): the kept body's outline
 than its half-height, and what the closing adds is body where its contrast reaches a tenth of the body
 reference (the hand-made outlines of two larvae sit at t ≈ 0.1–0.2 there). A fin fold reaches out from the
 outline, not into a gap of it, and stays out; so does a region whose contrast is a noise-level fraction.
+Where the pale tip is not a gap but the whole end (the colour model keeps none of it, or only fragments), the
+**ends taper** (:func:`tapered_ends`): past the body's last column as tall as its half-height each end is walked
+outward, one interval a column, never taller, over tissue whose contrast stands above the lumen around it by a tenth
+of the body reference and five noise σ.
 
 ``reach`` is the body's own scale: the median half-height of the specimen over the columns where
 it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
