@@ -62,7 +62,9 @@ def half_contrast_edges(
     darker than its mean (ZF1: t ≈ 1.5 three pixels inside the hand-made outline). The physical edge is
     where the contrast is half the plateau. The plateau of each boundary pixel is the mean contrast
     of the silhouette's pixels ``band_px`` to ``band_px + plateau_px`` deep within ``band_px +
-    plateau_px`` of it (the global 1 where there are none, e.g. at a thin tip); pixels within
+    plateau_px`` of it. Where there are none — a part of the silhouette thinner than twice ``band_px``, such as a
+    tail's tip — the plateau is the nearest one measured: the thin part continues the structure beside it (a pale
+    tip keeps the pale tail's plateau, not the specimen's mean; 1 when the view has no plateau at all). Pixels within
     ``band_px`` of the boundary whose contrast ``t`` is below half their plateau are set to 0.
     Deeper pale parts of the specimen (a clear fin inside the outline) are kept.
 
@@ -95,7 +97,7 @@ def half_contrast_edges(
         ring = ((depth > d0) & (depth <= d0 + plateau_px)).astype(np.float32)
         total = cv2.boxFilter(ring * tt, -1, box, normalize=False, borderType=cv2.BORDER_CONSTANT)
         count = cv2.boxFilter(ring, -1, box, normalize=False, borderType=cv2.BORDER_CONSTANT)
-        plateau = np.clip(np.where(count > 0.5, total / np.maximum(count, 1.0), 1.0), 0.2, 3.0)
+        plateau = np.clip(_nearest_where(total / np.maximum(count, 1.0), count > 0.5), 0.2, 3.0)
         rim = (inside > 0) & (depth <= band_px)
         if not soft:
             p[rim & (tt < 0.5 * plateau)] = 0.0
@@ -108,3 +110,17 @@ def half_contrast_edges(
         frac = np.clip(tt / np.where(outer, np.maximum(num, 0.2), plateau), 0.0, 1.0).astype(np.float32)
         p[rim | outer] = frac[rim | outer]
     return out
+
+
+def _nearest_where(values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """``values`` (H, W) float32 where ``known`` (H, W) bool, elsewhere the value of the nearest known pixel
+    (Euclidean distance); 1 everywhere when no pixel is known."""
+    if not known.any():
+        return np.ones(values.shape, np.float32)
+    if known.all():
+        return values.astype(np.float32)
+    _, lab = cv2.distanceTransformWithLabels((~known).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    ys, xs = np.nonzero(known)  # row-major: the order in which the labels number the known pixels
+    table = np.zeros(lab.max() + 1, np.float32)
+    table[1 : ys.size + 1] = values[ys, xs]
+    return table[lab]

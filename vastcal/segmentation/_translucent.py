@@ -25,6 +25,10 @@ encloses** is added back (:func:`enclosed_pale_tissue`): the kept body's outline
 than its half-height, and what the closing adds is body where its contrast reaches a tenth of the body
 reference (the hand-made outlines of two larvae sit at t ≈ 0.1–0.2 there). A fin fold reaches out from the
 outline, not into a gap of it, and stays out; so does a region whose contrast is a noise-level fraction.
+Where the pale tip is not a gap but the whole end (the colour model keeps none of it, or only fragments), the
+**ends taper** (:func:`tapered_ends`): past the body's last column as tall as its half-height each end is walked
+outward, one interval a column, never taller, over tissue whose contrast stands above the lumen around it by a tenth
+of the body reference and five noise σ.
 
 ``reach`` is the body's own scale: the median half-height of the specimen over the columns where
 it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
@@ -157,6 +161,11 @@ def drop_translucent(
         dropped += int(gone.sum())
         p[gone] = 0.0
         pale = enclosed_pale_tissue(keep, ts, ref, reach)  # a sheet dropped just above may be a gap of the rim
+        body = tapered_ends(keep | pale, ts, ref, reach, base > 0)
+        cut = inside & keep & ~body
+        dropped += int(cut.sum())
+        p[cut] = 0.0
+        pale = body & ~keep
         if flat_n is not None:
             pale &= ~flat_n[k]
         added += int(pale.sum())
@@ -205,3 +214,77 @@ def enclosed_pale_tissue(keep: np.ndarray, ts: np.ndarray, ref: np.ndarray, reac
     closed = cv2.morphologyEx(cv2.copyMakeBorder(k8, r, r, r, r, cv2.BORDER_CONSTANT, 0), cv2.MORPH_CLOSE, disc)
     bridge = (closed[r:-r, r:-r] > 0) & ~keep
     return bridge & (ts >= PALE_FRACTION * ref) & (ref > 0)
+
+
+def background_level(
+    ts: np.ndarray, body: np.ndarray, exclude: np.ndarray, reach_px: float
+) -> tuple[np.ndarray, float]:
+    """(H, W) the background's smoothed contrast around every pixel, and its noise σ (same units).
+
+    The background is what ``ts`` (H, W) shows farther than ``reach_px`` from ``body`` (H, W) bool, outside
+    ``exclude`` (H, W) bool (the static scene: walls and their shadows) and on the body's side of it (the lumen the
+    body lies in; beyond the walls the glass and the room are brighter), averaged with Gaussian weights of σ = 2 ×
+    ``reach_px`` around each pixel: it follows the slow changes of the lamp's field (a brighter or darker patch of
+    the lumen) that the flattening of the colour features leaves. σ is 1.4826 × the median absolute deviation of
+    those pixels from that level. No such pixel: level 0, σ 0.
+    """
+    r = max(1, int(round(reach_px)))
+    far = ~(cv2.dilate(body.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0)
+    _, lab = cv2.connectedComponents((~exclude).astype(np.uint8), connectivity=4)
+    inner = np.bincount(lab[body & ~exclude], minlength=1)
+    if inner.size > 1 and inner[1:].any():
+        far &= lab == 1 + int(np.argmax(inner[1:]))  # the lumen the body lies in, not the room beyond the walls
+    far &= ~exclude
+    if far.sum() < 8:
+        return np.zeros(ts.shape, np.float32), 0.0
+    weight = cv2.GaussianBlur(far.astype(np.float32), (0, 0), 2.0 * r)
+    level = cv2.GaussianBlur(np.where(far, ts, 0.0).astype(np.float32), (0, 0), 2.0 * r) / np.maximum(weight, 1e-6)
+    sigma = 1.4826 * float(np.median(np.abs(ts[far] - level[far])))
+    return level.astype(np.float32), sigma
+
+
+def tapered_ends(body: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: float, exclude: np.ndarray) -> np.ndarray:
+    """(H, W) bool: ``body`` with each of its ends along the axis (the image rows) redrawn as a tapering end.
+
+    A larva's tail runs out in a thin end whose contrast falls to a fraction of the body's (the pale tail tip), below
+    what the colour model calls specimen: the body kept by the other rules then ends in a cut across the tail, or in
+    the thin dark line of a fin fold seen edge-on, not at the tip; and what the colour model does take there may be
+    joined to something of the lumen beyond (a patch of the lamp's field). Physics that holds for any larva: past
+    the last column where the body is still as tall as its half-height (``reach_px``), an end only tapers — each
+    column's slice is one interval no taller than the previous one's — and it is tissue, so it absorbs: its smoothed
+    contrast ``ts`` stands above the background around it (:func:`background_level`) by ``PALE_FRACTION`` of
+    the body reference ``ref`` there and by five noise σ. Column by column outward from there, the end spans such
+    pixels from the first to the last within the previous column's span (a slice is one interval: a paler pixel
+    between two of tissue is tissue too); the walk stops where no pixel qualifies or at the frame's edge. Past that
+    column, nothing outside the spans is body (a fragment there is debris or the lamp's field). ``exclude`` (H, W)
+    bool: the static scene, where only what ``body`` already holds (a tail against a wall) is taken.
+    """
+    out = body.copy()
+    _, labels, big = largest_region(body)
+    if not big:
+        return out
+    part = labels == big
+    count = part.sum(axis=0)
+    thick = np.flatnonzero(count >= reach_px)
+    if thick.size == 0:
+        return out
+    level, sigma = background_level(ts, body, exclude, reach_px)
+    w = body.shape[1]
+    own = ts - level
+    ok = ~exclude & (own >= 5.0 * sigma)
+    walled = body & exclude  # what the wall rules kept beside a wall (:func:`._static_scene.clear_wall_lines`)
+    for start, step in ((int(thick[-1]), 1), (int(thick[0]), -1)):
+        rows = np.flatnonzero(part[:, start])
+        lo, hi = int(rows[0]), int(rows[-1])
+        floor = PALE_FRACTION * float(np.median(ref[rows, start]))
+        c = start + step
+        while 0 <= c < w:
+            tissue = np.flatnonzero((ok[lo : hi + 1, c] & (own[lo : hi + 1, c] >= floor)) | walled[lo : hi + 1, c])
+            out[:, c] = False
+            if tissue.size == 0:
+                break
+            lo, hi = lo + int(tissue[0]), lo + int(tissue[-1])
+            out[lo : hi + 1, c] = True
+            c += step
+        out[:, np.arange(w) * step > c * step] = False  # past where the walk stopped
+    return out
