@@ -60,5 +60,3 @@ def test_dino_ring_imports_all_48_views_with_its_true_angles(tmp_path: Path) -> 
     with Session.open(s) as ss:
         assert ss.n_views == 48 and ss.known_cameras is not None
         np.testing.assert_allclose(ss.known_cameras, shift_pixels(P, 0, 0))
-
-
