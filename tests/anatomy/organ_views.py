@@ -3,10 +3,15 @@ small session of them: the truth every tomogram and anatomy test compares with."
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reconstruct"))  # phantom_views (--import-mode=importlib)
+
+from phantom_views import write_views_session  # noqa: E402
 
 from vastcal.simulators.camera.organs import organ_phantom
 from vastcal.simulators.camera.phantom import Phantom
@@ -56,23 +61,6 @@ def truth_attenuation(ph: Phantom, points_um: np.ndarray) -> np.ndarray:
 
 def make_organ_session(path: Path, views: OrganViews) -> Path:
     """A session of the views with their masks and true cameras imported (no calibration needed)."""
-    from vastcal.config import RigConfig, dump_config
-    from vastcal.session import SessionWriter
-
-    n = len(views.frames)
-    with SessionWriter.create(
-        path,
-        frame_shape=views.frames.shape[1:],
-        dtype=np.uint16,
-        rig_yaml=dump_config(RigConfig()),
-        plan={"views": n},
-        live=False,
-        pixel_size_um=(6.0, 6.0),
-        title="organ phantom",
-    ) as w:
-        for i in range(n):
-            w.append_view(views.frames[i], i * 360.0 / n)
-        w.write_masks(views.silhouettes)
-        w.write_cameras(views.P, source="phantom truth")
-        w.finish("success")
-    return path
+    return write_views_session(
+        path, views.frames, masks=views.silhouettes, P=views.P, pixel_um=6.0, title="organ phantom"
+    )

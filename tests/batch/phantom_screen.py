@@ -10,7 +10,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reconstruct"))  # phantom_views (--import-mode=importlib)
 
-from phantom_views import PhantomViews, render_views  # noqa: E402
+from phantom_views import PhantomViews, render_views, write_views_session  # noqa: E402
 
 from vastcal.simulators.camera.phantom import zebrafish_phantom  # noqa: E402
 
@@ -18,31 +18,16 @@ from vastcal.simulators.camera.phantom import zebrafish_phantom  # noqa: E402
 def fast_session(path: Path, views: PhantomViews) -> Path:
     """A 9-view phantom session whose rig config keeps the run short (yaw only free, a 100 k-voxel grid)."""
     from vastcal.config import CalibrationSettings, ReconstructionConfig, RigConfig, dump_config
-    from vastcal.session import SessionWriter
 
     cfg = dataclasses.replace(
         RigConfig(),
         calibration=dataclasses.replace(CalibrationSettings(), free=("yaw",)),
         reconstruction=ReconstructionConfig(target_voxels=100_000),
     )
-    n = len(views.angles_deg)
     frames = (230 - 150 * views.coverage).astype(np.uint8)
-    with SessionWriter.create(
-        path,
-        frame_shape=frames.shape[1:],
-        dtype=np.uint8,
-        rig_yaml=dump_config(cfg),
-        plan={"views": n},
-        live=False,
-        pixel_size_um=(5.5, 5.5),
-        title="phantom",
-    ) as w:
-        for i in range(n):
-            w.append_view(frames[i], 360.0 * i / n)
-        w.write_masks(views.silhouettes)
-        w.write_cameras(views.P, source="phantom truth")
-        w.finish("success")
-    return path
+    return write_views_session(
+        path, frames, masks=views.silhouettes, P=views.P, pixel_um=5.5, rig_yaml=dump_config(cfg), title="phantom"
+    )
 
 
 def screen(folder: Path, n: int) -> Path:

@@ -13,11 +13,11 @@ import pytest
 from vastcal import cli
 from vastcal.config import ReconstructionConfig, RigConfig, dump_config
 from vastcal.errors import EXIT_CODES, EXIT_QC_FAIL
-from vastcal.session import Session, SessionWriter
+from vastcal.session import Session
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reconstruct"))  # phantom_views (--import-mode=importlib)
 
-from phantom_views import PhantomViews, render_views  # noqa: E402
+from phantom_views import PhantomViews, render_views, write_views_session  # noqa: E402
 
 from vastcal.simulators.camera.phantom import zebrafish_phantom  # noqa: E402
 
@@ -39,22 +39,8 @@ def _session(path: Path, views: PhantomViews, *, blank: int | None = None, borde
         rows = np.flatnonzero(masks[border].any(axis=1))
         cols = np.flatnonzero(masks[border].any(axis=0))
         masks[border, rows[len(rows) // 2] - 2 : rows[len(rows) // 2] + 3, : cols[0]] = True
-    n = len(views.angles_deg)
-    with SessionWriter.create(
-        path,
-        frame_shape=frames.shape[1:],
-        dtype=np.uint8,
-        rig_yaml=dump_config(RigConfig(reconstruction=ReconstructionConfig(target_voxels=200_000))),
-        plan={"views": n},
-        live=False,
-        pixel_size_um=(11.0, 11.0),
-    ) as w:
-        for i in range(n):
-            w.append_view(frames[i], 360.0 * i / n)
-        w.write_masks(masks)
-        w.write_cameras(views.P, source="phantom truth")
-        w.finish("success")
-    return path
+    rig = dump_config(RigConfig(reconstruction=ReconstructionConfig(target_voxels=200_000)))
+    return write_views_session(path, frames, masks=masks, P=views.P, pixel_um=11.0, rig_yaml=rig)
 
 
 def _reconstruct(path: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:

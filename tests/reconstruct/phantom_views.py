@@ -74,6 +74,43 @@ def render_views(
     return PhantomViews(np.array(Ps), cov >= 0.5, cov, angles, phantom)
 
 
+def write_views_session(
+    path: Path,
+    frames: np.ndarray,
+    *,
+    masks: np.ndarray | None,
+    P: np.ndarray | None,
+    pixel_um: float,
+    rig_yaml: str | None = None,
+    title: str = "",
+) -> Path:
+    """A finished session of ``frames`` (N, H, W) commanded at evenly spaced angles (view i at 360 · i / N degrees),
+    with ``masks`` imported and ``P`` as the known cameras ("phantom truth") when given; the rig file ``rig_yaml``
+    (default: the default rig), square pixels of ``pixel_um`` µm on the specimen."""
+    from vastcal.config import RigConfig, dump_config
+    from vastcal.session import SessionWriter
+
+    n = len(frames)
+    with SessionWriter.create(
+        path,
+        frame_shape=frames.shape[1:],
+        dtype=frames.dtype,
+        rig_yaml=rig_yaml if rig_yaml is not None else dump_config(RigConfig()),
+        plan={"views": n},
+        live=False,
+        pixel_size_um=(pixel_um, pixel_um),
+        title=title,
+    ) as w:
+        for i in range(n):
+            w.append_view(frames[i], i * 360.0 / n)
+        if masks is not None:
+            w.write_masks(masks)
+        if P is not None:
+            w.write_cameras(P, source="phantom truth")
+        w.finish("success")
+    return path
+
+
 def make_session(
     path: Path, views: PhantomViews, *, masks: bool = True, cameras: bool = True, calibration: bool = False
 ) -> Path:
@@ -82,29 +119,19 @@ def make_session(
     Optionally with imported masks, imported known cameras, and a calibration run in the
     calibration engineer's layout (P, θ, θ0, delta angles, cost trace, attributes; no colour model).
     """
-    from vastcal.config import RigConfig, dump_config
-    from vastcal.session import Session, SessionWriter, write_attrs
+    from vastcal.session import Session, write_attrs
 
     n = len(views.angles_deg)
     frames = (230 - 150 * views.coverage).astype(np.uint8)
     commanded = np.arange(n) * 360.0 / n
-    with SessionWriter.create(
+    write_views_session(
         path,
-        frame_shape=frames.shape[1:],
-        dtype=np.uint8,
-        rig_yaml=dump_config(RigConfig()),
-        plan={"views": n},
-        live=False,
-        pixel_size_um=(5.5, 5.5),
+        frames,
+        masks=views.silhouettes if masks else None,
+        P=views.P if cameras else None,
+        pixel_um=5.5,
         title=f"phantom {views.phantom.name}",
-    ) as w:
-        for i in range(n):
-            w.append_view(frames[i], float(commanded[i]))
-        if masks:
-            w.write_masks(views.silhouettes)
-        if cameras:
-            w.write_cameras(views.P, source="phantom truth")
-        w.finish("success")
+    )
     if calibration:
         with Session.open(path, mode="a") as s:
             g = s.new_result_group("calibration")
