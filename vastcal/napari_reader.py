@@ -36,20 +36,18 @@ log = logging.getLogger(__name__)
 LayerData = tuple[np.ndarray, dict[str, Any], str]
 """A napari layer data tuple: (data, layer keyword arguments, layer type)."""
 
-ANATOMY_GROUP = "/entry/vastcal/anatomy"
-"""Where a session keeps its tomograms (one ``run_NNN`` each)."""
-
 AXIS_LABELS = ("z", "y", "x")
-ORGAN_NAMES = {0: "none", 1: "eye 1", 2: "eye 2", 3: "yolk"}
 
 
 def _has_tomogram(path: Path) -> bool:
     """Whether ``path`` is an HDF5 file with a stored tomogram (cheap: no data read)."""
+    from vastcal.session.schema import VASTCAL
+
     try:
         if not path.is_file() or not h5py.is_hdf5(path):
             return False
         with h5py.File(path, "r", locking=False) as f:
-            g = f.get(ANATOMY_GROUP)
+            g = f.get(f"{VASTCAL}/anatomy")
             return isinstance(g, h5py.Group) and any("tomogram" in g[r] for r in g)
     except OSError:
         return False
@@ -100,7 +98,7 @@ def session_layers(path: str | Path, run: str | None = None) -> list[LayerData]:
         NotASessionError: the file is not a vastcal session.
         MissingStageError: the session holds no tomogram (or no run ``run``).
     """
-    from vastcal.anatomy_session import load_anatomy, load_tomogram
+    from vastcal.anatomy_session import ORGAN_LABELS, load_anatomy, load_tomogram
     from vastcal.errors import MissingStageError
     from vastcal.session import Session
 
@@ -139,7 +137,8 @@ def session_layers(path: str | Path, run: str | None = None) -> list[LayerData]:
         layers.append(
             (_zyx(hull).astype(np.uint8), {**common, "name": "hull", "opacity": 0.15, "metadata": meta}, "labels")
         )
-    organ_features = {"index": list(ORGAN_NAMES), "organ": list(ORGAN_NAMES.values())}
+    names = {0: "none", **{label: organ.replace("_", " ") for organ, label in ORGAN_LABELS.items()}}
+    organ_features = {"index": list(names), "organ": list(names.values())}
     layers.append(
         (
             _zyx(labels),

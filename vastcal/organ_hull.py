@@ -37,7 +37,7 @@ import numpy as np
 from scipy import ndimage
 
 from vastcal.anatomy import K_COVERAGE, Anatomy, Feature
-from vastcal.tomogram import MIN_TRANSMISSION
+from vastcal.tomogram import MIN_TRANSMISSION, background_profile, od_inside
 from vastcal.voxels import VoxelGrid
 
 MARGIN_VOXELS = 6
@@ -71,16 +71,10 @@ def frame_optical_density(frame: np.ndarray, inside: np.ndarray) -> np.ndarray:
     f = np.asarray(frame, np.float32)
     if f.ndim == 3:
         f = f.mean(axis=2, dtype=np.float32)
-    near = ndimage.binary_dilation(inside, iterations=5)
-    cols = np.ma.median(np.ma.masked_array(f, near), axis=0)
-    ok = ~np.ma.getmaskarray(cols)
-    if not ok.any():
+    i0 = background_profile(f, ~ndimage.binary_dilation(inside, iterations=5), min_values=1)
+    if i0 is None:
         return np.zeros_like(f)
-    x = np.arange(f.shape[1])
-    i0 = np.interp(x, x[ok], np.asarray(cols)[ok])
-    i0 = ndimage.gaussian_filter1d(ndimage.median_filter(i0, size=15, mode="nearest"), 4.0, mode="nearest")
-    od = -np.log(np.clip(f / np.maximum(i0[None, :], 1e-6), MIN_TRANSMISSION, 1.0))
-    return np.where(inside, od, 0.0).astype(np.float32)
+    return od_inside(f, i0[None, :], inside)
 
 
 def _project(P: np.ndarray, X: np.ndarray) -> np.ndarray:

@@ -172,20 +172,28 @@ def _model_error(
     return float(np.max(np.linalg.norm(model - true_uv, axis=1)))
 
 
-def _background(intensity: np.ndarray, outside: np.ndarray) -> np.ndarray:
-    """I₀ (n_bins, nx) of one rectified view: per x-slice median of the bins outside, filled and smoothed along x."""
+def background_profile(intensity: np.ndarray, outside: np.ndarray, *, min_values: int = 3) -> np.ndarray | None:
+    """I₀ (nx,) of an image whose columns run across the rotation axis: each column's median of its pixels
+    ``outside`` the specimen (columns with fewer than ``min_values`` filled in along x), median-filtered over 15
+    columns and smoothed (σ 4 columns); None when no column has enough."""
     nx = intensity.shape[1]
     med = np.full(nx, np.nan)
     for i in range(nx):
         vals = intensity[outside[:, i], i]
-        if vals.size >= 3:
+        if vals.size >= min_values:
             med[i] = np.median(vals)
     ok = np.isfinite(med)
     if not ok.any():
-        raise AnalysisError("no background beside the specimen to measure I0 from")
+        return None
     med = np.interp(np.arange(nx), np.flatnonzero(ok), med[ok])
-    med = ndimage.gaussian_filter1d(ndimage.median_filter(med, size=15, mode="nearest"), 4.0, mode="nearest")
-    return np.broadcast_to(med[None, :], intensity.shape)
+    return ndimage.gaussian_filter1d(ndimage.median_filter(med, size=15, mode="nearest"), 4.0, mode="nearest")
+
+
+def od_inside(grey: np.ndarray, i0: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """OD = −ln(I/I₀) (float32, the shape of ``grey``), the transmission clipped to [:data:`MIN_TRANSMISSION`, 1];
+    0 outside ``inside``. ``i0`` broadcasts against ``grey``."""
+    od = -np.log(np.clip(grey / np.maximum(i0, 1e-6), MIN_TRANSMISSION, 1.0))
+    return np.where(inside, od, 0.0).astype(np.float32)
 
 
 def optical_density(
@@ -203,9 +211,10 @@ def optical_density(
     p = cv2.remap(np.asarray(inside_map, np.float32), u, v, cv2.INTER_LINEAR, borderValue=0.0)
     inside = p >= 0.5
     near = ndimage.binary_dilation(inside, structure=np.ones((2 * dilate_bins + 1, 1), bool))
-    I0 = _background(grey, ~near)
-    od = -np.log(np.clip(grey / np.maximum(I0, 1e-6), MIN_TRANSMISSION, 1.0))
-    return np.where(inside, od, 0.0).astype(np.float32)
+    i0 = background_profile(grey, ~near)
+    if i0 is None:
+        raise AnalysisError("no background beside the specimen to measure I0 from")
+    return od_inside(grey, i0[None, :], inside)
 
 
 def sirt(
