@@ -33,9 +33,9 @@ of the body reference and five noise σ.
 ``reach`` is the body's own scale: the median half-height of the specimen over the columns where
 it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
 farther than that from the body is cut off from it and left as a separate part; see
-:mod:`._specimen_parts`). The rule applies only to an absorbing specimen (darker than its
-background); a bright specimen on a dark background (a statue on a turntable) has no such physics
-and its maps are left alone.
+:mod:`._specimen_parts`). The rule applies only to an absorbing specimen (:attr:`.ColourModel.absorbing`:
+in no channel brighter than its background); a specimen that reflects light (a statue on a turntable, an orange toy
+on a blue backdrop) has no such physics and its maps are left alone.
 """
 
 from __future__ import annotations

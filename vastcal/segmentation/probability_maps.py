@@ -11,7 +11,7 @@ things in that map are not the specimen's outline, and :func:`specimen_maps` rem
 3. **The outward bias of the Bayes boundary** — p_f = ½ falls about a pixel outside the physical edge of a
    blurred rim; the rims are moved to half of their local plateau contrast (:mod:`._edges`).
 
-For an absorbing specimen (darker than its background: transmitted light) three more rules apply, each
+For an absorbing specimen (:attr:`.ColourModel.absorbing`: transmitted light) three more rules apply, each
 from physics that holds for any larva:
 
 4. **The capillary's walls** are found as thin static lines, tilted or not, and cleared where the static
@@ -51,11 +51,6 @@ from vastcal.segmentation.colour_models import ColourModel
 log = logging.getLogger(__name__)
 
 
-def absorbing(model: ColourModel) -> bool:
-    """True when the specimen is seen in transmitted light (:attr:`.ColourModel.absorbing`)."""
-    return model.absorbing
-
-
 def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 3.0) -> np.ndarray:
     """The specimen's probability maps (N, H, W) float32.
 
@@ -75,7 +70,7 @@ def specimen_maps(model: ColourModel, images: np.ndarray, *, band_px: float = 3.
     pf = model.log_foreground_probability_of_features(f)
     del f
     np.exp(pf, out=pf)  # the raw posteriors, float32, the stack every rule below clears in place
-    if not (absorbing(model) and pf.ndim == 3):
+    if not (model.absorbing and pf.ndim == 3):
         return half_contrast_edges(specimen_only(pf, copy=False), t, band_px=band_px, copy=False)
     forbid = pf > 0.5  # what the colour model called specimen
     scene = np.zeros(pf.shape[-2:], np.float32)  # the walls' own contrast, where they are
