@@ -37,7 +37,7 @@ import numpy as np
 from scipy import ndimage
 
 from vastcal.anatomy import K_COVERAGE, Anatomy, Feature
-from vastcal.tomogram import MIN_TRANSMISSION, background_profile, od_inside
+from vastcal.tomogram import MIN_TRANSMISSION, background_profile, od_inside, project_points
 from vastcal.voxels import VoxelGrid
 
 MARGIN_VOXELS = 6
@@ -77,11 +77,6 @@ def frame_optical_density(frame: np.ndarray, inside: np.ndarray) -> np.ndarray:
     return od_inside(f, i0[None, :], inside)
 
 
-def _project(P: np.ndarray, X: np.ndarray) -> np.ndarray:
-    h = X @ P[:, :3].T + P[:, 3]
-    return h[:, :2] / h[:, 2:3]
-
-
 def view_region(od: np.ndarray, inside: np.ndarray, footprint: np.ndarray, fraction: float) -> np.ndarray:
     """The organ's dark region in one view (bool, frame shape): module docstring."""
     if not footprint.any():
@@ -99,7 +94,7 @@ def view_region(od: np.ndarray, inside: np.ndarray, footprint: np.ndarray, fract
 
 def _footprint(P: np.ndarray, points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """The convex outline of ``points`` (M, 3) µm projected into a frame of ``shape``, filled."""
-    uv = _project(P, points).astype(np.float32)
+    uv = project_points(P, points).astype(np.float32)
     out = np.zeros(shape, np.uint8)
     cv2.fillConvexPoly(out, np.rint(cv2.convexHull(uv)[:, 0]).astype(np.int32), 1)
     return out.astype(bool)
@@ -132,7 +127,7 @@ def organ_hull(
     for i in range(len(P)):
         h, w = od[i].shape
         dark = view_region(od[i], inside[i], _footprint(P[i], core, (h, w)), fraction)
-        uv = np.rint(_project(P[i], X)).astype(np.int64)
+        uv = np.rint(project_points(P[i], X)).astype(np.int64)
         ok = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
         hit = np.zeros(len(idx), bool)
         hit[ok] = dark[uv[ok, 1], uv[ok, 0]]

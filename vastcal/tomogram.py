@@ -97,7 +97,7 @@ class SliceGeometry:
     model_error_px: float
 
 
-def _project(P: np.ndarray, X: np.ndarray) -> np.ndarray:
+def project_points(P: np.ndarray, X: np.ndarray) -> np.ndarray:
     """(M, 2) pixels of world points X (M, 3) µm through one camera P (3, 4)."""
     h = X @ P[:, :3].T + P[:, 3]
     return h[:, :2] / h[:, 2:3]
@@ -106,7 +106,8 @@ def _project(P: np.ndarray, X: np.ndarray) -> np.ndarray:
 def ray_direction(P: np.ndarray, X0: np.ndarray) -> np.ndarray:
     """Unit world direction along which points near X0 (µm) project to the same pixel (P's linearisation)."""
     eps = 1.0
-    J = np.stack([(_project(P, (X0 + eps * e)[None])[0] - _project(P, X0[None])[0]) / eps for e in np.eye(3)], 1)
+    base = project_points(P, X0[None])[0]
+    J = np.stack([(project_points(P, (X0 + eps * e)[None])[0] - base) / eps for e in np.eye(3)], 1)
     d = np.cross(J[0], J[1])
     return d / np.linalg.norm(d)
 
@@ -140,7 +141,7 @@ def slice_geometry(P: np.ndarray, grid: VoxelGrid, support: np.ndarray) -> Slice
         pts = np.stack(
             np.broadcast_arrays(x[None, :], c[0] + s_bins[:, None] * e[0], c[1] + s_bins[:, None] * e[1]), -1
         )
-        uv = _project(P[i], pts.reshape(-1, 3)).reshape(n_bins, len(x), 2)
+        uv = project_points(P[i], pts.reshape(-1, 3)).reshape(n_bins, len(x), 2)
         u[i], v[i] = uv[..., 0], uv[..., 1]
         err = max(err, _model_error(P[i], grid, support, e, c, h, n_bins, uv))
     A = sparse.csr_matrix(
@@ -164,7 +165,7 @@ def _model_error(
     if len(idx) > 4000:
         idx = idx[np.linspace(0, len(idx) - 1, 4000).astype(np.int64)]
     X = np.asarray(grid.origin, float) + idx * h
-    true_uv = _project(P, X)
+    true_uv = project_points(P, X)
     f = ((X[:, 1:] - c) @ e) / h + 0.5 * (n_bins - 1)
     b0 = np.clip(np.floor(f).astype(np.int64), 0, n_bins - 2)
     w = (f - b0)[:, None]
