@@ -37,13 +37,15 @@ sys.path.insert(0, str(ROOT))  # this tree's vastcal, not an installed one
 
 from vastcal.calibration_session import calibrate_session  # noqa: E402
 from vastcal.config import load_config  # noqa: E402
-from vastcal.geometry import decompose_circular  # noqa: E402
 from vastcal.image_files import read_single  # noqa: E402
-from vastcal.importer import CameraFile, import_folder, read_cameras  # noqa: E402
+from vastcal.importer import CameraFile, import_folder  # noqa: E402
 from vastcal.segmentation import fit_automatic, specimen_maps  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from paper_tables import OFFSET_VIEWS as PERTURBED  # noqa: E402
+from paper_tables import dinosaur_truth, roll_errors  # noqa: E402
+
 DATA = (ROOT / ".." / "shared" / "data" / "vgg_dinosaur").resolve()
-PERTURBED = list(range(10))
 #: A view counts as farther from its truth than it started beyond this (degrees): the cost's own minimum with the
 #: data's silhouettes lies 0.2–0.3° from the truth (docs/calibration.md), so 0.1° is well inside what it can tell.
 FARTHER_DEG = 0.1
@@ -93,8 +95,7 @@ def compare_maps(seed: int) -> None:
 
 def dinosaur_session(out: Path) -> tuple[Path, np.ndarray]:
     """The dinosaur imported with views 0–9 commanded +10° (reused when ``out`` holds it); (session, true rolls°)."""
-    P, _ = read_cameras(DATA / "dinosaur_par.txt", 36)
-    true_rolls = decompose_circular(P).motion.rolls_deg
+    true_rolls = dinosaur_truth()
     s = out / "dino.h5"
     if not s.exists():
         commanded = true_rolls.copy()
@@ -108,14 +109,7 @@ def dinosaur_session(out: Path) -> tuple[Path, np.ndarray]:
             cameras=CameraFile(DATA / "dinosaur_par.txt", 0.0),
             config=load_config(ROOT / "config" / "eth-david.yaml"),
         )
-    return s, np.asarray(true_rolls, float)
-
-
-def table2_errors(theta: np.ndarray, true_rolls: np.ndarray) -> np.ndarray:
-    """Calibrated − true roll per view (degrees), the median over the unperturbed views removed."""
-    err = np.asarray(theta, float)[3:] - true_rolls
-    unperturbed = np.setdiff1d(np.arange(err.size), PERTURBED)
-    return err - np.median(err[unperturbed])
+    return s, true_rolls
 
 
 def _profiles(s: Path, r: object, truth: np.ndarray, views: list[int], seed: int) -> None:
@@ -159,7 +153,7 @@ def main() -> None:
             _, _, theta0, _ = session_camera_model(ss)
         truth = theta0.copy()
         truth[3:] = true_rolls + (theta0[3 + 10] - true_rolls[10])  # the truth in the session's gauge
-        e0 = table2_errors(theta0, true_rolls)
+        e0 = roll_errors(theta0[3:], true_rolls)
         print(
             f"{'seed':>4s} {'mean0-9':>8s} {'max0-9':>7s} {'worst36':>8s} {'view':>4s} {'cost':>9s} {'truth':>9s} "
             f"{'time s':>7s}  converged / why"
@@ -170,7 +164,7 @@ def main() -> None:
                 s, method=a.method, seed=seed, starts=1, score_thetas=[truth], judge_imported_cameras=False
             )
             wall = time.perf_counter() - t
-            e = table2_errors(r.theta_deg, true_rolls)
+            e = roll_errors(r.theta_deg[3:], true_rolls)
             m = np.abs(e[PERTURBED])
             worst = int(np.argmax(np.abs(e)))
             print(
