@@ -48,14 +48,16 @@ def session_anatomy(session: Any, inputs: Any, hull: Any) -> tuple[Tomogram, Ana
     """The tomogram and anatomy of an open session from the inputs and hull of its reconstruction."""
     frames = SessionFrames(session)
     sil = inputs.silhouettes
-    tomo = reconstruct_tomogram(
-        inputs.P, lambda i: frames[i], lambda i: np.asarray(sil[i], np.float32), hull.grid, hull.occupancy
-    )
+
+    def frame(i: int) -> np.ndarray:
+        return frames[i]
+
+    def silhouette(i: int) -> np.ndarray:
+        return np.asarray(sil[i], np.float32)
+
+    tomo = reconstruct_tomogram(inputs.P, frame, silhouette, hull.grid, hull.occupancy)
     anat = measure_anatomy(tomo.attenuation, hull.occupancy, hull.grid, cut_views=frame_edge_views(sil))
-    anat = choose_organ_measures(
-        anat, inputs.P, lambda i: frames[i], lambda i: np.asarray(sil[i], np.float32), hull.grid
-    )
-    return tomo, anat
+    return tomo, choose_organ_measures(anat, inputs.P, frame, silhouette, hull.grid)
 
 
 def organ_labels(anat: Anatomy, shape: tuple[int, ...]) -> np.ndarray:
