@@ -36,8 +36,9 @@ def organ_outline(P: np.ndarray, points_um: np.ndarray, shape: tuple[int, int], 
     """(H, W) float: 1 where the voxel centres ``points_um`` project (each spread over a voxel's footprint)."""
     from scipy import ndimage
 
-    h = points_um @ P[:, :3].T + P[:, 3]
-    uv = np.rint(h[:, :2] / h[:, 2:3]).astype(int)
+    from vastcal.tomogram import project_points
+
+    uv = np.rint(project_points(P, points_um)).astype(int)
     ok = (uv[:, 0] >= 0) & (uv[:, 0] < shape[1]) & (uv[:, 1] >= 0) & (uv[:, 1] < shape[0])
     out = np.zeros(shape, bool)
     out[uv[ok, 1], uv[ok, 0]] = True
