@@ -32,7 +32,7 @@ import numpy as np
 
 from vastcal.calibrate.objective import LevelMaps
 from vastcal.calibrate.sampling import Projector
-from vastcal.calibrate.view_sums import ViewSums
+from vastcal.calibrate.view_sums import ViewSums, voxel_weights
 from vastcal.config import CalibrationSettings
 from vastcal.errors import AnalysisError
 
@@ -71,8 +71,7 @@ class PIObjective:
         self.log_p1 = ViewSums(dens[0] / n, projector)
         self.log_1m_p2 = ViewSums((np.log1p(-np.exp(dens[1].astype(np.float64))) / n).astype(np.float32), projector)
         self.projector = projector
-        w = np.ones(projector.n_voxels, np.float32) if weights is None else np.asarray(weights, np.float32)
-        self.weights = w / max(float(w.sum()), 1.0)
+        self.weights = voxel_weights(projector.n_voxels, weights)
         self.n_evaluations = 0
 
     def log_ratios(self, theta_deg: np.ndarray) -> np.ndarray:
@@ -85,7 +84,7 @@ class PIObjective:
         r = self.log_ratios(theta_deg)
         self.n_evaluations += r.shape[0]
         term = (r > 0).astype(np.float64) if self.form == "voxel_count" else r
-        return -(term @ self.weights.astype(np.float64))
+        return -(term @ self.weights)
 
 
 def pi_objective(level: LevelMaps, settings: CalibrationSettings, *, exact: bool, local_zooms: int) -> PIObjective:

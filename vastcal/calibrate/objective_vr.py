@@ -19,7 +19,7 @@ import numpy as np
 
 from vastcal.calibrate.objective import LevelMaps
 from vastcal.calibrate.sampling import Projector
-from vastcal.calibrate.view_sums import ViewSums
+from vastcal.calibrate.view_sums import ViewSums, voxel_weights
 from vastcal.config import CalibrationSettings
 
 
@@ -39,8 +39,7 @@ class VRObjective:
         inside = np.asarray(silhouettes, np.float32) >= 0.5
         self.outside = ViewSums(np.where(inside, np.float32(0.0), np.float32(-1.0)), projector, "min")
         self.projector = projector
-        w = np.ones(projector.n_voxels, np.float32) if weights is None else np.asarray(weights, np.float32)
-        self.weights = w / max(float(w.sum()), 1.0)
+        self.weights = voxel_weights(projector.n_voxels, weights)
         self.n_evaluations = 0
 
     def __call__(self, theta_deg: np.ndarray) -> np.ndarray:
@@ -48,7 +47,7 @@ class VRObjective:
         th = np.atleast_2d(theta_deg)
         outside = self.outside(th)  # (B, M): −1 when some view is outside
         self.n_evaluations += th.shape[0]
-        return -((outside > -0.5).astype(np.float64) @ self.weights.astype(np.float64))
+        return -((outside > -0.5).astype(np.float64) @ self.weights)
 
 
 def vr_objective(level: LevelMaps, settings: CalibrationSettings, *, exact: bool, local_zooms: int) -> VRObjective:

@@ -69,3 +69,9 @@ class ViewSums:
             return np.repeat(part[None], len(th), axis=0)
         rest = self._read(moving, th)
         return rest + part if self.reduce == "sum" else np.minimum(rest, part)
+
+
+def voxel_weights(n_voxels: int, weights: np.ndarray | None) -> np.ndarray:
+    """(M,) float64 weights of the voxels summing to 1 (``weights``: 1 per voxel, 0 for padding; default all 1)."""
+    w = np.ones(n_voxels, np.float32) if weights is None else np.asarray(weights, np.float32)
+    return (w / max(float(w.sum()), 1.0)).astype(np.float64)
