@@ -33,6 +33,9 @@ log = logging.getLogger(__name__)
 ORGAN_LABELS = {"eye_1": 1, "eye_2": 2, "yolk": 3}
 """Label of each organ in the stored ``organs`` volume."""
 
+ORGAN_NAMES = {label: organ.replace("_", " ") for organ, label in ORGAN_LABELS.items()}
+"""What each label of the ``organs`` volume is called where people look ("eye 1", "eye 2", "yolk")."""
+
 
 def frame_edge_views(silhouettes: Any, margin_px: int = 1) -> list[int]:
     """Views whose silhouette reaches the frame's left or right edge (within ``margin_px``): the body runs out."""

@@ -28,7 +28,6 @@ MIN_LEVEL_VOXELS = 32
 NGFF_VERSION = "0.4"
 """The OME-NGFF version written (zarr format 2): what napari-ome-zarr, Fiji (MoBIE, n5-viewer) and ome-zarr read."""
 
-LABEL_NAMES = {1: "eye 1", 2: "eye 2", 3: "yolk"}
 LABEL_COLOURS = {1: [255, 127, 14, 255], 2: [44, 160, 44, 255], 3: [31, 119, 180, 255]}
 
 AXES = [
@@ -36,6 +35,11 @@ AXES = [
     {"name": "y", "type": "space", "unit": "micrometer"},
     {"name": "x", "type": "space", "unit": "micrometer"},
 ]
+
+
+def zyx(volume_xyz: np.ndarray) -> np.ndarray:
+    """A volume indexed (x, y, z) as a contiguous array indexed (z, y, x): the order OME-Zarr and napari index."""
+    return np.ascontiguousarray(np.transpose(volume_xyz, (2, 1, 0)))
 
 
 def default_output(session: str | Path) -> Path:
@@ -92,13 +96,15 @@ def write_ome_zarr(
         import zarr
     except ImportError:
         raise UserInputError('--ome-zarr needs the zarr package: pip install "vastcal[ome-zarr]"') from None
-    img = np.ascontiguousarray(np.transpose(attenuation_xyz, (2, 1, 0)), np.float32)
+    from vastcal.anatomy_session import ORGAN_NAMES
+
+    img = zyx(np.asarray(attenuation_xyz, np.float32))
     levels = pyramid(img)
     tr = transformations(len(levels), voxel_um, np.asarray(origin_xyz, float)[::-1])
     root = zarr.open_group(str(out), mode="w", zarr_format=2)
     _write_multiscale(root, levels, tr, "tomogram (attenuation, 1/um)")
     if labels_xyz is not None:
-        lab = pyramid(np.ascontiguousarray(np.transpose(labels_xyz, (2, 1, 0))), reduce="max")[: len(levels)]
+        lab = pyramid(zyx(labels_xyz), reduce="max")[: len(levels)]
         labels = root.create_group("labels")
         labels.attrs["labels"] = ["organs"]
         organs = labels.create_group("organs")
@@ -106,7 +112,7 @@ def write_ome_zarr(
         organs.attrs["image-label"] = {
             "version": NGFF_VERSION,
             "colors": [{"label-value": v, "rgba": c} for v, c in LABEL_COLOURS.items()],
-            "properties": [{"label-value": v, "name": n} for v, n in LABEL_NAMES.items()],
+            "properties": [{"label-value": v, "name": n} for v, n in ORGAN_NAMES.items()],
             "source": {"image": "../../"},
         }
 

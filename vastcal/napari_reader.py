@@ -70,10 +70,6 @@ def _napari_at_least(major: int, minor: int) -> bool:
         return False
 
 
-def _zyx(volume_xyz: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(np.transpose(volume_xyz, (2, 1, 0)))
-
-
 def _hull_of(session: Any, anatomy_group: h5py.Group, shape: tuple[int, ...]) -> np.ndarray | None:
     """The visual hull (x, y, z bool) of the reconstruction the tomogram came from, or None."""
     from vastcal.result_groups import load_reconstruction
@@ -98,8 +94,9 @@ def session_layers(path: str | Path, run: str | None = None) -> list[LayerData]:
         NotASessionError: the file is not a vastcal session.
         MissingStageError: the session holds no tomogram (or no run ``run``).
     """
-    from vastcal.anatomy_session import ORGAN_LABELS, load_anatomy, load_tomogram
+    from vastcal.anatomy_session import ORGAN_NAMES, load_anatomy, load_tomogram
     from vastcal.errors import MissingStageError
+    from vastcal.export import zyx
     from vastcal.session import Session
 
     with Session.open(path) as s:
@@ -117,7 +114,7 @@ def session_layers(path: str | Path, run: str | None = None) -> list[LayerData]:
     if _napari_at_least(0, 6):
         common.update(units=["micrometer"] * 3, axis_labels=list(AXIS_LABELS))
     meta = {"session": str(path), "anatomy_run": name, "voxel_size_um": float(grid.size), "anatomy": record}
-    img = _zyx(att)
+    img = zyx(att)
     inside = img[img > 0]
     top = float(np.percentile(inside, 99.9)) if inside.size else 1.0
     layers: list[LayerData] = [
@@ -135,13 +132,13 @@ def session_layers(path: str | Path, run: str | None = None) -> list[LayerData]:
     ]
     if hull is not None:
         layers.append(
-            (_zyx(hull).astype(np.uint8), {**common, "name": "hull", "opacity": 0.15, "metadata": meta}, "labels")
+            (zyx(hull).astype(np.uint8), {**common, "name": "hull", "opacity": 0.15, "metadata": meta}, "labels")
         )
-    names = {0: "none", **{label: organ.replace("_", " ") for organ, label in ORGAN_LABELS.items()}}
+    names = {0: "none", **ORGAN_NAMES}
     organ_features = {"index": list(names), "organ": list(names.values())}
     layers.append(
         (
-            _zyx(labels),
+            zyx(labels),
             {**common, "name": "organs", "opacity": 0.5, "features": organ_features, "metadata": meta},
             "labels",
         )
