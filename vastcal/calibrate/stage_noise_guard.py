@@ -116,16 +116,15 @@ class NoiseGuard:
             th[3 + back] = starts[back]
             fb = float(judge(th[None])[0])
             evals += 1
-            allowed = threshold
-            report.update({"candidates": back.tolist(), "joint_rise": fb - pose.f, "joint_allowed": allowed})
-            if fb - pose.f <= allowed:
+            report.update({"candidates": back.tolist(), "joint_rise": fb - pose.f, "joint_allowed": threshold})
+            if fb - pose.f <= threshold:
                 log.info(
                     "views %s put back at their start: their moves lowered the judged cost by no more than its noise "
                     "(σ %.3g; joint rise %.3g ≤ %.3g)",
                     back.tolist(),
                     sigma,
                     fb - pose.f,
-                    allowed,
+                    threshold,
                 )
                 ctx.extra["held_views"] = back
                 report["put_back"] = back.tolist()
