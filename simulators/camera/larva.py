@@ -14,8 +14,9 @@ What is drawn (each switched by a key of ``simulation:``, see ``config/simulated
   larva, from behind the head along the dorsal midline, round the tail tip (a rounded paddle
   60–160 µm past it) and along the ventral midline back to behind the yolk; its height beyond the
   body rises to H (``fin_fold_height_um``) over 20 % of the length. Beer–Lambert with
-  μ = 0.006–0.012 /µm: seen face-on it transmits exp(−μ t) ≈ 0.93–0.98 (lighter than the body,
-  darker than the background); seen edge-on it is a thin dark line. NOT part of the body.
+  μ = 0.004–0.0075 /µm: seen face-on it transmits exp(−μ t) ≈ 0.94–0.98 (lighter than the body,
+  darker than the background; the real larvae ZF1 and ZF2 absorb 0.017–0.06 of the light there, measured beside
+  the tail in their lateral views); seen edge-on it is a thin dark line. NOT part of the body.
 * **pectoral fins** (``pectoral_fins``): two thin (≈ 10 µm) ellipsoidal paddles behind the head,
   above the front of the yolk, sticking out sideways 70–110 µm, μ = 0.006–0.012 /µm: they stick out of the silhouette
   in dorsal and ventral views. NOT part of the body.
@@ -479,7 +480,7 @@ def draw_specimen(
             ventral_start=float(r.uniform(0.58, 0.66)),
             tail_extension_um=float(r.uniform(60.0, 160.0)),
             thickness_um=float(r.uniform(4.0, 8.0)),
-            attenuation_per_um=float(r.uniform(0.006, 0.012)),
+            attenuation_per_um=float(r.uniform(0.004, 0.0075)),
         )
         features.update(
             fin_fold_height_um=fold.height_um,

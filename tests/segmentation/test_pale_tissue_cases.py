@@ -23,12 +23,6 @@ SCENES = {
 """(simulation overrides, views) of each scene; the battery scene is the battery's own (fin fold, fins, debris,
 bubbles) at its rig file's 21 views. Both are imaged through the simulated rig's capillary (lumen as bright as the
 surroundings, as in the battery's sessions and the real frames)."""
-OBLIQUE_FOLD = pytest.mark.xfail(
-    strict=True,
-    reason="in the battery's scene larva 9's fin fold, seen obliquely, draws two dark lines inside its pale tail tip; "
-    "the half-plateau rim rule measures the plateau on them and cuts the pale tissue outside them: 79 % of the tail's "
-    "last 60 px kept in one view (the others 94-100 %)",
-)
 BAND_CUT = pytest.mark.xfail(
     strict=True,
     reason="the pale band between the dorsal pigment line and the wall (2.7 px deep, 0.33 of the body's contrast) is "
@@ -74,7 +68,7 @@ def _segmented(seed: int, scene: str) -> tuple[SimulatedCamera, np.ndarray, np.n
     scope="module",
     params=[
         pytest.param("clean scene, 8 views", id="clean"),
-        pytest.param("battery scene, 21 views", id="battery", marks=OBLIQUE_FOLD),
+        pytest.param("battery scene, 21 views", id="battery"),
     ],
 )
 def pale_tip(request: pytest.FixtureRequest) -> tuple[SimulatedCamera, np.ndarray, np.ndarray, np.ndarray]:

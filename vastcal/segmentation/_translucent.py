@@ -28,7 +28,10 @@ outline, not into a gap of it, and stays out; so does a region whose contrast is
 Where the pale tip is not a gap but the whole end (the colour model keeps none of it, or only fragments), the
 **ends taper** (:func:`tapered_ends`): past the body's last column as tall as its half-height each end is walked
 outward, one interval a column, never taller, over tissue whose contrast stands above the lumen around it by a tenth
-of the body reference and five noise σ.
+of the body reference and five noise σ, and above the fin fold flanking the tail (:func:`sheet_level`) by five noise
+σ: past the tip the fold is the same sheet, at the same angle, as beside the tail, and it is that sheet's contrast,
+not a fraction of the body's, that a tip must exceed (the rig's larvae: the fold absorbs 2–6 % of the light face-on,
+0.05–0.17 of the tail's contrast; a clear larva's fold can reach a tenth of its body's).
 
 ``reach`` is the body's own scale: the median half-height of the specimen over the columns where
 it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
@@ -161,7 +164,7 @@ def drop_translucent(
         dropped += int(gone.sum())
         p[gone] = 0.0
         pale = enclosed_pale_tissue(keep, ts, ref, reach)  # a sheet dropped just above may be a gap of the rim
-        body = tapered_ends(keep | pale, ts, ref, reach, base > 0)
+        body = tapered_ends(keep | pale, ts, ref, reach, base > 0, band_px)
         cut = inside & keep & ~body
         dropped += int(cut.sum())
         p[cut] = 0.0
@@ -243,7 +246,9 @@ def background_level(
     return level.astype(np.float32), sigma
 
 
-def tapered_ends(body: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: float, exclude: np.ndarray) -> np.ndarray:
+def tapered_ends(
+    body: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: float, exclude: np.ndarray, gap_px: float = 3.0
+) -> np.ndarray:
     """(H, W) bool: ``body`` with each of its ends along the axis (the image rows) redrawn as a tapering end.
 
     A larva's tail runs out in a thin end whose contrast falls to a fraction of the body's (the pale tail tip), below
@@ -253,11 +258,13 @@ def tapered_ends(body: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: fl
     the last column where the body is still as tall as its half-height (``reach_px``), an end only tapers — each
     column's slice is one interval no taller than the previous one's — and it is tissue, so it absorbs: its smoothed
     contrast ``ts`` stands above the background around it (:func:`background_level`) by ``PALE_FRACTION`` of
-    the body reference ``ref`` there and by five noise σ. Column by column outward from there, the end spans such
-    pixels from the first to the last within the previous column's span (a slice is one interval: a paler pixel
-    between two of tissue is tissue too); the walk stops where no pixel qualifies or at the frame's edge. Past that
-    column, nothing outside the spans is body (a fragment there is debris or the lamp's field). ``exclude`` (H, W)
-    bool: the static scene, where only what ``body`` already holds (a tail against a wall) is taken.
+    the body reference ``ref`` there and by five noise σ, and by five noise σ above the fin fold flanking the body's
+    last stretch (:func:`sheet_level`; ``gap_px`` the blurred rim it skips). Column by column outward from there,
+    the end spans such pixels from the first to the last within the previous column's span (a slice is one interval:
+    a paler pixel between two of tissue is tissue too); the walk stops where no pixel qualifies or at the frame's
+    edge. Past that column, nothing outside the spans is body (a fragment there is debris or the lamp's field).
+    ``exclude`` (H, W) bool: the static scene, where only what ``body`` already holds (a tail against a wall) is
+    taken.
     """
     out = body.copy()
     _, labels, big = largest_region(body)
@@ -276,7 +283,8 @@ def tapered_ends(body: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: fl
     for start, step in ((int(thick[-1]), 1), (int(thick[0]), -1)):
         rows = np.flatnonzero(part[:, start])
         lo, hi = int(rows[0]), int(rows[-1])
-        floor = PALE_FRACTION * float(np.median(ref[rows, start]))
+        sheet = sheet_level(own, part, body | exclude, start, step, reach_px, gap_px)
+        floor = max(PALE_FRACTION * float(np.median(ref[rows, start])), sheet + 5.0 * sigma)
         c = start + step
         while 0 <= c < w:
             tissue = np.flatnonzero((ok[lo : hi + 1, c] & (own[lo : hi + 1, c] >= floor)) | walled[lo : hi + 1, c])
@@ -288,3 +296,32 @@ def tapered_ends(body: np.ndarray, ts: np.ndarray, ref: np.ndarray, reach_px: fl
             c += step
         out[:, np.arange(w) * step > c * step] = False  # past where the walk stopped
     return out
+
+
+def sheet_level(
+    own: np.ndarray, part: np.ndarray, taken: np.ndarray, start: int, step: int, reach_px: float, gap_px: float
+) -> float:
+    """The contrast of a fin fold flanking the body's end: the median of ``own`` (H, W) beside the body's last
+    stretch, 0 where no sheet flanks it.
+
+    The strip is ``part``'s (H, W) bool columns from ``start`` back (against ``step``) by twice ``reach_px``, on
+    both sides of each column's slice, from ``gap_px`` (the blurred rim) to ``reach_px`` beyond it, outside
+    ``taken`` (H, W) bool (the body and the static scene). A sheet of uniform thickness seen at one angle has one
+    contrast wherever it is, beside the tail and past its tip alike; seen edge-on it is a line within the rim and the
+    strip shows the lumen (level 0).
+    """
+    h = part.shape[0]
+    g, r = int(np.ceil(gap_px)), max(int(np.ceil(gap_px)) + 1, int(round(reach_px)))
+    strip = np.zeros(part.shape, bool)
+    for c in range(start, start - step * int(round(2 * reach_px)), -step):
+        if not 0 <= c < part.shape[1]:
+            break
+        rows = np.flatnonzero(part[:, c])
+        if rows.size == 0:
+            continue
+        strip[max(0, rows[0] - r) : max(0, rows[0] - g), c] = True
+        strip[min(h, rows[-1] + g + 1) : min(h, rows[-1] + r + 1), c] = True
+    strip &= ~taken
+    if strip.sum() < 8:
+        return 0.0
+    return max(0.0, float(np.median(own[strip])))
