@@ -16,6 +16,9 @@ inference as its authors coded it: the share of a voxel grid whose colour densit
   colour model.
 * ``--mask-view V``: the colour model from view V's silhouette by that rule, given as a user's ``calibrate --mask``
   (everything outside it, the turntable included, marked background).
+* ``--every K``: a sparse ring — every K-th view of the set (dinoRing: of its first 47, the 48th repeating the 2nd;
+  ``--every 3`` gives 16 views 23° apart, as Middlebury's sparse ring), with a third of them, every other one from
+  view 1, offset +10°.
 * ``--start-at-truth``: the same runs with the commanded angles at the truth (no offset views): a search that finds its
   cost's minimum stays within 0.1° mean unless that minimum is not at the truth (compare the cost columns).
 * ``--fixed-unperturbed``: the paper's protocol — the views that are not offset keep their (true) commanded rolls
@@ -28,7 +31,7 @@ level's batch-independent cost), printed beside the final cost. Usage (CPU-heavy
 CPU per start, dinoRing several):
 
     python benchmarks/compare_methods.py [--data zf,david,dino] [--methods coherence,pi,vr] [--seeds 0] [--starts 1]
-        [--start-at-truth] [--threshold-masks] [--mask-view V] [--fixed-unperturbed]
+        [--start-at-truth] [--threshold-masks] [--mask-view V] [--fixed-unperturbed] [--every K]
 """
 
 from __future__ import annotations
@@ -70,6 +73,26 @@ def _truth_session(
     s = tmp / f"{name}.h5"
     import_folder(image_folder or folder, s, angles=angles, cameras=CameraFile(cameras, pixel_origin, unit))
     return s, true_rolls
+
+
+def sparse_ring(name: str, every: int, out: Path) -> tuple[Path, Path, int]:
+    """Every ``every``-th view of a ground-truth set linked into ``out`` with its cameras; returns (image folder,
+    camera file or folder, number of views)."""
+    out.mkdir(parents=True, exist_ok=True)
+    if name == "david":
+        keep = sorted((DATA / "eth_david").glob("david_*.jpg"))[::every]
+        for f in keep:
+            for g in (f, f.with_suffix(".pa")):
+                (out / g.name).symlink_to(g)
+        return out, out, len(keep)
+    src = DATA / "middlebury_dinoRing"
+    lines = (src / "dinoR_par.txt").read_text().splitlines()[1:48]  # the 48th view repeats the 2nd
+    picked = lines[::every]
+    for line in picked:
+        name_ = line.split()[0]
+        (out / name_).symlink_to(src / name_)
+    (out / "dinoR_par.txt").write_text("\n".join([str(len(picked)), *picked]) + "\n")
+    return out, out / "dinoR_par.txt", len(picked)
 
 
 def threshold_mask_images(src: Path, out: Path, pattern: str, keep: str) -> Path:
@@ -200,27 +223,26 @@ def run_truth_set(
     threshold_masks: bool = False,
     fixed_unperturbed: bool = False,
     mask_view: int | None = None,
+    every: int = 1,
 ) -> None:
     offset = OFFSET_VIEWS[name]
-    images = (
-        sorted((DATA / "eth_david").glob("david_*.jpg"))
-        if name == "david"
-        else sorted((DATA / "middlebury_dinoRing").glob("dinoR0*.png"))
-    )
+    source = DATA / ("eth_david" if name == "david" else "middlebury_dinoRing")
+    pattern = "david_*.jpg" if name == "david" else "dinoR0*.png"
+    n = 18 if name == "david" else 48  # all 48 views: the 48th is the 2nd camera photographed again, a turn later
+    if every > 1:
+        source, _, n = sparse_ring(name, every, tmp / f"{name}_every{every}")
+        offset = list(range(1, n, 2))[: n // 3]
+    images = sorted(source.glob(pattern))
     mask = None if mask_view is None else (mask_view, threshold_mask(images[mask_view]))
+    folder = source
+    if threshold_masks:
+        keep = "david_*.pa" if name == "david" else "dinoR_*.txt"
+        folder = threshold_mask_images(source, tmp / "masks", pattern, keep)
     if name == "david":
-        folder = (
-            threshold_mask_images(DATA / "eth_david", tmp / "masks", "david_*.jpg", "david_*.pa")
-            if threshold_masks
-            else DATA / "eth_david"
-        )
-        s, true_rolls = _truth_session(tmp, name, folder, folder, 18, [] if at_truth else offset, 0.5, None)
-    else:  # all 48 views: the 48th is the 2nd camera photographed again (365°, a turn later)
-        folder = DATA / "middlebury_dinoRing"
-        if threshold_masks:
-            folder = threshold_mask_images(folder, tmp / "masks", "dinoR0*.png", "dinoR_*.txt")
+        s, true_rolls = _truth_session(tmp, name, folder, folder, n, [] if at_truth else offset, 0.5, None)
+    else:
         s, true_rolls = _truth_session(
-            tmp, name, folder, folder / "dinoR_par.txt", 48, [] if at_truth else offset, 0.0, "m"
+            tmp, name, folder, folder / "dinoR_par.txt", n, [] if at_truth else offset, 0.0, "m"
         )
     fixed = [v for v in range(len(true_rolls)) if v not in offset] if fixed_unperturbed else []
     from vastcal.calibration_session import session_camera_model
@@ -354,6 +376,7 @@ def main() -> None:
     ap.add_argument(
         "--fixed-unperturbed", action="store_true", help="the paper's protocol: only the offset views' rolls free"
     )
+    ap.add_argument("--every", type=int, default=1, help="a sparse ring: every K-th view of the set (module docstring)")
     a = ap.parse_args()
     methods = a.methods.split(",")
     seeds = [int(x) for x in a.seeds.split(",")]
@@ -372,6 +395,7 @@ def main() -> None:
                     a.threshold_masks,
                     a.fixed_unperturbed,
                     a.mask_view,
+                    a.every,
                 )
 
 
