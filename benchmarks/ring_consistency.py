@@ -8,8 +8,8 @@ edge (the frame's border replicated), and left out of the table.
 
 Silhouettes, ``--masks``:
 
-* ``threshold`` — brightest channel > 0.19 of full scale, the largest region (Middlebury's threshold, as
-  ``compare_methods.py --threshold-masks``);
+* ``threshold`` — the silhouettes of ``compare_methods.py --threshold-masks`` (brightest channel > 0.19 of full
+  scale, Middlebury's threshold; the largest region, closed by 5 px);
 * ``recipe`` — the data README's own recipe for a conservative hull: that threshold, dilated by 10 px, eroded by 7
   (dark shadows on the object notch the thresholded silhouettes; the closing fills them, and the hull is 3 px fat).
 
@@ -26,7 +26,9 @@ import cv2
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO)]  # this checkout's vastcal first
+sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]  # this checkout's vastcal first
+from compare_methods import threshold_mask  # noqa: E402
+
 from vastcal.hull import choose_grid, visual_hull_in_grid  # noqa: E402
 from vastcal.importer import read_cameras  # noqa: E402
 
@@ -37,10 +39,11 @@ PAD = 400
 
 def silhouette(image: Path, recipe: bool) -> np.ndarray:
     """(H, W) uint8 0/1 silhouette of one view (module docstring)."""
+    if not recipe:
+        return threshold_mask(image)
     m = (cv2.imread(str(image)).max(axis=-1) > 0.19 * 255).astype(np.uint8)
-    if recipe:
-        m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
-        m = cv2.erode(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (15, 15)))
+    m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
+    m = cv2.erode(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (15, 15)))
     _, labels, stats, _ = cv2.connectedComponentsWithStats(m)
     return (labels == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8)
 
