@@ -30,8 +30,8 @@ Where the pale tip is not a gap but the whole end (the colour model keeps none o
 outward, one interval a column, never taller, over tissue whose contrast stands above the lumen around it by a tenth
 of the body reference and five noise σ, and above the fin fold flanking the tail (:func:`sheet_level`) by five noise
 σ: past the tip the fold is the same sheet, at the same angle, as beside the tail, and it is that sheet's contrast,
-not a fraction of the body's, that a tip must exceed (the rig's larvae: the fold absorbs 2–6 % of the light face-on,
-0.05–0.17 of the tail's contrast; a clear larva's fold can reach a tenth of its body's).
+not a fraction of the body's, that a tip must exceed (a clear larva's fold can reach a tenth of its body's contrast;
+the measurements are in docs/decisions/0024).
 
 ``reach`` is the body's own scale: the median half-height of the specimen over the columns where
 it is, measured in the maps (a fin is judged against the body it grows from, and a fin reaching
