@@ -75,16 +75,16 @@ def _truth_session(
     return s, true_rolls
 
 
-def sparse_ring(name: str, every: int, out: Path) -> tuple[Path, Path, int]:
-    """Every ``every``-th view of a ground-truth set linked into ``out`` with its cameras; returns (image folder,
-    camera file or folder, number of views)."""
+def sparse_ring(name: str, every: int, out: Path) -> tuple[Path, int]:
+    """Every ``every``-th view of a ground-truth set linked into ``out`` with its cameras (the set's own file names);
+    returns (that folder, number of views)."""
     out.mkdir(parents=True, exist_ok=True)
     if name == "david":
         keep = sorted((DATA / "eth_david").glob("david_*.jpg"))[::every]
         for f in keep:
             for g in (f, f.with_suffix(".pa")):
                 (out / g.name).symlink_to(g)
-        return out, out, len(keep)
+        return out, len(keep)
     src = DATA / "middlebury_dinoRing"
     lines = (src / "dinoR_par.txt").read_text().splitlines()[1:48]  # the 48th view repeats the 2nd
     picked = lines[::every]
@@ -92,7 +92,7 @@ def sparse_ring(name: str, every: int, out: Path) -> tuple[Path, Path, int]:
         name_ = line.split()[0]
         (out / name_).symlink_to(src / name_)
     (out / "dinoR_par.txt").write_text("\n".join([str(len(picked)), *picked]) + "\n")
-    return out, out / "dinoR_par.txt", len(picked)
+    return out, len(picked)
 
 
 def threshold_mask_images(src: Path, out: Path, pattern: str, keep: str) -> Path:
@@ -230,7 +230,7 @@ def run_truth_set(
     pattern = "david_*.jpg" if name == "david" else "dinoR0*.png"
     n = 18 if name == "david" else 48  # all 48 views: the 48th is the 2nd camera photographed again, a turn later
     if every > 1:
-        source, _, n = sparse_ring(name, every, tmp / f"{name}_every{every}")
+        source, n = sparse_ring(name, every, tmp / f"{name}_every{every}")
         offset = list(range(1, n, 2))[: n // 3]
     images = sorted(source.glob(pattern))
     mask = None if mask_view is None else (mask_view, threshold_mask(images[mask_view]))
